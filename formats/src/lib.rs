@@ -1,0 +1,1 @@
+//! crokf model file.
