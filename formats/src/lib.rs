@@ -1,1 +1,287 @@
-//! crokf model file.
+//! The crokf model file: types, validation and the versioned, hashed encoding.
+//!
+//! Layout (all integers little-endian; see `docs/model-format.md`):
+//!
+//! | offset | size | content                                   |
+//! |-------:|-----:|-------------------------------------------|
+//! | 0      | 8    | magic `b"CROKF\0\r\n"`                    |
+//! | 8      | 4    | format version, u32 (= [`FORMAT_VERSION`]) |
+//! | 12     | 8    | payload length L, u64                     |
+//! | 20     | 32   | SHA-256 of the payload                    |
+//! | 52     | L    | payload: MessagePack of [`Model`], named fields |
+//!
+//! Encoding is deterministic: the same [`Model`] always gives the same bytes.
+
+mod matrix;
+mod model;
+mod validate;
+
+pub use matrix::Matrix;
+pub use model::{
+    component_label, CompileReport, InputChannel, InputKind, InputsDigest, KalmanGains,
+    KalmanPhase, LoadGroup, MeasurementChannel, Model, NodeSet, SensorInfo,
+};
+
+use sha2::{Digest, Sha256};
+
+/// File magic, 8 bytes.
+pub const MAGIC: [u8; 8] = *b"CROKF\0\r\n";
+/// The format version this crate writes and the newest it reads.
+pub const FORMAT_VERSION: u32 = 1;
+/// Header length in bytes (magic + version + payload length + SHA-256).
+pub const HEADER_LEN: usize = 8 + 4 + 8 + 32;
+
+/// Why a byte string is not a valid model file. Never a panic, on any input.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FormatError {
+    /// Shorter than the fixed header.
+    #[error("model file too short: {len} bytes, the header alone is {HEADER_LEN} bytes")]
+    TooShort {
+        /// Length of the input.
+        len: usize,
+    },
+    /// The first 8 bytes are not [`MAGIC`].
+    #[error("not a crokf model file: magic bytes {found:02x?}, expected {MAGIC:02x?}")]
+    BadMagic {
+        /// The first 8 bytes.
+        found: [u8; 8],
+    },
+    /// Written by a newer (or unknown) format version.
+    #[error("model file format version {found} is not supported (this build reads versions 1..={supported})")]
+    UnsupportedVersion {
+        /// Version in the file.
+        found: u32,
+        /// Newest version this build reads.
+        supported: u32,
+    },
+    /// The payload is shorter than the header says.
+    #[error("model file truncated: header announces {expected} payload bytes, {found} present")]
+    Truncated {
+        /// Payload length from the header.
+        expected: u64,
+        /// Bytes present after the header.
+        found: u64,
+    },
+    /// Bytes after the payload.
+    #[error("model file has {extra} unexpected bytes after the {expected}-byte payload")]
+    TrailingBytes {
+        /// Payload length from the header.
+        expected: u64,
+        /// Extra bytes.
+        extra: u64,
+    },
+    /// The payload does not hash to the header's SHA-256.
+    #[error("model file corrupted: payload SHA-256 is {found}, header says {expected}")]
+    HashMismatch {
+        /// Hex digest from the header.
+        expected: String,
+        /// Hex digest of the payload.
+        found: String,
+    },
+    /// The payload is not a MessagePack [`Model`].
+    #[error("model payload is not a valid crokf model (MessagePack): {0}")]
+    MessagePack(String),
+    /// A matrix's data length does not match its declared shape.
+    #[error("{matrix}: declared {rows}×{cols} but holds {len} values")]
+    DataLength {
+        /// Path of the matrix, e.g. `sensors[0] 'tip'.displacement_rows`.
+        matrix: String,
+        /// Declared rows.
+        rows: u32,
+        /// Declared columns.
+        cols: u32,
+        /// Number of f64 values present.
+        len: usize,
+    },
+    /// A matrix has the wrong shape for its role.
+    #[error("{matrix}: expected {expected_rows}×{expected_cols}, found {rows}×{cols}")]
+    Shape {
+        /// Path of the matrix.
+        matrix: String,
+        /// Required rows.
+        expected_rows: u64,
+        /// Required columns.
+        expected_cols: u64,
+        /// Declared rows.
+        rows: u32,
+        /// Declared columns.
+        cols: u32,
+    },
+    /// NaN or infinity in a matrix or a numeric field.
+    #[error("{matrix}: non-finite value {value} at ({row}, {col})")]
+    NonFinite {
+        /// Path of the matrix or field.
+        matrix: String,
+        /// Row (0 for vectors and scalars).
+        row: usize,
+        /// Column or vector index.
+        col: usize,
+        /// The offending value.
+        value: f64,
+    },
+    /// Any other inconsistency (index out of range, duplicates, non-positive values...).
+    #[error("{path}: {message}")]
+    Invalid {
+        /// Path of the offending field.
+        path: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// Lowercase hex of a byte string.
+pub fn hex(bytes: &[u8]) -> String {
+    const DIGITS: &[u8; 16] = b"0123456789abcdef";
+    let mut s = String::with_capacity(bytes.len() * 2);
+    for b in bytes {
+        s.push(DIGITS[(b >> 4) as usize] as char);
+        s.push(DIGITS[(b & 15) as usize] as char);
+    }
+    s
+}
+
+/// SHA-256 of `bytes`, lowercase hex (for [`InputsDigest`]).
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    hex(&Sha256::digest(bytes))
+}
+
+/// The fixed header of a model file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Header {
+    /// Format version.
+    pub version: u32,
+    /// Payload length in bytes.
+    pub payload_len: u64,
+    /// SHA-256 of the payload.
+    pub payload_sha256: [u8; 32],
+}
+
+impl Header {
+    /// The header of a payload (current version).
+    pub fn for_payload(payload: &[u8]) -> Header {
+        Header {
+            version: FORMAT_VERSION,
+            payload_len: payload.len() as u64,
+            payload_sha256: Sha256::digest(payload).into(),
+        }
+    }
+
+    /// The 52 header bytes.
+    pub fn to_bytes(&self) -> [u8; HEADER_LEN] {
+        let mut h = [0u8; HEADER_LEN];
+        h[0..8].copy_from_slice(&MAGIC);
+        h[8..12].copy_from_slice(&self.version.to_le_bytes());
+        h[12..20].copy_from_slice(&self.payload_len.to_le_bytes());
+        h[20..52].copy_from_slice(&self.payload_sha256);
+        h
+    }
+
+    /// Parses and checks magic and version (not the payload).
+    pub fn parse(bytes: &[u8]) -> Result<Header, FormatError> {
+        if bytes.len() < HEADER_LEN {
+            // A wrong magic is the more useful message when it is already visible.
+            if bytes.len() >= 8 && bytes[..8] != MAGIC {
+                return Err(FormatError::BadMagic {
+                    found: first8(bytes),
+                });
+            }
+            return Err(FormatError::TooShort { len: bytes.len() });
+        }
+        if bytes[..8] != MAGIC {
+            return Err(FormatError::BadMagic {
+                found: first8(bytes),
+            });
+        }
+        let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
+        if version == 0 || version > FORMAT_VERSION {
+            return Err(FormatError::UnsupportedVersion {
+                found: version,
+                supported: FORMAT_VERSION,
+            });
+        }
+        let mut len = [0u8; 8];
+        len.copy_from_slice(&bytes[12..20]);
+        let mut payload_sha256 = [0u8; 32];
+        payload_sha256.copy_from_slice(&bytes[20..52]);
+        Ok(Header {
+            version,
+            payload_len: u64::from_le_bytes(len),
+            payload_sha256,
+        })
+    }
+}
+
+fn first8(bytes: &[u8]) -> [u8; 8] {
+    let mut f = [0u8; 8];
+    f.copy_from_slice(&bytes[..8]);
+    f
+}
+
+/// The MessagePack payload of a model (named fields, deterministic).
+pub fn encode_payload(model: &Model) -> Vec<u8> {
+    // Serialising these plain structs (known-length maps and sequences) into a Vec cannot fail.
+    rmp_serde::to_vec_named(model).expect("MessagePack serialisation of a Model is infallible")
+}
+
+/// Wraps a payload in the header: magic, version, length, SHA-256.
+pub fn wrap_payload(payload: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
+    out.extend_from_slice(&Header::for_payload(payload).to_bytes());
+    out.extend_from_slice(payload);
+    out
+}
+
+/// The complete model file. Deterministic: the same model gives the same bytes.
+///
+/// Does not validate; a producer should call [`Model::validate`] first, since [`decode`] will.
+pub fn encode(model: &Model) -> Vec<u8> {
+    wrap_payload(&encode_payload(model))
+}
+
+/// Reads a model file: checks magic, version, length, SHA-256, the MessagePack structure,
+/// then [`Model::validate`]. Typed errors, never a panic, on any byte string.
+pub fn decode(bytes: &[u8]) -> Result<Model, FormatError> {
+    let header = Header::parse(bytes)?;
+    let present = (bytes.len() - HEADER_LEN) as u64;
+    if present < header.payload_len {
+        return Err(FormatError::Truncated {
+            expected: header.payload_len,
+            found: present,
+        });
+    }
+    if present > header.payload_len {
+        return Err(FormatError::TrailingBytes {
+            expected: header.payload_len,
+            extra: present - header.payload_len,
+        });
+    }
+    let payload = &bytes[HEADER_LEN..];
+    let digest: [u8; 32] = Sha256::digest(payload).into();
+    if digest != header.payload_sha256 {
+        return Err(FormatError::HashMismatch {
+            expected: hex(&header.payload_sha256),
+            found: hex(&digest),
+        });
+    }
+    let model = decode_payload(payload)?;
+    model.validate()?;
+    Ok(model)
+}
+
+/// Deserialises a payload (no header, no validation); rejects trailing bytes.
+pub fn decode_payload(payload: &[u8]) -> Result<Model, FormatError> {
+    use serde::Deserialize;
+    let mut de = rmp_serde::Deserializer::from_read_ref(payload);
+    let model = Model::deserialize(&mut de).map_err(|e| FormatError::MessagePack(e.to_string()))?;
+    // Exactly one value: reading another marker must hit the end of the payload.
+    match serde::de::IgnoredAny::deserialize(&mut de) {
+        Err(rmp_serde::decode::Error::InvalidMarkerRead(e))
+            if e.kind() == std::io::ErrorKind::UnexpectedEof =>
+        {
+            Ok(model)
+        }
+        _ => Err(FormatError::MessagePack(
+            "unexpected data after the model in the payload".into(),
+        )),
+    }
+}
