@@ -110,7 +110,7 @@ impl<'de> Deserialize<'de> for Matrix {
         struct MatrixVisitor;
 
         fn from_bytes<E: de::Error>(rows: u32, cols: u32, bytes: &[u8]) -> Result<Matrix, E> {
-            if bytes.len() % 8 != 0 {
+            if bytes.len() & 7 != 0 {
                 return Err(E::custom(format!(
                     "matrix {rows}×{cols}: data has {} bytes, not a whole number of f64",
                     bytes.len()

@@ -36,10 +36,9 @@ fn check_matrix(path: &str, m: &Matrix, rows: u64, cols: u64) -> Result<(), Form
 /// NaN/inf check; `cols` gives the (row, col) of the first offender (0: treat as a vector).
 fn check_finite(path: &str, data: &[f64], cols: usize) -> Result<(), FormatError> {
     if let Some((k, &value)) = data.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-        let (row, col) = if cols == 0 {
-            (0, k)
-        } else {
-            (k / cols, k % cols)
+        let (row, col) = match (k.checked_div(cols), k.checked_rem(cols)) {
+            (Some(row), Some(col)) => (row, col),
+            _ => (0, k),
         };
         return Err(FormatError::NonFinite {
             matrix: path.to_string(),
