@@ -9,8 +9,10 @@
 //!
 //! See `DESIGN.md` in the shared notes for the equations each module implements.
 
+pub mod corotation;
 pub mod dynamics;
 pub mod fem;
+pub mod generate;
 pub mod kalman;
 pub mod mesh;
 pub mod reduce;

@@ -1,0 +1,112 @@
+//! Structured tetrahedral box meshes, for tests, convergence studies and benchmarks at a chosen
+//! size (a 200k-tetrahedron mesh is generated, not committed).
+//!
+//! The box [0, lx] × [0, ly] × [0, lz] is split into nx × ny × nz cells and every cell into six
+//! tetrahedra along its main diagonal (Kuhn subdivision), which is conforming across cells.
+//! Physical groups: volume `body`; surfaces `xmin` and `xmax` (the end faces, as triangles);
+//! `surface` is not a group: use the display keyword.
+
+use crate::mesh::{Mesh, PhysicalGroup, Tetrahedron, Triangle};
+
+/// A structured box mesh with 6·nx·ny·nz tetrahedra; lengths in mesh units.
+pub fn box_mesh(cells: [usize; 3], lengths: [f64; 3]) -> Mesh {
+    let [nx, ny, nz] = cells;
+    let id = |i: usize, j: usize, k: usize| (k * (ny + 1) + j) * (nx + 1) + i;
+    let mut nodes = Vec::with_capacity((nx + 1) * (ny + 1) * (nz + 1));
+    for k in 0..=nz {
+        for j in 0..=ny {
+            for i in 0..=nx {
+                nodes.push([
+                    lengths[0] * i as f64 / nx as f64,
+                    lengths[1] * j as f64 / ny as f64,
+                    lengths[2] * k as f64 / nz as f64,
+                ]);
+            }
+        }
+    }
+    const PATHS: [[usize; 3]; 6] = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
+    let mut tetrahedra = Vec::with_capacity(6 * nx * ny * nz);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                for path in PATHS {
+                    let mut c = [i, j, k];
+                    let mut t = [id(c[0], c[1], c[2]), 0, 0, 0];
+                    for (s, &axis) in path.iter().enumerate() {
+                        c[axis] += 1;
+                        t[s + 1] = id(c[0], c[1], c[2]);
+                    }
+                    // Orient positively.
+                    let x = t.map(|n| nodes[n]);
+                    let e = |a: usize| [x[a][0] - x[0][0], x[a][1] - x[0][1], x[a][2] - x[0][2]];
+                    let det =
+                        crate::fem::element::dot(e(1), crate::fem::element::cross(e(2), e(3)));
+                    if det < 0.0 {
+                        t.swap(2, 3);
+                    }
+                    tetrahedra.push(Tetrahedron {
+                        tag: tetrahedra.len() as u64 + 1,
+                        nodes: t,
+                    });
+                }
+            }
+        }
+    }
+    let mut triangles = Vec::new();
+    let mut end_group = |i: usize, name: &str, tag: i32, groups: &mut Vec<PhysicalGroup>| {
+        let first = triangles.len();
+        for k in 0..nz {
+            for j in 0..ny {
+                let q = [
+                    id(i, j, k),
+                    id(i, j + 1, k),
+                    id(i, j + 1, k + 1),
+                    id(i, j, k + 1),
+                ];
+                for tri in [[q[0], q[1], q[2]], [q[0], q[2], q[3]]] {
+                    triangles.push(Triangle {
+                        tag: (tetrahedra.len() + triangles.len()) as u64 + 1,
+                        nodes: tri,
+                    });
+                }
+            }
+        }
+        let elements: Vec<usize> = (first..triangles.len()).collect();
+        let mut group_nodes: Vec<usize> =
+            elements.iter().flat_map(|&t| triangles[t].nodes).collect();
+        group_nodes.sort_unstable();
+        group_nodes.dedup();
+        groups.push(PhysicalGroup {
+            dim: 2,
+            tag,
+            name: name.into(),
+            nodes: group_nodes,
+            elements,
+        });
+    };
+    let mut groups = Vec::new();
+    end_group(0, "xmin", 1, &mut groups);
+    end_group(nx, "xmax", 2, &mut groups);
+    groups.push(PhysicalGroup {
+        dim: 3,
+        tag: 3,
+        name: "body".into(),
+        nodes: (0..nodes.len()).collect(),
+        elements: (0..tetrahedra.len()).collect(),
+    });
+    Mesh {
+        source: format!("box_{nx}x{ny}x{nz}").into(),
+        node_tags: (1..=nodes.len() as u64).collect(),
+        nodes,
+        tetrahedra,
+        triangles,
+        groups,
+    }
+}
