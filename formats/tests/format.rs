@@ -1,0 +1,407 @@
+//! Model file encoding: round trip, determinism, and corruption of every kind → typed error.
+
+use crokf_formats::*;
+use std::collections::BTreeMap;
+
+/// Tiny deterministic PRNG (SplitMix64), uniform in [-1, 1).
+struct Rng(u64);
+impl Rng {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    }
+    fn matrix(&mut self, rows: u32, cols: u32) -> Matrix {
+        Matrix::from_fn(rows, cols, |_, _| self.uniform())
+    }
+}
+
+/// r = 4, loads: one group (3 channels) + gravity, 2 sensors (3 + 1 components, the second
+/// every 2 steps → period 2), one displayed node set of 3 nodes.
+fn small_model() -> Model {
+    let mut g = Rng(7);
+    let r = 4u32;
+    let sensors = vec![
+        SensorInfo {
+            name: "tip".into(),
+            position: [1.0, 0.0, 0.5],
+            displacement_rows: g.matrix(3, r),
+            rotation_rows: g.matrix(3, r),
+            components: vec![0, 1, 2],
+            noise_std: 1e-3,
+            every: 1,
+        },
+        SensorInfo {
+            name: "mid".into(),
+            position: [0.5, 0.0, 0.5],
+            displacement_rows: g.matrix(3, r),
+            rotation_rows: g.matrix(3, r),
+            components: vec![2],
+            noise_std: 2e-3,
+            every: 2,
+        },
+    ];
+    let measurements = vec![
+        MeasurementChannel {
+            sensor: 0,
+            component: 0,
+        },
+        MeasurementChannel {
+            sensor: 0,
+            component: 1,
+        },
+        MeasurementChannel {
+            sensor: 0,
+            component: 2,
+        },
+        MeasurementChannel {
+            sensor: 1,
+            component: 2,
+        },
+    ];
+    let phase = |measured: Vec<u32>, g: &mut Rng| KalmanPhase {
+        gain: g.matrix(r, measured.len() as u32),
+        measured,
+        prior_covariance: Matrix::identity(r),
+        posterior_covariance: Matrix::identity(r),
+    };
+    let phases = vec![
+        phase(vec![0, 1, 2, 3], &mut g),
+        phase(vec![0, 1, 2], &mut g),
+    ];
+    let mut transition = g.matrix(r, r);
+    transition.data[2 * 4 + 1] = 12345.678; // a marker the corruption test looks for
+    Model {
+        dt: 1e-3,
+        theta: 1.4,
+        state_dim: r,
+        transition,
+        input: g.matrix(r, 4),
+        inputs: vec![
+            InputChannel {
+                label: "push.x".into(),
+                kind: InputKind::Load {
+                    load: 0,
+                    component: 0,
+                },
+            },
+            InputChannel {
+                label: "push.y".into(),
+                kind: InputKind::Load {
+                    load: 0,
+                    component: 1,
+                },
+            },
+            InputChannel {
+                label: "push.z".into(),
+                kind: InputKind::Load {
+                    load: 0,
+                    component: 2,
+                },
+            },
+            InputChannel {
+                label: "gravity".into(),
+                kind: InputKind::Gravity {
+                    acceleration: [0.0, 0.0, -9.81],
+                },
+            },
+        ],
+        loads: vec![LoadGroup {
+            name: "push".into(),
+            rotation_rows: g.matrix(3, r),
+        }],
+        sensors,
+        measurements,
+        kalman: KalmanGains {
+            period: 2,
+            phases,
+            process_noise: Matrix::identity(r),
+            measurement_variance: vec![1e-6, 1e-6, 1e-6, 4e-6],
+        },
+        node_sets: vec![NodeSet {
+            name: "surface".into(),
+            node_tags: vec![10, 11, 12],
+            rest_positions: g.matrix(3, 3),
+            triangles: vec![[0, 1, 2]],
+            displacement_rows: g.matrix(9, r),
+            rotation_rows: g.matrix(9, r),
+        }],
+        report: CompileReport {
+            hankel_singular_values: vec![3.0, 2.0, 1.0, 0.5, 0.1],
+            error_bound: 0.2,
+            order: r,
+            modes: 6,
+            highest_kept_frequency_hz: 120.0,
+            nyquist_hz: 500.0,
+            spectral_radius: 0.99,
+            riccati_residual: 1e-14,
+            closed_loop_spectral_radius: 0.9,
+            measured_errors: BTreeMap::from([("tip".to_string(), 0.01)]),
+            timings_s: BTreeMap::from([("total".to_string(), 1.5), ("dare".to_string(), 0.1)]),
+            notes: vec!["synthetic".into()],
+        },
+        inputs_digest: InputsDigest {
+            mesh_sha256: sha256_hex(b"mesh"),
+            scene_sha256: sha256_hex(b"scene"),
+            compiler_version: "test".into(),
+        },
+    }
+}
+
+#[test]
+fn round_trip_and_determinism() {
+    let model = small_model();
+    model.validate().unwrap();
+    let bytes = encode(&model);
+    assert_eq!(bytes, encode(&model), "encoding must be deterministic");
+    assert_eq!(&bytes[..8], b"CROKF\0\r\n");
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 1);
+    let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
+    assert_eq!(len as usize, bytes.len() - HEADER_LEN);
+    assert_eq!(hex(&bytes[20..52]), sha256_hex(&bytes[HEADER_LEN..]));
+    let back = decode(&bytes).unwrap();
+    assert_eq!(back, model);
+    assert_eq!(encode(&back), bytes);
+}
+
+#[test]
+fn sha256_known_answer() {
+    // FIPS 180-2 test vector.
+    assert_eq!(
+        sha256_hex(b"abc"),
+        "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+    );
+}
+
+#[test]
+fn measurement_matrix_stacks_sensor_rows() {
+    let model = small_model();
+    let h = model.measurement_matrix();
+    assert_eq!((h.rows, h.cols), (4, 4));
+    assert_eq!(h.row(1), model.sensors[0].displacement_rows.row(1));
+    assert_eq!(h.row(3), model.sensors[1].displacement_rows.row(2));
+    assert_eq!(
+        model.measurement_labels(),
+        ["tip.x", "tip.y", "tip.z", "mid.z"]
+    );
+}
+
+#[test]
+fn every_bit_flip_is_an_error() {
+    let bytes = encode(&small_model());
+    let mut buf = bytes.clone();
+    for i in 0..bytes.len() {
+        for bit in 0..8 {
+            buf[i] ^= 1 << bit;
+            assert!(decode(&buf).is_err(), "flip of byte {i} bit {bit} accepted");
+            buf[i] ^= 1 << bit;
+        }
+    }
+}
+
+#[test]
+fn every_truncation_is_an_error() {
+    let bytes = encode(&small_model());
+    for n in 0..bytes.len() {
+        let err = decode(&bytes[..n]).unwrap_err();
+        if n >= HEADER_LEN {
+            assert!(
+                matches!(err, FormatError::Truncated { found, .. } if found == (n - HEADER_LEN) as u64),
+                "{n}: {err}"
+            );
+        }
+    }
+    let mut longer = bytes.clone();
+    longer.push(0);
+    assert_eq!(
+        decode(&longer),
+        Err(FormatError::TrailingBytes {
+            expected: (bytes.len() - HEADER_LEN) as u64,
+            extra: 1
+        })
+    );
+}
+
+#[test]
+fn newer_version_and_wrong_magic() {
+    let mut bytes = encode(&small_model());
+    bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
+    assert_eq!(
+        decode(&bytes),
+        Err(FormatError::UnsupportedVersion {
+            found: 2,
+            supported: 1
+        })
+    );
+    let mut bytes = encode(&small_model());
+    bytes[0] = b'X';
+    assert!(matches!(decode(&bytes), Err(FormatError::BadMagic { found }) if found[0] == b'X'));
+    assert!(matches!(
+        decode(b"PK\x03\x04 not a model"),
+        Err(FormatError::BadMagic { .. })
+    ));
+    assert_eq!(decode(b"CROKF"), Err(FormatError::TooShort { len: 5 }));
+}
+
+/// Encodes without validation (as a buggy producer would) and decodes.
+fn decode_modified(f: impl FnOnce(&mut Model)) -> FormatError {
+    let mut m = small_model();
+    f(&mut m);
+    decode(&encode(&m)).expect_err("inconsistent model accepted")
+}
+
+#[test]
+fn inconsistent_shapes_are_named() {
+    let e = decode_modified(|m| m.transition = Matrix::zeros(4, 3));
+    assert_eq!(
+        e,
+        FormatError::Shape {
+            matrix: "transition".into(),
+            expected_rows: 4,
+            expected_cols: 4,
+            rows: 4,
+            cols: 3
+        }
+    );
+    let e = decode_modified(|m| {
+        m.transition.data.pop();
+    });
+    assert!(
+        matches!(e, FormatError::DataLength { ref matrix, len: 15, .. } if matrix == "transition"),
+        "{e}"
+    );
+    let e = decode_modified(|m| m.sensors[1].rotation_rows = Matrix::zeros(3, 5));
+    assert!(
+        e.to_string().contains("sensors[1] 'mid'.rotation_rows"),
+        "{e}"
+    );
+    let e = decode_modified(|m| m.kalman.phases[1].gain = Matrix::zeros(4, 4));
+    assert!(e.to_string().contains("kalman.phases[1].gain"), "{e}");
+    let e = decode_modified(|m| m.input = Matrix::zeros(4, 3));
+    assert!(e.to_string().contains("input:"), "{e}");
+    let e = decode_modified(|m| m.node_sets[0].displacement_rows = Matrix::zeros(6, 4));
+    assert!(
+        e.to_string()
+            .contains("node_sets[0] 'surface'.displacement_rows"),
+        "{e}"
+    );
+    let e = decode_modified(|m| m.node_sets[0].triangles.push([0, 1, 3]));
+    assert!(e.to_string().contains("triangles[1]"), "{e}");
+    let e = decode_modified(|m| m.measurements[3].component = 0);
+    assert!(
+        e.to_string().contains("does not measure component 0"),
+        "{e}"
+    );
+    let e = decode_modified(|m| m.kalman.phases[0].measured = vec![0, 2, 1, 3]);
+    assert!(e.to_string().contains("strictly increasing"), "{e}");
+    let e = decode_modified(|m| m.kalman.phases.pop().map(|_| ()).unwrap_or(()));
+    assert!(e.to_string().contains("1 phases for period 2"), "{e}");
+    let e = decode_modified(|m| {
+        m.inputs[1].kind = InputKind::Load {
+            load: 0,
+            component: 0,
+        }
+    });
+    assert!(e.to_string().contains("two input channels"), "{e}");
+    let e = decode_modified(|m| {
+        m.inputs[0].kind = InputKind::Load {
+            load: 1,
+            component: 0,
+        }
+    });
+    assert!(e.to_string().contains("inputs[0] 'push.x'"), "{e}");
+    let e = decode_modified(|m| m.kalman.measurement_variance[2] = 0.0);
+    assert!(e.to_string().contains("measurement_variance[2]"), "{e}");
+    let e = decode_modified(|m| m.sensors[0].every = 0);
+    assert!(e.to_string().contains("sensors[0] 'tip'.every"), "{e}");
+}
+
+#[test]
+fn nan_in_a_matrix_is_named_even_with_a_valid_hash() {
+    let e = decode_modified(|m| m.sensors[1].rotation_rows.data[5] = f64::NAN);
+    assert!(
+        matches!(e, FormatError::NonFinite { ref matrix, row: 1, col: 1, .. } if matrix == "sensors[1] 'mid'.rotation_rows"),
+        "{e}"
+    );
+    // Byte-level: overwrite the marker value inside the payload, then re-hash.
+    let bytes = encode(&small_model());
+    let mut payload = bytes[HEADER_LEN..].to_vec();
+    let marker = 12345.678f64.to_le_bytes();
+    let at = payload
+        .windows(8)
+        .position(|w| w == marker)
+        .expect("marker present");
+    payload[at..at + 8].copy_from_slice(&f64::INFINITY.to_le_bytes());
+    let e = decode(&wrap_payload(&payload)).unwrap_err();
+    assert!(
+        matches!(e, FormatError::NonFinite { ref matrix, row: 2, col: 1, .. } if matrix == "transition"),
+        "{e}"
+    );
+}
+
+#[test]
+fn rehashed_garbage_never_panics() {
+    let bytes = encode(&small_model());
+    let payload = bytes[HEADER_LEN..].to_vec();
+    let mut rng = Rng(99);
+    let mut accepted = 0;
+    for i in 0..payload.len() {
+        for v in [0x00u8, 0xff, 0xc1, 0xdb, (rng.next_u64() & 0xff) as u8] {
+            let mut p = payload.clone();
+            p[i] = v;
+            if decode(&wrap_payload(&p)).is_ok() {
+                accepted += 1;
+            }
+        }
+    }
+    // Some mutations are legitimately valid (a changed matrix entry); most are not.
+    assert!(accepted < payload.len() * 5);
+    // Extra data after the model inside a correctly hashed payload.
+    let mut p = payload.clone();
+    p.push(0xc0);
+    assert!(matches!(
+        decode(&wrap_payload(&p)),
+        Err(FormatError::MessagePack(_))
+    ));
+    // Wrong payload entirely.
+    assert!(matches!(
+        decode(&wrap_payload(&[0x93, 1, 2, 3])),
+        Err(FormatError::MessagePack(_))
+    ));
+}
+
+#[test]
+fn matrix_bytes_not_multiple_of_eight() {
+    // {"rows":1,"cols":1,"data":bin(7 bytes)} by hand.
+    let mut b = vec![0x83, 0xa4];
+    b.extend_from_slice(b"rows");
+    b.push(0x01);
+    b.push(0xa4);
+    b.extend_from_slice(b"cols");
+    b.push(0x01);
+    b.push(0xa4);
+    b.extend_from_slice(b"data");
+    b.extend_from_slice(&[0xc4, 7, 0, 0, 0, 0, 0, 0, 0]);
+    let r: Result<Matrix, _> = rmp_serde::from_slice(&b);
+    assert!(r
+        .unwrap_err()
+        .to_string()
+        .contains("not a whole number of f64"));
+    let at = b.len() - 8;
+    b[at] = 8;
+    b.push(0);
+    let m: Matrix = rmp_serde::from_slice(&b).unwrap();
+    assert_eq!(
+        m,
+        Matrix {
+            rows: 1,
+            cols: 1,
+            data: vec![0.0]
+        }
+    );
+}
