@@ -9,6 +9,7 @@
 //!
 //! See `DESIGN.md` in the shared notes for the equations each module implements.
 
+// pub mod compile; (enabled once reduce lands)
 pub mod corotation;
 pub mod dynamics;
 pub mod fem;
@@ -17,4 +18,5 @@ pub mod kalman;
 pub mod mesh;
 pub mod reduce;
 pub mod reference;
+pub mod report;
 pub mod scene;
