@@ -1,8 +1,21 @@
 //! Tetrahedral meshes read from gmsh files (MSH 4.1 ASCII/binary through mshio, MSH 2.2 ASCII).
 //!
 //! Coordinates are stored as read (mesh units); the scene's unit factor is applied by the caller.
+//!
+//! [`read_mesh`] dispatches on the `$MeshFormat` header:
+//! - MSH 4.1, ASCII or binary: parsed by `mshio`; physical tags come from `$Entities`, names from
+//!   `$PhysicalNames` (read here: mshio skips it; it is ASCII even in binary files). mshio drops
+//!   node tags when they are contiguous; they are then read back from the `$Nodes` section here.
+//! - MSH 2.0–2.2, ASCII: a small reader in this module; the first element tag is the physical
+//!   tag, the second the elementary entity. gmsh writes an element once per physical group it
+//!   belongs to (with a new element number); such copies (same type, entity and nodes) are merged
+//!   and keep the first number.
+//!
+//! Element types 4 (tet4) and 2 (tri3) are kept; 15 (point) and 1 (line2) only contribute nodes
+//! to their groups. Any other type is an error naming it.
 
-use std::path::PathBuf;
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
 
 /// A linear 4-node tetrahedron (gmsh element type 4).
 #[derive(Clone, Debug, PartialEq)]
@@ -65,4 +78,1041 @@ impl Mesh {
     pub fn group_names(&self) -> Vec<String> {
         self.groups.iter().map(|g| g.name.clone()).collect()
     }
+
+    /// Signed volume of tetrahedron `i` (mesh units³):
+    /// V = det[x₁ − x₀, x₂ − x₀, x₃ − x₀] / 6, positive for gmsh's orientation.
+    ///
+    /// Panics if `i` is out of range.
+    pub fn signed_volume(&self, i: usize) -> f64 {
+        let [a, b, c, d] = self.tetrahedra[i].nodes.map(|n| self.nodes[n]);
+        det3(sub(b, a), sub(c, a), sub(d, a)) / 6.0
+    }
+
+    /// Boundary faces of the tetrahedral mesh: the faces that belong to exactly one tetrahedron,
+    /// as node-index triples oriented outward (right-hand normal pointing away from the
+    /// tetrahedron's fourth node, whatever the tetrahedron's own orientation).
+    ///
+    /// Each triple is rotated (orientation kept) to start at its smallest index; the list is
+    /// sorted lexicographically, so the result depends only on the mesh, not on hashing.
+    pub fn surface_triangles(&self) -> Vec<[usize; 3]> {
+        // (opposite vertex, face) for the 4 faces of a tet (0,1,2,3); outward if positive.
+        const FACES: [(usize, [usize; 3]); 4] = [
+            (3, [0, 2, 1]),
+            (2, [0, 1, 3]),
+            (1, [0, 3, 2]),
+            (0, [1, 2, 3]),
+        ];
+        // sorted face -> (number of tets using it, outward face of the first one)
+        let mut faces: HashMap<[usize; 3], (u32, [usize; 3])> =
+            HashMap::with_capacity(2 * self.tetrahedra.len());
+        for t in &self.tetrahedra {
+            for (opposite, f) in FACES {
+                let mut face = f.map(|i| t.nodes[i]);
+                let [p0, p1, p2] = face.map(|n| self.nodes[n]);
+                let normal = cross(sub(p1, p0), sub(p2, p0));
+                let away = sub(self.nodes[t.nodes[opposite]], p0);
+                if dot(normal, away) > 0.0 {
+                    face.swap(1, 2);
+                }
+                let mut key = face;
+                key.sort_unstable();
+                faces
+                    .entry(key)
+                    .and_modify(|e| e.0 += 1)
+                    .or_insert((1, face));
+            }
+        }
+        let mut out: Vec<[usize; 3]> = faces
+            .into_values()
+            .filter(|&(count, _)| count == 1)
+            .map(|(_, f)| {
+                let k = (0..3).min_by_key(|&k| f[k]).unwrap_or(0);
+                [f[k], f[(k + 1) % 3], f[(k + 2) % 3]]
+            })
+            .collect();
+        out.sort_unstable();
+        out
+    }
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn det3(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> f64 {
+    dot(a, cross(b, c))
+}
+
+/// How to get a file crokf can read.
+const CONVERT_HINT: &str =
+    "convert it to MSH 4.1 with gmsh (`gmsh FILE -save -format msh41 -o out.msh`) \
+     or meshio (`meshio convert FILE out.msh --output-format gmsh`)";
+
+/// How to get linear tetrahedra.
+const TET4_HINT: &str =
+    "crokf needs linear tetrahedra (type 4; types 2, 1 and 15 are accepted for groups): \
+     re-mesh with `gmsh model.geo -3 -order 1 -format msh41 -o out.msh` \
+     (hexahedra or prisms: mesh the volume with tetrahedra), or convert with meshio";
+
+fn hint(path: &Path) -> String {
+    CONVERT_HINT.replace("FILE", &path.display().to_string())
+}
+
+/// Errors in reading a gmsh mesh file. Every message names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshError {
+    /// The file could not be read (missing, unreadable).
+    #[error("cannot read mesh file {}: {source}", .path.display())]
+    Io {
+        /// Mesh path.
+        path: PathBuf,
+        /// Underlying error.
+        source: std::io::Error,
+    },
+    /// The file does not start with a gmsh `$MeshFormat` section.
+    #[error("{}: not a gmsh MSH file (expected `$MeshFormat` on the first line, found {found:?}); {}",
+        .path.display(), hint(.path))]
+    NotGmsh {
+        /// Mesh path.
+        path: PathBuf,
+        /// Start of the first line.
+        found: String,
+    },
+    /// A gmsh format version or encoding this reader does not handle.
+    #[error("{}: MSH version {version} {encoding} is not supported (crokf reads MSH 4.1 ASCII or \
+        binary and MSH 2.2 ASCII); {}", .path.display(), hint(.path))]
+    UnsupportedVersion {
+        /// Mesh path.
+        path: PathBuf,
+        /// Version string as found in the header.
+        version: String,
+        /// "ASCII" or "binary".
+        encoding: &'static str,
+    },
+    /// Malformed or truncated content.
+    #[error("{}: {location}: {message}", .path.display())]
+    Syntax {
+        /// Mesh path.
+        path: PathBuf,
+        /// "line N" (ASCII) or "byte N" (binary).
+        location: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// Elements of types other than 4, 2, 1 and 15.
+    #[error("{}: unsupported elements: {}; {TET4_HINT}", .path.display(), describe_types(.found))]
+    UnsupportedElements {
+        /// Mesh path.
+        path: PathBuf,
+        /// (gmsh element type number, count), sorted by type.
+        found: Vec<(u32, usize)>,
+    },
+    /// An element references a node tag that `$Nodes` does not define.
+    #[error("{}: element {element} references node {node}, which is not defined in $Nodes",
+        .path.display())]
+    UnknownNode {
+        /// Mesh path.
+        path: PathBuf,
+        /// gmsh element tag.
+        element: u64,
+        /// Missing gmsh node tag.
+        node: u64,
+    },
+    /// A node tag defined twice.
+    #[error("{}: node {node} is defined twice in $Nodes", .path.display())]
+    DuplicateNode {
+        /// Mesh path.
+        path: PathBuf,
+        /// gmsh node tag.
+        node: u64,
+    },
+    /// No tetrahedra at all (a surface mesh, or a mesh saved without its volume).
+    #[error("{}: the mesh has no linear tetrahedra (gmsh type 4); {TET4_HINT}; if the volume \
+        has physical groups, make sure the volume itself is in one (`Physical Volume`)",
+        .path.display())]
+    NoTetrahedra {
+        /// Mesh path.
+        path: PathBuf,
+    },
+}
+
+/// Short and long name of a gmsh element type.
+pub fn element_type_name(t: u32) -> &'static str {
+    match t {
+        1 => "line2, 2-node line",
+        2 => "tri3, 3-node triangle",
+        3 => "quad4, 4-node quadrangle",
+        4 => "tet4, 4-node tetrahedron",
+        5 => "hex8, 8-node hexahedron",
+        6 => "prism6, 6-node prism",
+        7 => "pyramid5, 5-node pyramid",
+        8 => "line3, 3-node second-order line",
+        9 => "tri6, 6-node second-order triangle",
+        10 => "quad9, 9-node second-order quadrangle",
+        11 => "tet10, 10-node second-order tetrahedron",
+        12 => "hex27, 27-node second-order hexahedron",
+        13 => "prism18, 18-node second-order prism",
+        14 => "pyramid14, 14-node second-order pyramid",
+        15 => "point, 1-node point",
+        16 => "quad8, 8-node second-order quadrangle",
+        17 => "hex20, 20-node second-order hexahedron",
+        18 => "prism15, 15-node second-order prism",
+        19 => "pyramid13, 13-node second-order pyramid",
+        20 => "tri9, 9-node third-order triangle",
+        21 => "tri10, 10-node third-order triangle",
+        26 => "line4, 4-node third-order line",
+        29 => "tet20, 20-node third-order tetrahedron",
+        _ => "higher-order or special element",
+    }
+}
+
+fn describe_types(found: &[(u32, usize)]) -> String {
+    found
+        .iter()
+        .map(|&(t, n)| format!("{n} element(s) of type {t} ({})", element_type_name(t)))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Reads a gmsh mesh: MSH 4.1 (ASCII or binary) or MSH 2.2 (ASCII), chosen by the
+/// `$MeshFormat` header.
+pub fn read_mesh(path: &Path) -> Result<Mesh, MeshError> {
+    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
+        path: path.to_owned(),
+        source,
+    })?;
+    read_mesh_bytes(&bytes, path)
+}
+
+/// Reads a gmsh mesh from its bytes; `path` is recorded in [`Mesh::source`] and in messages.
+pub fn read_mesh_bytes(bytes: &[u8], path: &Path) -> Result<Mesh, MeshError> {
+    let header = parse_header(bytes, path)?;
+    let encoding = if header.binary { "binary" } else { "ASCII" };
+    let unsupported = || MeshError::UnsupportedVersion {
+        path: path.to_owned(),
+        version: header.version.clone(),
+        encoding,
+    };
+    let version: f64 = header.version.parse().map_err(|_| unsupported())?;
+    let raw = if version == 4.1 {
+        read_msh41(bytes, &header, path)?
+    } else if (2.0..3.0).contains(&version) && !header.binary {
+        read_msh2(bytes, path)?
+    } else {
+        return Err(unsupported());
+    };
+    assemble(raw, path)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Header
+
+/// The `$MeshFormat` line: `version file-type data-size`.
+struct Header {
+    version: String,
+    binary: bool,
+    /// Bytes per `size_t` (4 or 8).
+    data_size: usize,
+    /// Binary files: byte order detected from the integer 1 after the header line.
+    big_endian: bool,
+}
+
+fn syntax(path: &Path, location: String, message: impl Into<String>) -> MeshError {
+    MeshError::Syntax {
+        path: path.to_owned(),
+        location,
+        message: message.into(),
+    }
+}
+
+fn parse_header(bytes: &[u8], path: &Path) -> Result<Header, MeshError> {
+    let bom = if bytes.starts_with(b"\xEF\xBB\xBF") {
+        3
+    } else {
+        0
+    };
+    // (line number, start offset, trimmed content) of successive lines.
+    let mut pos = bom;
+    let mut line_no = 0;
+    let mut next_line = || -> Option<(usize, &[u8], usize)> {
+        if pos >= bytes.len() {
+            return None;
+        }
+        let end = bytes[pos..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(bytes.len(), |p| pos + p);
+        let line = bytes[pos..end].trim_ascii();
+        pos = (end + 1).min(bytes.len());
+        line_no += 1;
+        Some((line_no, line, pos))
+    };
+    let first = loop {
+        match next_line() {
+            Some((_, l, _)) if l.is_empty() => {}
+            Some((_, l, _)) => break l,
+            None => return Err(not_gmsh(path, b"")),
+        }
+    };
+    if first != b"$MeshFormat" {
+        if first == b"$NOD" || first == b"$NOE" {
+            return Err(MeshError::UnsupportedVersion {
+                path: path.to_owned(),
+                version: "1.0".into(),
+                encoding: "ASCII",
+            });
+        }
+        return Err(not_gmsh(path, first));
+    }
+    let Some((line, content, after)) = next_line() else {
+        return Err(syntax(
+            path,
+            format!("line {}", line_of(bytes, bytes.len()) + 1),
+            "file ends after `$MeshFormat` (expected `version file-type data-size`)",
+        ));
+    };
+    let text = String::from_utf8_lossy(content).into_owned();
+    let fields: Vec<&str> = text.split_ascii_whitespace().collect();
+    let bad = || {
+        syntax(
+            path,
+            format!("line {line}"),
+            format!("`$MeshFormat` header {text:?} is not `version file-type data-size`"),
+        )
+    };
+    if fields.len() != 3 {
+        return Err(bad());
+    }
+    let binary = match fields[1] {
+        "0" => false,
+        "1" => true,
+        _ => return Err(bad()),
+    };
+    let data_size: usize = fields[2].parse().map_err(|_| bad())?;
+    if data_size != 4 && data_size != 8 {
+        return Err(syntax(
+            path,
+            format!("line {line}"),
+            format!("data size {data_size} is not supported (gmsh writes 8)"),
+        ));
+    }
+    let mut big_endian = false;
+    if binary {
+        // The integer 1 in the file's byte order follows the header line.
+        big_endian = match bytes.get(after..after + 4) {
+            Some([1, 0, 0, 0]) => false,
+            Some([0, 0, 0, 1]) => true,
+            _ => {
+                return Err(syntax(
+                    path,
+                    format!("line {}", line + 1),
+                    "binary MSH file: the integer 1 that marks the byte order is missing",
+                ))
+            }
+        };
+    }
+    Ok(Header {
+        version: fields[0].to_owned(),
+        binary,
+        data_size,
+        big_endian,
+    })
+}
+
+fn not_gmsh(path: &Path, first: &[u8]) -> MeshError {
+    let shown: String = String::from_utf8_lossy(&first[..first.len().min(60)])
+        .chars()
+        .map(|c| if c.is_control() { '?' } else { c })
+        .collect();
+    MeshError::NotGmsh {
+        path: path.to_owned(),
+        found: shown,
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Format-independent assembly
+
+/// An element as read from either format.
+struct RawElement {
+    tag: u64,
+    kind: u32,
+    /// Physical tags of the element (2.2: the first tag; 4.1: those of its entity).
+    physical: Vec<i32>,
+    /// gmsh node tags.
+    nodes: Vec<u64>,
+}
+
+#[derive(Default)]
+struct RawMesh {
+    node_tags: Vec<u64>,
+    nodes: Vec<[f64; 3]>,
+    elements: Vec<RawElement>,
+    names: BTreeMap<(u8, i32), String>,
+}
+
+/// Dimension of the kept element types.
+fn kept_dim(kind: u32) -> Option<u8> {
+    match kind {
+        15 => Some(0),
+        1 => Some(1),
+        2 => Some(2),
+        4 => Some(3),
+        _ => None,
+    }
+}
+
+fn assemble(raw: RawMesh, path: &Path) -> Result<Mesh, MeshError> {
+    let mut unsupported: BTreeMap<u32, usize> = BTreeMap::new();
+    for e in &raw.elements {
+        if kept_dim(e.kind).is_none() {
+            *unsupported.entry(e.kind).or_default() += 1;
+        }
+    }
+    if !unsupported.is_empty() {
+        return Err(MeshError::UnsupportedElements {
+            path: path.to_owned(),
+            found: unsupported.into_iter().collect(),
+        });
+    }
+
+    let mut index: HashMap<u64, usize> = HashMap::with_capacity(raw.node_tags.len());
+    for (i, &t) in raw.node_tags.iter().enumerate() {
+        if index.insert(t, i).is_some() {
+            return Err(MeshError::DuplicateNode {
+                path: path.to_owned(),
+                node: t,
+            });
+        }
+    }
+
+    #[derive(Default)]
+    struct Acc {
+        nodes: Vec<usize>,
+        elements: Vec<usize>,
+    }
+    let mut groups: BTreeMap<(u8, i32), Acc> = BTreeMap::new();
+    for &key in raw.names.keys() {
+        groups.entry(key).or_default();
+    }
+    let mut tetrahedra = Vec::new();
+    let mut triangles = Vec::new();
+    let mut nodes = Vec::with_capacity(4);
+    for e in &raw.elements {
+        nodes.clear();
+        for &n in &e.nodes {
+            let i = *index.get(&n).ok_or(MeshError::UnknownNode {
+                path: path.to_owned(),
+                element: e.tag,
+                node: n,
+            })?;
+            nodes.push(i);
+        }
+        let dim = kept_dim(e.kind).unwrap_or(0);
+        let element = match (e.kind, nodes.as_slice()) {
+            (4, &[a, b, c, d]) => {
+                tetrahedra.push(Tetrahedron {
+                    tag: e.tag,
+                    nodes: [a, b, c, d],
+                });
+                Some(tetrahedra.len() - 1)
+            }
+            (2, &[a, b, c]) => {
+                triangles.push(Triangle {
+                    tag: e.tag,
+                    nodes: [a, b, c],
+                });
+                Some(triangles.len() - 1)
+            }
+            (1, &[_, _]) | (15, &[_]) => None,
+            _ => {
+                return Err(syntax(
+                    path,
+                    "$Elements".into(),
+                    format!(
+                        "element {} of type {} ({}) has {} nodes",
+                        e.tag,
+                        e.kind,
+                        element_type_name(e.kind),
+                        nodes.len()
+                    ),
+                ))
+            }
+        };
+        for &p in &e.physical {
+            let acc = groups.entry((dim, p)).or_default();
+            acc.nodes.extend_from_slice(&nodes);
+            if let Some(i) = element {
+                acc.elements.push(i);
+            }
+        }
+    }
+    if tetrahedra.is_empty() {
+        return Err(MeshError::NoTetrahedra {
+            path: path.to_owned(),
+        });
+    }
+    let groups = groups
+        .into_iter()
+        .map(|((dim, tag), mut acc)| {
+            acc.nodes.sort_unstable();
+            acc.nodes.dedup();
+            acc.elements.sort_unstable();
+            acc.elements.dedup();
+            PhysicalGroup {
+                dim,
+                tag,
+                name: raw
+                    .names
+                    .get(&(dim, tag))
+                    .cloned()
+                    .unwrap_or_else(|| format!("{dim}:{tag}")),
+                nodes: acc.nodes,
+                elements: acc.elements,
+            }
+        })
+        .collect();
+    Ok(Mesh {
+        source: path.to_owned(),
+        node_tags: raw.node_tags,
+        nodes: raw.nodes,
+        tetrahedra,
+        triangles,
+        groups,
+    })
+}
+
+// ---------------------------------------------------------------------------------------------
+// Line-oriented ASCII reading (MSH 2.2, and `$PhysicalNames` in every format)
+
+/// Lines of an ASCII region with 1-based line numbers.
+struct Lines<'a> {
+    path: &'a Path,
+    iter: std::iter::Enumerate<std::str::Lines<'a>>,
+    /// Line number of the first line of the region, minus one.
+    base: usize,
+    /// Last line number returned.
+    last: usize,
+}
+
+impl<'a> Lines<'a> {
+    fn new(text: &'a str, base: usize, path: &'a Path) -> Self {
+        Lines {
+            path,
+            iter: text.lines().enumerate(),
+            base,
+            last: base,
+        }
+    }
+
+    /// Next line (trimmed) or None at the end.
+    fn next_opt(&mut self) -> Option<(usize, &'a str)> {
+        let (i, l) = self.iter.next()?;
+        self.last = self.base + i + 1;
+        Some((self.last, l.trim()))
+    }
+
+    /// Next line (trimmed); an error naming `what` at the end of the file.
+    fn next(&mut self, what: &str) -> Result<(usize, &'a str), MeshError> {
+        self.next_opt().ok_or_else(|| {
+            syntax(
+                self.path,
+                format!("line {}", self.last + 1),
+                format!("unexpected end of file while reading {what} (file truncated?)"),
+            )
+        })
+    }
+
+    fn error(&self, line: usize, message: impl Into<String>) -> MeshError {
+        syntax(self.path, format!("line {line}"), message)
+    }
+
+    /// A count line: a single non-negative integer.
+    fn count(&mut self, section: &str) -> Result<usize, MeshError> {
+        let (no, l) = self.next(&format!("the {section} count"))?;
+        l.parse()
+            .map_err(|_| self.error(no, format!("expected the number of {section}, found {l:?}")))
+    }
+
+    /// Expects the `$End...` line of a section.
+    fn end(&mut self, end: &str) -> Result<(), MeshError> {
+        let (no, l) = self.next(end)?;
+        if l == end {
+            Ok(())
+        } else {
+            Err(self.error(no, format!("expected {end}, found {l:?}")))
+        }
+    }
+
+    /// Skips an unknown section up to and including `end`.
+    fn skip_to(&mut self, end: &str) -> Result<(), MeshError> {
+        loop {
+            let (_, l) = self.next(end)?;
+            if l == end {
+                return Ok(());
+            }
+        }
+    }
+}
+
+fn parse_num<T: std::str::FromStr>(
+    lines: &Lines<'_>,
+    no: usize,
+    tok: Option<&str>,
+    what: &str,
+) -> Result<T, MeshError> {
+    match tok {
+        Some(t) => t
+            .parse()
+            .map_err(|_| lines.error(no, format!("{what}: {t:?} is not a valid number"))),
+        None => Err(lines.error(no, format!("{what} missing"))),
+    }
+}
+
+/// Body of `$PhysicalNames` (after the opening line), through `$EndPhysicalNames`.
+fn parse_physical_names(
+    lines: &mut Lines<'_>,
+    names: &mut BTreeMap<(u8, i32), String>,
+) -> Result<(), MeshError> {
+    let n = lines.count("physical names")?;
+    for _ in 0..n {
+        let (no, l) = lines.next("$PhysicalNames")?;
+        let mut parts = l.splitn(3, char::is_whitespace);
+        let dim: u8 = parse_num(lines, no, parts.next(), "physical group dimension")?;
+        let tag: i32 = parse_num(lines, no, parts.next(), "physical group tag")?;
+        if dim > 3 {
+            return Err(lines.error(no, format!("physical group dimension {dim} is not 0..3")));
+        }
+        let rest = parts.next().unwrap_or("").trim();
+        let name = rest
+            .strip_prefix('"')
+            .and_then(|r| r.strip_suffix('"'))
+            .ok_or_else(|| {
+                lines.error(
+                    no,
+                    format!("physical group {dim}:{tag}: name {rest:?} is not in double quotes"),
+                )
+            })?;
+        names.insert((dim, tag), name.to_owned());
+    }
+    lines.end("$EndPhysicalNames")
+}
+
+/// Offset of the line following a line that is exactly `marker` (ignoring `\r`), searching
+/// from the start of the file.
+fn find_section(bytes: &[u8], marker: &[u8]) -> Option<usize> {
+    let mut start = 0;
+    while start < bytes.len() {
+        let end = bytes[start..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(bytes.len(), |p| start + p);
+        if bytes[start..end].trim_ascii_end() == marker {
+            return Some((end + 1).min(bytes.len()));
+        }
+        start = end + 1;
+    }
+    None
+}
+
+fn line_of(bytes: &[u8], offset: usize) -> usize {
+    1 + bytes[..offset.min(bytes.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+}
+
+// ---------------------------------------------------------------------------------------------
+// MSH 2.2 ASCII
+
+fn read_msh2(bytes: &[u8], path: &Path) -> Result<RawMesh, MeshError> {
+    let text = String::from_utf8_lossy(bytes);
+    let mut lines = Lines::new(&text, 0, path);
+    let mut raw = RawMesh::default();
+    // (type, elementary entity, nodes) -> index into raw.elements, to merge per-group copies.
+    let mut seen: HashMap<(u32, i64, Vec<u64>), usize> = HashMap::new();
+    let (mut have_nodes, mut have_elements) = (false, false);
+    while let Some((no, l)) = lines.next_opt() {
+        match l {
+            "" => {}
+            "$MeshFormat" => lines.skip_to("$EndMeshFormat")?,
+            "$PhysicalNames" => parse_physical_names(&mut lines, &mut raw.names)?,
+            "$Nodes" => {
+                if std::mem::replace(&mut have_nodes, true) {
+                    return Err(lines.error(no, "second $Nodes section"));
+                }
+                let n = lines.count("nodes")?;
+                raw.node_tags.reserve(n.min(1 << 24));
+                raw.nodes.reserve(n.min(1 << 24));
+                for _ in 0..n {
+                    let (no, l) = lines.next("$Nodes")?;
+                    let mut t = l.split_ascii_whitespace();
+                    let tag: u64 = parse_num(&lines, no, t.next(), "node tag")?;
+                    let mut x = [0.0; 3];
+                    for (c, v) in x.iter_mut().enumerate() {
+                        let what = format!("node {tag}: coordinate {}", ["x", "y", "z"][c]);
+                        *v = parse_num(&lines, no, t.next(), &what)?;
+                    }
+                    raw.node_tags.push(tag);
+                    raw.nodes.push(x);
+                }
+                lines.end("$EndNodes")?;
+            }
+            "$Elements" => {
+                if std::mem::replace(&mut have_elements, true) {
+                    return Err(lines.error(no, "second $Elements section"));
+                }
+                let n = lines.count("elements")?;
+                for _ in 0..n {
+                    let (no, l) = lines.next("$Elements")?;
+                    let mut t = l.split_ascii_whitespace();
+                    let tag: u64 = parse_num(&lines, no, t.next(), "element tag")?;
+                    let what = format!("element {tag}");
+                    let kind: u32 = parse_num(&lines, no, t.next(), &format!("{what}: type"))?;
+                    let ntags: usize =
+                        parse_num(&lines, no, t.next(), &format!("{what}: number of tags"))?;
+                    let mut tags = Vec::with_capacity(ntags.min(16));
+                    for _ in 0..ntags {
+                        tags.push(parse_num::<i64>(
+                            &lines,
+                            no,
+                            t.next(),
+                            &format!("{what}: tag"),
+                        )?);
+                    }
+                    let nodes = t
+                        .map(|s| parse_num::<u64>(&lines, no, Some(s), &format!("{what}: node")))
+                        .collect::<Result<Vec<u64>, _>>()?;
+                    if let Some(dim) = kept_dim(kind) {
+                        let expected = [1, 2, 3, 4][dim as usize];
+                        if nodes.len() != expected {
+                            return Err(lines.error(
+                                no,
+                                format!(
+                                    "{what} of type {kind} ({}) has {} nodes, expected {expected}",
+                                    element_type_name(kind),
+                                    nodes.len()
+                                ),
+                            ));
+                        }
+                    }
+                    let physical = match tags.first() {
+                        Some(&p) if p != 0 => vec![i32::try_from(p).map_err(|_| {
+                            lines.error(no, format!("{what}: physical tag {p} out of range"))
+                        })?],
+                        _ => Vec::new(),
+                    };
+                    let entity = tags.get(1).copied().unwrap_or(0);
+                    match seen.entry((kind, entity, nodes)) {
+                        std::collections::hash_map::Entry::Occupied(o) => {
+                            let e = &mut raw.elements[*o.get()];
+                            for p in physical {
+                                if !e.physical.contains(&p) {
+                                    e.physical.push(p);
+                                }
+                            }
+                        }
+                        std::collections::hash_map::Entry::Vacant(v) => {
+                            raw.elements.push(RawElement {
+                                tag,
+                                kind,
+                                physical,
+                                nodes: v.key().2.clone(),
+                            });
+                            v.insert(raw.elements.len() - 1);
+                        }
+                    }
+                }
+                lines.end("$EndElements")?;
+            }
+            s if s.starts_with('$') && !s.starts_with("$End") => {
+                let end = format!("$End{}", &s[1..]);
+                lines.skip_to(&end)?;
+            }
+            _ => {
+                return Err(lines.error(no, format!("unexpected {l:?} outside any section")));
+            }
+        }
+    }
+    Ok(raw)
+}
+
+// ---------------------------------------------------------------------------------------------
+// MSH 4.1 through mshio
+
+/// Reads `$PhysicalNames` wherever it is (it is ASCII in binary files too).
+fn physical_names_41(
+    bytes: &[u8],
+    path: &Path,
+    names: &mut BTreeMap<(u8, i32), String>,
+) -> Result<(), MeshError> {
+    let Some(start) = find_section(bytes, b"$PhysicalNames") else {
+        return Ok(());
+    };
+    let end =
+        find_section(&bytes[start..], b"$EndPhysicalNames").map_or(bytes.len(), |e| start + e);
+    let text = String::from_utf8_lossy(&bytes[start..end]);
+    let mut lines = Lines::new(&text, line_of(bytes, start) - 1, path);
+    parse_physical_names(&mut lines, names)
+}
+
+/// Bounds-checked reader of binary MSH 4.1 values.
+struct Cursor<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+    big_endian: bool,
+    size_t: usize,
+}
+
+impl Cursor<'_> {
+    fn take<const N: usize>(&mut self) -> Option<[u8; N]> {
+        let s = self.bytes.get(self.pos..self.pos.checked_add(N)?)?;
+        self.pos += N;
+        let mut a: [u8; N] = s.try_into().ok()?;
+        if self.big_endian {
+            a.reverse();
+        }
+        Some(a)
+    }
+
+    fn size_t(&mut self) -> Option<u64> {
+        if self.size_t == 4 {
+            self.take::<4>().map(|a| u32::from_le_bytes(a) as u64)
+        } else {
+            self.take::<8>().map(u64::from_le_bytes)
+        }
+    }
+
+    fn int(&mut self) -> Option<i32> {
+        self.take::<4>().map(i32::from_le_bytes)
+    }
+
+    fn skip(&mut self, n: u64) -> Option<()> {
+        let n = usize::try_from(n).ok()?;
+        let end = self.pos.checked_add(n)?;
+        (end <= self.bytes.len()).then(|| self.pos = end)
+    }
+}
+
+/// Node tags of every `$Nodes` block, read directly from the section (mshio drops them when
+/// they are contiguous). One Vec per block.
+fn node_tags_41(bytes: &[u8], header: &Header, path: &Path) -> Result<Vec<Vec<u64>>, MeshError> {
+    let start = find_section(bytes, b"$Nodes")
+        .ok_or_else(|| syntax(path, "$Nodes".into(), "cannot locate the $Nodes section"))?;
+    let truncated = |off: usize| {
+        let location = if header.binary {
+            format!("byte {off}")
+        } else {
+            format!("line {}", line_of(bytes, off))
+        };
+        syntax(path, location, "$Nodes section malformed or truncated")
+    };
+    let blocks;
+    if header.binary {
+        let mut c = Cursor {
+            bytes,
+            pos: start,
+            big_endian: header.big_endian,
+            size_t: header.data_size,
+        };
+        let mut read = || -> Option<Vec<Vec<u64>>> {
+            let num_blocks = c.size_t()?;
+            for _ in 0..3 {
+                c.size_t()?;
+            }
+            let mut blocks = Vec::new();
+            for _ in 0..num_blocks {
+                c.int()?;
+                c.int()?;
+                let parametric = c.int()?;
+                let n = c.size_t()?;
+                if parametric != 0 {
+                    return None;
+                }
+                let mut tags = Vec::with_capacity(usize::try_from(n).ok()?.min(1 << 20));
+                for _ in 0..n {
+                    tags.push(c.size_t()?);
+                }
+                c.skip(n.checked_mul(24)?)?;
+                blocks.push(tags);
+            }
+            Some(blocks)
+        };
+        blocks = read().ok_or_else(|| truncated(c.pos))?;
+    } else {
+        let text = String::from_utf8_lossy(&bytes[start..]);
+        blocks = ascii_node_tags(&text).ok_or_else(|| truncated(start))?;
+    }
+    Ok(blocks)
+}
+
+/// Node tags per block of an ASCII `$Nodes` section body.
+fn ascii_node_tags(text: &str) -> Option<Vec<Vec<u64>>> {
+    fn num(tok: &mut std::str::SplitAsciiWhitespace<'_>) -> Option<u64> {
+        tok.next().and_then(|t| t.parse::<u64>().ok())
+    }
+    let mut tok = text.split_ascii_whitespace();
+    let num_blocks = num(&mut tok)?;
+    for _ in 0..3 {
+        num(&mut tok)?;
+    }
+    let mut blocks = Vec::new();
+    for _ in 0..num_blocks {
+        num(&mut tok)?; // entity dim
+        tok.next()?; // entity tag (int)
+        let parametric = num(&mut tok)?;
+        let n = num(&mut tok)?;
+        if parametric != 0 {
+            return None;
+        }
+        let mut tags = Vec::with_capacity(usize::try_from(n).ok()?.min(1 << 20));
+        for _ in 0..n {
+            tags.push(num(&mut tok)?);
+        }
+        for _ in 0..n.checked_mul(3)? {
+            tok.next()?; // coordinates: only their presence matters here
+        }
+        blocks.push(tags);
+    }
+    Some(blocks)
+}
+
+/// Location and message of an mshio parse error (innermost error first in its backtrace).
+fn describe_mshio_error(
+    bytes: &[u8],
+    binary: bool,
+    e: &mshio::MshParserError<&[u8]>,
+) -> (String, String) {
+    let base = bytes.as_ptr() as usize;
+    let offset = e
+        .begin_msh_errors()
+        .next()
+        .or(e.backtrace.first())
+        .map(|(s, _)| (s.as_ptr() as usize).saturating_sub(base).min(bytes.len()))
+        .unwrap_or(0);
+    let location = if binary {
+        format!("byte {offset}")
+    } else {
+        format!("line {}", line_of(bytes, offset))
+    };
+    let mut parts: Vec<String> = e.filter_msh_errors().map(|(_, k)| k.to_string()).collect();
+    parts.reverse();
+    parts.dedup();
+    let message = if parts.is_empty() {
+        "malformed MSH 4.1 content (file truncated?)".to_owned()
+    } else {
+        format!(
+            "malformed MSH 4.1 content (file truncated?): {}",
+            parts.join(": ")
+        )
+    };
+    (location, message)
+}
+
+fn read_msh41(bytes: &[u8], header: &Header, path: &Path) -> Result<RawMesh, MeshError> {
+    // mshio 0.4 panics on a few malformed inputs (e.g. empty sections in debug builds);
+    // a panic there is reported as a parse error, never propagated.
+    let parsed = std::panic::catch_unwind(|| {
+        mshio::parse_msh_bytes(bytes).map_err(|e| describe_mshio_error(bytes, header.binary, &e))
+    });
+    let msh =
+        match parsed {
+            Ok(Ok(msh)) => msh,
+            Ok(Err((location, message))) => return Err(syntax(path, location, message)),
+            Err(_) => return Err(syntax(
+                path,
+                "MSH 4.1 body".into(),
+                "malformed MSH 4.1 content: the mshio parser failed (see the panic message above)",
+            )),
+        };
+
+    let mut raw = RawMesh::default();
+    physical_names_41(bytes, path, &mut raw.names)?;
+
+    // Physical tags of each entity (dim, tag).
+    let mut physical: HashMap<(i32, i32), Vec<i32>> = HashMap::new();
+    if let Some(ent) = &msh.data.entities {
+        for p in &ent.points {
+            physical.insert((0, p.tag), p.physical_tags.clone());
+        }
+        for c in &ent.curves {
+            physical.insert((1, c.tag), c.physical_tags.clone());
+        }
+        for s in &ent.surfaces {
+            physical.insert((2, s.tag), s.physical_tags.clone());
+        }
+        for v in &ent.volumes {
+            physical.insert((3, v.tag), v.physical_tags.clone());
+        }
+    }
+
+    if let Some(nodes) = &msh.data.nodes {
+        let scanned = if nodes.node_blocks.iter().any(|b| b.node_tags.is_none()) {
+            Some(node_tags_41(bytes, header, path)?)
+        } else {
+            None
+        };
+        for (k, block) in nodes.node_blocks.iter().enumerate() {
+            let tags: Vec<u64> = match (&block.node_tags, &scanned) {
+                (Some(map), _) => {
+                    let mut tags = vec![0; block.nodes.len()];
+                    for (&tag, &i) in map {
+                        if let Some(t) = tags.get_mut(i) {
+                            *t = tag;
+                        }
+                    }
+                    tags
+                }
+                (None, Some(s)) => s.get(k).cloned().unwrap_or_default(),
+                (None, None) => Vec::new(),
+            };
+            if tags.len() != block.nodes.len() || tags.contains(&0) {
+                return Err(syntax(
+                    path,
+                    "$Nodes".into(),
+                    format!(
+                        "node block {} (entity {}:{}): cannot recover its {} node tags",
+                        k + 1,
+                        block.entity_dim,
+                        block.entity_tag,
+                        block.nodes.len()
+                    ),
+                ));
+            }
+            raw.node_tags.extend_from_slice(&tags);
+            raw.nodes
+                .extend(block.nodes.iter().map(|n| [n.x, n.y, n.z]));
+        }
+    }
+
+    if let Some(elements) = &msh.data.elements {
+        for block in &elements.element_blocks {
+            let kind = block.element_type as u32;
+            let phys = physical
+                .get(&(block.entity_dim, block.entity_tag))
+                .cloned()
+                .unwrap_or_default();
+            for e in &block.elements {
+                raw.elements.push(RawElement {
+                    tag: e.element_tag,
+                    kind,
+                    physical: phys.clone(),
+                    nodes: e.nodes.clone(),
+                });
+            }
+        }
+    }
+    Ok(raw)
 }
