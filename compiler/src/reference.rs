@@ -1,1 +1,536 @@
-//! reference
+//! Full-order reference solvers for verification (DESIGN.md §7): the static solution, linear
+//! Wilson-θ with J factored once ([`LinearSimulator`]), co-rotational Wilson-θ with per-element
+//! polar decomposition and warped stiffness ([`CorotationalSimulator`]), scenario files
+//! ([`Scenario`]) and [`simulate`], which drives either simulator through a scenario and records
+//! world displacements at the scene's sensors and the scenario's named points.
+//!
+//! Loads are world-frame dead loads. Both simulators start at rest (U = U̇ = Ü = 0), like the
+//! reduced model's s₀ = 0.
+
+pub mod corotational;
+pub mod linear;
+pub mod scenario;
+mod sparse;
+pub mod vtu;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+pub use corotational::{
+    deformation_gradient, element_force, polar_rotation, CorotationalSimulator, NewtonOptions,
+    NewtonStats,
+};
+pub use linear::{static_solve, LinearSimulator};
+pub use scenario::{Horizon, LoadHistory, NamedPoint, Scenario, ScenarioError, Steady};
+
+use crate::dynamics::WilsonTheta;
+use crate::fem::operators::Operators;
+use crate::fem::{FemError, FemModel};
+use crate::mesh::MeshError;
+use crate::scene::{Scene, SceneError, SceneFile};
+
+/// Errors of the reference solvers and of `crokf-verify simulate`.
+#[derive(Debug, thiserror::Error)]
+pub enum ReferenceError {
+    /// A matrix that must be symmetric positive definite is not.
+    #[error(
+        "{what} ({n}×{n}) is not positive definite ({detail}): the model has unconstrained \
+         rigid-body modes (add a [[fixed]] group) or inverted elements"
+    )]
+    NotPositiveDefinite {
+        /// Which matrix.
+        what: String,
+        /// Its size.
+        n: usize,
+        /// Solver detail.
+        detail: String,
+    },
+    /// Any other sparse-solver failure.
+    #[error("sparse solver: {0}")]
+    Solver(String),
+    /// A vector of the wrong length.
+    #[error("{what} has length {got}, expected {expected} (the free DOFs)")]
+    Dimension {
+        /// Which vector.
+        what: &'static str,
+        /// n.
+        expected: usize,
+        /// Given length.
+        got: usize,
+    },
+    /// Invalid solver options.
+    #[error("{0}")]
+    Options(String),
+    /// The quasi-static co-rotational Newton solve failed even with tiny load increments.
+    #[error(
+        "co-rotational static solve did not converge: stuck at load factor {load_factor:.4} \
+         after {solves} linear solves (load too large for the structure, or buckling)"
+    )]
+    StaticDiverged {
+        /// Load factor reached, 0..1.
+        load_factor: f64,
+        /// Linear solves spent.
+        solves: usize,
+    },
+    /// A steady scenario did not settle.
+    #[error(
+        "{path}: not steady after {steps} steps: relative change per step {change:.3e} > \
+         tolerance {tolerance:.3e} (raise steady.max_steps or damping)"
+    )]
+    SteadyNotReached {
+        /// Scenario path.
+        path: PathBuf,
+        /// Steps taken.
+        steps: usize,
+        /// Last relative change.
+        change: f64,
+        /// Requested tolerance.
+        tolerance: f64,
+    },
+    /// The state became NaN or infinite.
+    #[error("the simulation diverged (non-finite displacement) at step {step}, t = {time:.6e} s")]
+    NonFinite {
+        /// Step.
+        step: usize,
+        /// Time, s.
+        time: f64,
+    },
+    /// A named point outside the mesh.
+    #[error(
+        "{path}: point '{name}' at ({:.6}, {:.6}, {:.6}) m lies outside the mesh \
+         (nearest node {nearest_tag} at distance {distance:.3e} m)",
+        position[0], position[1], position[2]
+    )]
+    PointOutside {
+        /// Scenario path.
+        path: PathBuf,
+        /// Point name.
+        name: String,
+        /// Position, m.
+        position: [f64; 3],
+        /// gmsh tag of the nearest node.
+        nearest_tag: u64,
+        /// Distance to it, m.
+        distance: f64,
+    },
+    /// Scenario file.
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    /// Scene file.
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    /// Mesh file.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// Scene and mesh disagree.
+    #[error(transparent)]
+    Fem(#[from] FemError),
+    /// Output file.
+    #[error("{path}: {source}")]
+    Io {
+        /// File or directory.
+        path: PathBuf,
+        /// Underlying error.
+        source: std::io::Error,
+    },
+}
+
+/// A full-order time stepper over the free DOFs.
+pub trait Simulator {
+    /// Advances by Δt with the load f (n, N) held constant over the step.
+    fn step(&mut self, f: &[f64]) -> Result<(), ReferenceError>;
+    /// Displacement U (n, m).
+    fn displacement(&self) -> &[f64];
+    /// Velocity U̇ (n, m/s).
+    fn velocity(&self) -> &[f64];
+    /// Acceleration Ü (n, m/s²).
+    fn acceleration(&self) -> &[f64];
+    /// Simulated time, s.
+    fn time(&self) -> f64;
+}
+
+/// Which full-order model to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Model {
+    /// Linear FEM, J factored once.
+    Linear,
+    /// Co-rotational FEM (stiffness warping).
+    Corotational,
+}
+
+/// Settings of [`simulate`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SimulationOptions {
+    /// Model.
+    pub model: Model,
+    /// Newton settings (co-rotational only).
+    pub newton: NewtonOptions,
+    /// Record every k-th step (and the first and last), k ≥ 1.
+    pub every: usize,
+}
+
+impl Default for SimulationOptions {
+    fn default() -> Self {
+        SimulationOptions {
+            model: Model::Linear,
+            newton: NewtonOptions::default(),
+            every: 1,
+        }
+    }
+}
+
+/// A recorded point: a scene sensor or a scenario point, with barycentric node weights.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Probe {
+    /// Label.
+    pub name: String,
+    /// Rest position, m.
+    pub position: [f64; 3],
+    /// Nodes of the containing tetrahedron and their barycentric weights.
+    pub weights: [(usize, f64); 4],
+}
+
+impl Probe {
+    /// World displacement of the point, Σₐ wₐ uₐ (m), from the free-DOF displacement u.
+    pub fn displacement(&self, fem: &FemModel, u: &[f64]) -> [f64; 3] {
+        let mut d = [0.0; 3];
+        for &(node, w) in &self.weights {
+            for (c, dc) in d.iter_mut().enumerate() {
+                if let Some(i) = fem.dofs.index[node][c] {
+                    *dc += w * u[i];
+                }
+            }
+        }
+        d
+    }
+}
+
+/// Probes: the scene's sensors (in scene order), then the scenario's named points, located in
+/// the rest mesh. `unit` converts scenario positions to metres; `path` names the scenario file.
+pub fn probes(
+    fem: &FemModel,
+    ops: &Operators,
+    scenario: &Scenario,
+    unit: f64,
+    path: &Path,
+) -> Result<Vec<Probe>, ReferenceError> {
+    let mut out: Vec<Probe> = ops
+        .sensors
+        .iter()
+        .map(|s| Probe {
+            name: s.name.clone(),
+            position: s.position,
+            weights: s.weights,
+        })
+        .collect();
+    for p in &scenario.points {
+        let position = p.position.map(|v| v * unit);
+        let weights = locate(fem, position).ok_or_else(|| {
+            let (nearest, distance) = fem
+                .used_nodes()
+                .into_iter()
+                .map(|n| (n, distance(fem.positions[n], position)))
+                .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
+            ReferenceError::PointOutside {
+                path: path.to_owned(),
+                name: p.name.clone(),
+                position,
+                nearest_tag: fem.node_tags.get(nearest).copied().unwrap_or(0),
+                distance,
+            }
+        })?;
+        out.push(Probe {
+            name: p.name.clone(),
+            position,
+            weights,
+        });
+    }
+    Ok(out)
+}
+
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// The containing tetrahedron's nodes and barycentric weights (tolerance 1e-9, best element).
+fn locate(fem: &FemModel, p: [f64; 3]) -> Option<[(usize, f64); 4]> {
+    let mut best: Option<([(usize, f64); 4], f64)> = None;
+    for e in &fem.elements {
+        let bary = e.geometry.barycentric(fem.positions[e.nodes[0]], p);
+        let worst = bary.iter().copied().fold(f64::INFINITY, f64::min);
+        if worst >= -1e-9 && best.as_ref().is_none_or(|b| worst > b.1) {
+            best = Some((std::array::from_fn(|a| (e.nodes[a], bary[a])), worst));
+        }
+    }
+    best.map(|b| b.0)
+}
+
+/// A recorded state handed to the observer of [`simulate`].
+pub struct Frame<'a> {
+    /// Step index k (0 = initial state).
+    pub step: usize,
+    /// t = kΔt, s.
+    pub time: f64,
+    /// Displacement over the free DOFs (n, m).
+    pub displacement: &'a [f64],
+}
+
+/// Recorded world displacements at the probes.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Trajectories {
+    /// Probe labels.
+    pub labels: Vec<String>,
+    /// Recorded step indices.
+    pub steps: Vec<usize>,
+    /// Their times, s.
+    pub times: Vec<f64>,
+    /// Per recorded step, per probe: (ux, uy, uz), m.
+    pub values: Vec<Vec<[f64; 3]>>,
+    /// Steps simulated.
+    pub total_steps: usize,
+    /// Mean wall time per step, s (excluding setup and recording).
+    pub seconds_per_step: f64,
+    /// Newton counters (co-rotational model).
+    pub newton: Option<NewtonStats>,
+}
+
+/// Builds the chosen simulator for the scene's time step.
+pub fn simulator(
+    fem: &FemModel,
+    scene: &Scene,
+    options: &SimulationOptions,
+) -> Result<Box<dyn Simulator>, ReferenceError> {
+    let wilson = WilsonTheta {
+        dt: scene.time.dt,
+        theta: scene.time.theta,
+    };
+    Ok(match options.model {
+        Model::Linear => Box::new(LinearSimulator::new(fem, wilson)?),
+        Model::Corotational => Box::new(CorotationalSimulator::new(fem, wilson, options.newton)?),
+    })
+}
+
+/// Euclidean norm.
+pub(crate) fn norm(x: &[f64]) -> f64 {
+    x.iter().map(|v| v * v).sum::<f64>().sqrt()
+}
+
+pub(crate) fn check_len(
+    what: &'static str,
+    expected: usize,
+    got: usize,
+) -> Result<(), ReferenceError> {
+    if expected == got {
+        Ok(())
+    } else {
+        Err(ReferenceError::Dimension {
+            what,
+            expected,
+            got,
+        })
+    }
+}
+
+/// Runs `scenario` on the full-order model: step k → k+1 holds the load f(t_k), t_k = kΔt
+/// (Δt, θ from the scene). Records the probes at step 0, every `options.every` steps and at the
+/// last step, and calls `observer` with each recorded frame. `path` names the scenario file in
+/// messages.
+#[allow(clippy::too_many_arguments)]
+pub fn simulate(
+    fem: &FemModel,
+    ops: &Operators,
+    scene: &Scene,
+    scenario: &Scenario,
+    probes: &[Probe],
+    options: &SimulationOptions,
+    path: &Path,
+    observer: &mut dyn FnMut(&Frame) -> Result<(), ReferenceError>,
+) -> Result<Trajectories, ReferenceError> {
+    if options.every == 0 {
+        return Err(ReferenceError::Options("--every must be ≥ 1".into()));
+    }
+    let n = fem.dof_count();
+    let dt = scene.time.dt;
+    let mut corotational = None;
+    let mut linear = None;
+    let sim: &mut dyn Simulator = match options.model {
+        Model::Linear => linear.insert(LinearSimulator::new(
+            fem,
+            WilsonTheta {
+                dt,
+                theta: scene.time.theta,
+            },
+        )?),
+        Model::Corotational => corotational.insert(CorotationalSimulator::new(
+            fem,
+            WilsonTheta {
+                dt,
+                theta: scene.time.theta,
+            },
+            options.newton,
+        )?),
+    };
+    let mut out = Trajectories {
+        labels: probes.iter().map(|p| p.name.clone()).collect(),
+        ..Default::default()
+    };
+    let mut record = |step: usize, u: &[f64], out: &mut Trajectories| {
+        let time = step as f64 * dt;
+        out.steps.push(step);
+        out.times.push(time);
+        out.values
+            .push(probes.iter().map(|p| p.displacement(fem, u)).collect());
+        observer(&Frame {
+            step,
+            time,
+            displacement: u,
+        })
+    };
+    record(0, sim.displacement(), &mut out)?;
+    let horizon = scenario.horizon(dt);
+    let (max_steps, steady) = match horizon {
+        Horizon::Steps(k) => (k, None),
+        Horizon::Steady(s) => (s.max_steps, Some(s)),
+    };
+    let settle_after = scenario.last_load_time();
+    let mut previous = vec![0.0; n];
+    let mut elapsed = 0.0;
+    let mut change = f64::INFINITY;
+    let mut step = 0;
+    let mut settled = false;
+    while step < max_steps {
+        let f = scenario.load_vector(ops, n, step as f64 * dt);
+        previous.copy_from_slice(sim.displacement());
+        let start = Instant::now();
+        sim.step(&f)?;
+        elapsed += start.elapsed().as_secs_f64();
+        step += 1;
+        let u = sim.displacement();
+        if u.iter().any(|v| !v.is_finite()) {
+            return Err(ReferenceError::NonFinite {
+                step,
+                time: step as f64 * dt,
+            });
+        }
+        if let Some(s) = steady {
+            let du = u
+                .iter()
+                .zip(&previous)
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>()
+                .sqrt();
+            let size = norm(u);
+            let measure = du
+                .max(dt * norm(sim.velocity()))
+                .max(dt * dt * norm(sim.acceleration()));
+            change = if measure == 0.0 { 0.0 } else { measure / size };
+            if step as f64 * dt >= settle_after && change <= s.tolerance {
+                settled = true;
+            }
+        }
+        let last = settled || step == max_steps;
+        if step % options.every == 0 || last {
+            record(step, u, &mut out)?;
+        }
+        if settled {
+            break;
+        }
+    }
+    if let Some(s) = steady {
+        if !settled {
+            return Err(ReferenceError::SteadyNotReached {
+                path: path.to_owned(),
+                steps: step,
+                change,
+                tolerance: s.tolerance,
+            });
+        }
+    }
+    out.total_steps = step;
+    out.seconds_per_step = elapsed / step.max(1) as f64;
+    out.newton = corotational.as_ref().map(|c| c.stats());
+    Ok(out)
+}
+
+/// Output of [`run`].
+#[derive(Clone, Debug)]
+pub struct RunSummary {
+    /// The trajectories written to `trajectories.csv`.
+    pub trajectories: Trajectories,
+    /// Free DOFs n.
+    pub dofs: usize,
+    /// Tetrahedra.
+    pub elements: usize,
+    /// Files written.
+    pub files: Vec<PathBuf>,
+}
+
+/// `crokf-verify simulate`: reads the scene, its mesh and the scenario, runs [`simulate`] and
+/// writes `out/trajectories.csv`, and with `vtu` also `out/frames/frame_NNNN.vtu` and
+/// `out/series.pvd`.
+pub fn run(
+    scene_path: &Path,
+    scenario_path: &Path,
+    options: &SimulationOptions,
+    out: &Path,
+    vtu: bool,
+) -> Result<RunSummary, ReferenceError> {
+    let scene_file = SceneFile::read(scene_path)?;
+    let scene = &scene_file.scene;
+    let mesh = crate::mesh::read_mesh(&scene_file.mesh_path())?;
+    let unit = scene.mesh.units.to_metres();
+    let fem = FemModel::assemble(&mesh, scene, unit)?;
+    let ops = Operators::build(&mesh, scene, &fem, unit)?;
+    let scenario = Scenario::read(scenario_path)?;
+    scenario.check_scene(scene, scenario_path)?;
+    let probes = probes(&fem, &ops, &scenario, unit, scenario_path)?;
+
+    let io = |path: &Path| {
+        let path = path.to_owned();
+        move |source| ReferenceError::Io { path, source }
+    };
+    std::fs::create_dir_all(out).map_err(io(out))?;
+    let frames_dir = out.join("frames");
+    if vtu {
+        std::fs::create_dir_all(&frames_dir).map_err(io(&frames_dir))?;
+    }
+    let tetrahedra: Vec<[usize; 4]> = fem.elements.iter().map(|e| e.nodes).collect();
+    let mut files = Vec::new();
+    let mut frames: Vec<(f64, String)> = Vec::new();
+    let mut observer = |frame: &Frame| -> Result<(), ReferenceError> {
+        if !vtu {
+            return Ok(());
+        }
+        let name = format!("frame_{:04}.vtu", frames.len());
+        let text = vtu::vtu(&fem.positions, &tetrahedra, &fem.nodal(frame.displacement));
+        let path = frames_dir.join(&name);
+        vtu::write_text(&path, &text)?;
+        frames.push((frame.time, format!("frames/{name}")));
+        Ok(())
+    };
+    let trajectories = simulate(
+        &fem,
+        &ops,
+        scene,
+        &scenario,
+        &probes,
+        options,
+        scenario_path,
+        &mut observer,
+    )?;
+    let csv = out.join("trajectories.csv");
+    vtu::write_text(&csv, &vtu::trajectories_csv(&trajectories))?;
+    files.push(csv);
+    if vtu {
+        let pvd = out.join("series.pvd");
+        vtu::write_text(&pvd, &vtu::pvd(&frames))?;
+        files.push(pvd);
+        files.extend(frames.iter().map(|(_, f)| out.join(f)));
+    }
+    Ok(RunSummary {
+        trajectories,
+        dofs: fem.dof_count(),
+        elements: fem.elements.len(),
+        files,
+    })
+}

@@ -1,0 +1,395 @@
+//! Full-order co-rotational reference (stiffness warping): per element, the rotation Rₑ of the
+//! polar decomposition Fₑ = Rₑ Sₑ of the deformation gradient, the internal force
+//! fₑ = Rₑ Kₑ (Rₑᵀ xₑ − Xₑ) and the warped tangent Rₑ Kₑ Rₑᵀ (DESIGN.md §7 (b)).
+//!
+//! External loads are world-frame dead loads: a force on a load group keeps its world direction
+//! while the body rotates (it is not a follower load).
+
+use nalgebra::Matrix3;
+
+use crate::dynamics::WilsonTheta;
+use crate::fem::{FemModel, TetGeometry};
+
+use super::sparse::Pattern;
+use super::{check_len, norm, ReferenceError, Simulator};
+
+/// The rotation R (det R = +1) of the polar decomposition F = R S, robust to inverted elements
+/// (det F ≤ 0): SVD F = U Σ Vᵀ, and where det U or det V is negative the column belonging to the
+/// smallest singular value is negated (Irving, Teran and Fedkiw 2004), then R = U Vᵀ.
+pub fn polar_rotation(f: &Matrix3<f64>) -> Matrix3<f64> {
+    let svd = f.svd(true, true);
+    let (Some(mut u), Some(mut v_t)) = (svd.u, svd.v_t) else {
+        return Matrix3::identity();
+    };
+    let s = svd.singular_values;
+    let k = if s[0] <= s[1] && s[0] <= s[2] {
+        0
+    } else if s[1] <= s[2] {
+        1
+    } else {
+        2
+    };
+    if u.determinant() < 0.0 {
+        u.column_mut(k).neg_mut();
+    }
+    if v_t.determinant() < 0.0 {
+        v_t.row_mut(k).neg_mut();
+    }
+    u * v_t
+}
+
+/// Deformation gradient F = Σₐ xₐ ⊗ ∇Nₐ (= Ds Dm⁻¹) of a linear tetrahedron with rest
+/// geometry `geometry` and current vertex positions `x` (m).
+pub fn deformation_gradient(geometry: &TetGeometry, x: &[[f64; 3]; 4]) -> Matrix3<f64> {
+    let mut f = Matrix3::zeros();
+    for (xa, g) in x.iter().zip(&geometry.gradients) {
+        for i in 0..3 {
+            for j in 0..3 {
+                f[(i, j)] += xa[i] * g[j];
+            }
+        }
+    }
+    f
+}
+
+/// Co-rotational internal force of one element, fₑ = R Kₑ (Rᵀ xₑ − Xₑ) (12, N, node-major),
+/// and its rotation R. `ke` is the rest stiffness (12×12, N/m), `rest` and `current` the vertex
+/// positions Xₑ and xₑ (m). Positions enter relative to vertex 0, which Kₑ (translation-free)
+/// does not see but which keeps the difference Rᵀxₑ − Xₑ accurate for tiny displacements.
+pub fn element_force(
+    geometry: &TetGeometry,
+    ke: &[[f64; 12]; 12],
+    rest: &[[f64; 3]; 4],
+    current: &[[f64; 3]; 4],
+) -> ([f64; 12], Matrix3<f64>) {
+    let r = polar_rotation(&deformation_gradient(geometry, current));
+    let mut y = [0.0; 12];
+    for a in 0..4 {
+        let d = nalgebra::Vector3::from_fn(|i, _| current[a][i] - current[0][i]);
+        let p = r.tr_mul(&d);
+        for i in 0..3 {
+            y[3 * a + i] = p[i] - (rest[a][i] - rest[0][i]);
+        }
+    }
+    let z = crate::fem::element::mul12(ke, &y);
+    let mut f = [0.0; 12];
+    for a in 0..4 {
+        let za = nalgebra::Vector3::new(z[3 * a], z[3 * a + 1], z[3 * a + 2]);
+        let fa = r * za;
+        f[3 * a..3 * a + 3].copy_from_slice(fa.as_slice());
+    }
+    (f, r)
+}
+
+/// Newton settings of the co-rotational solvers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NewtonOptions {
+    /// Most linear solves per time step (≥ 1; 1 = one linearised solve per step).
+    pub max_newton: usize,
+    /// Converged when the Newton increment ‖δ‖ ≤ tolerance · ‖Û‖.
+    pub tolerance: f64,
+}
+
+impl Default for NewtonOptions {
+    fn default() -> Self {
+        NewtonOptions {
+            max_newton: 10,
+            tolerance: 1e-8,
+        }
+    }
+}
+
+/// Counters of the Newton iterations so far.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct NewtonStats {
+    /// Time steps taken.
+    pub steps: usize,
+    /// Linear solves (numeric Cholesky factorisations) in all steps.
+    pub solves: usize,
+    /// Steps that stopped at `max_newton` without meeting the tolerance.
+    pub unconverged: usize,
+    /// Largest final relative increment ‖δ‖/‖Û‖ of any step.
+    pub worst_increment: f64,
+}
+
+/// Per-element data kept between steps.
+struct ElementData {
+    nodes: [usize; 4],
+    dofs: [Option<usize>; 12],
+    geometry: TetGeometry,
+    ke: [[f64; 12]; 12],
+}
+
+/// Full-order co-rotational Wilson-θ: M Ü + C U̇ + f_int(U) = f with
+/// f_int = Σₑ Rₑ Kₑ (Rₑᵀ xₑ − Xₑ), C = αM + β K_t, K_t = Σₑ Rₑ Kₑ Rₑᵀ.
+///
+/// Per step (τ = θΔt, a₀ = 6/τ², a₂ = 3/τ, ΔÛ = Û − U, load f held over the step):
+/// ```text
+/// Ü_θ = a₀ ΔÛ − (6/τ) U̇ − 2Ü,   U̇_θ = a₂ ΔÛ − 2U̇ − (τ/2) Ü
+/// r(Û) = f − M Ü_θ − C U̇_θ − f_int(Û),   J_t = K_t + a₀M + a₂C,   Û ← Û + J_t⁻¹ r
+/// ```
+/// from Û = U, at least once and up to `max_newton` times (symbolic Cholesky reused, numeric
+/// refactored each time), then [`WilsonTheta::advance`] per DOF.
+pub struct CorotationalSimulator {
+    wilson: WilsonTheta,
+    alpha: f64,
+    beta: f64,
+    options: NewtonOptions,
+    rest: Vec<[f64; 3]>,
+    elements: Vec<ElementData>,
+    pattern: Pattern,
+    mass: Vec<f64>,
+    tangent: Vec<f64>,
+    jacobian: Vec<f64>,
+    internal: Vec<f64>,
+    u: Vec<f64>,
+    v: Vec<f64>,
+    a: Vec<f64>,
+    time: f64,
+    stats: NewtonStats,
+}
+
+impl CorotationalSimulator {
+    /// Builds the simulator at rest; checks `options`.
+    pub fn new(
+        fem: &FemModel,
+        wilson: WilsonTheta,
+        options: NewtonOptions,
+    ) -> Result<Self, ReferenceError> {
+        if options.max_newton == 0 || !(options.tolerance > 0.0) {
+            return Err(ReferenceError::Options(format!(
+                "Newton: max_newton must be ≥ 1 and tolerance > 0, got {} and {}",
+                options.max_newton, options.tolerance
+            )));
+        }
+        let pattern = Pattern::new(fem)?;
+        let mass = pattern.scatter(&fem.mass);
+        let elements = fem
+            .elements
+            .iter()
+            .enumerate()
+            .map(|(e, el)| ElementData {
+                nodes: el.nodes,
+                dofs: fem.dofs.element(&el.nodes),
+                geometry: el.geometry,
+                ke: fem.element_stiffness(e),
+            })
+            .collect();
+        let n = pattern.n;
+        let nnz = pattern.nnz();
+        Ok(CorotationalSimulator {
+            wilson,
+            alpha: fem.alpha,
+            beta: fem.beta,
+            options,
+            rest: fem.positions.clone(),
+            elements,
+            pattern,
+            mass,
+            tangent: vec![0.0; nnz],
+            jacobian: vec![0.0; nnz],
+            internal: vec![0.0; n],
+            u: vec![0.0; n],
+            v: vec![0.0; n],
+            a: vec![0.0; n],
+            time: 0.0,
+            stats: NewtonStats::default(),
+        })
+    }
+
+    /// Newton counters so far.
+    pub fn stats(&self) -> NewtonStats {
+        self.stats
+    }
+
+    /// Internal force f_int(u) (n, N) and warped tangent K_t (pattern values) at displacement u.
+    fn assemble(&mut self, u: &[f64]) {
+        self.internal.iter_mut().for_each(|v| *v = 0.0);
+        self.tangent.iter_mut().for_each(|v| *v = 0.0);
+        for el in &self.elements {
+            let rest = el.nodes.map(|n| self.rest[n]);
+            let mut current = rest;
+            for (k, dof) in el.dofs.iter().enumerate() {
+                if let Some(d) = dof {
+                    current[k / 3][k % 3] += u[*d];
+                }
+            }
+            let (f, r) = element_force(&el.geometry, &el.ke, &rest, &current);
+            for (k, dof) in el.dofs.iter().enumerate() {
+                if let Some(d) = dof {
+                    self.internal[*d] += f[k];
+                }
+            }
+            for a in 0..4 {
+                for b in 0..4 {
+                    let kab = Matrix3::from_fn(|i, j| el.ke[3 * a + i][3 * b + j]);
+                    let block = r * kab * r.transpose();
+                    for i in 0..3 {
+                        let Some(row) = el.dofs[3 * a + i] else {
+                            continue;
+                        };
+                        for j in 0..3 {
+                            let Some(col) = el.dofs[3 * b + j] else {
+                                continue;
+                            };
+                            self.tangent[self.pattern.slot(row, col)] += block[(i, j)];
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Internal force f_int(u) (n, N) at the free-DOF displacement u (n, m).
+    pub fn internal_force(&mut self, u: &[f64]) -> Result<Vec<f64>, ReferenceError> {
+        check_len("displacement u", self.pattern.n, u.len())?;
+        self.assemble(u);
+        Ok(self.internal.clone())
+    }
+
+    /// Quasi-static equilibrium f_int(u) = f (f: n, N, world-frame dead load) by Newton with the
+    /// warped tangent and adaptive load stepping (λ from 0 to 1; an increment that does not
+    /// converge in 30 solves is halved, one that converges in ≤ 6 lets the next grow by 1.5).
+    /// Converged when ‖δ‖ ≤ `tolerance` ‖u‖. The dynamic state is left unchanged.
+    pub fn static_solve(&mut self, f: &[f64], tolerance: f64) -> Result<Vec<f64>, ReferenceError> {
+        let n = self.pattern.n;
+        check_len("load vector f", n, f.len())?;
+        const MAX_SOLVES: usize = 30;
+        let mut u = vec![0.0; n];
+        let mut lambda: f64 = 0.0;
+        let mut increment = 1.0;
+        let mut total_solves = 0;
+        let mut r = vec![0.0; n];
+        while lambda < 1.0 {
+            let target = (lambda + increment).min(1.0);
+            let mut trial = u.clone();
+            let mut converged = None;
+            let mut first = f64::INFINITY;
+            for it in 1..=MAX_SOLVES {
+                self.assemble(&trial);
+                for i in 0..n {
+                    r[i] = target * f[i] - self.internal[i];
+                }
+                let factor = self
+                    .pattern
+                    .factor(&self.tangent, "warped stiffness K_t (static solve)")?;
+                factor.solve_in_place(&mut r);
+                total_solves += 1;
+                trial.iter_mut().zip(&r).for_each(|(t, d)| *t += d);
+                let step = norm(&r);
+                if it == 1 {
+                    first = step;
+                }
+                if !step.is_finite() || step > 10.0 * first {
+                    break;
+                }
+                if step <= tolerance * norm(&trial) {
+                    converged = Some(it);
+                    break;
+                }
+            }
+            match converged {
+                Some(it) => {
+                    u = trial;
+                    lambda = target;
+                    if it <= 6 {
+                        increment *= 1.5;
+                    }
+                }
+                None => {
+                    increment *= 0.5;
+                    if increment < 1e-4 {
+                        return Err(ReferenceError::StaticDiverged {
+                            load_factor: lambda,
+                            solves: total_solves,
+                        });
+                    }
+                }
+            }
+        }
+        Ok(u)
+    }
+}
+
+impl Simulator for CorotationalSimulator {
+    fn step(&mut self, f: &[f64]) -> Result<(), ReferenceError> {
+        let n = self.pattern.n;
+        check_len("load vector f", n, f.len())?;
+        let w = self.wilson;
+        let tau = w.tau();
+        let (a0, a2) = (w.mass_coefficient(), w.damping_coefficient());
+        let (alpha, beta) = (self.alpha, self.beta);
+        let mut u_hat = self.u.clone();
+        let mut acc = vec![0.0; n];
+        let mut vel = vec![0.0; n];
+        let mut r = vec![0.0; n];
+        let mut y = vec![0.0; n];
+        let mut relative = f64::INFINITY;
+        let mut iterations = 0;
+        while iterations < self.options.max_newton {
+            let u_now = std::mem::take(&mut u_hat);
+            self.assemble(&u_now);
+            u_hat = u_now;
+            for i in 0..n {
+                let du = u_hat[i] - self.u[i];
+                acc[i] = a0 * du - 6.0 / tau * self.v[i] - 2.0 * self.a[i];
+                vel[i] = a2 * du - 2.0 * self.v[i] - 0.5 * tau * self.a[i];
+                r[i] = f[i] - self.internal[i];
+            }
+            // r −= M (Ü_θ + α U̇_θ) + β K_t U̇_θ
+            for i in 0..n {
+                y[i] = acc[i] + alpha * vel[i];
+            }
+            let mut my = vec![0.0; n];
+            self.pattern.mul(&self.mass, &y, &mut my);
+            r.iter_mut().zip(&my).for_each(|(r, v)| *r -= v);
+            if beta != 0.0 {
+                self.pattern.mul(&self.tangent, &vel, &mut my);
+                r.iter_mut().zip(&my).for_each(|(r, v)| *r -= beta * v);
+            }
+            for ((j, k), m) in self.jacobian.iter_mut().zip(&self.tangent).zip(&self.mass) {
+                *j = k * (1.0 + a2 * beta) + m * (a0 + a2 * alpha);
+            }
+            let factor = self
+                .pattern
+                .factor(&self.jacobian, "co-rotational Wilson-θ matrix J_t")?;
+            factor.solve_in_place(&mut r);
+            u_hat.iter_mut().zip(&r).for_each(|(x, d)| *x += d);
+            iterations += 1;
+            let step = norm(&r);
+            let size = norm(&u_hat);
+            relative = if step == 0.0 { 0.0 } else { step / size };
+            if relative <= self.options.tolerance {
+                break;
+            }
+        }
+        self.stats.steps += 1;
+        self.stats.solves += iterations;
+        if relative > self.options.tolerance {
+            self.stats.unconverged += 1;
+        }
+        self.stats.worst_increment = self.stats.worst_increment.max(relative);
+        for i in 0..n {
+            (self.u[i], self.v[i], self.a[i]) =
+                w.advance(self.u[i], self.v[i], self.a[i], u_hat[i]);
+        }
+        self.time += w.dt;
+        Ok(())
+    }
+
+    fn displacement(&self) -> &[f64] {
+        &self.u
+    }
+
+    fn velocity(&self) -> &[f64] {
+        &self.v
+    }
+
+    fn acceleration(&self) -> &[f64] {
+        &self.a
+    }
+
+    fn time(&self) -> f64 {
+        self.time
+    }
+}

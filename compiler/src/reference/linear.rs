@@ -1,0 +1,131 @@
+//! Full-order linear references: the static solution K u = f and Wilson-θ time stepping with
+//! J = K + a₀M + a₂C factored once (a₀ = 6/τ², a₂ = 3/τ, τ = θΔt; DESIGN.md §2).
+
+use crate::dynamics::WilsonTheta;
+use crate::fem::FemModel;
+
+use super::sparse::{Factor, Pattern};
+use super::{check_len, ReferenceError, Simulator};
+
+/// The static displacement u (n, m) of K u = f (f: n, N) by sparse Cholesky of K.
+///
+/// Fails with [`ReferenceError::NotPositiveDefinite`] when K is singular (no Dirichlet nodes:
+/// rigid-body modes).
+pub fn static_solve(fem: &FemModel, f: &[f64]) -> Result<Vec<f64>, ReferenceError> {
+    check_len("load vector f", fem.dof_count(), f.len())?;
+    let factor = Factor::of(&fem.stiffness, "stiffness K (static solve)")?;
+    let mut u = f.to_vec();
+    factor.solve_in_place(&mut u);
+    Ok(u)
+}
+
+/// Full-order linear Wilson-θ: M Ü + C U̇ + K U = f on the free DOFs, C = αM + βK, state
+/// (U, U̇, Ü) starting at rest; J = K + a₀M + a₂C is factored once.
+///
+/// Each [`step`](Simulator::step) holds f (n, N) constant over [t, t + Δt] and solves
+/// `J Û = f + M(a₀U + 6/τ U̇ + 2Ü) + C(a₂U + 2U̇ + τ/2 Ü)`, then advances with
+/// [`WilsonTheta::advance`].
+pub struct LinearSimulator {
+    wilson: WilsonTheta,
+    alpha: f64,
+    beta: f64,
+    pattern: Pattern,
+    stiffness: Vec<f64>,
+    mass: Vec<f64>,
+    jacobian: Factor,
+    u: Vec<f64>,
+    v: Vec<f64>,
+    a: Vec<f64>,
+    time: f64,
+    work: [Vec<f64>; 3],
+}
+
+impl LinearSimulator {
+    /// Factors J for the model and time step; the state starts at rest (U = U̇ = Ü = 0).
+    pub fn new(fem: &FemModel, wilson: WilsonTheta) -> Result<Self, ReferenceError> {
+        let pattern = Pattern::new(fem)?;
+        let stiffness = pattern.scatter(&fem.stiffness);
+        let mass = pattern.scatter(&fem.mass);
+        let a0 = wilson.mass_coefficient();
+        let a2 = wilson.damping_coefficient();
+        let (alpha, beta) = (fem.alpha, fem.beta);
+        let j: Vec<f64> = stiffness
+            .iter()
+            .zip(&mass)
+            .map(|(k, m)| k * (1.0 + a2 * beta) + m * (a0 + a2 * alpha))
+            .collect();
+        let jacobian = pattern.factor(&j, "Wilson-θ matrix J = K + a₀M + a₂C")?;
+        let n = pattern.n;
+        Ok(LinearSimulator {
+            wilson,
+            alpha,
+            beta,
+            pattern,
+            stiffness,
+            mass,
+            jacobian,
+            u: vec![0.0; n],
+            v: vec![0.0; n],
+            a: vec![0.0; n],
+            time: 0.0,
+            work: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
+        })
+    }
+}
+
+impl Simulator for LinearSimulator {
+    fn step(&mut self, f: &[f64]) -> Result<(), ReferenceError> {
+        let n = self.pattern.n;
+        check_len("load vector f", n, f.len())?;
+        let w = self.wilson;
+        let [rhs, x, y] = &mut self.work;
+        // rhs = f + M·(a₀U + 6/τ U̇ + 2Ü)
+        for i in 0..n {
+            x[i] = w.mass_rhs(self.u[i], self.v[i], self.a[i]);
+        }
+        self.pattern.mul(&self.mass, x, rhs);
+        for i in 0..n {
+            rhs[i] += f[i];
+        }
+        // + C·(a₂U + 2U̇ + τ/2 Ü), C = αM + βK
+        if self.alpha != 0.0 || self.beta != 0.0 {
+            for i in 0..n {
+                x[i] = w.damping_rhs(self.u[i], self.v[i], self.a[i]);
+            }
+            if self.alpha != 0.0 {
+                self.pattern.mul(&self.mass, x, y);
+                rhs.iter_mut()
+                    .zip(y.iter())
+                    .for_each(|(r, v)| *r += self.alpha * v);
+            }
+            if self.beta != 0.0 {
+                self.pattern.mul(&self.stiffness, x, y);
+                rhs.iter_mut()
+                    .zip(y.iter())
+                    .for_each(|(r, v)| *r += self.beta * v);
+            }
+        }
+        self.jacobian.solve_in_place(rhs);
+        for i in 0..n {
+            (self.u[i], self.v[i], self.a[i]) = w.advance(self.u[i], self.v[i], self.a[i], rhs[i]);
+        }
+        self.time += w.dt;
+        Ok(())
+    }
+
+    fn displacement(&self) -> &[f64] {
+        &self.u
+    }
+
+    fn velocity(&self) -> &[f64] {
+        &self.v
+    }
+
+    fn acceleration(&self) -> &[f64] {
+        &self.a
+    }
+
+    fn time(&self) -> f64 {
+        self.time
+    }
+}
