@@ -43,6 +43,9 @@ def generate():
     gmsh.open(GEO)
     gmsh.model.mesh.generate(3)
     gmsh.model.mesh.optimize("")
+    _, tags, _ = gmsh.model.mesh.getElements(3)
+    q = gmsh.model.mesh.getElementQualities(list(tags[0]), "gamma")
+    print(f"gmsh: {len(q)} tetrahedra, quality gamma min {min(q):.3f}, mean {sum(q) / len(q):.3f}")
     gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
     gmsh.option.setNumber("Mesh.Binary", 0)
     gmsh.option.setNumber("Mesh.SaveAll", 0)
@@ -162,7 +165,7 @@ def check():
     with open(SCENE, "rb") as f:
         scene = tomllib.load(f)
 
-    needed = {"meniscus", "anterior_horn", "posterior_horn", "probe", "upper", "surface"}
+    needed = {"meniscus", "anterior_horn", "posterior_horn", "probe", "upper", "surface", "lower"}
     needed |= {m["group"] for m in scene["material"]}
     needed |= {g["group"] for g in scene.get("fixed", [])}
     needed |= {g["group"] for g in scene.get("load", [])}
@@ -199,6 +202,7 @@ def check():
         # Cone patch: slant width WP * slant / (RO - RI), arc WP at its centre radius RP.
         "probe": WP * slant / (RO - RI) * WP,
         "upper": slant * (RI + RO) / 2.0 * phi,
+        "lower": (RO**2 - RI**2) / 2.0 * phi,
     }
     for name, a in exact.items():
         m = group_area(name)

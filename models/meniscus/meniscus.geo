@@ -75,10 +75,12 @@ probe() = Surface In BoundingBox{
   Rp + Wp / 2 + e, (Rp + Wp / 2) * Sin(dphi / 2) + e, zup + dz + e};
 // Upper surface (with the patch): the only faces lying entirely in z >= Hi.
 upper() = Surface In BoundingBox{-big, -big, Hi - e, big, big, Ho + e};
+// Lower (tibial) surface z = 0: not used by scene.toml; for variants resting on the plateau.
+lower() = Surface In BoundingBox{-big, -big, -e, big, big, e};
 
-If (#posterior() != 1 || #anterior() != 1 || #probe() != 1 || #upper() != 2)
-  Error("meniscus.geo: surface selection failed: posterior %g, anterior %g, probe %g, upper %g",
-        #posterior(), #anterior(), #probe(), #upper());
+If (#posterior() != 1 || #anterior() != 1 || #probe() != 1 || #upper() != 2 || #lower() != 1)
+  Error("meniscus.geo: surface selection failed: posterior %g, anterior %g, probe %g, upper %g, lower %g",
+        #posterior(), #anterior(), #probe(), #upper(), #lower());
 EndIf
 
 Physical Volume("meniscus", 1) = Volume{:};
@@ -87,6 +89,7 @@ Physical Surface("posterior_horn", 3) = {posterior()};
 Physical Surface("probe", 4) = {probe()};
 Physical Surface("upper", 5) = {upper()};
 Physical Surface("surface", 6) = Surface{:};
+Physical Surface("lower", 7) = {lower()};
 
 Mesh.MeshSizeMin = hp;
 Mesh.MeshSizeMax = h;
