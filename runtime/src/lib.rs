@@ -1,1 +1,161 @@
-//! crokf runtime.
+//! crokf runtime: loads a model file and runs the reduced-order co-rotational Kalman filter
+//! online (DESIGN.md §1, §5, §6). Dependency-light: no linear-algebra crate, no allocation per
+//! step.
+//!
+//! ```no_run
+//! use crokf_runtime::{load_model, Estimator};
+//! let model = load_model("beam.crokf")?;
+//! let mut est = Estimator::new(&model)?;
+//! let inputs = vec![0.0; model.inputs.len()];
+//! let y = vec![None; model.measurements.len()];
+//! est.step(&inputs, &y)?;
+//! let mut u = vec![0.0; 3 * model.sensors.len()];
+//! est.sensor_displacements(&mut u)?;
+//! # Ok::<(), crokf_runtime::RuntimeError>(())
+//! ```
+
+pub mod capi;
+pub mod csv;
+mod estimator;
+pub mod vtu;
+pub mod warp;
+
+pub use crokf_formats::{FormatError, Model};
+pub use estimator::{CovarianceKind, Estimator};
+
+use std::path::{Path, PathBuf};
+
+/// Everything that can go wrong at run time.
+#[derive(Debug, thiserror::Error)]
+pub enum RuntimeError {
+    /// The model file could not be read.
+    #[error("cannot read model file {path}: {source}")]
+    Io {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// The model file is invalid.
+    #[error("invalid model file {path}: {source}")]
+    ModelFile {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        source: FormatError,
+    },
+    /// The model (bytes or value) is invalid.
+    #[error("invalid model: {0}")]
+    Format(#[from] FormatError),
+    /// A caller buffer or vector has the wrong length.
+    #[error("{what}: expected length {expected}, got {found}")]
+    Length {
+        /// Which argument.
+        what: &'static str,
+        /// Required length.
+        expected: usize,
+        /// Given length.
+        found: usize,
+    },
+    /// A non-finite input value (state untouched).
+    #[error("input '{channel}' is not finite ({value})")]
+    NonFiniteInput {
+        /// Input label.
+        channel: String,
+        /// The value.
+        value: f64,
+    },
+    /// A non-finite measurement (state untouched).
+    #[error("measurement '{channel}' is not finite ({value})")]
+    NonFiniteMeasurement {
+        /// Measurement label `sensor.c`.
+        channel: String,
+        /// The value.
+        value: f64,
+    },
+    /// A non-finite value elsewhere.
+    #[error("{what}[{index}] is not finite ({value})")]
+    NonFinite {
+        /// Which argument.
+        what: &'static str,
+        /// Index.
+        index: usize,
+        /// The value.
+        value: f64,
+    },
+    /// `update` without a preceding `predict`.
+    #[error(
+        "update called without a preceding predict (each step is predict, then at most one update)"
+    )]
+    UpdateWithoutPredict,
+    /// R̃(ω̄) is not invertible at a sensor (|ω̄| near 2π): the measurement cannot be un-warped.
+    #[error("sensor '{sensor}': rotation angle {angle} rad makes the warp map singular; measurement not usable")]
+    SingularWarp {
+        /// Sensor name.
+        sensor: String,
+        /// |ω̄|, rad.
+        angle: f64,
+    },
+    /// Node set index out of range.
+    #[error("node set {index} does not exist (the model has {count})")]
+    NoSuchNodeSet {
+        /// Requested index.
+        index: usize,
+        /// Number of node sets.
+        count: usize,
+    },
+    /// A CSV file is malformed.
+    #[error("{path}:{line}: {message}")]
+    Csv {
+        /// File.
+        path: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// Writing an output file failed.
+    #[error("cannot write {path}: {source}")]
+    Write {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+}
+
+/// Reads and decodes a model file (magic, version, length, hash, structure, shapes).
+pub fn load_model(path: impl AsRef<Path>) -> Result<Model, RuntimeError> {
+    let path = path.as_ref();
+    let bytes = std::fs::read(path).map_err(|source| RuntimeError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    crokf_formats::decode(&bytes).map_err(|source| RuntimeError::ModelFile {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Decodes a model from the bytes of a model file.
+pub fn model_from_bytes(bytes: &[u8]) -> Result<Model, RuntimeError> {
+    Ok(crokf_formats::decode(bytes)?)
+}
+
+/// `Model::load(path)` / `Model::from_bytes(bytes)` for the runtime (Model lives in
+/// `crokf-formats`, so these come as an extension trait).
+pub trait ModelExt: Sized {
+    /// See [`load_model`].
+    fn load(path: impl AsRef<Path>) -> Result<Self, RuntimeError>;
+    /// See [`model_from_bytes`].
+    fn from_bytes(bytes: &[u8]) -> Result<Self, RuntimeError>;
+}
+
+impl ModelExt for Model {
+    fn load(path: impl AsRef<Path>) -> Result<Self, RuntimeError> {
+        load_model(path)
+    }
+    fn from_bytes(bytes: &[u8]) -> Result<Self, RuntimeError> {
+        model_from_bytes(bytes)
+    }
+}

@@ -1,0 +1,462 @@
+//! C ABI (header `runtime/include/crokf.h`). Opaque handles, `0` / non-NULL on success,
+//! `-1` / NULL on failure with the message in [`crokf_last_error`] (thread-local). No panic
+//! crosses the boundary (every entry point runs under `catch_unwind`).
+
+use crate::{load_model, model_from_bytes, Estimator, Model};
+use std::cell::RefCell;
+use std::ffi::{c_char, c_int, CStr, CString};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::ptr;
+
+/// A loaded model plus C strings of its labels.
+pub struct CrokfModel {
+    model: Model,
+    input_labels: Vec<CString>,
+    measurement_labels: Vec<CString>,
+    sensor_names: Vec<CString>,
+    node_set_names: Vec<CString>,
+}
+
+/// An estimator over a model (owns a copy of it).
+pub struct CrokfEstimator {
+    est: Estimator,
+}
+
+thread_local! {
+    static LAST_ERROR: RefCell<CString> = RefCell::new(CString::default());
+}
+
+fn set_error(msg: &str) {
+    let c = CString::new(msg.replace('\0', " ")).unwrap_or_default();
+    LAST_ERROR.with(|e| *e.borrow_mut() = c);
+}
+
+/// Runs `f`, turning `Err` and panics into `on_error` plus the thread-local message.
+fn guard<T>(on_error: T, f: impl FnOnce() -> Result<T, String>) -> T {
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(Ok(v)) => v,
+        Ok(Err(msg)) => {
+            set_error(&msg);
+            on_error
+        }
+        Err(_) => {
+            set_error("internal error (panic caught at the C boundary)");
+            on_error
+        }
+    }
+}
+
+fn cstrings(v: impl IntoIterator<Item = String>) -> Vec<CString> {
+    v.into_iter()
+        .map(|s| CString::new(s.replace('\0', " ")).unwrap_or_default())
+        .collect()
+}
+
+fn wrap_model(model: Model) -> *mut CrokfModel {
+    let m = CrokfModel {
+        input_labels: cstrings(model.input_labels()),
+        measurement_labels: cstrings(model.measurement_labels()),
+        sensor_names: cstrings(model.sensors.iter().map(|s| s.name.clone())),
+        node_set_names: cstrings(model.node_sets.iter().map(|s| s.name.clone())),
+        model,
+    };
+    Box::into_raw(Box::new(m))
+}
+
+unsafe fn model_ref<'a>(m: *const CrokfModel) -> Result<&'a CrokfModel, String> {
+    m.as_ref().ok_or_else(|| "model handle is NULL".to_string())
+}
+
+unsafe fn est_ref<'a>(e: *const CrokfEstimator) -> Result<&'a CrokfEstimator, String> {
+    e.as_ref()
+        .ok_or_else(|| "estimator handle is NULL".to_string())
+}
+
+unsafe fn est_mut<'a>(e: *mut CrokfEstimator) -> Result<&'a mut CrokfEstimator, String> {
+    e.as_mut()
+        .ok_or_else(|| "estimator handle is NULL".to_string())
+}
+
+unsafe fn slice<'a, T>(p: *const T, n: usize, what: &str) -> Result<&'a [T], String> {
+    if n == 0 {
+        Ok(&[])
+    } else if p.is_null() {
+        Err(format!("{what} is NULL but its length is {n}"))
+    } else {
+        Ok(std::slice::from_raw_parts(p, n))
+    }
+}
+
+unsafe fn slice_mut<'a>(p: *mut f64, n: usize, what: &str) -> Result<&'a mut [f64], String> {
+    if n == 0 {
+        Ok(&mut [])
+    } else if p.is_null() {
+        Err(format!("{what} is NULL but its length is {n}"))
+    } else {
+        Ok(std::slice::from_raw_parts_mut(p, n))
+    }
+}
+
+/// The message of the last failed call on this thread ("" if none). Valid until the next
+/// failing call on the same thread.
+#[no_mangle]
+pub extern "C" fn crokf_last_error() -> *const c_char {
+    LAST_ERROR.with(|e| e.borrow().as_ptr())
+}
+
+/// Loads a model file; NULL on error.
+///
+/// # Safety
+/// `path` must be NULL or a NUL-terminated string.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_model_load(path: *const c_char) -> *mut CrokfModel {
+    guard(ptr::null_mut(), || {
+        if path.is_null() {
+            return Err("model path is NULL".into());
+        }
+        let p = CStr::from_ptr(path)
+            .to_str()
+            .map_err(|_| "model path is not UTF-8".to_string())?;
+        load_model(p).map(wrap_model).map_err(|e| e.to_string())
+    })
+}
+
+/// Decodes a model from the `len` bytes of a model file; NULL on error.
+///
+/// # Safety
+/// `bytes` must point to `len` readable bytes (or be NULL with `len` = 0).
+#[no_mangle]
+pub unsafe extern "C" fn crokf_model_from_bytes(bytes: *const u8, len: usize) -> *mut CrokfModel {
+    guard(ptr::null_mut(), || {
+        let b = slice(bytes, len, "bytes")?;
+        model_from_bytes(b)
+            .map(wrap_model)
+            .map_err(|e| e.to_string())
+    })
+}
+
+/// Frees a model (NULL is a no-op). Estimators made from it stay valid.
+///
+/// # Safety
+/// `m` must be NULL or a handle from `crokf_model_load`/`crokf_model_from_bytes`, freed once.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_model_free(m: *mut CrokfModel) {
+    if !m.is_null() {
+        let _ = catch_unwind(AssertUnwindSafe(|| drop(Box::from_raw(m))));
+    }
+}
+
+macro_rules! model_count {
+    ($(#[$doc:meta])* $name:ident, |$m:ident| $e:expr) => {
+        $(#[$doc])*
+        ///
+        /// # Safety
+        /// `m` must be NULL (returns 0) or a live model handle.
+        #[no_mangle]
+        pub unsafe extern "C" fn $name(m: *const CrokfModel) -> usize {
+            guard(0, || {
+                let $m = &model_ref(m)?.model;
+                Ok($e)
+            })
+        }
+    };
+}
+
+model_count!(
+    /// Number of input channels m.
+    crokf_model_num_inputs, |m| m.inputs.len());
+model_count!(
+    /// Number of measurement channels q.
+    crokf_model_num_measurements, |m| m.measurements.len());
+model_count!(
+    /// Number of sensors (sensor read-outs have 3 values per sensor).
+    crokf_model_num_sensors, |m| m.sensors.len());
+model_count!(
+    /// Reduced state dimension r.
+    crokf_model_state_dim, |m| m.r());
+model_count!(
+    /// Number of displayed node sets.
+    crokf_model_num_node_sets, |m| m.node_sets.len());
+
+/// Number of nodes in node set `set` (0 if out of range or NULL handle).
+///
+/// # Safety
+/// `m` must be NULL or a live model handle.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_model_node_set_len(m: *const CrokfModel, set: usize) -> usize {
+    guard(0, || {
+        let m = &model_ref(m)?.model;
+        m.node_sets
+            .get(set)
+            .map(|s| s.node_tags.len())
+            .ok_or_else(|| format!("node set {set} does not exist"))
+    })
+}
+
+/// Time step Δt in seconds (NaN on a NULL handle).
+///
+/// # Safety
+/// `m` must be NULL or a live model handle.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_model_dt(m: *const CrokfModel) -> f64 {
+    guard(f64::NAN, || Ok(model_ref(m)?.model.dt))
+}
+
+macro_rules! model_label {
+    ($(#[$doc:meta])* $name:ident, $field:ident) => {
+        $(#[$doc])*
+        /// NULL if out of range. The string lives as long as the model handle.
+        ///
+        /// # Safety
+        /// `m` must be NULL or a live model handle.
+        #[no_mangle]
+        pub unsafe extern "C" fn $name(m: *const CrokfModel, i: usize) -> *const c_char {
+            guard(ptr::null(), || {
+                let v = &model_ref(m)?.$field;
+                v.get(i)
+                    .map(|s| s.as_ptr())
+                    .ok_or_else(|| format!("index {i} out of range ({} entries)", v.len()))
+            })
+        }
+    };
+}
+
+model_label!(
+    /// Label of input channel i.
+    crokf_model_input_label, input_labels);
+model_label!(
+    /// Label of measurement channel i (`sensor.x`).
+    crokf_model_measurement_label, measurement_labels);
+model_label!(
+    /// Name of sensor i.
+    crokf_model_sensor_name, sensor_names);
+model_label!(
+    /// Name of node set i.
+    crokf_model_node_set_name, node_set_names);
+
+/// A new estimator at rest over the model (which may be freed afterwards); NULL on error.
+///
+/// # Safety
+/// `m` must be NULL or a live model handle.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_estimator_new(m: *const CrokfModel) -> *mut CrokfEstimator {
+    guard(ptr::null_mut(), || {
+        let est = Estimator::new(&model_ref(m)?.model).map_err(|e| e.to_string())?;
+        Ok(Box::into_raw(Box::new(CrokfEstimator { est })))
+    })
+}
+
+/// Frees an estimator (NULL is a no-op).
+///
+/// # Safety
+/// `e` must be NULL or a handle from `crokf_estimator_new`, freed once.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_estimator_free(e: *mut CrokfEstimator) {
+    if !e.is_null() {
+        let _ = catch_unwind(AssertUnwindSafe(|| drop(Box::from_raw(e))));
+    }
+}
+
+/// Prediction with `n_inputs` world-frame inputs (one per input channel).
+///
+/// # Safety
+/// `e` live estimator; `inputs` points to `n_inputs` doubles.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_predict(
+    e: *mut CrokfEstimator,
+    inputs: *const f64,
+    n_inputs: usize,
+) -> c_int {
+    guard(-1, || {
+        let e = est_mut(e)?;
+        let u = slice(inputs, n_inputs, "inputs")?;
+        e.est.predict(u).map(|_| 0).map_err(|e| e.to_string())
+    })
+}
+
+unsafe fn do_update(
+    est: &mut Estimator,
+    y: *const f64,
+    present: *const u8,
+    n: usize,
+) -> Result<c_int, String> {
+    let q = est.model().measurements.len();
+    if y.is_null() {
+        // No measurements at all this step.
+        return est
+            .update_with(|_| None)
+            .map(|k| k as c_int)
+            .map_err(|e| e.to_string());
+    }
+    if n != q {
+        return Err(format!("measurements: expected length {q}, got {n}"));
+    }
+    let y = slice(y, n, "measurements")?;
+    let present = if present.is_null() {
+        None
+    } else {
+        Some(slice(present, n, "present")?)
+    };
+    est.update_with(|i| match present {
+        Some(p) if p[i] == 0 => None,
+        _ => Some(y[i]),
+    })
+    .map(|k| k as c_int)
+    .map_err(|e| e.to_string())
+}
+
+/// Measurement update of the current phase. `y[i]` is channel i's world value; `present[i]`
+/// = 0 marks it missing (`present` NULL: all present; `y` NULL: none). Returns the number of
+/// values used (≥ 0) or -1. A non-finite present value is an error and leaves the state as is.
+///
+/// # Safety
+/// `e` live estimator; `y` and `present` NULL or pointing to `n` elements.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_update(
+    e: *mut CrokfEstimator,
+    y: *const f64,
+    present: *const u8,
+    n: usize,
+) -> c_int {
+    guard(-1, || do_update(&mut est_mut(e)?.est, y, present, n))
+}
+
+/// `crokf_predict` then `crokf_update`; returns the number of measurements used or -1.
+///
+/// # Safety
+/// As for `crokf_predict` and `crokf_update`.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_step(
+    e: *mut CrokfEstimator,
+    inputs: *const f64,
+    n_inputs: usize,
+    y: *const f64,
+    present: *const u8,
+    n: usize,
+) -> c_int {
+    guard(-1, || {
+        let est = &mut est_mut(e)?.est;
+        if !y.is_null() {
+            // Check measurements before the prediction changes the state.
+            let ys = slice(y, n, "measurements")?;
+            let p = if present.is_null() {
+                None
+            } else {
+                Some(slice(present, n, "present")?)
+            };
+            if let Some(i) =
+                (0..ys.len()).find(|&i| p.is_none_or(|p| p[i] != 0) && !ys[i].is_finite())
+            {
+                return Err(format!("measurement {i} is not finite ({})", ys[i]));
+            }
+            let q = est.model().measurements.len();
+            if n != q {
+                return Err(format!("measurements: expected length {q}, got {n}"));
+            }
+        }
+        let u = slice(inputs, n_inputs, "inputs")?;
+        est.predict(u).map_err(|e| e.to_string())?;
+        do_update(est, y, present, n)
+    })
+}
+
+/// Back to rest (x = 0, step 0).
+///
+/// # Safety
+/// `e` live estimator.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_reset(e: *mut CrokfEstimator) -> c_int {
+    guard(-1, || {
+        est_mut(e)?.est.reset();
+        Ok(0)
+    })
+}
+
+/// Step index k (number of predictions since creation/reset); 0 on a NULL handle.
+///
+/// # Safety
+/// `e` NULL or a live estimator.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_step_index(e: *const CrokfEstimator) -> u64 {
+    guard(0, || Ok(est_ref(e)?.est.step_index()))
+}
+
+macro_rules! readout {
+    ($(#[$doc:meta])* $name:ident, $method:ident) => {
+        $(#[$doc])*
+        /// Returns 0 or -1 (wrong length, NULL).
+        ///
+        /// # Safety
+        /// `e` live estimator; `out` points to `len` writable doubles.
+        #[no_mangle]
+        pub unsafe extern "C" fn $name(e: *const CrokfEstimator, out: *mut f64, len: usize) -> c_int {
+            guard(-1, || {
+                let est = &est_ref(e)?.est;
+                let out = slice_mut(out, len, "out")?;
+                est.$method(out).map(|_| 0).map_err(|e| e.to_string())
+            })
+        }
+    };
+}
+
+macro_rules! node_readout {
+    ($(#[$doc:meta])* $name:ident, $method:ident) => {
+        $(#[$doc])*
+        /// `len` = 3 × nodes in the set. Returns 0 or -1.
+        ///
+        /// # Safety
+        /// `e` live estimator; `out` points to `len` writable doubles.
+        #[no_mangle]
+        pub unsafe extern "C" fn $name(
+            e: *const CrokfEstimator,
+            set: usize,
+            out: *mut f64,
+            len: usize,
+        ) -> c_int {
+            guard(-1, || {
+                let est = &est_ref(e)?.est;
+                let out = slice_mut(out, len, "out")?;
+                est.$method(set, out).map(|_| 0).map_err(|e| e.to_string())
+            })
+        }
+    };
+}
+
+readout!(
+    /// World displacement of every sensor, 3 per sensor (m); `len` = 3 × sensors.
+    crokf_sensor_displacements, sensor_displacements);
+readout!(
+    /// Standard deviation of every sensor displacement, 3 per sensor (m).
+    crokf_sensor_std, sensor_std);
+readout!(
+    /// Estimated world value of every measurement channel; `len` = q.
+    crokf_measurement_estimates, measurement_estimates);
+node_readout!(
+    /// World displacements of node set `set`, 3 per node (m).
+    crokf_node_displacements, node_displacements);
+node_readout!(
+    /// World positions X + u of node set `set`, 3 per node (m).
+    crokf_node_positions, node_positions);
+node_readout!(
+    /// Standard deviations of node set `set`'s displacements, 3 per node (m).
+    crokf_node_std, node_std);
+
+/// Copies the reduced state (length r). Returns 0 or -1.
+///
+/// # Safety
+/// `e` live estimator; `out` points to `len` writable doubles.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_state(e: *const CrokfEstimator, out: *mut f64, len: usize) -> c_int {
+    guard(-1, || {
+        let est = &est_ref(e)?.est;
+        let out = slice_mut(out, len, "out")?;
+        if out.len() != est.state().len() {
+            return Err(format!(
+                "state: expected length {}, got {len}",
+                est.state().len()
+            ));
+        }
+        out.copy_from_slice(est.state());
+        Ok(0)
+    })
+}

@@ -1,0 +1,134 @@
+//! Co-rotational maps of DESIGN.md §5, applied to 3-vectors without heap allocation.
+//!
+//! With ω ∈ ℝ³ (rad), θ = |ω| and W = [ω]× (so W v = ω × v):
+//!
+//! ```text
+//! R(ω)    = I + A₀ W + A₁ W²          A₀ = sin θ / θ,  A₁ = (1 − cos θ)/θ²
+//! R̃(ω)   = I + A₁ W + B₁ W²          B₁ = (θ − sin θ)/θ³          (= ∫₀¹ R(sω) ds)
+//! R̃(ω)⁻¹ = I − (A₁/D) W + ((A₁² − A₀B₁)/D) W²,   D = A₀² + θ²A₁² = det R̃ = (sin(θ/2)/(θ/2))²
+//! ```
+//!
+//! These are the forms of DESIGN.md with n = ω/θ absorbed into W (so no division by θ). The
+//! inverse follows because all three are polynomials in W with W³ = −θ²W: on the plane ⊥ ω,
+//! W/θ acts as multiplication by i, on ω itself as 0. For θ < 1/2 the coefficients come from
+//! their Taylor series (no cancellation); D vanishes only at θ = 2π, 4π, …
+
+/// 3-vector.
+pub type Vec3 = [f64; 3];
+/// 3×3 matrix, row-major rows.
+pub type Mat3 = [[f64; 3]; 3];
+
+/// ω × v.
+#[inline]
+pub fn cross(a: &Vec3, b: &Vec3) -> Vec3 {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// Σ_{k≥0} (−1)^k t^k / (2k + j)!, for t = θ² < 1/4 (truncated where terms drop below 1e-20).
+#[inline]
+fn series(t: f64, j: u32) -> f64 {
+    let mut fact = 1.0;
+    for i in 2..=j {
+        fact *= i as f64;
+    }
+    let mut term = 1.0 / fact;
+    let mut sum = term;
+    for k in 0..10u32 {
+        let a = (2 * k + j + 1) as f64;
+        term *= -t / (a * (a + 1.0));
+        sum += term;
+    }
+    sum
+}
+
+/// (A₀, A₁, B₁) = (sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³) at θ = |ω|.
+#[inline]
+pub fn coefficients(omega: &Vec3) -> (f64, f64, f64) {
+    let t = omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2];
+    if t < 0.25 {
+        (series(t, 1), series(t, 2), series(t, 3))
+    } else {
+        let th = t.sqrt();
+        let (s, c) = th.sin_cos();
+        (s / th, (1.0 - c) / t, (th - s) / (t * th))
+    }
+}
+
+/// v + a (ω × v) + b (ω × (ω × v)) = (I + aW + bW²) v.
+#[inline]
+fn poly(omega: &Vec3, a: f64, b: f64, v: &Vec3) -> Vec3 {
+    let wv = cross(omega, v);
+    let wwv = cross(omega, &wv);
+    [
+        v[0] + a * wv[0] + b * wwv[0],
+        v[1] + a * wv[1] + b * wwv[1],
+        v[2] + a * wv[2] + b * wwv[2],
+    ]
+}
+
+/// R(ω) v: rotation by the angle |ω| about ω/|ω|.
+#[inline]
+pub fn rotate(omega: &Vec3, v: &Vec3) -> Vec3 {
+    let (a0, a1, _) = coefficients(omega);
+    poly(omega, a0, a1, v)
+}
+
+/// R(ω)ᵀ v = R(−ω) v: world-frame vector into the local (co-rotated) frame.
+#[inline]
+pub fn rotate_transpose(omega: &Vec3, v: &Vec3) -> Vec3 {
+    let (a0, a1, _) = coefficients(omega);
+    poly(omega, -a0, a1, v)
+}
+
+/// R̃(ω) v: local-frame displacement to world-frame displacement (modal warping).
+#[inline]
+pub fn warp(omega: &Vec3, v: &Vec3) -> Vec3 {
+    let (_, a1, b1) = coefficients(omega);
+    poly(omega, a1, b1, v)
+}
+
+/// R̃(ω)⁻¹ v, or `None` when det R̃ = (sin(θ/2)/(θ/2))² < 1e-10 (θ near 2π: not invertible).
+#[inline]
+pub fn unwarp(omega: &Vec3, v: &Vec3) -> Option<Vec3> {
+    let (a0, a1, b1) = coefficients(omega);
+    let t = omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2];
+    let d = a0 * a0 + t * a1 * a1;
+    if d < 1e-10 || !d.is_finite() {
+        return None;
+    }
+    Some(poly(omega, -a1 / d, (a1 * a1 - a0 * b1) / d, v))
+}
+
+/// det R̃(ω) = (sin(θ/2)/(θ/2))².
+pub fn warp_determinant(omega: &Vec3) -> f64 {
+    let (a0, a1, _) = coefficients(omega);
+    let t = omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2];
+    a0 * a0 + t * a1 * a1
+}
+
+fn matrix_of(f: impl Fn(&Vec3) -> Vec3) -> Mat3 {
+    let mut m = [[0.0; 3]; 3];
+    for j in 0..3 {
+        let mut e = [0.0; 3];
+        e[j] = 1.0;
+        let col = f(&e);
+        for i in 0..3 {
+            m[i][j] = col[i];
+        }
+    }
+    m
+}
+
+/// R(ω) as a matrix.
+pub fn rotation_matrix(omega: &Vec3) -> Mat3 {
+    matrix_of(|v| rotate(omega, v))
+}
+
+/// R̃(ω) as a matrix.
+pub fn warp_matrix(omega: &Vec3) -> Mat3 {
+    matrix_of(|v| warp(omega, v))
+}
