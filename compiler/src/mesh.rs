@@ -361,7 +361,7 @@ fn parse_header(bytes: &[u8], path: &Path) -> Result<Header, MeshError> {
     };
     let first = loop {
         match next_line() {
-            Some((_, l, _)) if l.is_empty() => {}
+            Some((_, [], _)) => {}
             Some((_, l, _)) => break l,
             None => return Err(not_gmsh(path, b"")),
         }
@@ -919,8 +919,7 @@ fn node_tags_41(bytes: &[u8], header: &Header, path: &Path) -> Result<Vec<Vec<u6
         };
         syntax(path, location, "$Nodes section malformed or truncated")
     };
-    let blocks;
-    if header.binary {
+    let blocks = if header.binary {
         let mut c = Cursor {
             bytes,
             pos: start,
@@ -950,11 +949,11 @@ fn node_tags_41(bytes: &[u8], header: &Header, path: &Path) -> Result<Vec<Vec<u6
             }
             Some(blocks)
         };
-        blocks = read().ok_or_else(|| truncated(c.pos))?;
+        read().ok_or_else(|| truncated(c.pos))?
     } else {
         let text = String::from_utf8_lossy(&bytes[start..]);
-        blocks = ascii_node_tags(&text).ok_or_else(|| truncated(start))?;
-    }
+        ascii_node_tags(&text).ok_or_else(|| truncated(start))?
+    };
     Ok(blocks)
 }
 
@@ -1007,7 +1006,10 @@ fn describe_mshio_error(
     } else {
         format!("line {}", line_of(bytes, offset))
     };
-    let mut parts: Vec<String> = e.filter_msh_errors().map(|(_, k)| k.to_string()).collect();
+    let mut parts: Vec<String> = e
+        .filter_msh_errors()
+        .map(|(_, k)| k.to_string().trim_end_matches('.').to_owned())
+        .collect();
     parts.reverse();
     parts.dedup();
     let message = if parts.is_empty() {
@@ -1021,22 +1023,44 @@ fn describe_mshio_error(
     (location, message)
 }
 
+/// Whether the `$Nodes` or `$Elements` section (`marker`) exists and declares 0 entries.
+fn section_is_empty(bytes: &[u8], header: &Header, marker: &[u8]) -> bool {
+    let Some(start) = find_section(bytes, marker) else {
+        return false;
+    };
+    if header.binary {
+        let mut c = Cursor {
+            bytes,
+            pos: start,
+            big_endian: header.big_endian,
+            size_t: header.data_size,
+        };
+        c.size_t().and_then(|_| c.size_t()) == Some(0)
+    } else {
+        let head = &bytes[start..bytes.len().min(start + 200)];
+        let head = String::from_utf8_lossy(head);
+        head.split_ascii_whitespace().nth(1) == Some("0")
+    }
+}
+
 fn read_msh41(bytes: &[u8], header: &Header, path: &Path) -> Result<RawMesh, MeshError> {
-    // mshio 0.4 panics on a few malformed inputs (e.g. empty sections in debug builds);
-    // a panic there is reported as a parse error, never propagated.
+    // mshio 0.4 computes `count - 1` on u64 for these sections: an empty one overflows.
+    if section_is_empty(bytes, header, b"$Nodes") || section_is_empty(bytes, header, b"$Elements") {
+        return Err(MeshError::NoTetrahedra {
+            path: path.to_owned(),
+        });
+    }
+    // mshio 0.4 panics on a few malformed inputs (`unimplemented!`, `expect`, overflow);
+    // those known are checked above; any other panic is reported as a parse error.
     let parsed = std::panic::catch_unwind(|| {
         mshio::parse_msh_bytes(bytes).map_err(|e| describe_mshio_error(bytes, header.binary, &e))
     });
-    let msh =
-        match parsed {
-            Ok(Ok(msh)) => msh,
-            Ok(Err((location, message))) => return Err(syntax(path, location, message)),
-            Err(_) => return Err(syntax(
-                path,
-                "MSH 4.1 body".into(),
-                "malformed MSH 4.1 content: the mshio parser failed (see the panic message above)",
-            )),
-        };
+    let gave_up = "malformed MSH 4.1 content: the mshio parser failed (its message is above)";
+    let msh = match parsed {
+        Ok(Ok(msh)) => msh,
+        Ok(Err((location, message))) => return Err(syntax(path, location, message)),
+        Err(_) => return Err(syntax(path, "MSH 4.1 body".into(), gave_up)),
+    };
 
     let mut raw = RawMesh::default();
     physical_names_41(bytes, path, &mut raw.names)?;

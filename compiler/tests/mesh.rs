@@ -408,3 +408,22 @@ fn truncated_files_are_errors_not_panics() {
         assert!(read_mesh_bytes(&bytes[..bytes.len() - 1], path).is_ok());
     }
 }
+
+#[test]
+fn inputs_that_panic_inside_mshio_are_errors() {
+    // mshio 0.4 computes `num_elements - 1` on u64: an empty element section with nonzero
+    // tags overflows (a panic in debug builds). The reader must turn that into an error.
+    let t = text("cube_41_ascii.msh");
+    let start = t.find("$Elements").unwrap();
+    let bad = format!("{}$Elements\n0 0 1 1\n$EndElements\n", &t[..start]);
+    let r = std::panic::catch_unwind(|| {
+        read_mesh_bytes(bad.as_bytes(), Path::new("empty_elements.msh"))
+    });
+    let e = r.expect("no panic may reach the caller").unwrap_err();
+    assert!(matches!(e, MeshError::NoTetrahedra { .. }), "{e}");
+    assert!(e.to_string().contains("empty_elements.msh"), "{e}");
+    // Nodes only, no elements at all: no tetrahedra.
+    let nodes_only = &t[..start];
+    let e = read_mesh_bytes(nodes_only.as_bytes(), Path::new("nodes_only.msh")).unwrap_err();
+    assert!(matches!(e, MeshError::NoTetrahedra { .. }), "{e}");
+}
