@@ -1,0 +1,74 @@
+/*
+ * crokf.h - C interface of the crokf runtime (libcrokf_runtime).
+ *
+ * Conventions: functions returning int give 0 (or a count >= 0) on success and -1 on
+ * failure; functions returning a pointer give NULL on failure. The reason of the last failure
+ * on the calling thread is crokf_last_error(). No Rust panic crosses this boundary.
+ *
+ * Units: metres, newtons, seconds, radians. Vectors of 3 per sensor/node are (x, y, z) in the
+ * world frame. Step k = 1, 2, ... is the k-th prediction; its estimate is at t = k * dt.
+ */
+#ifndef CROKF_H
+#define CROKF_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct CrokfModel CrokfModel;         /* a loaded, validated model file */
+typedef struct CrokfEstimator CrokfEstimator; /* filter state over a model (owns a copy) */
+
+/* Message of the last failed call on this thread ("" if none); valid until the next failure. */
+const char *crokf_last_error(void);
+
+/* Models. */
+CrokfModel *crokf_model_load(const char *path);
+CrokfModel *crokf_model_from_bytes(const uint8_t *bytes, size_t len);
+void crokf_model_free(CrokfModel *model); /* NULL is a no-op */
+
+size_t crokf_model_num_inputs(const CrokfModel *model);       /* m */
+size_t crokf_model_num_measurements(const CrokfModel *model); /* q */
+size_t crokf_model_num_sensors(const CrokfModel *model);
+size_t crokf_model_state_dim(const CrokfModel *model);        /* r */
+size_t crokf_model_num_node_sets(const CrokfModel *model);
+size_t crokf_model_node_set_len(const CrokfModel *model, size_t set); /* nodes */
+double crokf_model_dt(const CrokfModel *model);               /* s */
+/* Labels live as long as the model; NULL if out of range. */
+const char *crokf_model_input_label(const CrokfModel *model, size_t i);
+const char *crokf_model_measurement_label(const CrokfModel *model, size_t i); /* "sensor.x" */
+const char *crokf_model_sensor_name(const CrokfModel *model, size_t i);
+const char *crokf_model_node_set_name(const CrokfModel *model, size_t i);
+
+/* Estimators (the model may be freed after creating one). */
+CrokfEstimator *crokf_estimator_new(const CrokfModel *model);
+void crokf_estimator_free(CrokfEstimator *est); /* NULL is a no-op */
+
+/* x- = F x + G R^T(omega) u: n_inputs = m world-frame inputs (N; gravity: a scale factor). */
+int crokf_predict(CrokfEstimator *est, const double *inputs, size_t n_inputs);
+/* Update of the current phase. y: q world-frame values (m); present[i] == 0 marks y[i]
+ * missing (present NULL: all present; y NULL: no measurement this step). Returns the number of
+ * values used. A non-finite present value fails and leaves the state untouched. */
+int crokf_update(CrokfEstimator *est, const double *y, const uint8_t *present, size_t n);
+/* crokf_predict then crokf_update. */
+int crokf_step(CrokfEstimator *est, const double *inputs, size_t n_inputs,
+               const double *y, const uint8_t *present, size_t n);
+int crokf_reset(CrokfEstimator *est);
+uint64_t crokf_step_index(const CrokfEstimator *est);
+
+/* Read-outs into caller buffers; len must be exact. */
+int crokf_sensor_displacements(const CrokfEstimator *est, double *out, size_t len); /* 3*sensors */
+int crokf_sensor_std(const CrokfEstimator *est, double *out, size_t len);           /* 3*sensors */
+int crokf_measurement_estimates(const CrokfEstimator *est, double *out, size_t len); /* q */
+int crokf_node_displacements(const CrokfEstimator *est, size_t set, double *out, size_t len);
+int crokf_node_positions(const CrokfEstimator *est, size_t set, double *out, size_t len);
+int crokf_node_std(const CrokfEstimator *est, size_t set, double *out, size_t len);
+int crokf_state(const CrokfEstimator *est, double *out, size_t len); /* r */
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* CROKF_H */

@@ -1,0 +1,98 @@
+//! No heap allocation in predict, update, step or any read-out (counting global allocator).
+
+mod common;
+use common::*;
+use crokf_runtime::Estimator;
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        System.alloc(layout)
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        System.dealloc(ptr, layout)
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        System.realloc(ptr, layout, new_size)
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// Allocations made on this thread while running `f`.
+fn count(f: impl FnOnce()) -> usize {
+    let before = ALLOCATIONS.with(Cell::get);
+    f();
+    ALLOCATIONS.with(Cell::get) - before
+}
+
+#[test]
+fn the_counter_counts() {
+    assert!(count(|| drop(std::hint::black_box(vec![1u8; 10]))) >= 1);
+}
+
+#[test]
+fn no_allocation_per_step() {
+    let model = synthetic_model(&Spec {
+        rotation: 0.2,
+        every2: 2,
+        ..Default::default()
+    });
+    let mut est = Estimator::new(&model).unwrap();
+    let mut rng = Rng(31);
+    let inputs: Vec<Vec<f64>> = (0..50).map(|_| rng.vec(4, 1.0)).collect();
+    let ys: Vec<Vec<Option<f64>>> = (0..50)
+        .map(|k| {
+            (0..5)
+                .map(|j| {
+                    if (k + j) % 4 == 0 {
+                        None
+                    } else {
+                        Some(0.01 * rng.uniform())
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let mut s = vec![0.0; 6];
+    let mut q = vec![0.0; 5];
+    let mut n0 = vec![0.0; 12];
+    let mut n1 = vec![0.0; 3];
+    let mut total = 0;
+    for (k, (u, y)) in inputs.iter().zip(&ys).enumerate() {
+        total += count(|| {
+            if k % 3 == 0 {
+                est.step(u, y).unwrap();
+            } else {
+                est.predict(u).unwrap();
+                est.sensor_displacements(&mut s).unwrap();
+                est.sensor_std(&mut s).unwrap();
+                if k % 5 != 0 {
+                    est.update(y).unwrap();
+                }
+            }
+            est.sensor_displacements(&mut s).unwrap();
+            est.sensor_std(&mut s).unwrap();
+            est.measurement_estimates(&mut q).unwrap();
+            est.node_displacements(0, &mut n0).unwrap();
+            est.node_positions(0, &mut n0).unwrap();
+            est.node_std(0, &mut n0).unwrap();
+            est.node_positions(1, &mut n1).unwrap();
+            est.node_std(1, &mut n1).unwrap();
+            std::hint::black_box(est.state());
+        });
+    }
+    assert_eq!(total, 0, "allocations during 50 steps with read-outs");
+    assert!(est.state().iter().any(|&v| v != 0.0));
+    assert_eq!(count(|| est.reset()), 0);
+}
