@@ -10,6 +10,7 @@
 //! See `DESIGN.md` in the shared notes for the equations each module implements.
 
 // pub mod compile; (enabled once reduce lands)
+pub mod bench;
 pub mod corotation;
 pub mod dynamics;
 pub mod fem;

@@ -1,0 +1,256 @@
+//! Benchmarks (never timed tests): assembly, full-order linear and co-rotational steps, and the
+//! runtime's reduced step, measured in the same run so that ratios are meaningful.
+//!
+//! Structured beams (aspect 10:1:1, [`box_mesh`]) stand in for meshes of a given size; the
+//! runtime is timed on synthetic models of the shapes the issues fix (r states, 30 measured
+//! components, 6 inputs, 5,000 displayed nodes). Every figure is a median over repetitions.
+
+use std::hint::black_box;
+use std::path::Path;
+use std::time::Instant;
+
+use crokf_formats as fmt;
+use crokf_runtime::Estimator;
+
+use crate::dynamics::WilsonTheta;
+use crate::fem::operators::Operators;
+use crate::fem::FemModel;
+use crate::generate::box_mesh;
+use crate::mesh::Mesh;
+use crate::reference::{CorotationalSimulator, LinearSimulator, NewtonOptions, Simulator};
+use crate::scene::Scene;
+
+/// Median of `samples` timings of `f`, s.
+pub fn median_seconds(samples: usize, mut f: impl FnMut()) -> f64 {
+    let mut t: Vec<f64> = (0..samples.max(1))
+        .map(|_| {
+            let start = Instant::now();
+            f();
+            start.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
+/// A beam mesh of about `tetrahedra` elements (1 m × 0.1 m × 0.1 m, cells k × k in section).
+pub fn beam_of_size(tetrahedra: usize) -> Mesh {
+    let k = ((tetrahedra as f64 / 60.0).cbrt().floor() as usize).max(1);
+    let nx = ((tetrahedra as f64 / (6.0 * (k * k) as f64)).round() as usize).max(1);
+    box_mesh([nx, k, k], [1.0, 0.1, 0.1])
+}
+
+/// The benchmark scene: soft beam clamped at `xmin`, tip load on `xmax`, Δt = 1 ms.
+pub fn beam_scene() -> Scene {
+    let text = r#"
+        [mesh]
+        file = "generated"
+        [[material]]
+        group = "body"
+        young_modulus = 1.0e6
+        poisson_ratio = 0.3
+        density = 1000.0
+        [damping]
+        alpha = 0.5
+        beta = 1.0e-3
+        [[fixed]]
+        group = "xmin"
+        [[load]]
+        name = "tip"
+        group = "xmax"
+        [time]
+        dt = 0.001
+    "#;
+    Scene::parse(text, Path::new("<benchmark scene>")).expect("the benchmark scene is valid")
+}
+
+/// Full-order figures at one mesh size.
+#[derive(Clone, Debug)]
+pub struct FullOrderBench {
+    /// Tetrahedra.
+    pub tetrahedra: usize,
+    /// Free DOFs.
+    pub dofs: usize,
+    /// Assembly of K and M, s (median).
+    pub assembly_s: f64,
+    /// Linear Wilson-θ step (J factored once), s (median).
+    pub linear_step_s: f64,
+    /// Co-rotational Wilson-θ step (one linear solve, refactored J), s (median); NaN if skipped.
+    pub corotational_step_s: f64,
+}
+
+/// Times assembly and (optionally) the full-order steps on a beam of about `tetrahedra` elements.
+pub fn full_order(tetrahedra: usize, steps: bool, samples: usize) -> FullOrderBench {
+    let mesh = beam_of_size(tetrahedra);
+    let scene = beam_scene();
+    let mut fem = None;
+    let assembly_s = median_seconds(samples, || {
+        fem = Some(FemModel::assemble(&mesh, &scene, 1.0).expect("benchmark mesh assembles"));
+    });
+    let fem = fem.expect("assembled at least once");
+    let ops = Operators::build(&mesh, &scene, &fem, 1.0).expect("benchmark operators");
+    let wilson = WilsonTheta {
+        dt: scene.time.dt,
+        theta: scene.time.theta,
+    };
+    let (mut linear_step_s, mut corotational_step_s) = (f64::NAN, f64::NAN);
+    if steps {
+        // A tip load of 1 N along z: small enough that one Newton iteration suffices.
+        let f: Vec<f64> = ops.inputs[2].column.clone();
+        let mut linear = LinearSimulator::new(&fem, wilson).expect("linear simulator");
+        linear_step_s = median_seconds(samples.max(5), || {
+            linear.step(black_box(&f)).expect("linear step");
+        });
+        let options = NewtonOptions {
+            max_newton: 1,
+            ..NewtonOptions::default()
+        };
+        let mut corotational =
+            CorotationalSimulator::new(&fem, wilson, options).expect("co-rotational simulator");
+        corotational_step_s = median_seconds(samples.max(3), || {
+            corotational
+                .step(black_box(&f))
+                .expect("co-rotational step");
+        });
+    }
+    FullOrderBench {
+        tetrahedra: fem.elements.len(),
+        dofs: fem.dof_count(),
+        assembly_s,
+        linear_step_s,
+        corotational_step_s,
+    }
+}
+
+/// Runtime figures at one order r.
+#[derive(Clone, Debug)]
+pub struct RuntimeBench {
+    /// Reduced order r.
+    pub order: usize,
+    /// predict + update with all measurements, s (median of batch means).
+    pub step_s: f64,
+    /// World positions of the displayed node set (with warping), s (median).
+    pub readout_s: f64,
+    /// Displayed nodes in the read-out.
+    pub nodes: usize,
+}
+
+/// A deterministic pseudo-random sequence in [-1, 1) (xorshift64*).
+struct Noise(u64);
+
+impl Noise {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        let v = self.0.wrapping_mul(0x2545_f491_4f6c_dd1d);
+        (v >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+    }
+
+    fn matrix(&mut self, rows: usize, cols: usize, scale: f64) -> fmt::Matrix {
+        fmt::Matrix::from_fn(rows as u32, cols as u32, |_, _| scale * self.next())
+    }
+}
+
+/// A synthetic model with the runtime benchmark's shapes: r states, `inputs` input channels on
+/// two load groups, `measured` measured components (sensors of 3), one node set of `nodes`.
+pub fn synthetic_model(r: usize, inputs: usize, measured: usize, nodes: usize) -> fmt::Model {
+    let mut rng = Noise(0x9e37_79b9_7f4a_7c15);
+    let mut transition = rng.matrix(r, r, 0.3 / (r as f64).sqrt());
+    for i in 0..r {
+        transition.data[i * r + i] += 0.6;
+    }
+    let loads = (inputs / 3).max(1);
+    let sensors = measured.div_ceil(3);
+    let measurements: Vec<fmt::MeasurementChannel> = (0..measured)
+        .map(|i| fmt::MeasurementChannel {
+            sensor: (i / 3) as u32,
+            component: (i % 3) as u8,
+        })
+        .collect();
+    let model = fmt::Model {
+        dt: 1e-3,
+        theta: 1.4,
+        state_dim: r as u32,
+        transition,
+        input: rng.matrix(r, inputs, 1.0),
+        inputs: (0..inputs)
+            .map(|j| fmt::InputChannel {
+                label: format!("load{}.{}", j / 3, fmt::component_label((j % 3) as u8)),
+                kind: fmt::InputKind::Load {
+                    load: (j / 3) as u32,
+                    component: (j % 3) as u8,
+                },
+            })
+            .collect(),
+        loads: (0..loads)
+            .map(|g| fmt::LoadGroup {
+                name: format!("load{g}"),
+                rotation_rows: rng.matrix(3, r, 1e-2),
+            })
+            .collect(),
+        sensors: (0..sensors)
+            .map(|s| fmt::SensorInfo {
+                name: format!("s{s}"),
+                position: [s as f64, 0.0, 0.0],
+                displacement_rows: rng.matrix(3, r, 1e-2),
+                rotation_rows: rng.matrix(3, r, 1e-2),
+                components: (0..3u8)
+                    .filter(|c| 3 * s + (*c as usize) < measured)
+                    .collect(),
+                noise_std: 1e-3,
+                every: 1,
+            })
+            .collect(),
+        measurements,
+        kalman: fmt::KalmanGains {
+            period: 1,
+            phases: vec![fmt::KalmanPhase {
+                measured: (0..measured as u32).collect(),
+                gain: rng.matrix(r, measured, 1e-2),
+                prior_covariance: fmt::Matrix::identity(r as u32),
+                posterior_covariance: fmt::Matrix::identity(r as u32),
+            }],
+            process_noise: fmt::Matrix::identity(r as u32),
+            measurement_variance: vec![1e-6; measured],
+        },
+        node_sets: vec![fmt::NodeSet {
+            name: "display".into(),
+            node_tags: (1..=nodes as u64).collect(),
+            rest_positions: rng.matrix(nodes, 3, 1.0),
+            triangles: Vec::new(),
+            displacement_rows: rng.matrix(3 * nodes, r, 1e-2),
+            rotation_rows: rng.matrix(3 * nodes, r, 1e-2),
+        }],
+        report: fmt::CompileReport::default(),
+        inputs_digest: fmt::InputsDigest::default(),
+    };
+    model
+}
+
+/// Times the runtime step and read-out at order r (30 measured components, 6 inputs, 5,000
+/// displayed nodes unless told otherwise).
+pub fn runtime(r: usize, measured: usize, inputs: usize, nodes: usize) -> RuntimeBench {
+    let model = synthetic_model(r, inputs, measured, nodes);
+    let mut est = Estimator::new(&model).expect("synthetic model is valid");
+    let u = vec![0.5; inputs];
+    let mut rng = Noise(7);
+    let y: Vec<Option<f64>> = (0..measured).map(|_| Some(1e-3 * rng.next())).collect();
+    let batch = 1000;
+    let step_s = median_seconds(21, || {
+        for _ in 0..batch {
+            est.step(black_box(&u), black_box(&y)).expect("step");
+        }
+    }) / batch as f64;
+    let mut out = vec![0.0; 3 * nodes];
+    let readout_s = median_seconds(51, || {
+        est.node_positions(0, black_box(&mut out))
+            .expect("read-out");
+    });
+    RuntimeBench {
+        order: r,
+        step_s,
+        readout_s,
+        nodes,
+    }
+}
