@@ -17,8 +17,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 pub use corotational::{
-    deformation_gradient, element_force, polar_rotation, CorotationalSimulator, NewtonOptions,
-    NewtonStats,
+    deformation_gradient, element_force, element_tangent, polar_rotation, CorotationalSimulator,
+    NewtonOptions, NewtonStats,
 };
 pub use linear::{static_solve, LinearSimulator};
 pub use scenario::{Horizon, LoadHistory, NamedPoint, Scenario, ScenarioError, Steady};

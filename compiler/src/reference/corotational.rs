@@ -5,7 +5,7 @@
 //! External loads are world-frame dead loads: a force on a load group keeps its world direction
 //! while the body rotates (it is not a follower load).
 
-use nalgebra::Matrix3;
+use nalgebra::{Matrix3, Vector3};
 
 use crate::dynamics::WilsonTheta;
 use crate::fem::{FemModel, TetGeometry};
@@ -52,6 +52,86 @@ pub fn deformation_gradient(geometry: &TetGeometry, x: &[[f64; 3]; 4]) -> Matrix
     f
 }
 
+/// Co-rotated kinematics of one element: R and S = RᵀF of F = R S, the unrotated relative
+/// positions pₐ = Rᵀ(xₐ − x₀) and the element-frame forces z = Kₑ (p − (X − X₀)).
+struct Kinematics {
+    r: Matrix3<f64>,
+    s: Matrix3<f64>,
+    p: [Vector3<f64>; 4],
+    z: [Vector3<f64>; 4],
+}
+
+impl Kinematics {
+    fn new(
+        geometry: &TetGeometry,
+        ke: &[[f64; 12]; 12],
+        rest: &[[f64; 3]; 4],
+        current: &[[f64; 3]; 4],
+    ) -> Self {
+        let f = deformation_gradient(geometry, current);
+        let r = polar_rotation(&f);
+        let s = r.tr_mul(&f);
+        let p: [Vector3<f64>; 4] = std::array::from_fn(|a| {
+            r.tr_mul(&Vector3::from_fn(|i, _| current[a][i] - current[0][i]))
+        });
+        let mut y = [0.0; 12];
+        for a in 0..4 {
+            for i in 0..3 {
+                y[3 * a + i] = p[a][i] - (rest[a][i] - rest[0][i]);
+            }
+        }
+        let z = crate::fem::element::mul12(ke, &y);
+        let z = std::array::from_fn(|a| Vector3::new(z[3 * a], z[3 * a + 1], z[3 * a + 2]));
+        Kinematics { r, s, p, z }
+    }
+
+    /// World-frame force on node a: R zₐ.
+    fn force(&self, a: usize) -> Vector3<f64> {
+        self.r * self.z[a]
+    }
+
+    /// Calls `out(a, b, warped, consistent)` with the 3×3 tangent blocks ∂fₐ/∂x_b:
+    /// warped R Kₐᵦ Rᵀ, and (if `consistent`) the exact derivative
+    /// R Kₐᵦ Rᵀ + R (Σ_c Kₐ_c [p_c]× − [zₐ]×)(tr S·I − S)⁻¹ [∇N_b]× Rᵀ
+    /// (from δR = R[w]×, (tr S·I − S) w = Σ_b ∇N_b × Rᵀδx_b), else a copy of the warped one.
+    fn tangents(
+        &self,
+        geometry: &TetGeometry,
+        ke: &[[f64; 12]; 12],
+        consistent: bool,
+        mut out: impl FnMut(usize, usize, &Matrix3<f64>, &Matrix3<f64>),
+    ) {
+        let block = |a: usize, b: usize| Matrix3::from_fn(|i, j| ke[3 * a + i][3 * b + j]);
+        let rt = self.r.transpose();
+        let spin = (Matrix3::identity() * self.s.trace() - self.s).try_inverse();
+        let (left, right) = match (consistent, spin) {
+            (true, Some(spin_inv)) => {
+                let left: [Matrix3<f64>; 4] = std::array::from_fn(|a| {
+                    let mut h = -self.z[a].cross_matrix();
+                    for c in 0..4 {
+                        h += block(a, c) * self.p[c].cross_matrix();
+                    }
+                    self.r * h * spin_inv
+                });
+                let right: [Matrix3<f64>; 4] = std::array::from_fn(|b| {
+                    Vector3::from(geometry.gradients[b]).cross_matrix() * rt
+                });
+                (Some(left), Some(right))
+            }
+            _ => (None, None),
+        };
+        for a in 0..4 {
+            for b in 0..4 {
+                let warped = self.r * block(a, b) * rt;
+                match (&left, &right) {
+                    (Some(l), Some(r)) => out(a, b, &warped, &(warped + l[a] * r[b])),
+                    _ => out(a, b, &warped, &warped),
+                }
+            }
+        }
+    }
+}
+
 /// Co-rotational internal force of one element, fₑ = R Kₑ (Rᵀ xₑ − Xₑ) (12, N, node-major),
 /// and its rotation R. `ke` is the rest stiffness (12×12, N/m), `rest` and `current` the vertex
 /// positions Xₑ and xₑ (m). Positions enter relative to vertex 0, which Kₑ (translation-free)
@@ -62,23 +142,34 @@ pub fn element_force(
     rest: &[[f64; 3]; 4],
     current: &[[f64; 3]; 4],
 ) -> ([f64; 12], Matrix3<f64>) {
-    let r = polar_rotation(&deformation_gradient(geometry, current));
-    let mut y = [0.0; 12];
-    for a in 0..4 {
-        let d = nalgebra::Vector3::from_fn(|i, _| current[a][i] - current[0][i]);
-        let p = r.tr_mul(&d);
-        for i in 0..3 {
-            y[3 * a + i] = p[i] - (rest[a][i] - rest[0][i]);
-        }
-    }
-    let z = crate::fem::element::mul12(ke, &y);
+    let kin = Kinematics::new(geometry, ke, rest, current);
     let mut f = [0.0; 12];
     for a in 0..4 {
-        let za = nalgebra::Vector3::new(z[3 * a], z[3 * a + 1], z[3 * a + 2]);
-        let fa = r * za;
-        f[3 * a..3 * a + 3].copy_from_slice(fa.as_slice());
+        f[3 * a..3 * a + 3].copy_from_slice(kin.force(a).as_slice());
     }
-    (f, r)
+    (f, kin.r)
+}
+
+/// Element tangent ∂fₑ/∂xₑ (12×12, N/m): the warped stiffness R Kₑ Rᵀ, or with `consistent`
+/// the exact derivative of [`element_force`] including the change of R (symmetric for the
+/// isotropic material: fₑ is the gradient of Vₑ[λ/2 tr²(S − I) + μ‖S − I‖²]).
+pub fn element_tangent(
+    geometry: &TetGeometry,
+    ke: &[[f64; 12]; 12],
+    rest: &[[f64; 3]; 4],
+    current: &[[f64; 3]; 4],
+    consistent: bool,
+) -> [[f64; 12]; 12] {
+    let kin = Kinematics::new(geometry, ke, rest, current);
+    let mut t = [[0.0; 12]; 12];
+    kin.tangents(geometry, ke, consistent, |a, b, _, k| {
+        for i in 0..3 {
+            for j in 0..3 {
+                t[3 * a + i][3 * b + j] = k[(i, j)];
+            }
+        }
+    });
+    t
 }
 
 /// Newton settings of the co-rotational solvers.
@@ -88,6 +179,11 @@ pub struct NewtonOptions {
     pub max_newton: usize,
     /// Converged when the Newton increment ‖δ‖ ≤ tolerance · ‖Û‖.
     pub tolerance: f64,
+    /// Newton matrix from the consistent tangent (exact derivative of f_int, quadratic
+    /// convergence) instead of the warped stiffness R K Rᵀ (classic stiffness warping; converges
+    /// only linearly, and stalls near large rotations under load). Damping always uses the warped
+    /// stiffness. Where the consistent matrix is not positive definite the warped one is used.
+    pub consistent: bool,
 }
 
 impl Default for NewtonOptions {
@@ -95,6 +191,7 @@ impl Default for NewtonOptions {
         NewtonOptions {
             max_newton: 10,
             tolerance: 1e-8,
+            consistent: true,
         }
     }
 }
@@ -108,6 +205,8 @@ pub struct NewtonStats {
     pub solves: usize,
     /// Steps that stopped at `max_newton` without meeting the tolerance.
     pub unconverged: usize,
+    /// Solves that fell back to the warped matrix (consistent one not positive definite).
+    pub fallbacks: usize,
     /// Largest final relative increment ‖δ‖/‖Û‖ of any step.
     pub worst_increment: f64,
 }
@@ -121,15 +220,16 @@ struct ElementData {
 }
 
 /// Full-order co-rotational Wilson-θ: M Ü + C U̇ + f_int(U) = f with
-/// f_int = Σₑ Rₑ Kₑ (Rₑᵀ xₑ − Xₑ), C = αM + β K_t, K_t = Σₑ Rₑ Kₑ Rₑᵀ.
+/// f_int = Σₑ Rₑ Kₑ (Rₑᵀ xₑ − Xₑ), C = αM + β K_t, K_t = Σₑ Rₑ Kₑ Rₑᵀ (warped).
 ///
 /// Per step (τ = θΔt, a₀ = 6/τ², a₂ = 3/τ, ΔÛ = Û − U, load f held over the step):
 /// ```text
 /// Ü_θ = a₀ ΔÛ − (6/τ) U̇ − 2Ü,   U̇_θ = a₂ ΔÛ − 2U̇ − (τ/2) Ü
-/// r(Û) = f − M Ü_θ − C U̇_θ − f_int(Û),   J_t = K_t + a₀M + a₂C,   Û ← Û + J_t⁻¹ r
+/// r(Û) = f − M Ü_θ − C U̇_θ − f_int(Û),   J_t = K_N + a₀M + a₂C,   Û ← Û + J_t⁻¹ r
 /// ```
 /// from Û = U, at least once and up to `max_newton` times (symbolic Cholesky reused, numeric
-/// refactored each time), then [`WilsonTheta::advance`] per DOF.
+/// refactored each time), then [`WilsonTheta::advance`] per DOF. K_N is the consistent tangent
+/// or K_t ([`NewtonOptions::consistent`]).
 pub struct CorotationalSimulator {
     wilson: WilsonTheta,
     alpha: f64,
@@ -139,7 +239,10 @@ pub struct CorotationalSimulator {
     elements: Vec<ElementData>,
     pattern: Pattern,
     mass: Vec<f64>,
-    tangent: Vec<f64>,
+    /// Warped stiffness K_t values.
+    warped: Vec<f64>,
+    /// Consistent tangent values (when `options.consistent`).
+    consistent: Vec<f64>,
     jacobian: Vec<f64>,
     internal: Vec<f64>,
     u: Vec<f64>,
@@ -186,7 +289,12 @@ impl CorotationalSimulator {
             elements,
             pattern,
             mass,
-            tangent: vec![0.0; nnz],
+            warped: vec![0.0; nnz],
+            consistent: if options.consistent {
+                vec![0.0; nnz]
+            } else {
+                Vec::new()
+            },
             jacobian: vec![0.0; nnz],
             internal: vec![0.0; n],
             u: vec![0.0; n],
@@ -202,10 +310,15 @@ impl CorotationalSimulator {
         self.stats
     }
 
-    /// Internal force f_int(u) (n, N) and warped tangent K_t (pattern values) at displacement u.
+    /// Internal force f_int(u) (n, N), warped stiffness and (if enabled) consistent tangent
+    /// (pattern values) at the free-DOF displacement u (m).
     fn assemble(&mut self, u: &[f64]) {
+        let consistent = self.options.consistent;
         self.internal.iter_mut().for_each(|v| *v = 0.0);
-        self.tangent.iter_mut().for_each(|v| *v = 0.0);
+        self.warped.iter_mut().for_each(|v| *v = 0.0);
+        self.consistent.iter_mut().for_each(|v| *v = 0.0);
+        let pattern = &self.pattern;
+        let (warped, consistent_values) = (&mut self.warped, &mut self.consistent);
         for el in &self.elements {
             let rest = el.nodes.map(|n| self.rest[n]);
             let mut current = rest;
@@ -214,29 +327,32 @@ impl CorotationalSimulator {
                     current[k / 3][k % 3] += u[*d];
                 }
             }
-            let (f, r) = element_force(&el.geometry, &el.ke, &rest, &current);
-            for (k, dof) in el.dofs.iter().enumerate() {
-                if let Some(d) = dof {
-                    self.internal[*d] += f[k];
-                }
-            }
+            let kin = Kinematics::new(&el.geometry, &el.ke, &rest, &current);
             for a in 0..4 {
-                for b in 0..4 {
-                    let kab = Matrix3::from_fn(|i, j| el.ke[3 * a + i][3 * b + j]);
-                    let block = r * kab * r.transpose();
-                    for i in 0..3 {
-                        let Some(row) = el.dofs[3 * a + i] else {
-                            continue;
-                        };
-                        for j in 0..3 {
-                            let Some(col) = el.dofs[3 * b + j] else {
-                                continue;
-                            };
-                            self.tangent[self.pattern.slot(row, col)] += block[(i, j)];
-                        }
+                let fa = kin.force(a);
+                for i in 0..3 {
+                    if let Some(d) = el.dofs[3 * a + i] {
+                        self.internal[d] += fa[i];
                     }
                 }
             }
+            kin.tangents(&el.geometry, &el.ke, consistent, |a, b, kw, kc| {
+                for i in 0..3 {
+                    let Some(row) = el.dofs[3 * a + i] else {
+                        continue;
+                    };
+                    for j in 0..3 {
+                        let Some(col) = el.dofs[3 * b + j] else {
+                            continue;
+                        };
+                        let slot = pattern.slot(row, col);
+                        warped[slot] += kw[(i, j)];
+                        if consistent {
+                            consistent_values[slot] += kc[(i, j)];
+                        }
+                    }
+                }
+            });
         }
     }
 
@@ -247,10 +363,46 @@ impl CorotationalSimulator {
         Ok(self.internal.clone())
     }
 
-    /// Quasi-static equilibrium f_int(u) = f (f: n, N, world-frame dead load) by Newton with the
-    /// warped tangent and adaptive load stepping (λ from 0 to 1; an increment that does not
-    /// converge in 30 solves is halved, one that converges in ≤ 6 lets the next grow by 1.5).
-    /// Converged when ‖δ‖ ≤ `tolerance` ‖u‖. The dynamic state is left unchanged.
+    /// Factors J = c_k K_N + c_w K_t + c_m M, K_N the consistent tangent (if enabled, else K_t),
+    /// falling back to K_N = K_t when that matrix is not positive definite.
+    fn factor_newton(
+        &mut self,
+        c_k: f64,
+        c_w: f64,
+        c_m: f64,
+        what: &str,
+    ) -> Result<super::sparse::Factor, ReferenceError> {
+        let mut use_consistent = self.options.consistent;
+        loop {
+            let tangent = if use_consistent {
+                &self.consistent
+            } else {
+                &self.warped
+            };
+            for (((j, k), w), m) in self
+                .jacobian
+                .iter_mut()
+                .zip(tangent)
+                .zip(&self.warped)
+                .zip(&self.mass)
+            {
+                *j = c_k * k + c_w * w + c_m * m;
+            }
+            match self.pattern.factor(&self.jacobian, what) {
+                Ok(factor) => return Ok(factor),
+                Err(ReferenceError::NotPositiveDefinite { .. }) if use_consistent => {
+                    self.stats.fallbacks += 1;
+                    use_consistent = false;
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    /// Quasi-static equilibrium f_int(u) = f (f: n, N, world-frame dead load) by Newton with
+    /// adaptive load stepping (λ from 0 to 1; an increment that does not converge in 30 solves
+    /// is halved, one that converges in ≤ 6 lets the next grow by 1.5). Converged when
+    /// ‖δ‖ ≤ `tolerance` ‖u‖. The dynamic state is left unchanged.
     pub fn static_solve(&mut self, f: &[f64], tolerance: f64) -> Result<Vec<f64>, ReferenceError> {
         let n = self.pattern.n;
         check_len("load vector f", n, f.len())?;
@@ -270,9 +422,8 @@ impl CorotationalSimulator {
                 for i in 0..n {
                     r[i] = target * f[i] - self.internal[i];
                 }
-                let factor = self
-                    .pattern
-                    .factor(&self.tangent, "warped stiffness K_t (static solve)")?;
+                let factor =
+                    self.factor_newton(1.0, 0.0, 0.0, "tangent stiffness (static solve)")?;
                 factor.solve_in_place(&mut r);
                 total_solves += 1;
                 trial.iter_mut().zip(&r).for_each(|(t, d)| *t += d);
@@ -320,45 +471,43 @@ impl Simulator for CorotationalSimulator {
         let (a0, a2) = (w.mass_coefficient(), w.damping_coefficient());
         let (alpha, beta) = (self.alpha, self.beta);
         let mut u_hat = self.u.clone();
-        let mut acc = vec![0.0; n];
         let mut vel = vec![0.0; n];
         let mut r = vec![0.0; n];
         let mut y = vec![0.0; n];
+        let mut my = vec![0.0; n];
         let mut relative = f64::INFINITY;
         let mut iterations = 0;
         while iterations < self.options.max_newton {
-            let u_now = std::mem::take(&mut u_hat);
-            self.assemble(&u_now);
-            u_hat = u_now;
+            self.assemble(&u_hat);
             for i in 0..n {
                 let du = u_hat[i] - self.u[i];
-                acc[i] = a0 * du - 6.0 / tau * self.v[i] - 2.0 * self.a[i];
+                let acc = a0 * du - 6.0 / tau * self.v[i] - 2.0 * self.a[i];
                 vel[i] = a2 * du - 2.0 * self.v[i] - 0.5 * tau * self.a[i];
+                y[i] = acc + alpha * vel[i];
                 r[i] = f[i] - self.internal[i];
             }
-            // r −= M (Ü_θ + α U̇_θ) + β K_t U̇_θ
-            for i in 0..n {
-                y[i] = acc[i] + alpha * vel[i];
-            }
-            let mut my = vec![0.0; n];
+            // r = f − f_int − M (Ü_θ + α U̇_θ) − β K_t U̇_θ
             self.pattern.mul(&self.mass, &y, &mut my);
             r.iter_mut().zip(&my).for_each(|(r, v)| *r -= v);
             if beta != 0.0 {
-                self.pattern.mul(&self.tangent, &vel, &mut my);
+                self.pattern.mul(&self.warped, &vel, &mut my);
                 r.iter_mut().zip(&my).for_each(|(r, v)| *r -= beta * v);
             }
-            for ((j, k), m) in self.jacobian.iter_mut().zip(&self.tangent).zip(&self.mass) {
-                *j = k * (1.0 + a2 * beta) + m * (a0 + a2 * alpha);
-            }
-            let factor = self
-                .pattern
-                .factor(&self.jacobian, "co-rotational Wilson-θ matrix J_t")?;
+            let factor = self.factor_newton(
+                1.0,
+                a2 * beta,
+                a0 + a2 * alpha,
+                "co-rotational Wilson-θ matrix J_t",
+            )?;
             factor.solve_in_place(&mut r);
             u_hat.iter_mut().zip(&r).for_each(|(x, d)| *x += d);
             iterations += 1;
             let step = norm(&r);
-            let size = norm(&u_hat);
-            relative = if step == 0.0 { 0.0 } else { step / size };
+            relative = if step == 0.0 {
+                0.0
+            } else {
+                step / norm(&u_hat)
+            };
             if relative <= self.options.tolerance {
                 break;
             }
