@@ -156,7 +156,7 @@ impl Default for Spec {
 }
 
 /// A random stable model: F with ‖F‖_F = 0.95 (so ρ(F) < 1), inputs = one load group (x, y, z)
-/// + gravity, sensor "tip" (x, y, z, every 1), sensor "mid" (x, z, every `every2`), node set
+/// and gravity, sensor "tip" (x, y, z, every 1), sensor "mid" (x, z, every `every2`), node set
 /// "surface" (4 nodes, 2 triangles) and "probe" (1 node, no triangles). Gains from iterating
 /// the periodic Riccati recursion to convergence (no DARE solver needed).
 pub fn synthetic_model(spec: &Spec) -> Model {
@@ -201,7 +201,9 @@ pub fn synthetic_model(spec: &Spec) -> Model {
     let period = spec.every2.max(1) as usize;
     let measured_of = |p: usize| -> Vec<u32> {
         (0..measurements.len() as u32)
-            .filter(|&j| p % sensors[measurements[j as usize].sensor as usize].every as usize == 0)
+            .filter(|&j| {
+                p.is_multiple_of(sensors[measurements[j as usize].sensor as usize].every as usize)
+            })
             .collect()
     };
     // Periodic Riccati recursion: P⁻_k = F P_{k-1} Fᵀ + Q, phase p = k mod period.
