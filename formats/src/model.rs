@@ -95,7 +95,7 @@ pub struct SensorInfo {
     pub displacement_rows: Matrix,
     /// W_s, 3×r: infinitesimal rotation at the sensor, ω = W_s x, rad.
     pub rotation_rows: Matrix,
-    /// Measured components, strictly increasing, each 0 (x), 1 (y) or 2 (z).
+    /// Measured components, distinct, each 0 (x), 1 (y) or 2 (z).
     pub components: Vec<u8>,
     /// Measurement noise standard deviation, m.
     pub noise_std: f64,

@@ -153,7 +153,9 @@ impl Model {
             for &c in &sensor.components {
                 check_component(&format!("{path}.components"), c)?;
             }
-            check_increasing(&format!("{path}.components"), &sensor.components)?;
+            let mut sorted = sensor.components.clone();
+            sorted.sort_unstable();
+            check_increasing(&format!("{path}.components (sorted)"), &sorted)?;
             check_positive(&format!("{path}.noise_std"), sensor.noise_std)?;
             if sensor.every == 0 {
                 return Err(invalid(format!("{path}.every"), "must be ≥ 1"));

@@ -317,6 +317,11 @@ fn inconsistent_shapes_are_named() {
     assert!(e.to_string().contains("inputs[0] 'push.x'"), "{e}");
     let e = decode_modified(|m| m.kalman.measurement_variance[2] = 0.0);
     assert!(e.to_string().contains("measurement_variance[2]"), "{e}");
+    let e = decode_modified(|m| m.sensors[0].components = vec![2, 0, 2]);
+    assert!(e.to_string().contains("sensors[0] 'tip'.components"), "{e}");
+    let mut m = small_model();
+    m.sensors[0].components = vec![2, 0, 1]; // any order is fine
+    assert_eq!(decode(&encode(&m)).unwrap(), m);
     let e = decode_modified(|m| m.sensors[0].every = 0);
     assert!(e.to_string().contains("sensors[0] 'tip'.every"), "{e}");
 }
