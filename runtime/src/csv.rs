@@ -44,6 +44,20 @@ fn read_lines(path: &Path) -> Result<Lines, RuntimeError> {
 }
 
 impl Lines {
+    /// Every data row must have as many cells as the header.
+    fn check_widths(&self) -> Result<(), RuntimeError> {
+        let width = self.rows.first().map_or(0, |(_, h)| h.len());
+        for (line, cells) in self.rows.iter().skip(1) {
+            if cells.len() != width {
+                return Err(self.err(
+                    *line,
+                    format!("{} cells, the header has {width}", cells.len()),
+                ));
+            }
+        }
+        Ok(())
+    }
+
     fn err(&self, line: usize, message: impl Into<String>) -> RuntimeError {
         RuntimeError::Csv {
             path: self.path.clone(),
@@ -151,6 +165,7 @@ pub fn read_inputs(path: &Path, model: &Model) -> Result<InputTable, RuntimeErro
     let lines = read_lines(path)?;
     let labels = model.input_labels();
     let (by_time, cols) = lines.header(&labels, true)?;
+    lines.check_widths()?;
     let mut rows = Vec::with_capacity(lines.rows.len().saturating_sub(1));
     for (line, cells) in &lines.rows[1..] {
         let k = lines.step_of(*line, &cells[0], by_time, model.dt)?;
@@ -178,6 +193,7 @@ pub fn read_measurements(path: &Path, model: &Model) -> Result<MeasurementTable,
     let lines = read_lines(path)?;
     let labels = model.measurement_labels();
     let (by_time, cols) = lines.header(&labels, false)?;
+    lines.check_widths()?;
     let mut table = MeasurementTable::new();
     let mut last = 0;
     for (line, cells) in &lines.rows[1..] {
