@@ -172,12 +172,29 @@ pub fn element_tangent(
     t
 }
 
+/// Length of the diagonal of the bounding box of `points`, m.
+fn bounding_diagonal(points: &[[f64; 3]]) -> f64 {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points {
+        for c in 0..3 {
+            lo[c] = lo[c].min(p[c]);
+            hi[c] = hi[c].max(p[c]);
+        }
+    }
+    (0..3)
+        .map(|c| (hi[c] - lo[c]).max(0.0).powi(2))
+        .sum::<f64>()
+        .sqrt()
+}
+
 /// Newton settings of the co-rotational solvers.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NewtonOptions {
     /// Most linear solves per time step (≥ 1; 1 = one linearised solve per step).
     pub max_newton: usize,
-    /// Converged when the Newton increment ‖δ‖ ≤ tolerance · ‖Û‖.
+    /// Converged when the Newton increment ‖δ‖ ≤ tolerance · ‖Û‖ (or below the round-off
+    /// floor 16 ε × the mesh's bounding-box diagonal).
     pub tolerance: f64,
     /// Newton matrix from the consistent tangent (exact derivative of f_int, quadratic
     /// convergence) instead of the warped stiffness R K Rᵀ (classic stiffness warping; converges
@@ -217,6 +234,9 @@ struct ElementData {
     dofs: [Option<usize>; 12],
     geometry: TetGeometry,
     ke: [[f64; 12]; 12],
+    /// Value slot of entry (i, j) of the element matrix in the pattern (row-major, 12×12),
+    /// `u32::MAX` where a DOF is fixed.
+    slots: [u32; 144],
 }
 
 /// Full-order co-rotational Wilson-θ: M Ü + C U̇ + f_int(U) = f with
@@ -250,6 +270,9 @@ pub struct CorotationalSimulator {
     a: Vec<f64>,
     time: f64,
     stats: NewtonStats,
+    /// Round-off floor of a Newton increment, m: 16 ε × the diagonal of the mesh's bounding box
+    /// (f_int carries ~ε·h relative noise even at rest).
+    floor: f64,
 }
 
 impl CorotationalSimulator {
@@ -267,7 +290,7 @@ impl CorotationalSimulator {
         }
         let pattern = Pattern::new(fem)?;
         let mass = pattern.scatter(&fem.mass);
-        let elements = fem
+        let mut elements = fem
             .elements
             .iter()
             .enumerate()
@@ -276,8 +299,25 @@ impl CorotationalSimulator {
                 dofs: fem.dofs.element(&el.nodes),
                 geometry: el.geometry,
                 ke: fem.element_stiffness(e),
+                slots: [0; 144],
             })
-            .collect();
+            .collect::<Vec<_>>();
+        if pattern.nnz() >= u32::MAX as usize {
+            return Err(ReferenceError::Solver(format!(
+                "{} stored entries exceed the 32-bit slot index",
+                pattern.nnz()
+            )));
+        }
+        for el in &mut elements {
+            for i in 0..12 {
+                for j in 0..12 {
+                    el.slots[12 * i + j] = match (el.dofs[i], el.dofs[j]) {
+                        (Some(r), Some(c)) => pattern.slot(r, c) as u32,
+                        _ => u32::MAX,
+                    };
+                }
+            }
+        }
         let n = pattern.n;
         let nnz = pattern.nnz();
         Ok(CorotationalSimulator {
@@ -302,6 +342,7 @@ impl CorotationalSimulator {
             a: vec![0.0; n],
             time: 0.0,
             stats: NewtonStats::default(),
+            floor: 16.0 * f64::EPSILON * bounding_diagonal(&fem.positions),
         })
     }
 
@@ -317,7 +358,6 @@ impl CorotationalSimulator {
         self.internal.iter_mut().for_each(|v| *v = 0.0);
         self.warped.iter_mut().for_each(|v| *v = 0.0);
         self.consistent.iter_mut().for_each(|v| *v = 0.0);
-        let pattern = &self.pattern;
         let (warped, consistent_values) = (&mut self.warped, &mut self.consistent);
         for el in &self.elements {
             let rest = el.nodes.map(|n| self.rest[n]);
@@ -338,14 +378,12 @@ impl CorotationalSimulator {
             }
             kin.tangents(&el.geometry, &el.ke, consistent, |a, b, kw, kc| {
                 for i in 0..3 {
-                    let Some(row) = el.dofs[3 * a + i] else {
-                        continue;
-                    };
                     for j in 0..3 {
-                        let Some(col) = el.dofs[3 * b + j] else {
+                        let slot = el.slots[12 * (3 * a + i) + 3 * b + j];
+                        if slot == u32::MAX {
                             continue;
-                        };
-                        let slot = pattern.slot(row, col);
+                        }
+                        let slot = slot as usize;
                         warped[slot] += kw[(i, j)];
                         if consistent {
                             consistent_values[slot] += kc[(i, j)];
@@ -434,7 +472,7 @@ impl CorotationalSimulator {
                 if !step.is_finite() || step > 10.0 * first {
                     break;
                 }
-                if step <= tolerance * norm(&trial) {
+                if step <= tolerance * norm(&trial) || step <= self.floor {
                     converged = Some(it);
                     break;
                 }
@@ -503,7 +541,7 @@ impl Simulator for CorotationalSimulator {
             u_hat.iter_mut().zip(&r).for_each(|(x, d)| *x += d);
             iterations += 1;
             let step = norm(&r);
-            relative = if step == 0.0 {
+            relative = if step <= self.floor {
                 0.0
             } else {
                 step / norm(&u_hat)
