@@ -332,7 +332,7 @@ impl Estimator {
     /// an active channel: ω̄ = W_s x⁻; the world displacement y_world is the measured
     /// components, with every other component (unmeasured, inactive or missing) filled from the
     /// prediction R̃(ω̄) C_s x⁻; then y_lin = R̃(ω̄)⁻¹ y_world and the innovation of an active
-    /// channel is y_lin[c] − (C_s x⁻)[c]. x = x⁻ + K_p · innovation. A phase without active
+    /// channel is `y_lin[c] − (C_s x⁻)[c]`. x = x⁻ + K_p · innovation. A phase without active
     /// channels (or with all of them missing) leaves the state unchanged. Errors — wrong
     /// length, a non-finite value, `update` without a preceding `predict`, a non-invertible
     /// R̃ — leave the state untouched.

@@ -1,6 +1,6 @@
 //! Co-rotational maps of DESIGN.md §5, applied to 3-vectors without heap allocation.
 //!
-//! With ω ∈ ℝ³ (rad), θ = |ω| and W = [ω]× (so W v = ω × v):
+//! With ω ∈ ℝ³ (rad), θ = |ω| and W = `[ω]×` (so W v = ω × v):
 //!
 //! ```text
 //! R(ω)    = I + A₀ W + A₁ W²          A₀ = sin θ / θ,  A₁ = (1 − cos θ)/θ²
