@@ -52,8 +52,20 @@ const SDA_ACCEPT_AT_CAP: f64 = 1e-10;
 const SYMMETRY_TOLERANCE: f64 = 1e-10;
 /// Relative negative eigenvalue accepted in Q (rounding of a PSD projection).
 const PSD_TOLERANCE: f64 = 1e-10;
-/// Number of Newton polish steps tried.
-const NEWTON_STEPS: usize = 2;
+/// Most Newton (Hewer) polish steps; they continue while each halves the residual. One or
+/// two usually suffice; with small R (≲ 1e-8 relative to H Q Hᵀ) the SDA iterates lose
+/// accuracy (I + G H has condition ~ 1/R) and Newton's quadratic convergence recovers it.
+const NEWTON_STEPS: usize = 8;
+/// Residual at which Newton stops: rounding level.
+const NEWTON_DONE: f64 = 1e-15;
+/// Most plain Riccati sweeps tried on a solution that fails the checks.
+const RECURSION_MAX_SWEEPS: usize = 2000;
+/// Flop budget (≈ sweeps · r³ · L) of those sweeps.
+const RECURSION_FLOP_BUDGET: f64 = 2e10;
+/// Sweeps between closed-loop checks in that recursion.
+const RECURSION_CHECK_EVERY: usize = 10;
+/// Most steps of the fallback Hewer iteration from K = 0.
+const HEWER_MAX_STEPS: usize = 100;
 
 /// Failures of the Kalman stage. No solution is returned with any of them.
 #[derive(Debug, Error, Clone, PartialEq)]
@@ -181,11 +193,19 @@ pub enum KalmanError {
         /// The accepted maximum.
         threshold: f64,
     },
-    /// The steady-state filter does not converge.
-    #[error("Kalman: closed-loop spectral radius ρ((I − K H) F) = {radius:.15} >= 1: the filter would diverge")]
+    /// The steady-state filter does not converge. With near-perfect sensors (tiny R) and
+    /// more sensors than process-noise channels, H P Hᵀ + R is nearly singular, K is not
+    /// determined to working precision and this is how it shows.
+    #[error(
+        "Kalman: closed-loop spectral radius ρ((I − K H) F) = {radius:.15} >= 1: the filter \
+         would diverge (condition number of H P Hᵀ + R: {innovation_condition:.1e}; a huge \
+         value means the sensor noise R is too small for K to be computed in double precision)"
+    )]
     UnstableClosedLoop {
         /// ρ of the (one-period) closed-loop error propagator.
         radius: f64,
+        /// λ_max/λ_min of H₀ P₀ H₀ᵀ + R₀.
+        innovation_condition: f64,
     },
     /// A multi-rate divisor is zero.
     #[error("Kalman: measurement row {row}: the update interval `every` must be >= 1 (got 0)")]
@@ -554,6 +574,7 @@ fn measurement_update(p: &Mat<f64>, h: &Mat<f64>, r: &Mat<f64>) -> Update {
 }
 
 /// One sweep through the period from the prior P₀ at phase 0.
+#[derive(Clone)]
 struct Sweep {
     phases: Vec<PhaseGain>,
     /// P_L − P₀: the fixed-point residual of the one-period map.
@@ -607,6 +628,88 @@ fn relative(res: &Mat<f64>, p: &Mat<f64>, q: &Mat<f64>) -> f64 {
     res.norm_l2() / p.norm_l2().max(q.norm_l2()).max(f64::MIN_POSITIVE)
 }
 
+/// A candidate P₀ with its sweep and relative residual.
+#[derive(Clone)]
+struct Candidate {
+    p0: Mat<f64>,
+    sw: Sweep,
+    res: f64,
+}
+
+impl Candidate {
+    fn new(f: &Mat<f64>, q: &Mat<f64>, phases: &[PhaseModel], p0: Mat<f64>) -> Self {
+        let sw = sweep(f, q, phases, &p0);
+        let res = relative(&sw.residual, &p0, q);
+        Self { p0, sw, res }
+    }
+}
+
+/// Newton (Hewer) steps on the one-period map in correction form:
+/// P₀ ← P₀ + Δ with Δ − Φ Δ Φᵀ = P_L − P₀, Φ the closed-loop propagator of the current gains
+/// (equivalently P₀ ← the periodic Lyapunov solution of the current gains: Hewer's
+/// iteration, which stays stabilizing and converges monotonically from a stabilizing start).
+///
+/// `polish`: keep a step only while it reduces the residual, stop when it no longer halves
+/// it. Otherwise (Hewer from a stabilizing start): take every step, stop when the step is at
+/// rounding level or the residual has not improved for three steps, return the best iterate.
+/// Returns the result and the number of steps taken.
+fn newton(
+    f: &Mat<f64>,
+    q: &Mat<f64>,
+    phases: &[PhaseModel],
+    start: Candidate,
+    max_steps: usize,
+    polish: bool,
+) -> (Candidate, usize) {
+    let mut cur = start;
+    let mut best: Option<Candidate> = None;
+    let mut since_best = 0;
+    let mut steps = 0;
+    while steps < max_steps && cur.res > NEWTON_DONE {
+        let Some(delta) = stein(&cur.sw.propagator, &cur.sw.residual) else {
+            break;
+        };
+        let cand = Candidate::new(f, q, phases, symmetrise(&(&cur.p0 + &delta)));
+        if !cand.res.is_finite() {
+            break;
+        }
+        if polish {
+            if cand.res >= cur.res {
+                break;
+            }
+            let halved = cand.res <= 0.5 * cur.res;
+            cur = cand;
+            steps += 1;
+            if !halved {
+                break;
+            }
+        } else {
+            let small = delta.norm_l2() <= 1e-14 * cand.p0.norm_l2();
+            let prev = std::mem::replace(&mut cur, cand);
+            steps += 1;
+            match &best {
+                Some(b) if b.res <= prev.res => since_best += 1,
+                _ => {
+                    best = Some(prev);
+                    since_best = 0;
+                }
+            }
+            if small || since_best >= 3 {
+                break;
+            }
+        }
+    }
+    match best {
+        Some(b) if b.res < cur.res => (b, steps),
+        _ => (cur, steps),
+    }
+}
+
+/// Route: SDA on the composed one-period map, Newton polish; if that fails (no convergence,
+/// residual too large or a closed loop that is not stable — seen with near-perfect sensors,
+/// R ≲ 1e-16 relative to H Q Hᵀ, where I + G H has condition ~ 1/R and rounding makes the
+/// doubling collapse onto a non-stabilizing solution) and F is Schur-stable, Hewer's
+/// iteration from the stabilizing gain K = 0 (P₀ = 0), then the same checks.
 fn solve_periodic(
     f: &Mat<f64>,
     q: &Mat<f64>,
@@ -622,60 +725,121 @@ fn solve_periodic(
     for ph in &phases[1..] {
         map = compose(&map, &triple(ph));
     }
-    let (mut p0, iterations) = sda(map)?;
-    let mut sw = sweep(f, q, phases, &p0);
-    let mut res = relative(&sw.residual, &p0, q);
-    for _ in 0..NEWTON_STEPS {
-        if res <= 1e-15 {
-            break;
+    let accept_ref = |c: &Candidate| -> Result<f64, KalmanError> {
+        if c.res.is_nan() || c.res > RESIDUAL_THRESHOLD {
+            return Err(KalmanError::ResidualTooLarge {
+                residual: c.res,
+                threshold: RESIDUAL_THRESHOLD,
+            });
         }
-        // Newton (Hewer) in correction form: Δ − Φ Δ Φᵀ = P_L − P₀.
-        let Some(delta) = stein(&sw.propagator, &sw.residual) else {
-            break;
-        };
-        let cand = symmetrise(&(&p0 + &delta));
-        let cand_sw = sweep(f, q, phases, &cand);
-        let cand_res = relative(&cand_sw.residual, &cand, q);
-        if cand_res < res {
-            p0 = cand;
-            sw = cand_sw;
-            res = cand_res;
-        } else {
-            break;
+        let radius = spectral_radius(&c.sw.propagator)?;
+        if radius.is_nan() || radius >= 1.0 {
+            return Err(KalmanError::UnstableClosedLoop {
+                radius,
+                innovation_condition: condition_spd(&c.sw.innovation_covariance)?,
+            });
         }
-    }
-    if !(res <= RESIDUAL_THRESHOLD) {
-        return Err(KalmanError::ResidualTooLarge {
-            residual: res,
-            threshold: RESIDUAL_THRESHOLD,
-        });
-    }
-    let radius = spectral_radius(&sw.propagator)?;
-    if !(radius < 1.0) {
-        return Err(KalmanError::UnstableClosedLoop { radius });
-    }
-    let condition = if sw.innovation_covariance.nrows() == 0 {
-        1.0
-    } else {
-        let ev = sw
-            .innovation_covariance
-            .self_adjoint_eigenvalues(Side::Lower)
-            .map_err(|e| KalmanError::LinearAlgebra(format!("eigenvalues of H P Hᵀ + R: {e:?}")))?;
-        let lo = ev.first().copied().unwrap_or(1.0);
-        let hi = ev.last().copied().unwrap_or(1.0);
-        if lo > 0.0 {
-            hi / lo
-        } else {
-            f64::INFINITY
-        }
+        Ok(radius)
     };
-    Ok(Solved {
-        phases: sw.phases,
-        worst_relative_residual: res,
-        closed_loop_spectral_radius: radius,
-        condition,
-        iterations,
-    })
+    let finish = |c: Candidate, radius: f64, iterations: usize| -> Result<Solved, KalmanError> {
+        let condition = condition_spd(&c.sw.innovation_covariance)?;
+        Ok(Solved {
+            phases: c.sw.phases,
+            worst_relative_residual: c.res,
+            closed_loop_spectral_radius: radius,
+            condition,
+            iterations,
+        })
+    };
+    let n = f.nrows();
+    let mut failed: Vec<(Candidate, usize)> = Vec::new();
+    // Route 1: SDA on the one-period map, Newton polish.
+    let first_err = match sda(map) {
+        Ok((p0, iterations)) => {
+            let start = Candidate::new(f, q, phases, p0);
+            let (c, steps) = newton(f, q, phases, start, NEWTON_STEPS, true);
+            match accept_ref(&c) {
+                Ok(radius) => return finish(c, radius, iterations + steps),
+                Err(e) => {
+                    failed.push((c, iterations + steps));
+                    e
+                }
+            }
+        }
+        Err(e) => e,
+    };
+    // Route 2 (F Schur-stable): Hewer's iteration from the stabilizing gain K = 0.
+    if spectral_radius(f)? < 1.0 {
+        let start = Candidate::new(f, q, phases, Mat::zeros(n, n));
+        let (c, steps) = newton(f, q, phases, start, HEWER_MAX_STEPS, false);
+        let (c, more) = newton(f, q, phases, c, NEWTON_STEPS, true);
+        match accept_ref(&c) {
+            Ok(radius) => return finish(c, radius, steps + more),
+            Err(_) => failed.push((c, steps + more)),
+        }
+    }
+    // Route 3: a Newton/SDA iterate carries absolute rounding ~ eps‖P‖ in every direction;
+    // when H P Hᵀ + R is ill-conditioned (small R, more sensors than noise channels) that
+    // noise is amplified into K and the closed loop can fail the check although a
+    // stabilizing filter exists. The plain Riccati recursion P₀ ← P_L (Joseph form) is
+    // attracted to the stabilizing solution and keeps the structure that makes K well
+    // defined: run it from the best candidate within a flop budget.
+    let max_sweeps = (RECURSION_FLOP_BUDGET / (8.0 * (n * n * n * phases.len()) as f64))
+        .clamp(1.0, RECURSION_MAX_SWEEPS as f64) as usize;
+    let best = failed
+        .into_iter()
+        .filter(|(c, _)| c.res.is_finite())
+        .min_by(|a, b| a.0.res.total_cmp(&b.0.res));
+    if let Some((c, iterations)) = best {
+        if let Some((c, radius, sweeps)) = settle(f, q, phases, c, max_sweeps, &accept_ref) {
+            return finish(c, radius, iterations + sweeps);
+        }
+    }
+    Err(first_err)
+}
+
+/// Plain Riccati sweeps P₀ ← P_L from `c` (at most `max_sweeps`): at the first iterate that
+/// passes `accept` (checked every [`RECURSION_CHECK_EVERY`] sweeps once the residual is
+/// below the threshold), continue while the residual decreases (at most as many sweeps
+/// again) and return the last iterate if it still passes, else the first.
+fn settle(
+    f: &Mat<f64>,
+    q: &Mat<f64>,
+    phases: &[PhaseModel],
+    mut c: Candidate,
+    max_sweeps: usize,
+    accept: &dyn Fn(&Candidate) -> Result<f64, KalmanError>,
+) -> Option<(Candidate, f64, usize)> {
+    let next = |c: &Candidate| Candidate::new(f, q, phases, symmetrise(&(&c.p0 + &c.sw.residual)));
+    for sweeps in 1..=max_sweeps {
+        c = next(&c);
+        if !c.res.is_finite() {
+            return None;
+        }
+        if c.res > RESIDUAL_THRESHOLD || sweeps % RECURSION_CHECK_EVERY != 0 {
+            continue;
+        }
+        let Ok(radius) = accept(&c) else {
+            continue;
+        };
+        let first = (c.clone(), radius, sweeps);
+        let mut done = sweeps;
+        while done < (2 * sweeps).min(max_sweeps) {
+            let cand = next(&c);
+            if cand.res.is_nan() || cand.res >= c.res {
+                break;
+            }
+            c = cand;
+            done += 1;
+        }
+        if done > sweeps {
+            if let Ok(radius) = accept(&c) {
+                return Some((c, radius, done));
+            }
+        }
+        return Some(first);
+    }
+    None
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -760,7 +924,7 @@ fn validate_q(q: MatRef<f64>) -> Result<Mat<f64>, KalmanError> {
 fn validate_r(r: MatRef<f64>) -> Result<Mat<f64>, KalmanError> {
     for i in 0..r.nrows() {
         let value = r[(i, i)];
-        if !(value > 0.0) {
+        if value.is_nan() || value <= 0.0 {
             return Err(KalmanError::RDiagonalNotPositive { index: i, value });
         }
     }
@@ -778,7 +942,7 @@ fn validate_r(r: MatRef<f64>) -> Result<Mat<f64>, KalmanError> {
             .self_adjoint_eigenvalues(Side::Lower)
             .map_err(|e| KalmanError::LinearAlgebra(format!("eigenvalues of R: {e:?}")))?;
         let lo = ev.first().copied().unwrap_or(0.0);
-        if !(lo > 0.0) || r.llt(Side::Lower).is_err() {
+        if lo.is_nan() || lo <= 0.0 || r.llt(Side::Lower).is_err() {
             return Err(KalmanError::RNotPositiveDefinite { eigenvalue: lo });
         }
     }
@@ -855,6 +1019,20 @@ fn check_detectable_stabilizable(
 /// (M + Mᵀ)/2.
 fn symmetrise(m: &Mat<f64>) -> Mat<f64> {
     Mat::from_fn(m.nrows(), m.ncols(), |i, j| 0.5 * (m[(i, j)] + m[(j, i)]))
+}
+
+/// 2-norm condition λ_max/λ_min of a symmetric positive (semi)definite matrix; 1 if empty,
+/// ∞ if singular.
+fn condition_spd(s: &Mat<f64>) -> Result<f64, KalmanError> {
+    if s.nrows() == 0 {
+        return Ok(1.0);
+    }
+    let ev = s
+        .self_adjoint_eigenvalues(Side::Lower)
+        .map_err(|e| KalmanError::LinearAlgebra(format!("eigenvalues of H P Hᵀ + R: {e:?}")))?;
+    let lo = ev.first().copied().unwrap_or(1.0);
+    let hi = ev.last().copied().unwrap_or(1.0);
+    Ok(if lo > 0.0 { hi / lo } else { f64::INFINITY })
 }
 
 /// max |λ(M)|.
