@@ -202,7 +202,8 @@ pub fn synthetic_model(spec: &Spec) -> Model {
     let measured_of = |p: usize| -> Vec<u32> {
         (0..measurements.len() as u32)
             .filter(|&j| {
-                p.is_multiple_of(sensors[measurements[j as usize].sensor as usize].every as usize)
+                p.checked_rem(sensors[measurements[j as usize].sensor as usize].every as usize)
+                    == Some(0)
             })
             .collect()
     };
