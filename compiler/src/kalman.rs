@@ -18,6 +18,13 @@
 //! residual-correction form where they reduce the residual. Every solution is checked: the
 //! relative residual and the closed-loop spectral radius ρ((I − K H) F) < 1.
 //!
+//! With near-perfect sensors (R ≲ 1e-16 relative to H Q Hᵀ) I + G H in the doubling has
+//! condition ~ 1/R and SDA can collapse onto a non-stabilizing solution (residual ~1e-16,
+//! ρ > 1). Two fallbacks then run, each followed by the same checks: (2) for Schur-stable F,
+//! Hewer's iteration from the stabilizing gain K = 0; (3) the plain Riccati recursion
+//! (Joseph form) from the best candidate, within a flop budget. If all fail, the error of
+//! route (1) is returned.
+//!
 //! Multi-rate sensors ([`periodic_gains`]) use the same machinery: each phase of the period
 //! is one Riccati map in SDA form, the maps of one period are composed into a single one
 //! (the composition of two such maps is again one, the SDA step being the self-composition),
@@ -242,7 +249,9 @@ pub struct DareSolution {
     /// 2-norm condition number λ_max/λ_min of the innovation covariance S = H P Hᵀ + R
     /// (the matrix inverted for K); 1 when there are no measurements.
     pub condition: f64,
-    /// SDA iterations (each doubles the horizon of the Riccati recursion).
+    /// Outer iterations of the route that succeeded: SDA doubling steps (each doubles the
+    /// horizon of the Riccati recursion) + Newton steps; on a fallback route, Hewer/Newton
+    /// steps + recursion sweeps.
     pub iterations: usize,
 }
 
@@ -272,7 +281,7 @@ pub struct PeriodicSchedule {
     pub worst_relative_residual: f64,
     /// ρ(Φ) of the one-period error propagator Φ = Π_p F (I − K_p H_p).
     pub closed_loop_spectral_radius: f64,
-    /// SDA iterations on the composed one-period map.
+    /// Outer iterations as in [`DareSolution::iterations`] (SDA on the composed map).
     pub iterations: usize,
 }
 

@@ -746,6 +746,57 @@ fn periodic_with_period_one_is_the_dare() {
 }
 
 #[test]
+fn periodic_gains_with_slow_unobserved_mode() {
+    // Three damped rotation blocks near the unit circle; sensors every 3 and 4 steps
+    // (L = 12, phases without any measurement); block 3 is seen by no sensor, so at every
+    // phase its prior covariance is the open-loop q/(1 − ρ²) I. Brute force would need ~1e6
+    // periods here, so the observed part is checked through the per-phase recursion instead.
+    let blocks = [(1.0 - 1e-4, 0.05), (1.0 - 2e-4, 0.13), (1.0 - 1e-6, 0.021)];
+    let f = rotation_blocks(&blocks);
+    let h = from_rows(&[
+        &[1.0, 0.0, 0.5, 0.0, 0.0, 0.0],
+        &[0.0, 0.0, 1.0, 0.2, 0.0, 0.0],
+    ]);
+    let qd = [1e-6, 1e-6, 2e-6, 2e-6, 3e-6, 3e-6];
+    let q = diag(&qd);
+    let r_diag = [1e-4, 4e-4];
+    let sched = periodic_gains(f.as_ref(), h.as_ref(), q.as_ref(), &r_diag, &[3, 4]).unwrap();
+    assert_eq!(sched.period, 12);
+    assert!(sched.worst_relative_residual < 1e-10);
+    assert!(sched.closed_loop_spectral_radius < 1.0);
+    let lyap = qd[4] / (1.0 - blocks[2].0 * blocks[2].0);
+    let n = 6;
+    for (p, ph) in sched.phases.iter().enumerate() {
+        let want: Vec<usize> = [3u32, 4]
+            .iter()
+            .enumerate()
+            .filter(|(_, &e)| p as u32 % e == 0)
+            .map(|(i, _)| i)
+            .collect();
+        assert_eq!(ph.measured, want, "phase {p}");
+        let pr = &ph.prior_covariance;
+        assert!(
+            (pr[(4, 4)] - lyap).abs() <= 1e-9 * lyap,
+            "phase {p}: {}",
+            pr[(4, 4)]
+        );
+        assert!(pr[(0, 5)].abs() <= 1e-9 * lyap);
+        // P_{p+1} = F P⁺_p Fᵀ + Q with P⁺_p = (I − K_p H_p) P_p, wrapping at L.
+        let rows = Mat::from_fn(want.len(), n, |i, j| h[(want[i], j)]);
+        let post = (Mat::<f64>::identity(n, n) - &ph.gain * &rows) * pr;
+        assert!(rel_diff(post.as_ref(), ph.posterior_covariance.as_ref()) < 1e-10);
+        let next = &f * &post * f.transpose() + &q;
+        let following = &sched.phases[(p + 1) % sched.period].prior_covariance;
+        let d = rel_diff(next.as_ref(), following.as_ref());
+        assert!(d < 1e-10, "phase {p} → {}: {d}", (p + 1) % sched.period);
+    }
+    // Measured phases shrink the covariance of the observed block below the predict-only ones.
+    assert!(
+        sched.phases[0].posterior_covariance[(0, 0)] < sched.phases[1].prior_covariance[(0, 0)]
+    );
+}
+
+#[test]
 fn periodic_input_errors() {
     let f = diag(&[0.5, 0.6]);
     let h = diag(&[1.0, 1.0]);
