@@ -493,6 +493,40 @@ fn unobservable_unstable_mode_is_refused() {
 }
 
 #[test]
+fn rigid_body_mode_needs_a_position_sensor() {
+    // No Dirichlet nodes: a rigid-body mode (k = c = 0, eigenvalue 1 of Wilson-θ, defective)
+    // next to a 13 Hz mode, force noise on both. A position sensor makes the data detectable;
+    // a velocity-only sensor cannot see the position drift (eigenvector [1, 0, 0]).
+    let wt = WilsonTheta {
+        dt: 1e-3,
+        theta: 1.4,
+    };
+    let n = 6;
+    let mut f = Mat::<f64>::zeros(n, n);
+    let mut gam = Mat::<f64>::zeros(n, 2);
+    for (mode, hz) in [0.0f64, 13.0].into_iter().enumerate() {
+        let w = 2.0 * std::f64::consts::PI * hz;
+        let (phi, g) = wt.modal_block(w * w, 2.0 * 0.02 * w);
+        for i in 0..3 {
+            for j in 0..3 {
+                f[(3 * mode + i, 3 * mode + j)] = phi[i][j];
+            }
+            gam[(3 * mode + i, mode)] = g[i];
+        }
+    }
+    let q = &gam * gam.transpose();
+    let r = diag(&[1e-8]);
+    let h = from_rows(&[&[1.0, 0.0, 0.0, 1.0, 0.0, 0.0]]);
+    let sol = solve_filter_dare(f.as_ref(), h.as_ref(), q.as_ref(), r.as_ref()).unwrap();
+    assert!(dare_residual(&f, &h, &q, &r, &sol.prior_covariance) < 1e-12);
+    check_consistency(&sol, &f, &h, &r, 1e-9);
+    let h = from_rows(&[&[0.0, 1.0, 0.0, 1.0, 0.0, 0.0]]);
+    let (e, msg) = expect_err(&f, &h, &q, &r);
+    assert!(matches!(e, KalmanError::Undetectable { .. }), "{msg}");
+    assert!(msg.contains("|λ| = 1.000000000000"), "{msg}");
+}
+
+#[test]
 fn unexcited_unstable_mode_is_refused() {
     // Seen but never excited: λ = 1.2 with Q zero on that mode.
     let f = from_rows(&[&[1.2, 0.0], &[0.0, 0.5]]);
