@@ -9,12 +9,12 @@ MSH 4.1 ASCII with Mesh.SaveAll = 0 (only elements of physical groups).
 
 Checks, on the written file, parsed here independently of gmsh (plain Python, no numpy):
   - every tetrahedron positively oriented (det[x1-x0, x2-x0, x3-x0] > 0);
-  - every physical group of the scene present and non-empty;
+  - every physical group the scenes name present and non-empty;
   - total volume and the areas of the horn faces, the probe patch and the upper surface against
     closed forms of the revolved wedge (Pappus);
   - the "surface" group is exactly the boundary of the tetrahedral mesh (faces used once);
   - horn nodes lie on the planes at -+Arc/2;
-  - every sensor position of scene.toml lies inside a tetrahedron (barycentric coordinates >= 0),
+  - every sensor position of scene.toml and scene_supported.toml lies inside a tetrahedron (barycentric coordinates >= 0),
     and is reported with its depth below the analytic upper surface.
 Exit status 1 on any failed check.
 """
@@ -28,7 +28,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MODEL = os.path.join(ROOT, "models", "meniscus")
 GEO = os.path.join(MODEL, "meniscus.geo")
 MSH = os.path.join(MODEL, "meniscus.msh")
-SCENE = os.path.join(MODEL, "scene.toml")
+SCENES = [os.path.join(MODEL, f) for f in ("scene.toml", "scene_supported.toml")]
 
 # Must match meniscus.geo (mm, degrees).
 RI, RO, HI, HO, ARC = 14.0, 25.0, 1.0, 7.0, 190.0
@@ -162,14 +162,15 @@ def check():
         ok = ok and cond
 
     nodes, groups = read_msh41_ascii(MSH)
-    with open(SCENE, "rb") as f:
-        scene = tomllib.load(f)
-
     needed = {"meniscus", "anterior_horn", "posterior_horn", "probe", "upper", "surface", "lower"}
-    needed |= {m["group"] for m in scene["material"]}
-    needed |= {g["group"] for g in scene.get("fixed", [])}
-    needed |= {g["group"] for g in scene.get("load", [])}
-    needed |= {g["group"] for g in scene.get("display", [])}
+    sensors = {}
+    for path in SCENES:
+        with open(path, "rb") as f:
+            scene = tomllib.load(f)
+        for key in ("material", "fixed", "load", "display"):
+            needed |= {g["group"] for g in scene.get(key, [])}
+        for s in scene.get("sensor", []):
+            sensors[(s["name"], tuple(s["position"]))] = s
     for name in sorted(needed):
         n = len(groups[name][2]) if name in groups else 0
         expect(n > 0, f"group '{name}': {n} elements")
@@ -232,7 +233,7 @@ def check():
     expect(probe_ids <= upper_ids, f"'probe' ({len(probe_ids)} nodes) is part of 'upper'")
 
     # Sensors: containing tetrahedron by barycentric coordinates (brute force: ~5k tets).
-    for s in scene.get("sensor", []):
+    for s in sensors.values():
         p = tuple(s["position"])
         best = max(
             (min(barycentric(p, [nodes[v] for v in t])), i) for i, t in enumerate(tets)
