@@ -9,7 +9,7 @@
 //!
 //! See `DESIGN.md` in the shared notes for the equations each module implements.
 
-// pub mod compile; (enabled once reduce lands)
+pub mod compile;
 pub mod bench;
 pub mod corotation;
 pub mod dynamics;
