@@ -8,6 +8,7 @@ use faer::Mat;
 
 use crokf_formats as fmt;
 
+use crate::accuracy;
 use crate::corotation::RotationRows;
 use crate::dynamics::WilsonTheta;
 use crate::fem::operators::{displacement_rows, InputKind, Operators, SparseRow};
@@ -15,6 +16,7 @@ use crate::fem::{FemError, FemModel};
 use crate::kalman::{self, KalmanError};
 use crate::mesh::{read_mesh, Mesh, MeshError};
 use crate::reduce::{self, ReduceError};
+use crate::reference::ReferenceError;
 use crate::report::StageTimer;
 use crate::scene::{SceneError, SceneFile};
 
@@ -54,6 +56,14 @@ pub enum CompileError {
         /// What went wrong.
         source: KalmanError,
     },
+    /// Full-order reference simulation (measured error).
+    #[error("{path}: reference simulation: {source}")]
+    Reference {
+        /// Scene path.
+        path: PathBuf,
+        /// What went wrong.
+        source: ReferenceError,
+    },
     /// Reading or writing files.
     #[error("{path}: {source}")]
     Io {
@@ -73,7 +83,12 @@ pub struct CompileOptions {
     pub tolerance: Option<f64>,
     /// Number of vibration modes m before balancing.
     pub modes: Option<usize>,
+    /// Skip the measured error against the full-order linear reference.
+    pub skip_measured_error: bool,
 }
+
+/// Longest step/chirp history of the measured error, steps.
+pub const MEASURE_MAX_STEPS: usize = 400;
 
 /// Default tolerance σ_{r+1}/σ₁ when neither order nor tolerance is given.
 pub const DEFAULT_TOLERANCE: f64 = 1e-4;
@@ -541,6 +556,28 @@ pub fn compile(scene_path: &Path, options: &CompileOptions) -> Result<Compiled, 
     if ops.noise.is_empty() {
         notes.push("no process noise declared (force_noise_std / force_noise): Q = 0, so the steady-state gain is zero and measurements are ignored".to_owned());
     }
+    let measured_errors = if options.skip_measured_error {
+        notes.push("measured error against the full-order reference skipped (--no-measure)".into());
+        Default::default()
+    } else {
+        let f1 = basis
+            .frequencies_hz
+            .first()
+            .copied()
+            .unwrap_or(1.0)
+            .max(1e-9);
+        let steps = ((2.0 / (f1 * wilson.dt)).ceil() as usize).clamp(100, MEASURE_MAX_STEPS);
+        let f_high = (5.0 * f1).min(0.2 / wilson.dt);
+        let tests = accuracy::standard_tests(&full, steps, f_high);
+        timer
+            .stage("measured_error", || {
+                accuracy::measured_errors(&full, &rows, &parts, &tests)
+            })
+            .map_err(|source| CompileError::Reference {
+                path: scene_path.to_owned(),
+                source,
+            })?
+    };
     let report = fmt::CompileReport {
         hankel_singular_values: reduced.hankel_singular_values.clone(),
         error_bound: reduced.error_bound,
@@ -551,7 +588,7 @@ pub fn compile(scene_path: &Path, options: &CompileOptions) -> Result<Compiled, 
         spectral_radius: reduced.spectral_radius,
         riccati_residual: schedule.worst_relative_residual,
         closed_loop_spectral_radius: schedule.closed_loop_spectral_radius,
-        measured_errors: Default::default(),
+        measured_errors,
         timings_s: Default::default(),
         notes,
     };

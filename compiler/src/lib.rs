@@ -10,6 +10,7 @@
 //! See `DESIGN.md` in the shared notes for the equations each module implements.
 
 pub mod compile;
+pub mod accuracy;
 pub mod bench;
 pub mod corotation;
 pub mod dynamics;

@@ -30,6 +30,9 @@ struct Args {
     /// Number of vibration modes kept before balancing (overrides the scene).
     #[arg(long)]
     modes: Option<usize>,
+    /// Skip the measured error against the full-order linear reference (step and chirp).
+    #[arg(long)]
+    no_measure: bool,
     /// Write K, M, C, B, H (Matrix Market) and dofs.csv into this directory and stop.
     #[arg(long, value_name = "DIR")]
     export_matrices: Option<PathBuf>,
@@ -89,6 +92,7 @@ fn run(args: &Args) -> Result<ExitCode, String> {
         order: args.order,
         tolerance: args.tolerance,
         modes: args.modes,
+        skip_measured_error: args.no_measure,
     };
     let compiled = compile::compile(&args.scene, &options).map_err(|e| e.to_string())?;
     eprint!("{}", compiled.summary());

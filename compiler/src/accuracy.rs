@@ -1,0 +1,134 @@
+//! Measured error of a reduced model against the full-order linear reference (DESIGN.md §7).
+//!
+//! Both are driven by the same input history u_k (one value per deterministic input channel);
+//! the full-order model by f_k = B u_k through [`LinearSimulator`], the reduced one by
+//! x_{k+1} = F x_k + G u_k. The error is the relative L2 norm over the displayed nodes (and the
+//! sensors) and the whole trajectory, ‖u − u_ref‖ / ‖u_ref‖, in the linear (unwarped) frame.
+
+use std::collections::BTreeMap;
+
+use faer::Mat;
+
+use crate::compile::{FullOrder, OutputRows, ReducedParts};
+use crate::fem::operators::{InputKind, SparseRow};
+use crate::reference::{LinearSimulator, ReferenceError, Simulator};
+
+/// A named input history: `inputs[k][j]` is channel j at step k.
+#[derive(Clone, Debug)]
+pub struct LoadTest {
+    /// "step" or "chirp".
+    pub name: String,
+    /// Per step, one value per deterministic input channel.
+    pub inputs: Vec<Vec<f64>>,
+}
+
+/// The two standard histories: a unit step and a linear chirp, both on every load group along
+/// the unit direction (1, 1, 1)/√3 (gravity channel at 1 when there is no load group).
+/// The chirp sweeps 0 → `f_high` Hz over the run; `steps` steps each.
+pub fn standard_tests(full: &FullOrder, steps: usize, f_high: f64) -> Vec<LoadTest> {
+    let dt = full.scene.scene.time.dt;
+    let has_loads = !full.operators.loads.is_empty();
+    let direction: Vec<f64> = full
+        .operators
+        .inputs
+        .iter()
+        .map(|c| match c.kind {
+            InputKind::Load { .. } => 1.0 / 3f64.sqrt(),
+            InputKind::Gravity if !has_loads => 1.0,
+            _ => 0.0,
+        })
+        .collect();
+    let duration = steps as f64 * dt;
+    let step = (0..steps).map(|_| direction.clone()).collect();
+    let chirp = (0..steps)
+        .map(|k| {
+            let t = k as f64 * dt;
+            // Phase of a linear sweep from 0 to f_high over the duration.
+            let phase = std::f64::consts::PI * f_high * t * t / duration;
+            direction.iter().map(|d| d * phase.sin()).collect()
+        })
+        .collect();
+    vec![
+        LoadTest {
+            name: "step".into(),
+            inputs: step,
+        },
+        LoadTest {
+            name: "chirp".into(),
+            inputs: chirp,
+        },
+    ]
+}
+
+/// Displacement rows the error is measured on: sensors and displayed nodes, with their row
+/// indices in [`OutputRows::weighted`] order.
+fn measured_rows(rows: &OutputRows) -> Vec<(usize, &SparseRow)> {
+    let mut out = Vec::new();
+    let mut at = 0;
+    for (u, _) in &rows.sensors {
+        out.extend(u.iter().enumerate().map(|(c, r)| (at + c, r)));
+        at += 6;
+    }
+    at += 3 * rows.loads.len();
+    for set in &rows.node_sets {
+        for (u, _) in set {
+            out.extend(u.iter().enumerate().map(|(c, r)| (at + c, r)));
+            at += 6;
+        }
+    }
+    out
+}
+
+/// Relative L2 errors of the reduced model per test: `"<test>"` over displayed nodes and
+/// sensors, `"<test>.sensors"` over the sensors only.
+pub fn measured_errors(
+    full: &FullOrder,
+    rows: &OutputRows,
+    parts: &ReducedParts,
+    tests: &[LoadTest],
+) -> Result<BTreeMap<String, f64>, ReferenceError> {
+    let fem = &full.fem;
+    let n = fem.dof_count();
+    let r = parts.transition.nrows();
+    let measured = measured_rows(rows);
+    let sensor_rows = 3 * rows.sensors.len();
+    let mut errors = BTreeMap::new();
+    for test in tests {
+        let mut reference = LinearSimulator::new(fem, full.wilson())?;
+        let mut x = Mat::<f64>::zeros(r, 1);
+        let (mut err, mut norm, mut err_s, mut norm_s) = (0.0, 0.0, 0.0, 0.0);
+        let mut f = vec![0.0; n];
+        for u in &test.inputs {
+            f.iter_mut().for_each(|v| *v = 0.0);
+            for (channel, &value) in full.operators.inputs.iter().zip(u) {
+                if value != 0.0 {
+                    f.iter_mut()
+                        .zip(&channel.column)
+                        .for_each(|(fi, b)| *fi += value * b);
+                }
+            }
+            reference.step(&f)?;
+            let u_in = Mat::from_fn(u.len(), 1, |i, _| u[i]);
+            x = &parts.transition * &x + &parts.input * &u_in;
+            let full_u = reference.displacement();
+            for (k, &(row_index, row)) in measured.iter().enumerate() {
+                let exact: f64 = row.iter().map(|&(d, w)| w * full_u[d]).sum();
+                let approx: f64 = (0..r)
+                    .map(|j| parts.outputs[(row_index, j)] * x[(j, 0)])
+                    .sum();
+                let e2 = (approx - exact).powi(2);
+                err += e2;
+                norm += exact * exact;
+                if k < sensor_rows {
+                    err_s += e2;
+                    norm_s += exact * exact;
+                }
+            }
+        }
+        errors.insert(test.name.clone(), (err / norm).sqrt());
+        if sensor_rows > 0 {
+            errors.insert(format!("{}.sensors", test.name), (err_s / norm_s).sqrt());
+        }
+    }
+    Ok(errors)
+}
