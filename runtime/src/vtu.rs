@@ -1,6 +1,7 @@
-//! ASCII VTK XML output: one `.vtu` per step (each displayed node set a piece: its rest
-//! positions as points, its triangles as cells — vertices if it has none — with point data
-//! `displacement` (world, m) and `displacement_std` (m)), and a `.pvd` collection over time.
+//! ASCII VTK XML output: one `.vtu` per step (the displayed node sets one after the other: rest
+//! positions as points, triangles as cells — vertices for a set without triangles — with point
+//! data `displacement` (world, m), `displacement_std` (m), `node_tag`, `node_set`), and a
+//! `.pvd` collection over time.
 //! In ParaView, "Warp By Vector" on `displacement` shows the deformed surface.
 
 use crate::{Estimator, RuntimeError};
@@ -21,70 +22,106 @@ fn xml_escape(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
-/// Renders the current estimate of every node set as a VTU document.
+/// Renders the current estimate of every node set as a VTU document: a single piece with the
+/// node sets one after the other (point and cell data `node_set` give the set index).
 pub fn render_vtu(est: &Estimator) -> Result<String, RuntimeError> {
     let model = est.model();
-    let mut s = String::new();
-    s.push_str("<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\">\n<UnstructuredGrid>\n");
+    let (mut u, mut sd, mut points, mut tags, mut set_of_point) =
+        (vec![], vec![], vec![], vec![], vec![]);
+    let (mut conn, mut offsets, mut types, mut set_of_cell) = (vec![], vec![], vec![], vec![]);
     for (set_index, set) in model.node_sets.iter().enumerate() {
         let n = set.node_tags.len();
-        let mut u = vec![0.0; 3 * n];
-        let mut sd = vec![0.0; 3 * n];
-        est.node_displacements(set_index, &mut u)?;
-        est.node_std(set_index, &mut sd)?;
-        let (ncells, conn, offsets, types): (usize, Vec<u32>, Vec<usize>, u8) =
-            if set.triangles.is_empty() {
-                (n, (0..n as u32).collect(), (1..=n).collect(), 1)
-            } else {
-                let t = set.triangles.len();
-                (
-                    t,
-                    set.triangles.iter().flatten().copied().collect(),
-                    (1..=t).map(|i| 3 * i).collect(),
-                    5,
-                )
-            };
-        let _ = writeln!(
-            s,
-            "<Piece Name=\"{}\" NumberOfPoints=\"{n}\" NumberOfCells=\"{ncells}\">",
-            xml_escape(&set.name)
-        );
-        s.push_str("<PointData Vectors=\"displacement\">\n");
-        for (name, data) in [("displacement", &u), ("displacement_std", &sd)] {
-            let _ = writeln!(
-                s,
-                "<DataArray type=\"Float64\" Name=\"{name}\" NumberOfComponents=\"3\" format=\"ascii\">"
-            );
-            for v in data.iter() {
-                let _ = write!(s, "{v:e} ");
+        let base = tags.len() as u64;
+        let mut buf = vec![0.0; 3 * n];
+        est.node_displacements(set_index, &mut buf)?;
+        u.extend_from_slice(&buf);
+        est.node_std(set_index, &mut buf)?;
+        sd.extend_from_slice(&buf);
+        points.extend_from_slice(&set.rest_positions.data);
+        tags.extend_from_slice(&set.node_tags);
+        set_of_point.extend(std::iter::repeat_n(set_index, n));
+        if set.triangles.is_empty() {
+            for i in 0..n as u64 {
+                conn.push(base + i);
+                offsets.push(conn.len());
+                types.push(1u8); // VTK_VERTEX
+                set_of_cell.push(set_index);
             }
-            s.push_str("\n</DataArray>\n");
+        } else {
+            for t in &set.triangles {
+                conn.extend(t.iter().map(|&v| base + v as u64));
+                offsets.push(conn.len());
+                types.push(5u8); // VTK_TRIANGLE
+                set_of_cell.push(set_index);
+            }
         }
-        s.push_str("<DataArray type=\"UInt64\" Name=\"node_tag\" format=\"ascii\">\n");
-        for t in &set.node_tags {
-            let _ = write!(s, "{t} ");
-        }
-        s.push_str("\n</DataArray>\n</PointData>\n<Points>\n<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n");
-        for v in &set.rest_positions.data {
-            let _ = write!(s, "{v:e} ");
-        }
-        s.push_str("\n</DataArray>\n</Points>\n<Cells>\n<DataArray type=\"UInt32\" Name=\"connectivity\" format=\"ascii\">\n");
-        for v in &conn {
-            let _ = write!(s, "{v} ");
-        }
-        s.push_str(
-            "\n</DataArray>\n<DataArray type=\"UInt64\" Name=\"offsets\" format=\"ascii\">\n",
-        );
-        for v in &offsets {
-            let _ = write!(s, "{v} ");
-        }
-        s.push_str("\n</DataArray>\n<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">\n");
-        for _ in 0..ncells {
-            let _ = write!(s, "{types} ");
-        }
-        s.push_str("\n</DataArray>\n</Cells>\n</Piece>\n");
     }
-    s.push_str("</UnstructuredGrid>\n</VTKFile>\n");
+    fn array<T: std::fmt::Display>(s: &mut String, head: &str, values: &[T]) {
+        s.push_str(head);
+        s.push('\n');
+        for v in values {
+            let _ = write!(s, "{v} ");
+        }
+        s.push_str("\n</DataArray>\n");
+    }
+    // LowerExp is only implemented for numbers; format f64 arrays through this wrapper.
+    struct E(f64);
+    impl std::fmt::Display for E {
+        fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            write!(f, "{:e}", self.0)
+        }
+    }
+    let f = |v: &[f64]| v.iter().map(|&x| E(x)).collect::<Vec<_>>();
+    let mut s = String::new();
+    s.push_str("<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n<UnstructuredGrid>\n");
+    let _ = writeln!(
+        s,
+        "<Piece NumberOfPoints=\"{}\" NumberOfCells=\"{}\">",
+        tags.len(),
+        types.len()
+    );
+    s.push_str("<PointData Vectors=\"displacement\">\n");
+    array(&mut s, "<DataArray type=\"Float64\" Name=\"displacement\" NumberOfComponents=\"3\" format=\"ascii\">", &f(&u));
+    array(&mut s, "<DataArray type=\"Float64\" Name=\"displacement_std\" NumberOfComponents=\"3\" format=\"ascii\">", &f(&sd));
+    array(
+        &mut s,
+        "<DataArray type=\"UInt64\" Name=\"node_tag\" format=\"ascii\">",
+        &tags,
+    );
+    array(
+        &mut s,
+        "<DataArray type=\"UInt32\" Name=\"node_set\" format=\"ascii\">",
+        &set_of_point,
+    );
+    s.push_str("</PointData>\n<CellData>\n");
+    array(
+        &mut s,
+        "<DataArray type=\"UInt32\" Name=\"node_set\" format=\"ascii\">",
+        &set_of_cell,
+    );
+    s.push_str("</CellData>\n<Points>\n");
+    array(
+        &mut s,
+        "<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">",
+        &f(&points),
+    );
+    s.push_str("</Points>\n<Cells>\n");
+    array(
+        &mut s,
+        "<DataArray type=\"UInt64\" Name=\"connectivity\" format=\"ascii\">",
+        &conn,
+    );
+    array(
+        &mut s,
+        "<DataArray type=\"UInt64\" Name=\"offsets\" format=\"ascii\">",
+        &offsets,
+    );
+    array(
+        &mut s,
+        "<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">",
+        &types,
+    );
+    s.push_str("</Cells>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
     Ok(s)
 }
 

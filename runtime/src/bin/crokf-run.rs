@@ -27,6 +27,9 @@ struct Args {
     /// Also write one .vtu per step and estimates.pvd into this directory.
     #[arg(long)]
     vtu: Option<PathBuf>,
+    /// With --vtu: write every N-th step only.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    vtu_every: u64,
 }
 
 fn write_err(path: &Path) -> impl Fn(std::io::Error) -> RuntimeError + '_ {
@@ -64,11 +67,13 @@ fn run(args: &Args) -> Result<(), RuntimeError> {
         est.sensor_std(&mut sd)?;
         let mut line = format!("{},{}", k, est.time());
         for v in u.iter().chain(&sd) {
-            line.push_str(&format!(",{v}"));
+            line.push_str(&format!(",{v:e}"));
         }
         writeln!(out, "{line}").map_err(write_err(&args.out))?;
         if let Some(dir) = &args.vtu {
-            pvd.push((est.time(), vtu::write_step(dir, &est)?));
+            if k % args.vtu_every == 0 {
+                pvd.push((est.time(), vtu::write_step(dir, &est)?));
+            }
         }
     }
     out.flush().map_err(write_err(&args.out))?;
