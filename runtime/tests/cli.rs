@@ -93,9 +93,18 @@ fn crokf_run_matches_the_library() {
     assert_eq!(pvd.matches("<DataSet").count(), steps);
     assert!(pvd.contains("file=\"step_000003.vtu\""));
     let vtu = std::fs::read_to_string(vd.join("step_000003.vtu")).unwrap();
-    assert!(vtu.contains("<Piece NumberOfPoints=\"5\" NumberOfCells=\"3\">"), "{vtu}");
-    assert!(vtu.contains("Name=\"connectivity\" format=\"ascii\">\n0 1 2 0 2 3 4 \n"), "{vtu}");
-    assert!(vtu.contains("Name=\"types\" format=\"ascii\">\n5 5 1 \n"), "{vtu}");
+    assert!(
+        vtu.contains("<Piece NumberOfPoints=\"5\" NumberOfCells=\"3\">"),
+        "{vtu}"
+    );
+    assert!(
+        vtu.contains("Name=\"connectivity\" format=\"ascii\">\n0 1 2 0 2 3 4 \n"),
+        "{vtu}"
+    );
+    assert!(
+        vtu.contains("Name=\"types\" format=\"ascii\">\n5 5 1 \n"),
+        "{vtu}"
+    );
     let start = vtu.find("Name=\"displacement\"").unwrap();
     let body = &vtu[start..];
     let body = &body[body.find('>').unwrap() + 1..body.find("</DataArray>").unwrap()];
