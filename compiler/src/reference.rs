@@ -310,6 +310,32 @@ pub fn simulator(
     })
 }
 
+/// out[i] = g(U[i], U̇[i], Ü[i]) per DOF.
+pub(crate) fn map_state(
+    u: &[f64],
+    v: &[f64],
+    a: &[f64],
+    out: &mut [f64],
+    g: impl Fn(f64, f64, f64) -> f64,
+) {
+    for (((o, u), v), a) in out.iter_mut().zip(u).zip(v).zip(a) {
+        *o = g(*u, *v, *a);
+    }
+}
+
+/// [`WilsonTheta::advance`] on every DOF, given Û.
+pub(crate) fn advance_all(
+    w: &WilsonTheta,
+    u: &mut [f64],
+    v: &mut [f64],
+    a: &mut [f64],
+    u_hat: &[f64],
+) {
+    for (((u, v), a), h) in u.iter_mut().zip(v.iter_mut()).zip(a.iter_mut()).zip(u_hat) {
+        (*u, *v, *a) = w.advance(*u, *v, *a, *h);
+    }
+}
+
 /// Euclidean norm.
 pub(crate) fn norm(x: &[f64]) -> f64 {
     x.iter().map(|v| v * v).sum::<f64>().sqrt()

@@ -11,7 +11,7 @@ use crate::dynamics::WilsonTheta;
 use crate::fem::{FemModel, TetGeometry};
 
 use super::sparse::Pattern;
-use super::{check_len, norm, ReferenceError, Simulator};
+use super::{advance_all, check_len, norm, ReferenceError, Simulator};
 
 /// The rotation R (det R = +1) of the polar decomposition F = R S, robust to inverted elements
 /// (det F ≤ 0): SVD F = U Σ Vᵀ, and where det U or det V is negative the column belonging to the
@@ -282,7 +282,7 @@ impl CorotationalSimulator {
         wilson: WilsonTheta,
         options: NewtonOptions,
     ) -> Result<Self, ReferenceError> {
-        if options.max_newton == 0 || !(options.tolerance > 0.0) {
+        if options.max_newton == 0 || options.tolerance.is_nan() || options.tolerance <= 0.0 {
             return Err(ReferenceError::Options(format!(
                 "Newton: max_newton must be ≥ 1 and tolerance > 0, got {} and {}",
                 options.max_newton, options.tolerance
@@ -556,10 +556,7 @@ impl Simulator for CorotationalSimulator {
             self.stats.unconverged += 1;
         }
         self.stats.worst_increment = self.stats.worst_increment.max(relative);
-        for i in 0..n {
-            (self.u[i], self.v[i], self.a[i]) =
-                w.advance(self.u[i], self.v[i], self.a[i], u_hat[i]);
-        }
+        advance_all(&w, &mut self.u, &mut self.v, &mut self.a, &u_hat);
         self.time += w.dt;
         Ok(())
     }

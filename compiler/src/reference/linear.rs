@@ -5,7 +5,7 @@ use crate::dynamics::WilsonTheta;
 use crate::fem::FemModel;
 
 use super::sparse::{Factor, Pattern};
-use super::{check_len, ReferenceError, Simulator};
+use super::{advance_all, check_len, map_state, ReferenceError, Simulator};
 
 /// The static displacement u (n, m) of K u = f (f: n, N) by sparse Cholesky of K.
 ///
@@ -80,18 +80,14 @@ impl Simulator for LinearSimulator {
         let w = self.wilson;
         let [rhs, x, y] = &mut self.work;
         // rhs = f + M·(a₀U + 6/τ U̇ + 2Ü)
-        for i in 0..n {
-            x[i] = w.mass_rhs(self.u[i], self.v[i], self.a[i]);
-        }
+        map_state(&self.u, &self.v, &self.a, x, |u, v, a| w.mass_rhs(u, v, a));
         self.pattern.mul(&self.mass, x, rhs);
-        for i in 0..n {
-            rhs[i] += f[i];
-        }
+        rhs.iter_mut().zip(f).for_each(|(r, f)| *r += f);
         // + C·(a₂U + 2U̇ + τ/2 Ü), C = αM + βK
         if self.alpha != 0.0 || self.beta != 0.0 {
-            for i in 0..n {
-                x[i] = w.damping_rhs(self.u[i], self.v[i], self.a[i]);
-            }
+            map_state(&self.u, &self.v, &self.a, x, |u, v, a| {
+                w.damping_rhs(u, v, a)
+            });
             if self.alpha != 0.0 {
                 self.pattern.mul(&self.mass, x, y);
                 rhs.iter_mut()
@@ -106,9 +102,7 @@ impl Simulator for LinearSimulator {
             }
         }
         self.jacobian.solve_in_place(rhs);
-        for i in 0..n {
-            (self.u[i], self.v[i], self.a[i]) = w.advance(self.u[i], self.v[i], self.a[i], rhs[i]);
-        }
+        advance_all(&w, &mut self.u, &mut self.v, &mut self.a, rhs);
         self.time += w.dt;
         Ok(())
     }
