@@ -110,3 +110,41 @@ pub fn box_mesh(cells: [usize; 3], lengths: [f64; 3]) -> Mesh {
         groups,
     }
 }
+
+/// Writes a mesh as gmsh MSH 2.2 ASCII (tetrahedra, triangles and named physical groups).
+/// Elements in several groups are written once per group, as gmsh does.
+pub fn write_msh22(mesh: &Mesh, path: &std::path::Path) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut w = std::io::BufWriter::new(std::fs::File::create(path)?);
+    writeln!(w, "$MeshFormat\n2.2 0 8\n$EndMeshFormat")?;
+    writeln!(w, "$PhysicalNames\n{}", mesh.groups.len())?;
+    for g in &mesh.groups {
+        writeln!(w, "{} {} \"{}\"", g.dim, g.tag, g.name)?;
+    }
+    writeln!(w, "$EndPhysicalNames\n$Nodes\n{}", mesh.nodes.len())?;
+    for (tag, p) in mesh.node_tags.iter().zip(&mesh.nodes) {
+        writeln!(w, "{tag} {:.17e} {:.17e} {:.17e}", p[0], p[1], p[2])?;
+    }
+    writeln!(w, "$EndNodes")?;
+    let mut lines = Vec::new();
+    for g in &mesh.groups {
+        for &e in &g.elements {
+            let (kind, nodes): (u8, Vec<usize>) = match g.dim {
+                3 => (4, mesh.tetrahedra[e].nodes.to_vec()),
+                2 => (2, mesh.triangles[e].nodes.to_vec()),
+                _ => continue,
+            };
+            let tags: Vec<String> = nodes
+                .iter()
+                .map(|&n| mesh.node_tags[n].to_string())
+                .collect();
+            lines.push(format!("{kind} 2 {} {} {}", g.tag, g.tag, tags.join(" ")));
+        }
+    }
+    writeln!(w, "$Elements\n{}", lines.len())?;
+    for (i, line) in lines.iter().enumerate() {
+        writeln!(w, "{} {line}", i + 1)?;
+    }
+    writeln!(w, "$EndElements")?;
+    w.flush()
+}

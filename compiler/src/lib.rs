@@ -9,6 +9,7 @@
 //!
 //! See `DESIGN.md` in the shared notes for the equations each module implements.
 
+pub mod comparison;
 pub mod compile;
 pub mod accuracy;
 pub mod bench;

@@ -1,0 +1,1 @@
+//! Speed against error: full-order references and the reduced runtime on one scene.
