@@ -40,9 +40,9 @@ pub fn beam_of_size(tetrahedra: usize) -> Mesh {
     box_mesh([nx, k, k], [1.0, 0.1, 0.1])
 }
 
-/// The benchmark scene: soft beam clamped at `xmin`, tip load on `xmax`, Δt = 1 ms.
-pub fn beam_scene() -> Scene {
-    let text = r#"
+/// The benchmark scene text (mesh file "generated"): soft beam clamped at `xmin`, tip load on
+/// `xmax` with force noise, three sensors along the top, the boundary displayed, Δt = 1 ms.
+pub const BEAM_SCENE: &str = r#"
         [mesh]
         file = "generated"
         [[material]]
@@ -58,10 +58,29 @@ pub fn beam_scene() -> Scene {
         [[load]]
         name = "tip"
         group = "xmax"
+        force_noise_std = 0.01
+        [[sensor]]
+        name = "tip"
+        position = [0.99, 0.05, 0.1]
+        noise_std = 1.0e-3
+        [[sensor]]
+        name = "three_quarter"
+        position = [0.75, 0.05, 0.1]
+        noise_std = 1.0e-3
+        [[sensor]]
+        name = "mid_span"
+        position = [0.5, 0.05, 0.1]
+        noise_std = 1.0e-3
+        [[display]]
+        name = "surface"
+        group = "surface"
         [time]
         dt = 0.001
     "#;
-    Scene::parse(text, Path::new("<benchmark scene>")).expect("the benchmark scene is valid")
+
+/// [`BEAM_SCENE`], parsed.
+pub fn beam_scene() -> Scene {
+    Scene::parse(BEAM_SCENE, Path::new("<benchmark scene>")).expect("the benchmark scene is valid")
 }
 
 /// Full-order figures at one mesh size.

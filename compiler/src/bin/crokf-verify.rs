@@ -2,6 +2,8 @@
 //!
 //! ```text
 //! crokf-verify simulate SCENE SCENARIO --model linear|corotational --out DIR [--vtu] [--every k]
+//! crokf-verify beam --tetrahedra N --out DIR      # a structured beam mesh + scene (benchmarks)
+//! crokf-verify bench [--assembly 10000,50000,200000] [--steps 2000,20000,50000] [--orders 10,20,40,80]
 //! ```
 //! runs the full-order reference (linear or co-rotational Wilson-θ) through a scenario and
 //! writes `DIR/trajectories.csv` and, with `--vtu`, `DIR/frames/frame_NNNN.vtu` + `DIR/series.pvd`.
@@ -11,6 +13,7 @@ use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use crokf_compile::reference::{self, Model, NewtonOptions, SimulationOptions};
+use crokf_compile::{bench, generate};
 
 #[derive(Parser)]
 #[command(
@@ -27,6 +30,111 @@ struct Cli {
 enum Command {
     /// Run a full-order reference simulation of a scene through a scenario.
     Simulate(SimulateArgs),
+    /// Write a structured beam mesh (MSH 2.2) of about N tetrahedra and a scene, for benchmarks.
+    Beam(BeamArgs),
+    /// Benchmarks: assembly, full-order step and runtime step times, medians, ratios in one run.
+    Bench(BenchArgs),
+}
+
+#[derive(Args)]
+struct BeamArgs {
+    /// Approximate number of tetrahedra.
+    #[arg(long)]
+    tetrahedra: usize,
+    /// Output directory (beam.msh and scene.toml).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    /// Mesh sizes (tetrahedra) for the assembly benchmark.
+    #[arg(long, value_delimiter = ',', default_value = "10000,50000,200000")]
+    assembly: Vec<usize>,
+    /// Mesh sizes (tetrahedra) for the full-order step benchmark.
+    #[arg(long, value_delimiter = ',', default_value = "2000,20000,50000")]
+    steps: Vec<usize>,
+    /// Reduced orders for the runtime step benchmark.
+    #[arg(long, value_delimiter = ',', default_value = "10,20,40,80")]
+    orders: Vec<usize>,
+    /// Measured components of the runtime benchmark.
+    #[arg(long, default_value_t = 30)]
+    measured: usize,
+    /// Input channels of the runtime benchmark.
+    #[arg(long, default_value_t = 6)]
+    inputs: usize,
+    /// Displayed nodes of the read-out benchmark.
+    #[arg(long, default_value_t = 5000)]
+    nodes: usize,
+}
+
+fn beam(args: &BeamArgs) -> Result<(), String> {
+    let mesh = bench::beam_of_size(args.tetrahedra);
+    std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    let msh = args.out.join("beam.msh");
+    generate::write_msh22(&mesh, &msh).map_err(|e| format!("{}: {e}", msh.display()))?;
+    let scene = args.out.join("scene.toml");
+    std::fs::write(&scene, bench::BEAM_SCENE.replace("generated", "beam.msh"))
+        .map_err(|e| format!("{}: {e}", scene.display()))?;
+    println!(
+        "wrote {} ({} nodes, {} tetrahedra) and {}",
+        msh.display(),
+        mesh.nodes.len(),
+        mesh.tetrahedra.len(),
+        scene.display()
+    );
+    Ok(())
+}
+
+fn bench_cmd(args: &BenchArgs) -> Result<(), String> {
+    println!("## Assembly (K and M, sparse), median of 3\n");
+    println!("| tetrahedra | free DOFs | assembly |");
+    println!("|---:|---:|---:|");
+    for &n in &args.assembly {
+        let b = bench::full_order(n, false, 3);
+        println!("| {} | {} | {:.3} s |", b.tetrahedra, b.dofs, b.assembly_s);
+    }
+    println!("\n## Full-order Wilson-θ steps (Δt = 1 ms, tip load 1 N), medians\n");
+    println!("| tetrahedra | free DOFs | linear step | co-rotational step (1 Newton solve) |");
+    println!("|---:|---:|---:|---:|");
+    let mut full = Vec::new();
+    for &n in &args.steps {
+        let b = bench::full_order(n, true, 5);
+        println!(
+            "| {} | {} | {:.3} ms | {:.1} ms |",
+            b.tetrahedra,
+            b.dofs,
+            1e3 * b.linear_step_s,
+            1e3 * b.corotational_step_s
+        );
+        full.push(b);
+    }
+    println!(
+        "\n## Runtime (one core): predict + update with {} measured components and {} inputs; \
+         warped read-out of {} displayed nodes\n",
+        args.measured, args.inputs, args.nodes
+    );
+    let mut header = "| r | step | read-out |".to_owned();
+    let mut rule = "|---:|---:|---:|".to_owned();
+    for b in &full {
+        header.push_str(&format!(" co-rot. step / step ({} tets) |", b.tetrahedra));
+        rule.push_str("---:|");
+    }
+    println!("{header}\n{rule}");
+    for &r in &args.orders {
+        let b = bench::runtime(r, args.measured, args.inputs, args.nodes);
+        let mut row = format!(
+            "| {} | {:.3} µs | {:.1} µs |",
+            b.order,
+            1e6 * b.step_s,
+            1e6 * b.readout_s
+        );
+        for f in &full {
+            row.push_str(&format!(" {:.2e} |", f.corotational_step_s / b.step_s));
+        }
+        println!("{row}");
+    }
+    Ok(())
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -118,7 +226,9 @@ fn simulate(args: &SimulateArgs) -> Result<(), reference::ReferenceError> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
-        Command::Simulate(args) => simulate(args),
+        Command::Simulate(args) => simulate(args).map_err(|e| e.to_string()),
+        Command::Beam(args) => beam(args),
+        Command::Bench(args) => bench_cmd(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
