@@ -279,6 +279,34 @@ pub struct ReducedParts {
     pub outputs: Mat<f64>,
 }
 
+impl ReducedParts {
+    /// Fixes the sign of each balanced state (a similarity x ↦ S x, S = diag(±1)) so that the
+    /// largest-magnitude entry of each output column is positive. Singular vectors are defined
+    /// up to sign only, and a rounding difference between machines must not flip the model file.
+    pub fn normalise_signs(&mut self) {
+        let r = self.transition.nrows();
+        for j in 0..r {
+            let column = self.outputs.col(j);
+            let pivot = (0..column.nrows())
+                .max_by(|&a, &b| column[a].abs().total_cmp(&column[b].abs()))
+                .map_or(1.0, |i| column[i]);
+            if pivot >= 0.0 {
+                continue;
+            }
+            for i in 0..r {
+                self.transition[(j, i)] = -self.transition[(j, i)];
+                self.transition[(i, j)] = -self.transition[(i, j)];
+            }
+            self.input.row_mut(j).iter_mut().for_each(|v| *v = -*v);
+            self.noise_input
+                .row_mut(j)
+                .iter_mut()
+                .for_each(|v| *v = -*v);
+            self.outputs.col_mut(j).iter_mut().for_each(|v| *v = -*v);
+        }
+    }
+}
+
 /// Builds the model file's contents from the reduced system and the Kalman schedule.
 pub fn assemble_model(
     full: &FullOrder,
@@ -526,12 +554,13 @@ pub fn compile(scene_path: &Path, options: &CompileOptions) -> Result<Compiled, 
             out[(i, j)] /= w;
         }
     }
-    let parts = ReducedParts {
+    let mut parts = ReducedParts {
         transition: reduced.transition.clone(),
         input: reduced.input.subcols(0, m).to_owned(),
         noise_input: reduced.input.subcols(m, ops.noise.len()).to_owned(),
         outputs: out,
     };
+    parts.normalise_signs();
 
     let (measurements, variance, every) = measurement_channels(ops);
     let schedule = timer
@@ -741,7 +770,13 @@ pub enum CheckOutcome {
     Stale(String),
 }
 
-/// Compares a committed model file's input digest with the current scene, mesh and compiler.
+/// Relative tolerance of [`check`]'s numerical comparison of a recompiled model.
+pub const CHECK_TOLERANCE: f64 = 1e-6;
+
+/// Checks a committed model file against its scene: the input digest (scene bytes, mesh bytes,
+/// compiler version) must match, and recompiling with the model's own order must give the same
+/// file — byte for byte, or (another CPU may round differently) every matrix equal to
+/// [`CHECK_TOLERANCE`] relative to its largest entry.
 pub fn check(model_path: &Path, scene_path: &Path) -> Result<CheckOutcome, CompileError> {
     let bytes = std::fs::read(model_path).map_err(|source| CompileError::Io {
         path: model_path.to_owned(),
@@ -775,9 +810,76 @@ pub fn check(model_path: &Path, scene_path: &Path) -> Result<CheckOutcome, Compi
             d.compiler_version
         ));
     }
-    Ok(if why.is_empty() {
-        CheckOutcome::UpToDate
-    } else {
-        CheckOutcome::Stale(why.join("; "))
+    if !why.is_empty() {
+        return Ok(CheckOutcome::Stale(why.join("; ")));
+    }
+    let options = CompileOptions {
+        order: Some(model.r()),
+        skip_measured_error: model.report.measured_errors.is_empty(),
+        ..CompileOptions::default()
+    };
+    let fresh = compile(scene_path, &options)?;
+    if fresh.bytes == bytes {
+        return Ok(CheckOutcome::UpToDate);
+    }
+    Ok(match model_difference(&model, &fresh.model) {
+        None => CheckOutcome::UpToDate,
+        Some(what) => CheckOutcome::Stale(format!("recompiling gives a different model: {what}")),
+    })
+}
+
+/// The first difference between two models beyond [`CHECK_TOLERANCE`], if any.
+fn model_difference(a: &fmt::Model, b: &fmt::Model) -> Option<String> {
+    if a.state_dim != b.state_dim
+        || a.inputs != b.inputs
+        || a.measurements != b.measurements
+        || a.sensors.len() != b.sensors.len()
+        || a.node_sets.len() != b.node_sets.len()
+        || a.kalman.phases.len() != b.kalman.phases.len()
+    {
+        return Some("state dimension, channels, sensors, node sets or Kalman phases".into());
+    }
+    let mut pairs: Vec<(String, &fmt::Matrix, &fmt::Matrix)> = vec![
+        ("F".into(), &a.transition, &b.transition),
+        ("G".into(), &a.input, &b.input),
+        ("Q".into(), &a.kalman.process_noise, &b.kalman.process_noise),
+    ];
+    for (s, t) in a.sensors.iter().zip(&b.sensors) {
+        pairs.push((
+            format!("sensor '{}' rows", s.name),
+            &s.displacement_rows,
+            &t.displacement_rows,
+        ));
+    }
+    for (s, t) in a.node_sets.iter().zip(&b.node_sets) {
+        pairs.push((
+            format!("node set '{}' rows", s.name),
+            &s.displacement_rows,
+            &t.displacement_rows,
+        ));
+    }
+    for (i, (p, q)) in a.kalman.phases.iter().zip(&b.kalman.phases).enumerate() {
+        pairs.push((format!("Kalman gain of phase {i}"), &p.gain, &q.gain));
+    }
+    pairs.into_iter().find_map(|(name, x, y)| {
+        if x.shape() != y.shape() {
+            return Some(format!("{name}: shape {:?} vs {:?}", x.shape(), y.shape()));
+        }
+        let scale = x
+            .data
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v.abs()))
+            .max(f64::MIN_POSITIVE);
+        let worst = x
+            .data
+            .iter()
+            .zip(&y.data)
+            .fold(0.0f64, |m, (p, q)| m.max((p - q).abs()));
+        (worst > CHECK_TOLERANCE * scale).then(|| {
+            format!(
+                "{name} differs by {:.2e} of its largest entry",
+                worst / scale
+            )
+        })
     })
 }
