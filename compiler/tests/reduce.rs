@@ -320,6 +320,13 @@ fn leading_hankel_singular_values_match_dense_full_order_system() {
     let (kd, md) = (symmetric_dense(&lat.k), symmetric_dense(&lat.m));
     let (phi, gamma) = dense_wilson(&kd, &md, alpha, beta, w, b.as_ref());
     let reference = dense_hsv(&phi, &gamma, &full_output(&rows));
+    let worst = (0..10)
+        .map(|i| (red.hankel_singular_values[i] - reference[i]).abs() / reference[i])
+        .fold(0.0, f64::max);
+    eprintln!(
+        "leading 10 HSVs vs dense 3n = {} states: max rel err {worst:.2e}",
+        3 * lat.n
+    );
     for i in 0..10 {
         let (got, want) = (red.hankel_singular_values[i], reference[i]);
         assert!(
@@ -359,6 +366,11 @@ fn leading_hankel_singular_values_match_dense_full_order_system() {
         }
     }
     assert!(full.order > 12 && full.error_bound < 1e-9 * full.hankel_singular_values[0]);
+    assert!(
+        full.spectral_radius < 1.0,
+        "full-rank balanced model: ρ(F) = {}",
+        full.spectral_radius
+    );
     assert!(red.spectral_radius < 1.0);
     // project_outputs reproduces H.
     let h2 = red.project_outputs(rows.as_ref()).unwrap();
@@ -401,8 +413,56 @@ fn krylov_modes_match_dense_eigenvalues_with_repeated_pairs() {
                 basis.dense
             );
         }
+        let worst = (0..20)
+            .map(|i| (basis.omega2[i] - exact[i]).abs() / exact[i])
+            .fold(0.0, f64::max);
+        eprintln!(
+            "n = {}, 20 modes ({pairs} exact pairs), dense {}: max rel err {worst:.2e}, {} restarts, {} solves",
+            lat.n, basis.dense, basis.restarts, basis.solves
+        );
         check_orthonormal(&basis, &lat);
     }
+}
+
+#[test]
+fn exhausted_restart_budget_returns_converged_modes_and_says_so() {
+    let lat = Lattice::new([10, 3, 3], true, 1e4, false);
+    let exact = dense_eigenvalues(&symmetric_dense(&lat.k), &symmetric_dense(&lat.m));
+    let opts = ModalOptions {
+        modes: Some(60),
+        max_restarts: 0,
+        block_size: 2,
+        dense_threshold: 0,
+        ..Default::default()
+    };
+    let b = Mat::<f64>::zeros(lat.n, 0);
+    let basis = modal_basis(lat.k.as_ref(), lat.m.as_ref(), b.as_ref(), &opts).unwrap();
+    assert!(
+        !basis.complete && basis.len() < 60,
+        "{} modes, complete {}",
+        basis.len(),
+        basis.complete
+    );
+    assert!(
+        basis
+            .warnings
+            .iter()
+            .any(|w| w.contains("stopped after 0 restarts")),
+        "{:?}",
+        basis.warnings
+    );
+    eprintln!("budget 0: {} of 60 modes converged", basis.len());
+    for &w2 in &basis.omega2 {
+        let nearest = exact
+            .iter()
+            .map(|e| (e - w2).abs() / e)
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            nearest < 1e-10,
+            "ω² = {w2} is not an eigenvalue (nearest rel {nearest:e})"
+        );
+    }
+    check_orthonormal(&basis, &lat);
 }
 
 #[test]
@@ -567,6 +627,11 @@ fn reduced_response_error_within_bound_and_falls_with_order() {
                 previous[case]
             );
             previous[case] = err;
+            eprintln!(
+                "r = {r:2}, case {case}: ‖y − y_r‖₂/‖u‖₂ = {:.3e}, bound {:.3e}",
+                err / l2(u),
+                red.error_bound
+            );
         }
         // H∞ on a frequency grid: σ_max(G(e^{jω}) − G_r(e^{jω})) ≤ 2 Σ_{i>r} σᵢ.
         for f in (0..60).map(|i| nyquist * (i as f64 / 60.0).powi(2)) {
@@ -668,6 +733,14 @@ fn normalised_hankel_singular_values_invariant_to_physical_scale() {
             let (a, b) = (h1[i] / h1[0], hs[i] / hs[0]);
             assert!((a - b).abs() <= 1e-8, "s = {s}: σ{i}/σ₁ = {b:e} vs {a:e}");
         }
+        let worst = (0..h1.len().min(hs.len()))
+            .filter(|&i| h1[i] > 1e-8 * h1[0])
+            .map(|i| ((hs[i] / hs[0]) / (h1[i] / h1[0]) - 1.0).abs())
+            .fold(0.0, f64::max);
+        eprintln!(
+            "s = {s:e}: σᵢ/σ₁ ≥ 1e-8 agree to {worst:.2e} relative, order {}",
+            rs.order
+        );
         // Physical HSVs scale as 1/s (displacement per force).
         assert!((hs[0] * s / h1[0] - 1.0).abs() < 1e-9);
     }
@@ -859,4 +932,85 @@ fn bad_inputs_are_refused_with_clear_errors() {
         sys.balanced_truncation(Order::Fixed(2)),
         Err(ReduceError::NothingObservable)
     ));
+}
+
+/// Timings at scale (not a pass/fail speed test): `cargo test --release -p crokf-compile --test
+/// reduce -- --ignored --nocapture large`.
+#[test]
+#[ignore]
+fn large_lattice_stage_timings() {
+    for dims in [[40, 8, 8], [100, 12, 12]] {
+        let t = std::time::Instant::now();
+        let lat = Lattice::new(dims, true, 1e4, false);
+        let assembly = t.elapsed().as_secs_f64();
+        let m_in = 12;
+        let b = Mat::from_fn(
+            lat.n,
+            m_in,
+            |i, c| if i % 97 == c * 7 % 97 { 1.0 } else { 0.0 },
+        );
+        let rows: Vec<Vec<(usize, f64)>> =
+            (0..300).map(|r| vec![((r * 131) % lat.n, 1.0)]).collect();
+        let rows = lat.rows(&rows);
+        let opts = ModalOptions {
+            modes: Some(60),
+            ..Default::default()
+        };
+        let basis = modal_basis(lat.k.as_ref(), lat.m.as_ref(), b.as_ref(), &opts).unwrap();
+        let w = WilsonTheta {
+            dt: 1e-3,
+            theta: 1.4,
+        };
+        let t = std::time::Instant::now();
+        let sys = ModalSystem::new(&basis, b.as_ref(), rows.as_ref(), 0.5, 1e-4, w).unwrap();
+        let modal = t.elapsed().as_secs_f64();
+        let red = sys.balanced_truncation(Order::Tolerance(1e-4)).unwrap();
+        eprintln!(
+            "n = {}: assembly {assembly:.2}s, {:?}, {} restarts, {} solves, k = {}; modal system {modal:.2}s; {:?}; r = {}, ρ(F) = {:.6}",
+            lat.n, basis.timings, basis.restarts, basis.solves, basis.len(), red.timings, red.order, red.spectral_radius
+        );
+        check_orthonormal_sparse(&basis, &lat);
+    }
+}
+
+/// ‖VᵀMV − I‖_max and the off-diagonal of VᵀKV through sparse products (large n).
+fn check_orthonormal_sparse(basis: &ModalBasis, lat: &Lattice) {
+    use faer::sparse::linalg::matmul::sparse_dense_matmul;
+    let v = &basis.vectors;
+    let mut mv = Mat::zeros(lat.n, v.ncols());
+    sparse_dense_matmul(
+        mv.as_mut(),
+        faer::Accum::Replace,
+        lat.m.as_ref(),
+        v.as_ref(),
+        1.0,
+        faer::Par::Seq,
+    );
+    let mut kv = Mat::zeros(lat.n, v.ncols());
+    sparse_dense_matmul(
+        kv.as_mut(),
+        faer::Accum::Replace,
+        lat.k.as_ref(),
+        v.as_ref(),
+        1.0,
+        faer::Par::Seq,
+    );
+    let (mtm, ktk) = (v.transpose() * &mv, v.transpose() * &kv);
+    let mut worst: (f64, f64) = (0.0, 0.0);
+    for i in 0..v.ncols() {
+        for j in 0..v.ncols() {
+            let want = if i == j { 1.0 } else { 0.0 };
+            worst.0 = worst.0.max((mtm[(i, j)] - want).abs());
+            if i != j {
+                worst.1 = worst
+                    .1
+                    .max(ktk[(i, j)].abs() / (basis.omega2[i] * basis.omega2[j]).sqrt());
+            }
+        }
+    }
+    eprintln!(
+        "max |VᵀMV − I| = {:.2e}, max |VᵀKV|ᵢⱼ/ωᵢωⱼ = {:.2e}",
+        worst.0, worst.1
+    );
+    assert!(worst.0 < 1e-10 && worst.1 < 1e-10);
 }

@@ -508,6 +508,21 @@ impl ModalSystem {
             }
             _ => {}
         }
+        if let Some((i, rho)) = self
+            .spectral_radii
+            .iter()
+            .copied()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .filter(|&(_, rho)| rho > 1.0 - 1e-8)
+        {
+            warnings.push(format!(
+                "mode {i} ({:.4} Hz) is nearly undamped: 1 − ρ(Φ) = {:.1e}; the Gramians and Hankel singular \
+                 values are accurate only to about 1e-16/(1 − ρ) relative",
+                self.frequencies_hz[i],
+                1.0 - rho
+            ));
+        }
         let t = Instant::now();
         let g = self.scaled_gramians()?;
         timings.gramians = t.elapsed().as_secs_f64();

@@ -89,13 +89,13 @@ fn project_out(
 
 /// M-orthonormalises the columns of w within themselves by an eigen-decomposition of the Gram
 /// matrix G = wᵀ M w = U Λ Uᵀ: Q = w U₊ Λ₊^{-1/2}, R = Λ₊^{1/2} U₊ᵀ (so w ≈ Q R), keeping the
-/// directions with Λ > `drop_below` (absolute, M-norm²).
+/// directions with Λ > `drop_below` (absolute, M-norm²). Also returns the smallest kept Λ.
 fn gram_orthonormalize(
     w: &Mat<f64>,
     mass: SparseColMatRef<'_, usize, f64>,
     drop_below: f64,
     par: Par,
-) -> Result<(Mat<f64>, Mat<f64>), ReduceError> {
+) -> Result<(Mat<f64>, Mat<f64>, f64), ReduceError> {
     let c = w.ncols();
     let mw = mass_mul(mass, w.as_ref(), par);
     let mut g = Mat::zeros(c, c);
@@ -132,7 +132,8 @@ fn gram_orthonormalize(
         par,
     );
     let rr = Mat::from_fn(r, c, |i, j| s[keep[i]].sqrt() * u[(j, keep[i])]);
-    Ok((q, rr))
+    let smallest = keep.last().map_or(0.0, |&j| s[j]);
+    Ok((q, rr, smallest))
 }
 
 /// (Q, R, C) of [`m_orthonormalize`].
@@ -165,17 +166,34 @@ pub(super) fn m_orthonormalize(
     if !(reference > 0.0) {
         return Ok((Mat::zeros(n, 0), Mat::zeros(0, c), coef));
     }
-    let (mut q, r1) = gram_orthonormalize(&w, mass, rank_tol * rank_tol * reference, par)?;
-    if q.ncols() == 0 {
+    let (mut q, r1, smallest) =
+        gram_orthonormalize(&w, mass, rank_tol * rank_tol * reference, par)?;
+    // Λ^{-1/2} amplifies the traces (~ε) of the basis left in w by sqrt(reference/Λ_min).
+    if q.ncols() == 0 || smallest >= 1e-4 * reference {
         return Ok((q, r1, coef));
     }
     // Second round: q may carry amplified traces of the basis after the Λ^{-1/2} scaling.
     project_out(&mut q, locked, mass, par);
     let h = project_out(&mut q, basis, mass, par);
     coef += &h * &r1;
-    let (q2, r2) = gram_orthonormalize(&q, mass, 1e-24, par)?;
+    let (q2, r2, _) = gram_orthonormalize(&q, mass, 1e-24, par)?;
     let r = &r2 * &r1;
     Ok((q2, r, coef))
+}
+
+/// Ensures `basis` (n × capacity) and `t` (capacity²) hold at least `want` columns, keeping
+/// the first `used`.
+fn grow(basis: &mut Mat<f64>, t: &mut Mat<f64>, used: usize, want: usize) {
+    if basis.ncols() >= want {
+        return;
+    }
+    let mut nb = Mat::zeros(basis.nrows(), want);
+    nb.subcols_mut(0, used).copy_from(basis.subcols(0, used));
+    *basis = nb;
+    let mut nt = Mat::zeros(want, want);
+    nt.submatrix_mut(0, 0, used, used)
+        .copy_from(t.submatrix(0, 0, used, used));
+    *t = nt;
 }
 
 /// Lowest eigenpairs of (K, M) seen through A = (K − σM)⁻¹ M: the largest θ.
@@ -205,8 +223,10 @@ pub(super) fn block_krylov_schur(
         1e-12,
         par,
     )?;
-    let mut basis = q0; // columns 0..d are the basis; the frontier is fstart..d
-    let mut t = Mat::<f64>::zeros(basis.ncols(), basis.ncols());
+    // Columns 0..d of `basis` (capacity ≥ d) are the basis; the frontier block is fstart..d.
+    let mut d = q0.ncols();
+    let mut basis = q0;
+    let mut t = Mat::<f64>::zeros(d, d);
     let mut fstart = 0usize;
     let mut theta_top = 0.0f64;
     let mut complete = false;
@@ -218,28 +238,23 @@ pub(super) fn block_krylov_schur(
             complete = true;
             break;
         }
-        if basis.ncols() == fstart {
+        if d == fstart {
             // Empty frontier: the Krylov space is invariant. Inject a fresh random block.
             let w = random_block(n, b, &mut seed);
-            let (q, _, _) = m_orthonormalize(w, locked.as_ref(), basis.as_ref(), mass, 1e-10, par)?;
+            let (q, _, _) =
+                m_orthonormalize(w, locked.as_ref(), basis.subcols(0, d), mass, 1e-10, par)?;
             if q.ncols() == 0 {
                 break; // the whole space is spanned
             }
-            let d = basis.ncols();
-            let mut grown = Mat::zeros(n, d + q.ncols());
-            grown.subcols_mut(0, d).copy_from(&basis);
-            grown.subcols_mut(d, q.ncols()).copy_from(&q);
-            basis = grown;
-            let mut tg = Mat::zeros(d + q.ncols(), d + q.ncols());
-            tg.submatrix_mut(0, 0, d, d).copy_from(&t);
-            t = tg;
-            fstart = d;
+            grow(&mut basis, &mut t, d, d + q.ncols());
+            basis.subcols_mut(d, q.ncols()).copy_from(&q);
+            d += q.ncols();
         }
         let rem = nev - nl;
-        let dmax = (2 * rem + 4 * b).min(n - nl).max(basis.ncols());
+        let dmax = (2 * rem + 4 * b).min(n - nl).max(d);
+        grow(&mut basis, &mut t, d, dmax);
 
         // Expansion: Q₊ R = (I − Q Qᵀ M) A Q_F, T[:, F] = Qᵀ M A Q_F.
-        let mut d = basis.ncols();
         let (qn, rn) = loop {
             let fw = d - fstart;
             let mut w = mass_mul(mass, basis.subcols(fstart, fw), par);
@@ -247,19 +262,14 @@ pub(super) fn block_krylov_schur(
             solves += fw;
             let (qn, rn, cn) =
                 m_orthonormalize(w, locked.as_ref(), basis.subcols(0, d), mass, 1e-12, par)?;
-            t.subcols_mut(fstart, fw).copy_from(&cn);
+            t.submatrix_mut(0, fstart, d, fw).copy_from(&cn);
             let wn = qn.ncols();
             if wn == 0 || d + wn > dmax {
                 break (qn, rn);
             }
-            let mut grown = Mat::zeros(n, d + wn);
-            grown.subcols_mut(0, d).copy_from(basis.subcols(0, d));
-            grown.subcols_mut(d, wn).copy_from(&qn);
-            basis = grown;
-            let mut tg = Mat::zeros(d + wn, d + wn);
-            tg.submatrix_mut(0, 0, d, d).copy_from(&t);
-            tg.submatrix_mut(d, fstart, wn, fw).copy_from(&rn);
-            t = tg;
+            basis.subcols_mut(d, wn).copy_from(&qn);
+            t.submatrix_mut(d, fstart, wn, fw).copy_from(&rn);
+            t.submatrix_mut(0, d, d + wn, wn).fill(0.0);
             fstart = d;
             d += wn;
         };
@@ -323,10 +333,10 @@ pub(super) fn block_krylov_schur(
             complete = true;
             break;
         }
-        restarts += 1;
-        if restarts > options.max_restarts {
+        if restarts >= options.max_restarts {
             break;
         }
+        restarts += 1;
         // Thick restart: U = Q Y_keep, then Q₊; T = [[Θ, ·], [R Y_F,keep, ·]].
         let rem2 = nev2 - nl2;
         let dmax2 = (2 * rem2 + 4 * b).min(n - nl2);
@@ -336,7 +346,8 @@ pub(super) fn block_krylov_schur(
             .min(keep.len())
             .max(rem2.min(keep.len()));
         let sel = Mat::from_fn(d, kkeep, |i, c| y[(i, keep[c])]);
-        let mut nb = Mat::zeros(n, kkeep + wn);
+        let capacity = (kkeep + wn).max(dmax2);
+        let mut nb = Mat::zeros(n, capacity);
         matmul(
             nb.subcols_mut(0, kkeep),
             Accum::Replace,
@@ -347,7 +358,7 @@ pub(super) fn block_krylov_schur(
         );
         nb.subcols_mut(kkeep, wn).copy_from(&qn);
         basis = nb;
-        let mut tn = Mat::zeros(kkeep + wn, kkeep + wn);
+        let mut tn = Mat::zeros(capacity, capacity);
         for c in 0..kkeep {
             tn[(c, c)] = s[keep[c]];
             for r in 0..wn {
@@ -355,6 +366,7 @@ pub(super) fn block_krylov_schur(
             }
         }
         t = tn;
+        d = kkeep + wn;
         fstart = kkeep;
     }
     Ok(KrylovOutcome {

@@ -489,13 +489,11 @@ pub fn modal_basis(
         let mut s = inputs.to_owned();
         llt.solve_in_place(s.as_mut());
         let ms = mass_mul(mass, s.as_ref(), par);
-        let cols: Vec<usize> = (0..s.ncols())
-            .filter(|&j| (s.col(j).transpose() * ms.col(j)) > 0.0)
+        let norms: Vec<f64> = (0..s.ncols())
+            .map(|j| (s.col(j).transpose() * ms.col(j)).max(0.0).sqrt())
             .collect();
-        let unit = Mat::from_fn(n, cols.len(), |i, c| {
-            let j = cols[c];
-            s[(i, j)] / (s.col(j).transpose() * ms.col(j)).sqrt()
-        });
+        let cols: Vec<usize> = (0..s.ncols()).filter(|&j| norms[j] > 0.0).collect();
+        let unit = Mat::from_fn(n, cols.len(), |i, c| s[(i, cols[c])] / norms[cols[c]]);
         let (q, _, _) = m_orthonormalize(
             unit,
             modes.as_ref(),
