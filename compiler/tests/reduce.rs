@@ -372,6 +372,23 @@ fn leading_hankel_singular_values_match_dense_full_order_system() {
         full.spectral_radius
     );
     assert!(red.spectral_radius < 1.0);
+    // Petrov–Galerkin maps: Sᵀ T = I and F = Sᵀ Φ T with the modal blocks.
+    let (sm, tm) = (&red.modal_to_reduced, &red.reduced_to_modal);
+    let st = sm * tm;
+    assert!(
+        (&st - Mat::<f64>::identity(red.order, red.order)).norm_l2() < 1e-9,
+        "SᵀT ≠ I"
+    );
+    let k = sys.n_modes();
+    let phi_modal = Mat::from_fn(3 * k, 3 * k, |i, j| {
+        if i / 3 == j / 3 {
+            sys.phi[i / 3][i % 3][j % 3]
+        } else {
+            0.0
+        }
+    });
+    let f2 = sm * &phi_modal * tm;
+    assert!((&f2 - &red.transition).norm_l2() < 1e-9 * red.transition.norm_l2());
     // project_outputs reproduces H.
     let h2 = red.project_outputs(rows.as_ref()).unwrap();
     assert!((&h2 - &red.output).norm_l2() <= 1e-12 * red.output.norm_l2());
@@ -687,62 +704,61 @@ fn freq_response(a: &Mat<f64>, b: &Mat<f64>, c: &Mat<f64>, z: f64) -> Mat<f64> {
 #[test]
 fn normalised_hankel_singular_values_invariant_to_physical_scale() {
     // E → sE with Δt → Δt/√s, α → √s α, β → β/√s is the same discrete system in scaled time:
-    // σᵢ/σ₁ must not change, whatever the scale.
-    let base = |s: f64| {
-        let (lat, b, rows) = cantilever(1e4 * s);
-        let basis = modal_basis(
-            lat.k.as_ref(),
-            lat.m.as_ref(),
-            b.as_ref(),
-            &ModalOptions {
-                modes: Some(20),
+    // σᵢ/σ₁ must not change, whatever the scale. Both eigensolver paths.
+    for (modes, dense_threshold) in [(20, 10_000), (6, 0)] {
+        let base = |s: f64| {
+            let (lat, b, rows) = cantilever(1e4 * s);
+            let opts = ModalOptions {
+                modes: Some(modes),
+                dense_threshold,
                 ..Default::default()
-            },
-        )
-        .unwrap();
-        let w = WilsonTheta {
-            dt: 1e-3 / s.sqrt(),
-            theta: 1.4,
+            };
+            let basis = modal_basis(lat.k.as_ref(), lat.m.as_ref(), b.as_ref(), &opts).unwrap();
+            assert_eq!(basis.dense, dense_threshold > 0);
+            let w = WilsonTheta {
+                dt: 1e-3 / s.sqrt(),
+                theta: 1.4,
+            };
+            let sys = ModalSystem::new(
+                &basis,
+                b.as_ref(),
+                rows.as_ref(),
+                0.5 * s.sqrt(),
+                1e-4 / s.sqrt(),
+                w,
+            )
+            .unwrap();
+            let red = sys.balanced_truncation(Order::Tolerance(1e-6)).unwrap();
+            (basis.frequencies_hz.clone(), red)
         };
-        let sys = ModalSystem::new(
-            &basis,
-            b.as_ref(),
-            rows.as_ref(),
-            0.5 * s.sqrt(),
-            1e-4 / s.sqrt(),
-            w,
-        )
-        .unwrap();
-        let red = sys.balanced_truncation(Order::Tolerance(1e-6)).unwrap();
-        (basis.frequencies_hz.clone(), red)
-    };
-    let (f1, r1) = base(1.0);
-    for s in [1e-3, 1e8] {
-        let (fs, rs) = base(s);
-        for (a, b) in f1.iter().zip(&fs) {
-            assert!(
-                (b / a - s.sqrt()).abs() < 1e-9 * s.sqrt(),
-                "frequency scale {} vs √s = {}",
-                b / a,
-                s.sqrt()
+        let (f1, r1) = base(1.0);
+        for s in [1e-3, 1e8] {
+            let (fs, rs) = base(s);
+            for (a, b) in f1.iter().zip(&fs) {
+                assert!(
+                    (b / a - s.sqrt()).abs() < 1e-9 * s.sqrt(),
+                    "frequency scale {} vs √s = {}",
+                    b / a,
+                    s.sqrt()
+                );
+            }
+            assert_eq!(r1.order, rs.order, "order at s = {s}");
+            let (h1, hs) = (&r1.hankel_singular_values, &rs.hankel_singular_values);
+            for i in 0..h1.len().min(hs.len()) {
+                let (a, b) = (h1[i] / h1[0], hs[i] / hs[0]);
+                assert!((a - b).abs() <= 1e-8, "s = {s}: σ{i}/σ₁ = {b:e} vs {a:e}");
+            }
+            let worst = (0..h1.len().min(hs.len()))
+                .filter(|&i| h1[i] > 1e-8 * h1[0])
+                .map(|i| ((hs[i] / hs[0]) / (h1[i] / h1[0]) - 1.0).abs())
+                .fold(0.0, f64::max);
+            eprintln!(
+                "{modes} modes, s = {s:e}: σᵢ/σ₁ ≥ 1e-8 agree to {worst:.2e} relative, order {}",
+                rs.order
             );
+            // Physical HSVs scale as 1/s (displacement per force).
+            assert!((hs[0] * s / h1[0] - 1.0).abs() < 1e-9);
         }
-        assert_eq!(r1.order, rs.order, "order at s = {s}");
-        let (h1, hs) = (&r1.hankel_singular_values, &rs.hankel_singular_values);
-        for i in 0..h1.len().min(hs.len()) {
-            let (a, b) = (h1[i] / h1[0], hs[i] / hs[0]);
-            assert!((a - b).abs() <= 1e-8, "s = {s}: σ{i}/σ₁ = {b:e} vs {a:e}");
-        }
-        let worst = (0..h1.len().min(hs.len()))
-            .filter(|&i| h1[i] > 1e-8 * h1[0])
-            .map(|i| ((hs[i] / hs[0]) / (h1[i] / h1[0]) - 1.0).abs())
-            .fold(0.0, f64::max);
-        eprintln!(
-            "s = {s:e}: σᵢ/σ₁ ≥ 1e-8 agree to {worst:.2e} relative, order {}",
-            rs.order
-        );
-        // Physical HSVs scale as 1/s (displacement per force).
-        assert!((hs[0] * s / h1[0] - 1.0).abs() < 1e-9);
     }
 }
 

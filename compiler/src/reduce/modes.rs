@@ -504,7 +504,8 @@ pub fn modal_basis(
         )?;
         if q.ncols() < inputs.ncols() {
             warnings.push(format!(
-                "static correction: {} of {} input channels add an independent direction to the modes",
+                "static correction: {} independent directions from {} input channels (the rest lie in \
+                 the span of the modes or of other channels)",
                 q.ncols(),
                 inputs.ncols()
             ));
