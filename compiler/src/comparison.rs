@@ -1,1 +1,1497 @@
-//! Speed against error: full-order references and the reduced runtime on one scene.
+//! Speed against error (DESIGN.md §7): full-order references and the reduced runtime on one
+//! scene and one scenario, in the same run.
+//!
+//! [`run`] drives, through the same scenario (world-frame dead loads; step k → k+1 holds
+//! f(t_k), t_k = kΔt):
+//! 1. the full-order linear FEM ([`LinearSimulator`], J factored once) and the full-order
+//!    co-rotational FEM ([`CorotationalSimulator`], Newton to a tolerance), timing each step;
+//! 2. for each order r: the model compiled at r ([`compile`]), run through the runtime
+//!    [`Estimator`] (warping included) open loop (no measurements) and filtered on synthetic
+//!    measurements: the co-rotational reference's world sensor displacements plus Gaussian
+//!    noise N(0, σ_s²) (σ_s the sensor's `noise_std`, fixed seed), on the channels the model's
+//!    multi-rate schedule measures at each step (`every`).
+//!
+//! Errors are relative L2 norms over the whole trajectory (steps 1..N),
+//! e = ‖u − u_ref‖ / ‖u_ref‖ = sqrt(Σ_k Σ_i |u_i(t_k) − u_ref,i(t_k)|² / Σ_k Σ_i |u_ref,i(t_k)|²),
+//! against the co-rotational reference, world-frame displacements (m):
+//! - `error`: over the displayed nodes, the union of all node sets of the scene (a node in two
+//!   sets counts once);
+//! - `tip_error`: at the tip, the sensor named `tip` if the scene has one, else its first
+//!   sensor (the same point the tip of a cantilever or a probe marker would be);
+//! - the linear FEM's error shows what the co-rotational correction is worth; the runtime's
+//!   error shows what reduction + warping cost.
+//!
+//! The largest rotation reached is the angle of the polar rotation of the volume-weighted mean
+//! deformation gradient around each displayed node, max over nodes and steps (degrees).
+//!
+//! [`rotation_sweep`] repeats the open-loop comparison with the scenario's loads scaled, to find
+//! where the warping approximation breaks down.
+
+use std::fmt::Write as _;
+use std::hint::black_box;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use crokf_formats as fmt;
+use crokf_runtime::{Estimator, RuntimeError};
+
+use crate::bench::median_seconds;
+use crate::compile::{compile, CompileError, CompileOptions, FullOrder};
+use crate::reference::{
+    deformation_gradient, polar_rotation, CorotationalSimulator, Horizon, LinearSimulator,
+    NewtonOptions, NewtonStats, ReferenceError, Scenario, ScenarioError, Simulator,
+};
+use crate::report::StageTimer;
+
+/// Errors of a comparison; each names the file, order or step concerned.
+#[derive(Debug, thiserror::Error)]
+pub enum ComparisonError {
+    /// Scene, mesh, FEM or compile failure.
+    #[error(transparent)]
+    Compile(#[from] CompileError),
+    /// Full-order reference failure.
+    #[error("{path}: {source}")]
+    Reference {
+        /// Scenario path.
+        path: PathBuf,
+        /// What went wrong.
+        source: ReferenceError,
+    },
+    /// Scenario file.
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    /// The runtime refused a step.
+    #[error("{path}: runtime at order r = {order}, step {step}: {source}")]
+    Runtime {
+        /// Scene path.
+        path: PathBuf,
+        /// Reduced order.
+        order: usize,
+        /// Step index (1-based).
+        step: usize,
+        /// What went wrong.
+        source: RuntimeError,
+    },
+    /// Inconsistent or unsupported inputs.
+    #[error("{path}: {what}")]
+    Invalid {
+        /// The file concerned.
+        path: PathBuf,
+        /// What is wrong.
+        what: String,
+    },
+}
+
+/// Settings of [`run`] and [`rotation_sweep`].
+#[derive(Clone, Debug)]
+pub struct ComparisonOptions {
+    /// Balanced truncation orders r to compile and run.
+    pub orders: Vec<usize>,
+    /// Newton settings of the co-rotational reference.
+    pub newton: NewtonOptions,
+    /// Seed of the measurement noise (xorshift64*; 0 is replaced by a fixed non-zero value).
+    pub seed: u64,
+    /// Also compute the compiler's measured error (step/chirp against the linear reference)
+    /// for each order (costs a full-order linear run per test).
+    pub measure_compile_error: bool,
+    /// Give the runtime no load inputs (open loop and filter): the force is unknown to the
+    /// estimator, only the measurements carry it. The references still get the loads.
+    pub withhold_loads: bool,
+    /// Timing samples (batches) of the runtime step.
+    pub timing_samples: usize,
+}
+
+impl Default for ComparisonOptions {
+    fn default() -> Self {
+        ComparisonOptions {
+            orders: vec![4, 8, 16, 32, 64],
+            newton: NewtonOptions::default(),
+            seed: 0x5eed_c0ff_ee00_0001,
+            measure_compile_error: false,
+            withhold_loads: false,
+            timing_samples: 31,
+        }
+    }
+}
+
+/// Progress report: `done` of `total` units of `phase` (steps, or 0/1 for a compile).
+#[derive(Clone, Copy, Debug)]
+pub struct Progress<'a> {
+    /// Phase name, e.g. `co-rotational FEM`, `compile r = 8`, `runtime r = 8`.
+    pub phase: &'a str,
+    /// Units done.
+    pub done: usize,
+    /// Units in the phase.
+    pub total: usize,
+}
+
+/// A full-order model's figures.
+#[derive(Clone, Debug)]
+pub struct FullOrderRow {
+    /// Median wall time of one step, s.
+    pub step_s: f64,
+    /// Relative L2 error over displayed nodes against the co-rotational reference (0 for it).
+    pub error: f64,
+    /// Relative L2 error at the tip.
+    pub tip_error: f64,
+    /// Newton counters (co-rotational only).
+    pub newton: Option<NewtonStats>,
+}
+
+/// The runtime's figures at one order.
+#[derive(Clone, Debug)]
+pub struct ReducedRow {
+    /// Order asked for.
+    pub requested_order: usize,
+    /// Order of the compiled model (capped at the numerical rank by the compiler).
+    pub order: usize,
+    /// Median runtime step, predict + update with the measurements, s (batched).
+    pub step_s: f64,
+    /// Median runtime step without measurements (predict + empty update), s (batched).
+    pub open_loop_step_s: f64,
+    /// Open loop: relative L2 error over displayed nodes vs the co-rotational reference.
+    pub error: f64,
+    /// Open loop: relative L2 error at the tip vs the co-rotational reference.
+    pub tip_error: f64,
+    /// Filtered: relative L2 error over displayed nodes vs the co-rotational reference.
+    pub filtered_error: f64,
+    /// Filtered: relative L2 error at the tip vs the co-rotational reference.
+    pub filtered_tip_error: f64,
+    /// Open loop: relative L2 error over displayed nodes vs the LINEAR full-order reference.
+    pub error_vs_linear: f64,
+    /// The compiler's measured errors (empty unless `measure_compile_error`).
+    pub compile_measured_errors: std::collections::BTreeMap<String, f64>,
+    /// Compile wall time, s.
+    pub compile_s: f64,
+}
+
+/// Result of [`run`]: one scene, one scenario, full-order references and the runtime at
+/// several orders.
+#[derive(Clone, Debug)]
+pub struct Comparison {
+    /// Scene file.
+    pub scene: PathBuf,
+    /// Scenario file.
+    pub scenario: PathBuf,
+    /// Free DOFs n.
+    pub dofs: usize,
+    /// Tetrahedra.
+    pub tetrahedra: usize,
+    /// Displayed nodes (union of the node sets).
+    pub displayed_nodes: usize,
+    /// Steps N.
+    pub steps: usize,
+    /// Δt, s.
+    pub dt: f64,
+    /// Tip label (sensor name), if the scene has a sensor.
+    pub tip: Option<String>,
+    /// Largest rotation in the co-rotational reference over displayed nodes, degrees.
+    pub max_rotation_deg: f64,
+    /// Time of that rotation, s.
+    pub max_rotation_time: f64,
+    /// Co-rotational full-order reference.
+    pub corotational: FullOrderRow,
+    /// Linear full-order model.
+    pub linear: FullOrderRow,
+    /// Runtime rows, in the order of `options.orders`.
+    pub reduced: Vec<ReducedRow>,
+    /// Noise seed used.
+    pub seed: u64,
+    /// Whether the runtime got the loads.
+    pub withheld_loads: bool,
+}
+
+/// One point of [`rotation_sweep`].
+#[derive(Clone, Copy, Debug)]
+pub struct SweepPoint {
+    /// Factor on the scenario's loads.
+    pub scale: f64,
+    /// Largest rotation in the co-rotational reference, degrees.
+    pub max_rotation_deg: f64,
+    /// Runtime open-loop relative L2 error over displayed nodes vs the co-rotational reference.
+    pub open_loop_error: f64,
+    /// Same at the tip.
+    pub tip_error: f64,
+    /// Linear full-order error vs the co-rotational reference (what no warping would give).
+    pub linear_error: f64,
+}
+
+// ---------------------------------------------------------------------------------------------
+// Noise
+
+/// xorshift64* generator with Box–Muller Gaussian samples.
+#[derive(Clone, Debug)]
+pub struct Gaussian {
+    state: u64,
+    spare: Option<f64>,
+}
+
+impl Gaussian {
+    /// A generator from `seed` (0 is replaced by a fixed non-zero value).
+    pub fn new(seed: u64) -> Self {
+        Gaussian {
+            state: if seed == 0 {
+                0x9e37_79b9_7f4a_7c15
+            } else {
+                seed
+            },
+            spare: None,
+        }
+    }
+
+    /// Uniform in (0, 1], 53 bits (xorshift64*).
+    pub fn uniform(&mut self) -> f64 {
+        self.state ^= self.state >> 12;
+        self.state ^= self.state << 25;
+        self.state ^= self.state >> 27;
+        let v = self.state.wrapping_mul(0x2545_f491_4f6c_dd1d);
+        ((v >> 11) + 1) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Standard normal sample (Box–Muller: √(−2 ln u₁)·(cos, sin)(2π u₂), both used).
+    pub fn normal(&mut self) -> f64 {
+        if let Some(z) = self.spare.take() {
+            return z;
+        }
+        let (u1, u2) = (self.uniform(), self.uniform());
+        let radius = (-2.0 * u1.ln()).sqrt();
+        let angle = 2.0 * std::f64::consts::PI * u2;
+        self.spare = Some(radius * angle.sin());
+        radius * angle.cos()
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Setup shared by run and rotation_sweep
+
+/// Accumulates Σ|u − u_ref|² and Σ|u_ref|².
+#[derive(Clone, Copy, Debug, Default)]
+struct ErrorSum {
+    err2: f64,
+    ref2: f64,
+}
+
+impl ErrorSum {
+    fn add(&mut self, approx: &[f64], exact: &[f64]) {
+        for (a, e) in approx.iter().zip(exact) {
+            self.err2 += (a - e) * (a - e);
+            self.ref2 += e * e;
+        }
+    }
+
+    /// sqrt(Σ|u − u_ref|² / Σ|u_ref|²); NaN when nothing was added.
+    fn relative(&self) -> f64 {
+        if self.ref2 > 0.0 {
+            (self.err2 / self.ref2).sqrt()
+        } else if self.err2 == 0.0 {
+            0.0
+        } else {
+            f64::NAN
+        }
+    }
+}
+
+/// Relative L2 error ‖a − b‖ / ‖b‖ of two equally long slices (b the reference).
+pub fn relative_l2(approx: &[f64], exact: &[f64]) -> f64 {
+    let mut s = ErrorSum::default();
+    s.add(approx, exact);
+    s.relative()
+}
+
+/// The scene and scenario, ready to run.
+struct Setup {
+    scene_path: PathBuf,
+    scenario_path: PathBuf,
+    full: FullOrder,
+    scenario: Scenario,
+    steps: usize,
+    /// Unique displayed nodes: (node set, index in set, mesh node).
+    display: Vec<(usize, usize, usize)>,
+    /// Tip sensor index.
+    tip: Option<usize>,
+    /// Elements around the displayed nodes: per displayed node, (element, volume share).
+    around: Vec<Vec<(usize, f64)>>,
+    /// Elements touching any displayed node.
+    elements: Vec<usize>,
+}
+
+impl Setup {
+    fn new(scene: &Path, scenario_path: &Path) -> Result<Self, ComparisonError> {
+        let mut timer = StageTimer::default();
+        let full = FullOrder::build(scene, &mut timer)?;
+        let scenario = Scenario::read(scenario_path)?;
+        scenario.check_scene(&full.scene.scene, scenario_path)?;
+        let invalid = |what: String| ComparisonError::Invalid {
+            path: scenario_path.to_owned(),
+            what,
+        };
+        let steps =
+            match scenario.horizon(full.scene.scene.time.dt) {
+                Horizon::Steps(k) => k,
+                Horizon::Steady(_) => return Err(invalid(
+                    "a comparison needs a fixed horizon: give `duration` or `steps`, not `steady`"
+                        .into(),
+                )),
+            };
+        let ops = &full.operators;
+        let mut seen = vec![false; full.fem.positions.len()];
+        let mut display = Vec::new();
+        for (s, set) in ops.node_sets.iter().enumerate() {
+            for (i, &node) in set.nodes.iter().enumerate() {
+                if !std::mem::replace(&mut seen[node], true) {
+                    display.push((s, i, node));
+                }
+            }
+        }
+        if display.is_empty() {
+            return Err(ComparisonError::Invalid {
+                path: scene.to_owned(),
+                what: "the scene displays no nodes: add a [[display]] node set to compare on"
+                    .into(),
+            });
+        }
+        let tip = ops
+            .sensors
+            .iter()
+            .position(|s| s.name == "tip")
+            .or(if ops.sensors.is_empty() {
+                None
+            } else {
+                Some(0)
+            });
+        let fem = &full.fem;
+        let mut node_elements = vec![Vec::new(); fem.positions.len()];
+        for (e, el) in fem.elements.iter().enumerate() {
+            for &n in &el.nodes {
+                if seen[n] {
+                    node_elements[n].push(e);
+                }
+            }
+        }
+        let mut touched = vec![false; fem.elements.len()];
+        let around = display
+            .iter()
+            .map(|&(_, _, node)| {
+                let list = &node_elements[node];
+                let total: f64 = list.iter().map(|&e| fem.elements[e].geometry.volume).sum();
+                list.iter()
+                    .map(|&e| {
+                        touched[e] = true;
+                        (e, fem.elements[e].geometry.volume / total)
+                    })
+                    .collect()
+            })
+            .collect();
+        let elements = (0..fem.elements.len()).filter(|&e| touched[e]).collect();
+        Ok(Setup {
+            scene_path: scene.to_owned(),
+            scenario_path: scenario_path.to_owned(),
+            full,
+            scenario,
+            steps,
+            display,
+            tip,
+            around,
+            elements,
+        })
+    }
+
+    fn dt(&self) -> f64 {
+        self.full.scene.scene.time.dt
+    }
+
+    /// World displacement (3 per displayed node, m) from free-DOF displacements u.
+    fn displayed(&self, u: &[f64], out: &mut Vec<f64>) {
+        let index = &self.full.fem.dofs.index;
+        for &(_, _, node) in &self.display {
+            out.extend(index[node].iter().map(|d| d.map_or(0.0, |d| u[d])));
+        }
+    }
+
+    /// World displacement of every sensor (3 per sensor, m).
+    fn sensors(&self, u: &[f64], out: &mut Vec<f64>) {
+        let fem = &self.full.fem;
+        for s in &self.full.operators.sensors {
+            let mut d = [0.0; 3];
+            for &(node, w) in &s.weights {
+                for (c, dc) in d.iter_mut().enumerate() {
+                    if let Some(i) = fem.dofs.index[node][c] {
+                        *dc += w * u[i];
+                    }
+                }
+            }
+            out.extend_from_slice(&d);
+        }
+    }
+
+    /// Largest rotation angle over displayed nodes, degrees: angle of polar(Σₑ Vₑ Fₑ / Σₑ Vₑ).
+    fn max_rotation_deg(&self, u: &[f64], f_cache: &mut [nalgebra::Matrix3<f64>]) -> f64 {
+        let fem = &self.full.fem;
+        for &e in &self.elements {
+            let el = &fem.elements[e];
+            let x: [[f64; 3]; 4] = std::array::from_fn(|a| {
+                let n = el.nodes[a];
+                std::array::from_fn(|c| {
+                    fem.positions[n][c] + fem.dofs.index[n][c].map_or(0.0, |d| u[d])
+                })
+            });
+            f_cache[e] = deformation_gradient(&el.geometry, &x);
+        }
+        let mut max = 0.0f64;
+        for list in &self.around {
+            let mut f = nalgebra::Matrix3::zeros();
+            for &(e, share) in list {
+                f += f_cache[e] * share;
+            }
+            max = max.max(rotation_angle(&polar_rotation(&f)).to_degrees());
+        }
+        max
+    }
+
+    fn reference_error(&self, source: ReferenceError) -> ComparisonError {
+        ComparisonError::Reference {
+            path: self.scenario_path.clone(),
+            source,
+        }
+    }
+}
+
+/// Angle θ of a rotation matrix, rad: atan2(|vee(R − Rᵀ)|/2, (tr R − 1)/2) (= atan2(sin θ,
+/// cos θ), accurate for small angles where acos((tr R − 1)/2) is not).
+pub fn rotation_angle(r: &nalgebra::Matrix3<f64>) -> f64 {
+    let s = 0.5
+        * ((r[(2, 1)] - r[(1, 2)]).powi(2)
+            + (r[(0, 2)] - r[(2, 0)]).powi(2)
+            + (r[(1, 0)] - r[(0, 1)]).powi(2))
+        .sqrt();
+    s.atan2(0.5 * (r.trace() - 1.0))
+}
+
+/// Scales the scenario's loads (and gravity factor) by `scale`.
+fn scaled(scenario: &Scenario, scale: f64, has_gravity: bool) -> Scenario {
+    let mut s = scenario.clone();
+    for l in &mut s.loads {
+        for f in &mut l.forces {
+            *f = f.map(|v| v * scale);
+        }
+    }
+    if has_gravity {
+        s.gravity = Some(s.gravity.unwrap_or(1.0) * scale);
+    }
+    s
+}
+
+/// A recorded full-order run.
+struct ReferenceRun {
+    /// Per step 1..=N: displayed-node displacements (3D each, flattened).
+    display: Vec<f64>,
+    /// Per step 1..=N: sensor displacements (3S each, flattened).
+    sensors: Vec<f64>,
+    step_s: f64,
+    max_rotation_deg: f64,
+    max_rotation_step: usize,
+    newton: Option<NewtonStats>,
+}
+
+fn run_reference(
+    setup: &Setup,
+    scenario: &Scenario,
+    corotational: Option<NewtonOptions>,
+    phase: &str,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<ReferenceRun, ComparisonError> {
+    let full = &setup.full;
+    let fem = &full.fem;
+    let n = fem.dof_count();
+    let err = |e| setup.reference_error(e);
+    let mut linear = None;
+    let mut corot = None;
+    let sim: &mut dyn Simulator = match corotational {
+        None => linear.insert(LinearSimulator::new(fem, full.wilson()).map_err(err)?),
+        Some(newton) => {
+            corot.insert(CorotationalSimulator::new(fem, full.wilson(), newton).map_err(err)?)
+        }
+    };
+    let steps = setup.steps;
+    let dt = setup.dt();
+    let mut out = ReferenceRun {
+        display: Vec::with_capacity(steps * 3 * setup.display.len()),
+        sensors: Vec::with_capacity(steps * 3 * full.operators.sensors.len()),
+        step_s: 0.0,
+        max_rotation_deg: 0.0,
+        max_rotation_step: 0,
+        newton: None,
+    };
+    let mut f_cache = vec![nalgebra::Matrix3::zeros(); fem.elements.len()];
+    let mut times = Vec::with_capacity(steps);
+    let report_every = (steps / 100).max(1);
+    progress(Progress {
+        phase,
+        done: 0,
+        total: steps,
+    });
+    for k in 0..steps {
+        let f = scenario.load_vector(&full.operators, n, k as f64 * dt);
+        let start = Instant::now();
+        sim.step(&f).map_err(err)?;
+        times.push(start.elapsed().as_secs_f64());
+        let u = sim.displacement();
+        if let Some(i) = u.iter().position(|v| !v.is_finite()) {
+            return Err(ComparisonError::Invalid {
+                path: setup.scenario_path.clone(),
+                what: format!(
+                    "{phase}: non-finite displacement at DOF {i}, step {}, t = {:.6} s",
+                    k + 1,
+                    (k + 1) as f64 * dt
+                ),
+            });
+        }
+        setup.displayed(u, &mut out.display);
+        setup.sensors(u, &mut out.sensors);
+        if corotational.is_some() {
+            let angle = setup.max_rotation_deg(u, &mut f_cache);
+            if angle > out.max_rotation_deg {
+                out.max_rotation_deg = angle;
+                out.max_rotation_step = k + 1;
+            }
+        }
+        if (k + 1) % report_every == 0 || k + 1 == steps {
+            progress(Progress {
+                phase,
+                done: k + 1,
+                total: steps,
+            });
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    out.step_s = times.get(times.len() / 2).copied().unwrap_or(f64::NAN);
+    out.newton = corot.as_ref().map(|c| c.stats());
+    Ok(out)
+}
+
+/// Errors of one runtime run.
+#[derive(Clone, Copy, Debug, Default)]
+struct RunErrors {
+    display: ErrorSum,
+    tip: ErrorSum,
+    display_vs_linear: ErrorSum,
+}
+
+/// Drives the estimator through precomputed inputs and measurements (per step), accumulating
+/// errors against the references.
+#[allow(clippy::too_many_arguments)]
+fn run_runtime(
+    setup: &Setup,
+    est: &mut Estimator,
+    inputs: &[Vec<f64>],
+    measurements: &[Vec<Option<f64>>],
+    corot: &ReferenceRun,
+    linear: Option<&ReferenceRun>,
+    phase: &str,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<RunErrors, ComparisonError> {
+    est.reset();
+    let model_order = est.model().r();
+    let nd = 3 * setup.display.len();
+    let ns = 3 * setup.full.operators.sensors.len();
+    let sets = &setup.full.operators.node_sets;
+    let mut set_buffers: Vec<Vec<f64>> =
+        sets.iter().map(|s| vec![0.0; 3 * s.nodes.len()]).collect();
+    let mut display = vec![0.0; nd];
+    let mut sensors = vec![0.0; ns];
+    let mut errors = RunErrors::default();
+    let steps = setup.steps;
+    let report_every = (steps / 20).max(1);
+    let runtime_err = |step: usize, source| ComparisonError::Runtime {
+        path: setup.scene_path.clone(),
+        order: model_order,
+        step,
+        source,
+    };
+    for k in 0..steps {
+        est.step(&inputs[k], &measurements[k])
+            .map_err(|e| runtime_err(k + 1, e))?;
+        for (s, buf) in set_buffers.iter_mut().enumerate() {
+            est.node_displacements(s, buf)
+                .map_err(|e| runtime_err(k + 1, e))?;
+        }
+        for (j, &(s, i, _)) in setup.display.iter().enumerate() {
+            display[3 * j..3 * j + 3].copy_from_slice(&set_buffers[s][3 * i..3 * i + 3]);
+        }
+        errors
+            .display
+            .add(&display, &corot.display[k * nd..(k + 1) * nd]);
+        if let Some(lin) = linear {
+            errors
+                .display_vs_linear
+                .add(&display, &lin.display[k * nd..(k + 1) * nd]);
+        }
+        if let Some(t) = setup.tip {
+            est.sensor_displacements(&mut sensors)
+                .map_err(|e| runtime_err(k + 1, e))?;
+            errors.tip.add(
+                &sensors[3 * t..3 * t + 3],
+                &corot.sensors[k * ns + 3 * t..k * ns + 3 * t + 3],
+            );
+        }
+        if (k + 1) % report_every == 0 || k + 1 == steps {
+            progress(Progress {
+                phase,
+                done: k + 1,
+                total: steps,
+            });
+        }
+    }
+    Ok(errors)
+}
+
+/// Median time of one `est.step` over the precomputed sequence, s: batches of consecutive steps
+/// (each batch ≥ ~2 ms, wrapping to the start with a reset), `samples` batches.
+fn time_runtime(
+    est: &mut Estimator,
+    inputs: &[Vec<f64>],
+    measurements: &[Vec<Option<f64>>],
+    samples: usize,
+) -> f64 {
+    let steps = inputs.len();
+    if steps == 0 {
+        return f64::NAN;
+    }
+    est.reset();
+    let mut k = 0;
+    let mut run = |est: &mut Estimator, count: usize| {
+        for _ in 0..count {
+            if k == steps {
+                est.reset();
+                k = 0;
+            }
+            // A step can only fail on a non-invertible warp, already ruled out by the run.
+            let _ = black_box(est.step(black_box(&inputs[k]), black_box(&measurements[k])));
+            k += 1;
+        }
+    };
+    // Calibrate the batch so one sample lasts about 2 ms.
+    let mut batch = 16;
+    loop {
+        let start = Instant::now();
+        run(est, batch);
+        let t = start.elapsed().as_secs_f64();
+        if t >= 2e-3 || batch >= 1 << 22 {
+            break;
+        }
+        batch *= 2;
+    }
+    median_seconds(samples, || run(est, batch)) / batch as f64
+}
+
+/// Inputs per step k = 0..N (the step k → k+1 holds u(t_k)), in `model.inputs` order.
+fn runtime_inputs(
+    setup: &Setup,
+    scenario: &Scenario,
+    model: &fmt::Model,
+    withhold_loads: bool,
+) -> Result<Vec<Vec<f64>>, ComparisonError> {
+    let ops = &setup.full.operators;
+    if model.inputs.len() != ops.inputs.len() {
+        return Err(ComparisonError::Invalid {
+            path: setup.scene_path.clone(),
+            what: format!(
+                "the compiled model has {} input channels, the scene {}",
+                model.inputs.len(),
+                ops.inputs.len()
+            ),
+        });
+    }
+    let dt = setup.dt();
+    Ok((0..setup.steps)
+        .map(|k| {
+            let mut u = scenario.inputs_at(ops, k as f64 * dt);
+            if withhold_loads {
+                for (v, ch) in u.iter_mut().zip(&model.inputs) {
+                    if matches!(ch.kind, fmt::InputKind::Load { .. }) {
+                        *v = 0.0;
+                    }
+                }
+            }
+            u
+        })
+        .collect())
+}
+
+/// Synthetic measurements per step k = 0..N (the update after the step k → k+1): the
+/// co-rotational reference's world sensor displacement at step k+1 plus N(0, σ_s²), on the
+/// channels that the schedule's phase (k+1) mod period measures; others `None`. One sample is
+/// drawn per channel per step whether used or not, so the noise does not depend on `every`.
+fn synthetic_measurements(
+    model: &fmt::Model,
+    corot: &ReferenceRun,
+    steps: usize,
+    seed: u64,
+) -> Vec<Vec<Option<f64>>> {
+    let mut rng = Gaussian::new(seed);
+    let ns = 3 * model.sensors.len();
+    let period = model.kalman.period.max(1) as usize;
+    (0..steps)
+        .map(|k| {
+            let phase = &model.kalman.phases[(k + 1) % period];
+            let mut y = vec![None; model.measurements.len()];
+            let noise: Vec<f64> = model
+                .measurements
+                .iter()
+                .map(|ch| model.sensors[ch.sensor as usize].noise_std * rng.normal())
+                .collect();
+            for &j in &phase.measured {
+                let ch = model.measurements[j as usize];
+                let exact = corot.sensors[k * ns + 3 * ch.sensor as usize + ch.component as usize];
+                y[j as usize] = Some(exact + noise[j as usize]);
+            }
+            y
+        })
+        .collect()
+}
+
+/// Compiles the scene at order r and returns the model and the wall time.
+fn compile_at(
+    setup: &Setup,
+    order: usize,
+    measure: bool,
+) -> Result<(fmt::Model, f64), ComparisonError> {
+    let start = Instant::now();
+    let compiled = compile(
+        &setup.scene_path,
+        &CompileOptions {
+            order: Some(order),
+            skip_measured_error: !measure,
+            ..CompileOptions::default()
+        },
+    )?;
+    Ok((compiled.model, start.elapsed().as_secs_f64()))
+}
+
+/// Runs the comparison of one scene and one scenario (see the module docs).
+///
+/// Phases reported through `progress`: `linear FEM`, `co-rotational FEM` (steps), then per
+/// order `compile r = R` (0/1), `open loop r = R`, `filtered r = R` (steps) and
+/// `timing r = R` (0/1).
+pub fn run(
+    scene: &Path,
+    scenario: &Path,
+    options: &ComparisonOptions,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<Comparison, ComparisonError> {
+    if options.orders.is_empty() || options.orders.contains(&0) {
+        return Err(ComparisonError::Invalid {
+            path: scene.to_owned(),
+            what: format!("orders must be ≥ 1 and not empty, got {:?}", options.orders),
+        });
+    }
+    let setup = Setup::new(scene, scenario)?;
+    let linear = run_reference(&setup, &setup.scenario, None, "linear FEM", progress)?;
+    let corot = run_reference(
+        &setup,
+        &setup.scenario,
+        Some(options.newton),
+        "co-rotational FEM",
+        progress,
+    )?;
+    let ns = 3 * setup.full.operators.sensors.len();
+    let tip_error = |run: &ReferenceRun| match setup.tip {
+        Some(t) => {
+            let mut s = ErrorSum::default();
+            for k in 0..setup.steps {
+                let at = k * ns + 3 * t;
+                s.add(&run.sensors[at..at + 3], &corot.sensors[at..at + 3]);
+            }
+            s.relative()
+        }
+        None => f64::NAN,
+    };
+    let linear_row = FullOrderRow {
+        step_s: linear.step_s,
+        error: relative_l2(&linear.display, &corot.display),
+        tip_error: tip_error(&linear),
+        newton: None,
+    };
+    let corot_row = FullOrderRow {
+        step_s: corot.step_s,
+        error: 0.0,
+        tip_error: 0.0,
+        newton: corot.newton,
+    };
+
+    let mut reduced = Vec::new();
+    for &order in &options.orders {
+        let phase = format!("compile r = {order}");
+        progress(Progress {
+            phase: &phase,
+            done: 0,
+            total: 1,
+        });
+        let (model, compile_s) = compile_at(&setup, order, options.measure_compile_error)?;
+        progress(Progress {
+            phase: &phase,
+            done: 1,
+            total: 1,
+        });
+        let r = model.r();
+        let mut est = Estimator::new(&model).map_err(|source| ComparisonError::Runtime {
+            path: setup.scene_path.clone(),
+            order: r,
+            step: 0,
+            source,
+        })?;
+        let inputs = runtime_inputs(&setup, &setup.scenario, &model, options.withhold_loads)?;
+        let none = vec![vec![None; model.measurements.len()]; setup.steps];
+        let open = run_runtime(
+            &setup,
+            &mut est,
+            &inputs,
+            &none,
+            &corot,
+            Some(&linear),
+            &format!("open loop r = {order}"),
+            progress,
+        )?;
+        let measurements = synthetic_measurements(&model, &corot, setup.steps, options.seed);
+        let filtered = run_runtime(
+            &setup,
+            &mut est,
+            &inputs,
+            &measurements,
+            &corot,
+            None,
+            &format!("filtered r = {order}"),
+            progress,
+        )?;
+        let phase = format!("timing r = {order}");
+        progress(Progress {
+            phase: &phase,
+            done: 0,
+            total: 1,
+        });
+        let step_s = time_runtime(&mut est, &inputs, &measurements, options.timing_samples);
+        let open_loop_step_s = time_runtime(&mut est, &inputs, &none, options.timing_samples);
+        progress(Progress {
+            phase: &phase,
+            done: 1,
+            total: 1,
+        });
+        reduced.push(ReducedRow {
+            requested_order: order,
+            order: r,
+            step_s,
+            open_loop_step_s,
+            error: open.display.relative(),
+            tip_error: open.tip.relative(),
+            filtered_error: filtered.display.relative(),
+            filtered_tip_error: filtered.tip.relative(),
+            error_vs_linear: open.display_vs_linear.relative(),
+            compile_measured_errors: model.report.measured_errors.clone(),
+            compile_s,
+        });
+    }
+    Ok(Comparison {
+        scene: setup.scene_path.clone(),
+        scenario: setup.scenario_path.clone(),
+        dofs: setup.full.fem.dof_count(),
+        tetrahedra: setup.full.fem.elements.len(),
+        displayed_nodes: setup.display.len(),
+        steps: setup.steps,
+        dt: setup.dt(),
+        tip: setup
+            .tip
+            .map(|t| setup.full.operators.sensors[t].name.clone()),
+        max_rotation_deg: corot.max_rotation_deg,
+        max_rotation_time: corot.max_rotation_step as f64 * setup.dt(),
+        corotational: corot_row,
+        linear: linear_row,
+        reduced,
+        seed: options.seed,
+        withheld_loads: options.withhold_loads,
+    })
+}
+
+/// "Where the warping approximation breaks down": for each factor in `scales`, the scenario's
+/// loads (and gravity factor) are multiplied by it and the whole scenario is re-run
+/// dynamically (same time history, same Δt) on the co-rotational reference, the linear
+/// full-order model, and the runtime at order `order` open loop (compiled once). Returns one
+/// point per scale, in the given order. Use [`breakdown_rotation`] on the result.
+pub fn rotation_sweep(
+    scene: &Path,
+    scenario: &Path,
+    order: usize,
+    scales: &[f64],
+    options: &ComparisonOptions,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<Vec<SweepPoint>, ComparisonError> {
+    if order == 0 {
+        return Err(ComparisonError::Invalid {
+            path: scene.to_owned(),
+            what: "order must be ≥ 1".into(),
+        });
+    }
+    if let Some(s) = scales.iter().find(|s| !s.is_finite()) {
+        return Err(ComparisonError::Invalid {
+            path: scenario.to_owned(),
+            what: format!("load scale factors must be finite, got {s}"),
+        });
+    }
+    let setup = Setup::new(scene, scenario)?;
+    let (model, _) = compile_at(&setup, order, false)?;
+    let mut est = Estimator::new(&model).map_err(|source| ComparisonError::Runtime {
+        path: setup.scene_path.clone(),
+        order: model.r(),
+        step: 0,
+        source,
+    })?;
+    let has_gravity = setup.full.scene.scene.gravity.is_some();
+    let none = vec![vec![None; model.measurements.len()]; setup.steps];
+    let mut points = Vec::with_capacity(scales.len());
+    for &scale in scales {
+        let scenario = scaled(&setup.scenario, scale, has_gravity);
+        let lin = run_reference(
+            &setup,
+            &scenario,
+            None,
+            &format!("linear FEM ×{scale}"),
+            progress,
+        )?;
+        let corot = run_reference(
+            &setup,
+            &scenario,
+            Some(options.newton),
+            &format!("co-rotational FEM ×{scale}"),
+            progress,
+        )?;
+        let inputs = runtime_inputs(&setup, &scenario, &model, false)?;
+        let open = run_runtime(
+            &setup,
+            &mut est,
+            &inputs,
+            &none,
+            &corot,
+            None,
+            &format!("open loop ×{scale}"),
+            progress,
+        )?;
+        points.push(SweepPoint {
+            scale,
+            max_rotation_deg: corot.max_rotation_deg,
+            open_loop_error: open.display.relative(),
+            tip_error: open.tip.relative(),
+            linear_error: relative_l2(&lin.display, &corot.display),
+        });
+    }
+    Ok(points)
+}
+
+/// The largest rotation (degrees) of the sweep up to which the open-loop error stays below
+/// `threshold`: points sorted by rotation, the last one before the first that reaches the
+/// threshold. `None` if even the smallest rotation fails it.
+pub fn breakdown_rotation(points: &[SweepPoint], threshold: f64) -> Option<f64> {
+    let mut sorted: Vec<&SweepPoint> = points.iter().collect();
+    sorted.sort_by(|a, b| a.max_rotation_deg.total_cmp(&b.max_rotation_deg));
+    let mut best = None;
+    for p in sorted {
+        if p.open_loop_error.is_nan() || p.open_loop_error >= threshold {
+            break;
+        }
+        best = Some(p.max_rotation_deg);
+    }
+    best
+}
+
+/// The sweep as a markdown table, with the 5 % and 10 % breakdown rotations.
+pub fn sweep_markdown(points: &[SweepPoint], order: usize) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "| load scale | max rotation (°) | runtime r = {order} open-loop error | tip error | linear FEM error |"
+    );
+    let _ = writeln!(out, "|---:|---:|---:|---:|---:|");
+    for p in points {
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} | {} | {} |",
+            p.scale,
+            degrees(p.max_rotation_deg),
+            sci(p.open_loop_error),
+            sci(p.tip_error),
+            sci(p.linear_error)
+        );
+    }
+    for t in [0.05, 0.10] {
+        let _ = writeln!(
+            out,
+            "\nopen-loop error < {:.0} % up to {}",
+            100.0 * t,
+            breakdown_rotation(points, t)
+                .map_or("— (not even the smallest load)".to_owned(), |d| {
+                    format!("{d:.1}° of rotation")
+                })
+        );
+    }
+    out
+}
+
+// ---------------------------------------------------------------------------------------------
+// Rendering
+
+/// Seconds with an SI prefix: `1.23 µs`, `45.6 ms`.
+pub fn format_seconds(s: f64) -> String {
+    if !s.is_finite() {
+        return "—".into();
+    }
+    let (v, unit) = if s < 1e-6 {
+        (s * 1e9, "ns")
+    } else if s < 1e-3 {
+        (s * 1e6, "µs")
+    } else if s < 1.0 {
+        (s * 1e3, "ms")
+    } else {
+        (s, "s")
+    };
+    let digits = if v >= 100.0 {
+        0
+    } else if v >= 10.0 {
+        1
+    } else {
+        2
+    };
+    format!("{v:.digits$} {unit}")
+}
+
+/// Degrees with one decimal, or two significant digits below 0.1°.
+fn degrees(v: f64) -> String {
+    if v.abs() >= 0.1 || v == 0.0 {
+        format!("{v:.1}")
+    } else {
+        format!("{v:.1e}")
+    }
+}
+
+fn sci(v: f64) -> String {
+    if v.is_nan() {
+        "—".into()
+    } else if v == 0.0 {
+        "0".into()
+    } else {
+        format!("{v:.2e}")
+    }
+}
+
+fn ratio(a: f64, b: f64) -> String {
+    let r = a / b;
+    if !r.is_finite() {
+        "—".into()
+    } else if r >= 100.0 {
+        format!("{r:.0}×")
+    } else if r >= 1.0 {
+        format!("{r:.1}×")
+    } else {
+        format!("{r:.2}×")
+    }
+}
+
+fn csv_number(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:e}")
+    } else {
+        String::new()
+    }
+}
+
+/// Plot marker shapes.
+#[derive(Clone, Copy, Debug)]
+enum Shape {
+    Circle,
+    Square,
+    Triangle,
+    Diamond,
+}
+
+impl Shape {
+    /// Appends the marker centred at (x, y) (px) as one SVG element of class `class`.
+    fn draw(self, s: &mut String, x: f64, y: f64, colour: &str, class: &str) {
+        let points = |p: &[(f64, f64)]| -> String {
+            p.iter()
+                .map(|(dx, dy)| format!("{:.1},{:.1}", x + dx, y + dy))
+                .collect::<Vec<_>>()
+                .join(" ")
+        };
+        let _ = match self {
+            Shape::Circle => writeln!(
+                s,
+                r#"<circle class="{class}" cx="{x:.1}" cy="{y:.1}" r="5" fill="{colour}"/>"#
+            ),
+            Shape::Square => writeln!(
+                s,
+                r#"<rect class="{class}" x="{:.1}" y="{:.1}" width="9" height="9" fill="{colour}"/>"#,
+                x - 4.5,
+                y - 4.5
+            ),
+            Shape::Triangle => writeln!(
+                s,
+                r#"<polygon class="{class}" points="{}" fill="{colour}"/>"#,
+                points(&[(0.0, -6.0), (-6.0, 5.0), (6.0, 5.0)])
+            ),
+            Shape::Diamond => writeln!(
+                s,
+                r#"<polygon class="{class}" points="{}" fill="{colour}"/>"#,
+                points(&[(0.0, -7.0), (6.0, 0.0), (0.0, 7.0), (-6.0, 0.0)])
+            ),
+        };
+    }
+}
+
+fn xml_escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+impl Comparison {
+    /// The table: one row per full-order model and per runtime order.
+    pub fn markdown(&self) -> String {
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "Scene `{}`, scenario `{}`: {} free DOFs, {} tetrahedra, {} steps of Δt = {} s; \
+             largest rotation in the co-rotational reference {:.1}° (t = {:.3} s).",
+            self.scene.display(),
+            self.scenario.display(),
+            self.dofs,
+            self.tetrahedra,
+            self.steps,
+            self.dt,
+            self.max_rotation_deg,
+            self.max_rotation_time
+        );
+        let _ = writeln!(
+            out,
+            "\nErrors: relative L2 over the {} displayed nodes and the whole trajectory, world \
+             frame, against the co-rotational full-order reference; tip error at sensor `{}`. \
+             Filtered: measurements = reference sensor displacements + Gaussian noise \
+             (noise_std, seed {:#x}){}. Runtime step = predict + update (median of batches); \
+             full-order step = median over the run.\n",
+            self.displayed_nodes,
+            self.tip.as_deref().unwrap_or("—"),
+            self.seed,
+            if self.withheld_loads {
+                "; the runtime got NO load inputs (loads withheld)"
+            } else {
+                ""
+            }
+        );
+        let _ = writeln!(
+            out,
+            "| model | r | step time | speed-up vs co-rotational FEM | speed-up vs linear FEM | relative L2 error | tip error | filtered error |"
+        );
+        let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|---:|");
+        let c = self.corotational.step_s;
+        let l = self.linear.step_s;
+        let _ = writeln!(
+            out,
+            "| co-rotational FEM (reference) | n = {} | {} | 1× | {} | 0 | 0 | — |",
+            self.dofs,
+            format_seconds(c),
+            ratio(l, c)
+        );
+        let _ = writeln!(
+            out,
+            "| linear FEM | n = {} | {} | {} | 1× | {} | {} | — |",
+            self.dofs,
+            format_seconds(l),
+            ratio(c, l),
+            sci(self.linear.error),
+            sci(self.linear.tip_error)
+        );
+        for row in &self.reduced {
+            let r = if row.order == row.requested_order {
+                row.order.to_string()
+            } else {
+                format!("{} (asked {})", row.order, row.requested_order)
+            };
+            let _ = writeln!(
+                out,
+                "| runtime | {r} | {} | {} | {} | {} | {} | {} |",
+                format_seconds(row.step_s),
+                ratio(c, row.step_s),
+                ratio(l, row.step_s),
+                sci(row.error),
+                sci(row.tip_error),
+                sci(row.filtered_error)
+            );
+        }
+        if let Some(n) = self.corotational.newton {
+            let _ = writeln!(
+                out,
+                "\nCo-rotational Newton: {} solves in {} steps, {} unconverged, worst final \
+                 increment {:.1e}.",
+                n.solves, n.steps, n.unconverged, n.worst_increment
+            );
+        }
+        out
+    }
+
+    /// CSV, one row per model and order; empty fields where a figure does not apply.
+    pub fn csv(&self) -> String {
+        let mut out = String::from(
+            "model,r,step_s,speedup_vs_corotational,speedup_vs_linear,error,tip_error,\
+             filtered_error,filtered_tip_error,error_vs_linear,open_loop_step_s,max_rotation_deg\n",
+        );
+        let c = self.corotational.step_s;
+        let l = self.linear.step_s;
+        let rot = csv_number(self.max_rotation_deg);
+        let _ = writeln!(
+            out,
+            "corotational_fem,{},{},1,{},0,0,,,,,{rot}",
+            self.dofs,
+            csv_number(c),
+            csv_number(l / c)
+        );
+        let _ = writeln!(
+            out,
+            "linear_fem,{},{},{},1,{},{},,,0,,{rot}",
+            self.dofs,
+            csv_number(l),
+            csv_number(c / l),
+            csv_number(self.linear.error),
+            csv_number(self.linear.tip_error)
+        );
+        for row in &self.reduced {
+            let _ = writeln!(
+                out,
+                "runtime,{},{},{},{},{},{},{},{},{},{},{rot}",
+                row.order,
+                csv_number(row.step_s),
+                csv_number(c / row.step_s),
+                csv_number(l / row.step_s),
+                csv_number(row.error),
+                csv_number(row.tip_error),
+                csv_number(row.filtered_error),
+                csv_number(row.filtered_tip_error),
+                csv_number(row.error_vs_linear),
+                csv_number(row.open_loop_step_s)
+            );
+        }
+        out
+    }
+
+    /// A self-contained SVG plot: step time (log x) against relative L2 error (log y), one
+    /// marker (`class="marker"`) per open-loop and filtered runtime point and per full-order
+    /// model; the co-rotational reference (error 0) sits on the bottom axis.
+    pub fn svg(&self) -> String {
+        const W: f64 = 720.0;
+        const H: f64 = 480.0;
+        const LEFT: f64 = 80.0;
+        const RIGHT: f64 = 230.0;
+        const TOP: f64 = 50.0;
+        const BOTTOM: f64 = 60.0;
+        let (pw, ph) = (W - LEFT - RIGHT, H - TOP - BOTTOM);
+
+        let finite_pos = |v: f64| v.is_finite() && v > 0.0;
+        let mut times = vec![self.corotational.step_s, self.linear.step_s];
+        let mut errors = vec![self.linear.error];
+        for r in &self.reduced {
+            times.push(r.step_s);
+            errors.push(r.error);
+            errors.push(r.filtered_error);
+        }
+        let decades = |values: &[f64], fallback: (f64, f64)| {
+            let v: Vec<f64> = values.iter().copied().filter(|&v| finite_pos(v)).collect();
+            if v.is_empty() {
+                return fallback;
+            }
+            let lo = v
+                .iter()
+                .copied()
+                .fold(f64::INFINITY, f64::min)
+                .log10()
+                .floor();
+            let hi = v
+                .iter()
+                .copied()
+                .fold(f64::NEG_INFINITY, f64::max)
+                .log10()
+                .ceil();
+            (lo, if hi > lo { hi } else { lo + 1.0 })
+        };
+        let (x0, x1) = decades(&times, (-6.0, 0.0));
+        let (y0, y1) = decades(&errors, (-3.0, 0.0));
+        let sx = |t: f64| LEFT + (t.log10() - x0) / (x1 - x0) * pw;
+        let sy = |e: f64| TOP + ph - (e.log10() - y0) / (y1 - y0) * ph;
+        let y_bottom = TOP + ph;
+
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            r#"<?xml version="1.0" encoding="UTF-8"?>
+<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}" font-family="sans-serif" font-size="12">"#
+        );
+        let _ = writeln!(
+            s,
+            r#"<rect x="0" y="0" width="{W}" height="{H}" fill="white"/>"#
+        );
+        let title = format!(
+            "{} — speed against error (max rotation {:.0}°)",
+            self.scene.parent().and_then(|p| p.file_name()).map_or_else(
+                || self.scene.display().to_string(),
+                |n| n.to_string_lossy().into_owned()
+            ),
+            self.max_rotation_deg
+        );
+        let _ = writeln!(
+            s,
+            r#"<text x="{}" y="28" text-anchor="middle" font-size="15">{}</text>"#,
+            LEFT + pw / 2.0,
+            xml_escape(&title)
+        );
+        // Grid, ticks and tick labels.
+        let _ = writeln!(s, r##"<g stroke="#dddddd" stroke-width="1">"##);
+        for d in (x0 as i32)..=(x1 as i32) {
+            let x = LEFT + (d as f64 - x0) / (x1 - x0) * pw;
+            let _ = writeln!(
+                s,
+                r#"<line x1="{x:.1}" y1="{TOP}" x2="{x:.1}" y2="{y_bottom}"/>"#
+            );
+        }
+        for d in (y0 as i32)..=(y1 as i32) {
+            let y = TOP + ph - (d as f64 - y0) / (y1 - y0) * ph;
+            let _ = writeln!(
+                s,
+                r#"<line x1="{LEFT}" y1="{y:.1}" x2="{}" y2="{y:.1}"/>"#,
+                LEFT + pw
+            );
+        }
+        let _ = writeln!(s, "</g>");
+        let _ = writeln!(
+            s,
+            r#"<rect x="{LEFT}" y="{TOP}" width="{pw}" height="{ph}" fill="none" stroke="black"/>"#
+        );
+        for d in (x0 as i32)..=(x1 as i32) {
+            let x = LEFT + (d as f64 - x0) / (x1 - x0) * pw;
+            let _ = writeln!(
+                s,
+                r#"<line x1="{x:.1}" y1="{y_bottom}" x2="{x:.1}" y2="{}" stroke="black"/>"#,
+                y_bottom + 5.0
+            );
+            let _ = writeln!(
+                s,
+                r#"<text x="{x:.1}" y="{}" text-anchor="middle">{}</text>"#,
+                y_bottom + 19.0,
+                xml_escape(&format_seconds(10f64.powi(d)))
+            );
+        }
+        for d in (y0 as i32)..=(y1 as i32) {
+            let y = TOP + ph - (d as f64 - y0) / (y1 - y0) * ph;
+            let _ = writeln!(
+                s,
+                r#"<line x1="{}" y1="{y:.1}" x2="{LEFT}" y2="{y:.1}" stroke="black"/>"#,
+                LEFT - 5.0
+            );
+            let _ = writeln!(
+                s,
+                r#"<text x="{}" y="{:.1}" text-anchor="end">1e{d}</text>"#,
+                LEFT - 8.0,
+                y + 4.0
+            );
+        }
+        let _ = writeln!(
+            s,
+            r#"<text x="{}" y="{}" text-anchor="middle">step time (log scale)</text>"#,
+            LEFT + pw / 2.0,
+            H - 18.0
+        );
+        let _ = writeln!(
+            s,
+            r#"<text x="20" y="{}" text-anchor="middle" transform="rotate(-90 20 {})">relative L2 error vs co-rotational FEM (log scale)</text>"#,
+            TOP + ph / 2.0,
+            TOP + ph / 2.0
+        );
+
+        // Series: lines through the runtime points, then markers.
+        let series = |pick: &dyn Fn(&ReducedRow) -> f64| -> Vec<(f64, f64, usize)> {
+            self.reduced
+                .iter()
+                .filter(|r| finite_pos(r.step_s) && finite_pos(pick(r)))
+                .map(|r| (sx(r.step_s), sy(pick(r)), r.order))
+                .collect()
+        };
+        let open = series(&|r| r.error);
+        let filtered = series(&|r| r.filtered_error);
+        const OPEN: &str = "#1f77b4";
+        const FILTERED: &str = "#ff7f0e";
+        const LINEAR: &str = "#2ca02c";
+        const COROT: &str = "#000000";
+        for (points, colour) in [(&open, OPEN), (&filtered, FILTERED)] {
+            if points.len() > 1 {
+                let path: Vec<String> = points
+                    .iter()
+                    .map(|(x, y, _)| format!("{x:.1},{y:.1}"))
+                    .collect();
+                let _ = writeln!(
+                    s,
+                    r#"<polyline points="{}" fill="none" stroke="{colour}" stroke-width="1.5"/>"#,
+                    path.join(" ")
+                );
+            }
+        }
+        for &(x, y, r) in &open {
+            Shape::Circle.draw(&mut s, x, y, OPEN, "marker");
+            let _ = writeln!(
+                s,
+                r#"<text x="{:.1}" y="{:.1}" font-size="10">r={r}</text>"#,
+                x + 7.0,
+                y - 5.0
+            );
+        }
+        for &(x, y, _) in &filtered {
+            Shape::Square.draw(&mut s, x, y, FILTERED, "marker");
+        }
+        if finite_pos(self.linear.step_s) && finite_pos(self.linear.error) {
+            let (x, y) = (sx(self.linear.step_s), sy(self.linear.error));
+            Shape::Triangle.draw(&mut s, x, y, LINEAR, "marker");
+            let _ = writeln!(
+                s,
+                r#"<text x="{:.1}" y="{:.1}" font-size="10" text-anchor="end">linear FEM</text>"#,
+                x - 8.0,
+                y - 6.0
+            );
+        }
+        if finite_pos(self.corotational.step_s) {
+            let x = sx(self.corotational.step_s);
+            Shape::Diamond.draw(&mut s, x, y_bottom, COROT, "marker");
+            let _ = writeln!(
+                s,
+                r#"<text x="{:.1}" y="{:.1}" font-size="10" text-anchor="end">reference (error 0)</text>"#,
+                x - 8.0,
+                y_bottom - 8.0
+            );
+        }
+        // Legend.
+        let lx = LEFT + pw + 20.0;
+        let entries = [
+            ("runtime, open loop", OPEN, Shape::Circle),
+            ("runtime, filtered", FILTERED, Shape::Square),
+            ("linear FEM (full order)", LINEAR, Shape::Triangle),
+            ("co-rotational FEM (reference)", COROT, Shape::Diamond),
+        ];
+        let _ = writeln!(s, r#"<g class="legend">"#);
+        for (i, (label, colour, draw)) in entries.iter().enumerate() {
+            let y = TOP + 14.0 + 22.0 * i as f64;
+            draw.draw(&mut s, lx + 6.0, y, colour, "legend-symbol");
+            let _ = writeln!(
+                s,
+                r#"<text x="{:.1}" y="{:.1}">{}</text>"#,
+                lx + 18.0,
+                y + 4.0,
+                xml_escape(label)
+            );
+        }
+        let _ = writeln!(s, "</g>");
+        let _ = writeln!(s, "</svg>");
+        s
+    }
+}

@@ -1,0 +1,458 @@
+//! Speed against error (`crokf_compile::comparison`): the runtime against the full-order
+//! references on a small generated beam, and the report's rendering.
+//!
+//! The beam: 1 m × 0.1 m × 0.1 m, 12 × 2 × 2 cells (288 tetrahedra, 324 free DOFs), E = 1 MPa,
+//! clamped at x = 0, tip load on x = 1, sensors `tip` and `mid`, displayed: the whole surface.
+//! The release-build figures of the committed report scenarios come from the ignored tests
+//! at the end (`cargo test --release -p crokf-compile --test comparison -- --ignored
+//! --nocapture`).
+
+use std::path::{Path, PathBuf};
+
+use crokf_compile::comparison::{
+    self, breakdown_rotation, rotation_sweep, Comparison, ComparisonError, ComparisonOptions,
+    Gaussian, Progress, SweepPoint,
+};
+use crokf_compile::generate::{box_mesh, write_msh22};
+
+/// A fresh directory under the target's temporary directory.
+fn case_dir(name: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("comparison_{name}"));
+    std::fs::remove_dir_all(&dir).ok();
+    std::fs::create_dir_all(&dir).expect("create test directory");
+    dir
+}
+
+/// The beam scene with process noise `force_noise_std` (N per component) on the tip load.
+fn scene_text(force_noise_std: f64) -> String {
+    format!(
+        r#"
+[mesh]
+file = "beam.msh"
+units = "m"
+
+[[material]]
+group = "body"
+young_modulus = 1.0e6
+poisson_ratio = 0.3
+density = 1000.0
+
+[damping]
+alpha = 0.5
+beta = 1.0e-3
+
+[[fixed]]
+group = "xmin"
+
+[[load]]
+name = "tip"
+group = "xmax"
+distribution = "area"
+force_noise_std = {force_noise_std:e}
+
+[[sensor]]
+name = "mid"
+position = [0.5, 0.05, 0.09]
+components = ["x", "y", "z"]
+noise_std = 1.0e-3
+
+[[sensor]]
+name = "tip"
+position = [0.95, 0.05, 0.09]
+components = ["x", "y", "z"]
+noise_std = 1.0e-3
+
+[[display]]
+name = "surface"
+group = "surface"
+
+[[display]]
+name = "end"
+group = "xmax"
+
+[time]
+dt = 0.005
+theta = 1.4
+"#
+    )
+}
+
+/// Writes the beam scene and a scenario with a downward tip force `force` (N) ramped in over
+/// 0.05 s, `steps` steps of 5 ms; returns (scene, scenario).
+fn beam_case(name: &str, force: f64, steps: usize, force_noise_std: f64) -> (PathBuf, PathBuf) {
+    let dir = case_dir(name);
+    write_msh22(
+        &box_mesh([12, 2, 2], [1.0, 0.1, 0.1]),
+        &dir.join("beam.msh"),
+    )
+    .expect("mesh");
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, scene_text(force_noise_std)).expect("scene");
+    let scenario = dir.join("scenario.toml");
+    std::fs::write(
+        &scenario,
+        format!(
+            "steps = {steps}\n[[load]]\nname = \"tip\"\ntimes = [0.0, 0.05]\n\
+             forces = [[0.0, 0.0, 0.0], [0.0, 0.0, {}]]\n",
+            -force
+        ),
+    )
+    .expect("scenario");
+    (scene, scenario)
+}
+
+/// Runs a comparison, checking the progress reports (done ≤ total, phases in order).
+fn run(scene: &Path, scenario: &Path, options: &ComparisonOptions) -> Comparison {
+    let mut phases: Vec<String> = Vec::new();
+    let mut progress = |p: Progress| {
+        assert!(p.done <= p.total, "{p:?}");
+        if phases.last().map(String::as_str) != Some(p.phase) {
+            phases.push(p.phase.to_owned());
+        }
+    };
+    let c = comparison::run(scene, scenario, options, &mut progress)
+        .unwrap_or_else(|e| panic!("comparison failed: {e}"));
+    eprintln!("{}", c.markdown());
+    let mut expected = vec!["linear FEM".to_owned(), "co-rotational FEM".to_owned()];
+    for r in &options.orders {
+        for p in ["compile", "open loop", "filtered", "timing"] {
+            expected.push(format!("{p} r = {r}"));
+        }
+    }
+    assert_eq!(phases, expected);
+    c
+}
+
+/// Checks that `svg` is well-formed XML as far as tags go (every element closed, properly
+/// nested, attributes quoted) and returns the number of elements with `class="marker"`.
+fn check_svg(svg: &str) -> usize {
+    let mut stack: Vec<String> = Vec::new();
+    let mut markers = 0;
+    let mut rest = svg.trim_start();
+    assert!(rest.starts_with("<?xml"), "no XML declaration");
+    let end = rest.find("?>").expect("unterminated XML declaration");
+    rest = &rest[end + 2..];
+    let mut roots = 0;
+    while let Some(open) = rest.find('<') {
+        let text = &rest[..open];
+        assert!(
+            !text.contains('>') && !text.contains('&')
+                || text.contains("&amp;")
+                || text.contains("&lt;"),
+            "stray markup in text {text:?}"
+        );
+        let close = rest[open..].find('>').expect("unterminated tag") + open;
+        let tag = &rest[open + 1..close];
+        assert!(!tag.contains('<'), "'<' inside tag {tag:?}");
+        assert_eq!(
+            tag.matches('"').count() % 2,
+            0,
+            "unbalanced quotes in {tag:?}"
+        );
+        if let Some(name) = tag.strip_prefix('/') {
+            let top = stack
+                .pop()
+                .unwrap_or_else(|| panic!("</{name}> closes nothing"));
+            assert_eq!(top, name.trim(), "</{name}> closes <{top}>");
+        } else {
+            let name: String = tag
+                .chars()
+                .take_while(|c| !c.is_whitespace() && *c != '/')
+                .collect();
+            assert!(!name.is_empty(), "empty tag name in {tag:?}");
+            if stack.is_empty() {
+                roots += 1;
+            }
+            if tag.contains(r#"class="marker""#) {
+                markers += 1;
+            }
+            if !tag.ends_with('/') {
+                stack.push(name);
+            }
+        }
+        rest = &rest[close + 1..];
+    }
+    assert!(stack.is_empty(), "unclosed elements {stack:?}");
+    assert_eq!(roots, 1, "one root element");
+    assert!(svg.contains("<svg"), "not an SVG");
+    markers
+}
+
+/// Table rows of the markdown (lines starting with `|`, minus header and separator).
+fn markdown_rows(md: &str) -> Vec<&str> {
+    md.lines().filter(|l| l.starts_with('|')).skip(2).collect()
+}
+
+#[test]
+fn tiny_load_runtime_error_matches_compile_report_and_linear_reference() {
+    // 1 mN: rotations ~1e-3°, so the co-rotational and linear references coincide and the
+    // runtime's warping is a no-op; what is left is the reduction error the compiler measures.
+    let (scene, scenario) = beam_case("tiny", 1e-3, 60, 0.05);
+    let options = ComparisonOptions {
+        orders: vec![4, 8],
+        measure_compile_error: true,
+        ..ComparisonOptions::default()
+    };
+    let c = run(&scene, &scenario, &options);
+    assert_eq!((c.dofs, c.tetrahedra, c.steps), (324, 288, 60));
+    assert_eq!(c.tip.as_deref(), Some("tip"));
+    assert!(
+        c.max_rotation_deg > 0.0 && c.max_rotation_deg < 0.01,
+        "{}",
+        c.max_rotation_deg
+    );
+    // Geometric nonlinearity is first order in the load: 1 N gives ~5e-3 (sweep test below).
+    assert!(
+        c.linear.error > 0.0 && c.linear.error < 1e-4,
+        "{}",
+        c.linear.error
+    );
+    for row in &c.reduced {
+        assert_eq!(row.order, row.requested_order);
+        let step = row.compile_measured_errors["step"];
+        let ratio = row.error_vs_linear / step;
+        assert!(
+            (0.1..10.0).contains(&ratio),
+            "r = {}: runtime error vs linear {:.3e}, compiler's step error {step:.3e}",
+            row.order,
+            row.error_vs_linear
+        );
+        // Triangle inequality: the two references differ by c.linear.error (relative).
+        assert!(
+            (row.error - row.error_vs_linear).abs() <= 2.0 * c.linear.error + 1e-12,
+            "r = {}: {} vs {}",
+            row.order,
+            row.error,
+            row.error_vs_linear
+        );
+        assert!(row.step_s > 0.0 && row.step_s < 1e-3, "{}", row.step_s);
+        assert!(row.tip_error.is_finite() && row.filtered_error.is_finite());
+    }
+    assert!(
+        c.reduced[1].error < 0.5 * c.reduced[0].error,
+        "error must fall with r: {} (r = 4) vs {} (r = 8)",
+        c.reduced[0].error,
+        c.reduced[1].error
+    );
+    assert!(c.corotational.step_s > c.linear.step_s);
+
+    // Rendering: one row per model and order, a well-formed SVG with one marker per point.
+    let md = c.markdown();
+    let rows = markdown_rows(&md);
+    assert_eq!(rows.len(), 2 + 2, "{md}");
+    assert!(rows[0].starts_with("| co-rotational FEM"));
+    assert!(rows[1].starts_with("| linear FEM"));
+    assert!(rows[2].starts_with("| runtime | 4 |") && rows[3].starts_with("| runtime | 8 |"));
+    for row in &rows {
+        assert_eq!(row.matches('|').count(), 9, "8 columns: {row}");
+    }
+    let csv = c.csv();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines.len(), 1 + 2 + 2, "{csv}");
+    let width = lines[0].split(',').count();
+    assert!(lines.iter().all(|l| l.split(',').count() == width), "{csv}");
+    let r8: Vec<&str> = lines[4].split(',').collect();
+    assert_eq!(r8[0], "runtime");
+    assert_eq!(r8[1], "8");
+    let error: f64 = r8[5].parse().expect("error column");
+    assert!((error - c.reduced[1].error).abs() <= 1e-12 * error);
+    let svg = c.svg();
+    assert_eq!(check_svg(&svg), 2 * 2 + 2, "{svg}");
+}
+
+#[test]
+fn filter_tracks_a_withheld_load_from_the_measurements() {
+    // The runtime gets no load input; the 1 N tip force is process noise of 1 N per component
+    // to the filter. Open loop stays at rest (error exactly 1); the filter follows the
+    // co-rotational reference through the noisy sensors.
+    let (scene, scenario) = beam_case("withheld", 1.0, 60, 1.0);
+    let options = ComparisonOptions {
+        orders: vec![8],
+        withhold_loads: true,
+        ..ComparisonOptions::default()
+    };
+    let c = run(&scene, &scenario, &options);
+    let row = &c.reduced[0];
+    assert!((row.error - 1.0).abs() < 1e-12, "{}", row.error);
+    assert!((row.tip_error - 1.0).abs() < 1e-12, "{}", row.tip_error);
+    assert!(row.filtered_error < 0.3, "filtered {}", row.filtered_error);
+    assert!(
+        row.filtered_tip_error < 0.3,
+        "filtered tip {}",
+        row.filtered_tip_error
+    );
+    // Another seed gives another noise draw but a similar error.
+    let other = comparison::run(
+        &scene,
+        &scenario,
+        &ComparisonOptions {
+            seed: 7,
+            ..options.clone()
+        },
+        &mut |_| {},
+    )
+    .expect("comparison");
+    let f2 = other.reduced[0].filtered_error;
+    assert!(
+        f2 != row.filtered_error && (f2 / row.filtered_error - 1.0).abs() < 0.5,
+        "{f2}"
+    );
+}
+
+#[test]
+fn rotation_sweep_scales_with_the_load() {
+    let (scene, scenario) = beam_case("sweep", 1.0, 40, 0.05);
+    let scales = [1e-3, 1.0, 30.0];
+    let points = rotation_sweep(
+        &scene,
+        &scenario,
+        8,
+        &scales,
+        &ComparisonOptions::default(),
+        &mut |_| {},
+    )
+    .expect("sweep");
+    eprintln!("{}", comparison::sweep_markdown(&points, 8));
+    assert_eq!(points.len(), 3);
+    // Small loads: rotation ∝ load, and the linear model's error ∝ load (first order).
+    let rot = points[1].max_rotation_deg / points[0].max_rotation_deg;
+    assert!((rot / 1e3 - 1.0).abs() < 0.02, "rotation ratio {rot}");
+    let lin = points[1].linear_error / points[0].linear_error;
+    assert!((lin / 1e3 - 1.0).abs() < 0.05, "linear error ratio {lin}");
+    // Large load: the rotation grows, and so does the linear model's error and the warped
+    // runtime's error; warping does better than no warping at all.
+    assert!(points[2].max_rotation_deg > 10.0 * points[1].max_rotation_deg);
+    assert!(points[2].linear_error > 10.0 * points[1].linear_error);
+    assert!(points[2].open_loop_error > points[0].open_loop_error);
+    assert!(points[2].open_loop_error < points[2].linear_error);
+}
+
+#[test]
+fn breakdown_rotation_is_the_last_point_under_the_threshold() {
+    let p = |max_rotation_deg, open_loop_error| SweepPoint {
+        scale: 1.0,
+        max_rotation_deg,
+        open_loop_error,
+        tip_error: 0.0,
+        linear_error: 0.0,
+    };
+    // Unsorted on purpose; the 40° point fails 5 % but passes 10 %, 60° fails both, and the
+    // 80° point back under 5 % must not count (the first failure ends the range).
+    let points = [
+        p(60.0, 0.2),
+        p(10.0, 0.01),
+        p(40.0, 0.07),
+        p(80.0, 0.01),
+        p(25.0, 0.03),
+    ];
+    assert_eq!(breakdown_rotation(&points, 0.05), Some(25.0));
+    assert_eq!(breakdown_rotation(&points, 0.10), Some(40.0));
+    assert_eq!(breakdown_rotation(&points, 0.005), None);
+    assert_eq!(breakdown_rotation(&[], 0.05), None);
+}
+
+#[test]
+fn gaussian_samples_have_unit_variance() {
+    let mut g = Gaussian::new(42);
+    let n = 200_000;
+    let samples: Vec<f64> = (0..n).map(|_| g.normal()).collect();
+    let mean = samples.iter().sum::<f64>() / n as f64;
+    let var = samples.iter().map(|z| (z - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    let within_one = samples.iter().filter(|z| z.abs() < 1.0).count() as f64 / n as f64;
+    // σ of the mean estimate 1/√n ≈ 2.2e-3, of the variance √(2/n) ≈ 3.2e-3.
+    assert!(mean.abs() < 0.01, "mean {mean}");
+    assert!((var - 1.0).abs() < 0.015, "variance {var}");
+    assert!(
+        (within_one - 0.682_689).abs() < 0.005,
+        "P(|z| < 1) = {within_one}"
+    );
+    // Deterministic per seed; seed 0 is usable.
+    let mut a = Gaussian::new(42);
+    assert_eq!(a.normal(), samples[0]);
+    let mut z = Gaussian::new(0);
+    let u = z.uniform();
+    assert!(u > 0.0 && u <= 1.0);
+}
+
+#[test]
+fn a_steady_scenario_and_bad_orders_are_refused() {
+    let (scene, scenario) = beam_case("refused", 1.0, 10, 0.05);
+    let steady = scenario.with_file_name("steady.toml");
+    std::fs::write(
+        &steady,
+        "steady = { tolerance = 1e-6, max_steps = 100 }\n[[load]]\nname = \"tip\"\n\
+         times = [0.0]\nforces = [[0.0, 0.0, -1.0]]\n",
+    )
+    .expect("scenario");
+    let err = comparison::run(&scene, &steady, &ComparisonOptions::default(), &mut |_| {})
+        .expect_err("steady scenario");
+    let msg = err.to_string();
+    assert!(matches!(err, ComparisonError::Invalid { .. }), "{msg}");
+    assert!(
+        msg.contains("steady.toml") && msg.contains("duration"),
+        "{msg}"
+    );
+    let err = comparison::run(
+        &scene,
+        &scenario,
+        &ComparisonOptions {
+            orders: vec![4, 0],
+            ..ComparisonOptions::default()
+        },
+        &mut |_| {},
+    )
+    .expect_err("order 0");
+    assert!(err.to_string().contains("orders"), "{err}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Release-build reports of the committed scenarios (slow: run with --release --ignored).
+
+fn models() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../models")
+}
+
+/// Runs the report, writes `target/tmp/report_<name>.{md,csv,svg}` and prints the markdown.
+fn report(name: &str, scene: &Path, scenario: &Path) -> Comparison {
+    let mut last = String::new();
+    let c = comparison::run(scene, scenario, &ComparisonOptions::default(), &mut |p| {
+        if p.phase != last {
+            eprintln!("  {} …", p.phase);
+            last = p.phase.to_owned();
+        }
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"));
+    for (ext, text) in [("md", c.markdown()), ("csv", c.csv()), ("svg", c.svg())] {
+        let path = dir.join(format!("report_{name}.{ext}"));
+        std::fs::write(&path, text).expect("write report");
+        eprintln!("wrote {}", path.display());
+    }
+    println!("{}", c.markdown());
+    println!("{}", c.csv());
+    assert_eq!(check_svg(&c.svg()), 2 * c.reduced.len() + 2);
+    c
+}
+
+#[test]
+#[ignore = "release-build report: cargo test --release -p crokf-compile --test comparison -- --ignored --nocapture"]
+fn report_cantilever() {
+    let dir = models().join("cantilever");
+    let c = report(
+        "cantilever",
+        &dir.join("scene.toml"),
+        &dir.join("scenario_report.toml"),
+    );
+    assert!(c.max_rotation_deg >= 60.0, "{}", c.max_rotation_deg);
+}
+
+#[test]
+#[ignore = "release-build report: cargo test --release -p crokf-compile --test comparison -- --ignored --nocapture"]
+fn report_meniscus() {
+    let dir = models().join("meniscus");
+    report(
+        "meniscus",
+        &dir.join("scene.toml"),
+        &dir.join("scenario_report.toml"),
+    );
+}
