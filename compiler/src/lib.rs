@@ -7,12 +7,15 @@
 //!                     └──▶ reference (full-order simulators, for verification)
 //! ```
 //!
-//! See `DESIGN.md` in the shared notes for the equations each module implements.
+//! `compile` wires the stages; `accuracy` measures the reduced model against the full-order
+//! reference, `comparison` produces the speed-against-error report, `report` records stage
+//! costs, `bench` and `generate` serve the benchmarks. See `DESIGN.md` in the shared notes for
+//! the equations each module implements.
 
-pub mod comparison;
-pub mod compile;
 pub mod accuracy;
 pub mod bench;
+pub mod comparison;
+pub mod compile;
 pub mod corotation;
 pub mod dynamics;
 pub mod fem;

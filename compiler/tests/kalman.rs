@@ -697,7 +697,7 @@ fn brute_force_periodic(
     for k in 0..periods * period {
         let phase = k % period;
         let rows: Vec<usize> = (0..h.nrows())
-            .filter(|&i| phase % every[i] as usize == 0)
+            .filter(|&i| phase.is_multiple_of(every[i] as usize))
             .collect();
         let hp = Mat::from_fn(rows.len(), n, |i, j| h[(rows[i], j)]);
         let rp = diag(&rows.iter().map(|&i| r_diag[i]).collect::<Vec<_>>());
@@ -739,7 +739,9 @@ fn periodic_gains_match_brute_force_recursion() {
         assert!(sched.closed_loop_spectral_radius < 1.0);
         let brute = brute_force_periodic(&f, &h, &q, &r_diag, &every, period, 400);
         for (p, (phase, (prior, gain, post))) in sched.phases.iter().zip(&brute).enumerate() {
-            let expected: Vec<usize> = (0..3).filter(|&i| p as u32 % every[i] == 0).collect();
+            let expected: Vec<usize> = (0..3)
+                .filter(|&i| (p as u32).is_multiple_of(every[i]))
+                .collect();
             assert_eq!(phase.measured, expected, "phase {p}");
             assert_eq!(phase.gain.ncols(), expected.len());
             let d = rel_diff(prior.as_ref(), phase.prior_covariance.as_ref());
@@ -804,7 +806,7 @@ fn periodic_gains_with_slow_unobserved_mode() {
         let want: Vec<usize> = [3u32, 4]
             .iter()
             .enumerate()
-            .filter(|(_, &e)| p as u32 % e == 0)
+            .filter(|(_, &e)| (p as u32).is_multiple_of(e))
             .map(|(i, _)| i)
             .collect();
         assert_eq!(ph.measured, want, "phase {p}");

@@ -205,7 +205,7 @@ impl FemModel {
                     element::dot(d, d).sqrt()
                 })
                 .fold(0.0f64, f64::max);
-            let kind = if !(geometry.volume.abs() > 1e-10 * h * h * h) {
+            let kind = if geometry.volume.is_nan() || geometry.volume.abs() <= 1e-10 * h * h * h {
                 Some("degenerate (zero volume)")
             } else if geometry.volume < 0.0 {
                 Some("inverted")

@@ -322,7 +322,7 @@ fn node_weights(
         }
     };
     let total: f64 = weights.iter().map(|(_, w)| w).sum();
-    if !(total > 0.0) {
+    if total.is_nan() || total <= 0.0 {
         return Err(FemError::Scene(format!(
             "{context}: group '{group_name}' has no nodes (or zero area) in the tetrahedral mesh"
         )));
