@@ -4,6 +4,9 @@
 //! K, M, C (DESIGN.md §2), independently of `WilsonTheta::modal_block`; its Gramians come from
 //! Smith doubling and its Hankel singular values from eig(P Q).
 
+// Index loops mirror the equations (σᵢ, ω²ᵢ compared entry by entry).
+#![allow(clippy::needless_range_loop)]
+
 use crokf_compile::dynamics::WilsonTheta;
 use crokf_compile::reduce::{
     modal_basis, ModalBasis, ModalOptions, ModalSystem, Order, ReduceError,
