@@ -669,6 +669,19 @@ fn reduced_response_error_within_bound_and_falls_with_order() {
     }
 }
 
+/// ‖D A D‖_F with D = diag(1, 1/ν, 1/ν²) per mode (`inverse` = false: D⁻¹ A D⁻¹).
+fn scaled(a: &Mat<f64>, nu: f64, forward: bool) -> f64 {
+    let d = |i: usize| {
+        let e = [1.0, 1.0 / nu, 1.0 / (nu * nu)][i % 3];
+        if forward {
+            e
+        } else {
+            1.0 / e
+        }
+    };
+    Mat::from_fn(a.nrows(), a.ncols(), |i, j| d(i) * a[(i, j)] * d(j)).norm_l2()
+}
+
 /// G(e^{jz}) = C (e^{jz} I − A)⁻¹ B as the real 2p×2m embedding [[Re, −Im], [Im, Re]].
 fn freq_response(a: &Mat<f64>, b: &Mat<f64>, c: &Mat<f64>, z: f64) -> Mat<f64> {
     let n = a.nrows();
@@ -846,26 +859,42 @@ fn undamped_model_relies_on_wilson_damping_or_is_refused_by_name() {
 
 #[test]
 fn singular_stiffness_is_refused_as_rigid_body_modes() {
-    let lat = Lattice::new([4, 2, 2], false, 1e4, false);
-    let b = Mat::<f64>::zeros(lat.n, 0);
-    for dense_threshold in [10_000, 0] {
-        let opts = ModalOptions {
-            modes: Some(10),
-            dense_threshold,
-            ..Default::default()
-        };
-        let err = modal_basis(lat.k.as_ref(), lat.m.as_ref(), b.as_ref(), &opts).unwrap_err();
-        match &err {
-            ReduceError::RigidBody { count, .. } => {
-                assert_eq!(*count, 6, "dense_threshold {dense_threshold}")
+    // Free-floating lattice: 6 rigid-body modes. One pinned node: 3 rotations about it.
+    let free = Lattice::new([4, 2, 2], false, 1e4, false);
+    let keep = |d: usize| d >= 3; // node 0 is (0, 0, 0): DOFs 0, 1, 2
+    let pinned = |a: &SparseColMat<usize, f64>| {
+        let t: Vec<_> = a
+            .triplet_iter()
+            .filter(|t| keep(t.row) && keep(t.col))
+            .map(|t| Triplet::new(t.row - 3, t.col - 3, *t.val))
+            .collect();
+        SparseColMat::<usize, f64>::try_new_from_triplets(free.n - 3, free.n - 3, &t).unwrap()
+    };
+    let cases = [
+        (free.k.clone(), free.m.clone(), 6),
+        (pinned(&free.k), pinned(&free.m), 3),
+    ];
+    for (k, m, rigid) in &cases {
+        let b = Mat::<f64>::zeros(k.nrows(), 0);
+        for dense_threshold in [10_000, 0] {
+            let opts = ModalOptions {
+                modes: Some(10),
+                dense_threshold,
+                ..Default::default()
+            };
+            let err = modal_basis(k.as_ref(), m.as_ref(), b.as_ref(), &opts).unwrap_err();
+            match &err {
+                ReduceError::RigidBody { count, .. } => {
+                    assert_eq!(count, rigid, "dense_threshold {dense_threshold}")
+                }
+                e => panic!("expected rigid-body error, got {e}"),
             }
-            e => panic!("expected rigid-body error, got {e}"),
+            let msg = err.to_string();
+            assert!(
+                msg.contains(&format!("{rigid} rigid-body modes")) && msg.contains("fix a group"),
+                "{msg}"
+            );
         }
-        let msg = err.to_string();
-        assert!(
-            msg.contains("6 rigid-body modes") && msg.contains("fix a group"),
-            "{msg}"
-        );
     }
 }
 
@@ -907,6 +936,38 @@ fn output_blind_to_some_modes_still_gives_stable_model() {
     assert!(blind >= 10, "only {blind} blind modes");
     let red = sys.balanced_truncation(Order::Tolerance(1e-10)).unwrap();
     assert!(red.spectral_radius < 1.0, "ρ(F) = {}", red.spectral_radius);
+    // The Gramians solve the Stein equations of the modal system.
+    let (x, y) = sys.gramians().unwrap();
+    let k = sys.n_modes();
+    let phi = Mat::from_fn(3 * k, 3 * k, |i, j| {
+        if i / 3 == j / 3 {
+            sys.phi[i / 3][i % 3][j % 3]
+        } else {
+            0.0
+        }
+    });
+    let gam = Mat::from_fn(3 * k, 1, |i, c| {
+        sys.gamma[i / 3][i % 3] * sys.modal_inputs[(i / 3, c)]
+    });
+    let cm = Mat::from_fn(1, 3 * k, |r, j| {
+        if j % 3 == 0 {
+            sys.modal_outputs[(r, j / 3)]
+        } else {
+            0.0
+        }
+    });
+    // Weighted by the state scales (q, q̇/ν, q̈/ν²) so every block counts.
+    let res_x = &phi * &x * phi.transpose() - &x + &gam * gam.transpose();
+    let res_y = phi.transpose() * &y * &phi - &y + cm.transpose() * &cm;
+    let nu = (sys.omega2[0].sqrt()).min(1.0 / w.dt);
+    let (dx, dy) = (scaled(&res_x, nu, true), scaled(&res_y, nu, false));
+    let (nx, ny) = (scaled(&x, nu, true), scaled(&y, nu, false));
+    assert!(
+        dx <= 1e-9 * nx && dy <= 1e-9 * ny,
+        "Stein residuals {:e}, {:e}",
+        dx / nx,
+        dy / ny
+    );
     assert!(
         red.order < sys.n_states() - 3 * blind,
         "blind modes kept: r = {}",

@@ -204,6 +204,9 @@ fn psd_factor(a: &Mat<f64>) -> Result<Mat<f64>, ReduceError> {
     }))
 }
 
+/// (Φ̃ᵢ, Γ̃ᵢ, νᵢ) of every mode.
+type ScaledBlocks = (Vec<[[f64; 3]; 3]>, Vec<[f64; 3]>, Vec<f64>);
+
 /// Gramians in the scaled coordinates zᵢ = tᵢ Eᵢ sᵢ over the active modes.
 struct ScaledGramians {
     /// Active (controllable and observable) modes.
@@ -371,8 +374,8 @@ impl ModalSystem {
         Ok(())
     }
 
-    fn scaled_gramians(&self) -> Result<ScaledGramians, ReduceError> {
-        self.check_stability()?;
+    /// Scaled blocks Φ̃ᵢ = Eᵢ Φᵢ Eᵢ⁻¹, Γ̃ᵢ = Eᵢ Γᵢ with Eᵢ = diag(1, 1/νᵢ, 1/νᵢ²), νᵢ = min(ωᵢ, 1/Δt).
+    fn scaled_blocks(&self) -> ScaledBlocks {
         let k = self.n_modes();
         let dt = self.wilson.dt;
         let mut nu = Vec::with_capacity(k);
@@ -391,6 +394,13 @@ impl ModalSystem {
             gamma.push([0, 1, 2].map(|r| self.gamma[i][r] * e[r]));
             nu.push(v);
         }
+        (phi, gamma, nu)
+    }
+
+    fn scaled_gramians(&self) -> Result<ScaledGramians, ReduceError> {
+        self.check_stability()?;
+        let k = self.n_modes();
+        let (phi, gamma, nu) = self.scaled_blocks();
         let b = &self.modal_inputs;
         let c = &self.modal_outputs;
         let wb = b * b.transpose();
@@ -464,28 +474,29 @@ impl ModalSystem {
     }
 
     /// The controllability and observability Gramians (X, Y), 3k×3k, in the physical modal
-    /// state [q₁, q̇₁, q̈₁, …] (Φ X Φᵀ − X + ΓΓᵀ = 0, Φᵀ Y Φ − Y + CᵀC = 0). Rows and columns of
-    /// modes that are uncontrollable or unobservable (to 1e-30 relative) are zero.
+    /// state [q₁, q̇₁, q̈₁, …]: Φ X Φᵀ − X + ΓΓᵀ = 0, Φᵀ Y Φ − Y + CᵀC = 0, from the 3×3 block
+    /// Stein equations in the scaled coordinates (X = E⁻¹ X̃ E⁻¹, Y = E Ỹ E).
     pub fn gramians(&self) -> Result<(Mat<f64>, Mat<f64>), ReduceError> {
-        let g = self.scaled_gramians()?;
+        self.check_stability()?;
         let k = self.n_modes();
-        // s = Eᵢ⁻¹ z / tᵢ: X = β_s D X̂ D, Y = γ_s D⁻¹ Ŷ D⁻¹ with D = diag(Eᵢ⁻¹/tᵢ).
-        let mut d = vec![0.0; 3 * g.active.len()];
-        for (a, &i) in g.active.iter().enumerate() {
-            let v = g.nu[i];
-            d[3 * a] = 1.0 / g.t[i];
-            d[3 * a + 1] = v / g.t[i];
-            d[3 * a + 2] = v * v / g.t[i];
-        }
+        let (phi, gamma, nu) = self.scaled_blocks();
+        let phit: Vec<[[f64; 3]; 3]> = phi.iter().map(transpose3).collect();
+        let wb = &self.modal_inputs * self.modal_inputs.transpose();
+        let wc = self.modal_outputs.transpose() * &self.modal_outputs;
+        let e1 = [[1.0, 0.0, 0.0], [0.0; 3], [0.0; 3]];
+        let einv = |i: usize, r: usize| [1.0, nu[i], nu[i] * nu[i]][r];
         let mut x = Mat::zeros(3 * k, 3 * k);
         let mut y = Mat::zeros(3 * k, 3 * k);
-        for (a, &i) in g.active.iter().enumerate() {
-            for (bb, &j) in g.active.iter().enumerate() {
+        for i in 0..k {
+            for j in 0..k {
+                let q = [0, 1, 2].map(|r| [0, 1, 2].map(|s| gamma[i][r] * gamma[j][s]));
+                let xb = stein_block(&phi[i], &phi[j], &q);
+                let yb = stein_block(&phit[i], &phit[j], &e1);
                 for r in 0..3 {
                     for s in 0..3 {
-                        let (p, q) = (3 * a + r, 3 * bb + s);
-                        x[(3 * i + r, 3 * j + s)] = g.beta_s * d[p] * g.x[(p, q)] * d[q];
-                        y[(3 * i + r, 3 * j + s)] = g.gamma_s * g.y[(p, q)] / (d[p] * d[q]);
+                        x[(3 * i + r, 3 * j + s)] = wb[(i, j)] * einv(i, r) * xb[r][s] * einv(j, s);
+                        y[(3 * i + r, 3 * j + s)] =
+                            wc[(i, j)] * yb[r][s] / (einv(i, r) * einv(j, s));
                     }
                 }
             }
