@@ -93,8 +93,11 @@ pub const MEASURE_MAX_STEPS: usize = 400;
 /// Default tolerance σ_{r+1}/σ₁ when neither order nor tolerance is given.
 pub const DEFAULT_TOLERANCE: f64 = 1e-4;
 
-/// Cap on the number of vibration modes when the scene gives no count.
-pub const DEFAULT_MAX_MODES: usize = 200;
+/// Cap on the number of vibration modes when the scene gives no count. On the 50k-tetrahedron
+/// beam, 60 modes instead of 200 cut the modal stage from 61 s to 5 s and left the measured
+/// error unchanged (3.1e-4 step, 5.5e-4 chirp): the balanced truncation, not the modal cut,
+/// sets the error there.
+pub const DEFAULT_MAX_MODES: usize = 60;
 
 /// Everything the front end of the pipeline produces: the full-order model with its operators.
 pub struct FullOrder {
