@@ -552,6 +552,24 @@ fn frequency_cutoff_keeps_every_mode_below_it() {
         assert!((basis.omega2[i] - exact[i]).abs() < 1e-10 * exact[i]);
     }
     check_orthonormal(&basis, &lat);
+    // A cap below the count says so, on both paths.
+    for dense_threshold in [0, 10_000] {
+        let capped = ModalOptions {
+            max_modes: 20,
+            dense_threshold,
+            ..opts.clone()
+        };
+        let basis = modal_basis(lat.k.as_ref(), lat.m.as_ref(), b.as_ref(), &capped).unwrap();
+        assert_eq!(basis.n_eigenmodes, 20);
+        assert!(
+            basis
+                .warnings
+                .iter()
+                .any(|w| w.contains("capped at max_modes = 20")),
+            "{:?}",
+            basis.warnings
+        );
+    }
 }
 
 /// Static correction: with few modes and a point load, the modal+static basis reproduces the

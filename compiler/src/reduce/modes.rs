@@ -271,6 +271,19 @@ fn rigid_body_error(
     }
 }
 
+fn cap_note(limit: usize, below: usize, highest: f64) -> String {
+    let more = if below > limit {
+        format!("{below}")
+    } else {
+        "more".to_string()
+    };
+    format!(
+        "the frequency cut-off is not reached: {more} modes lie below it, capped at max_modes = {limit} \
+         (highest kept {:.4} Hz)",
+        highest.sqrt() / (2.0 * PI)
+    )
+}
+
 /// The modal basis of (K, M) with static correction for the input channels B (n×m).
 ///
 /// `stiffness` and `mass` are the n×n matrices after Dirichlet elimination with both triangles
@@ -386,6 +399,9 @@ pub fn modal_basis(
         }
         let below = lambda_cut.map_or(n, |cut| lambda_all.iter().filter(|&&l| l <= cut).count());
         let keep = limit.min(below).max(1);
+        if lambda_cut.is_some() && options.modes.is_none() && below > limit {
+            warnings.push(cap_note(limit, below, lambda_all[keep - 1]));
+        }
         let t = Instant::now();
         let llt = factor(stiffness).map_err(|e| ReduceError::Factorisation {
             what: "K",
@@ -467,6 +483,11 @@ pub fn modal_basis(
             keep = lambda.iter().filter(|&&l| l <= cut).count().max(1);
         }
         keep = keep.min(limit);
+        if let Some(cut) = lambda_cut {
+            if options.modes.is_none() && keep == limit && lambda.iter().all(|&l| l <= cut) {
+                warnings.push(cap_note(limit, limit + 1, lambda[keep - 1]));
+            }
+        }
         lambda.truncate(keep);
         let modes = Mat::from_fn(n, keep, |i, j| outcome.vectors[(i, order[j])]);
         if !complete {
