@@ -16,8 +16,8 @@
 //! against the co-rotational reference, world-frame displacements (m):
 //! - `error`: over the displayed nodes, the union of all node sets of the scene (a node in two
 //!   sets counts once);
-//! - `tip_error`: at the tip, the sensor named `tip` if the scene has one, else its first
-//!   sensor (the same point the tip of a cantilever or a probe marker would be);
+//! - `tip_error`: at the tip, the sensor named `tip` if the scene has one, else the sensor
+//!   with the largest displacement in the co-rotational reference (the point that moves most);
 //! - the linear FEM's error shows what the co-rotational correction is worth; the runtime's
 //!   error shows what reduction + warping cost.
 //!
@@ -183,7 +183,8 @@ pub struct Comparison {
     pub steps: usize,
     /// Δt, s.
     pub dt: f64,
-    /// Tip label (sensor name), if the scene has a sensor.
+    /// Tip sensor: the one named `tip`, else the one that moves most in the co-rotational
+    /// reference; `None` when the scene has no sensor.
     pub tip: Option<String>,
     /// Largest rotation in the co-rotational reference over displayed nodes, degrees.
     pub max_rotation_deg: f64,
@@ -350,15 +351,7 @@ impl Setup {
                     .into(),
             });
         }
-        let tip = ops
-            .sensors
-            .iter()
-            .position(|s| s.name == "tip")
-            .or(if ops.sensors.is_empty() {
-                None
-            } else {
-                Some(0)
-            });
+        let tip = ops.sensors.iter().position(|s| s.name == "tip");
         let fem = &full.fem;
         let mut node_elements = vec![Vec::new(); fem.positions.len()];
         for (e, el) in fem.elements.iter().enumerate() {
@@ -446,6 +439,21 @@ impl Setup {
             max = max.max(rotation_angle(&polar_rotation(&f)).to_degrees());
         }
         max
+    }
+
+    /// Without a sensor named `tip`: the sensor whose largest displacement in `corot` is the
+    /// largest (the point that moves most); kept once chosen.
+    fn choose_tip(&mut self, corot: &ReferenceRun) {
+        let ns = self.full.operators.sensors.len();
+        if self.tip.is_some() || ns == 0 {
+            return;
+        }
+        let mut peak = vec![0.0f64; ns];
+        for (i, u) in corot.sensors.chunks_exact(3).enumerate() {
+            let norm = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
+            peak[i % ns] = peak[i % ns].max(norm);
+        }
+        self.tip = (0..ns).max_by(|&a, &b| peak[a].total_cmp(&peak[b]));
     }
 
     fn reference_error(&self, source: ReferenceError) -> ComparisonError {
@@ -785,7 +793,7 @@ pub fn run(
             what: format!("orders must be ≥ 1 and not empty, got {:?}", options.orders),
         });
     }
-    let setup = Setup::new(scene, scenario)?;
+    let mut setup = Setup::new(scene, scenario)?;
     let linear = run_reference(&setup, &setup.scenario, None, "linear FEM", progress)?;
     let corot = run_reference(
         &setup,
@@ -794,6 +802,7 @@ pub fn run(
         "co-rotational FEM",
         progress,
     )?;
+    setup.choose_tip(&corot);
     let ns = 3 * setup.full.operators.sensors.len();
     let tip_error = |run: &ReferenceRun| match setup.tip {
         Some(t) => {
@@ -936,7 +945,7 @@ pub fn rotation_sweep(
             what: format!("load scale factors must be finite, got {s}"),
         });
     }
-    let setup = Setup::new(scene, scenario)?;
+    let mut setup = Setup::new(scene, scenario)?;
     let (model, _) = compile_at(&setup, order, false)?;
     let mut est = Estimator::new(&model).map_err(|source| ComparisonError::Runtime {
         path: setup.scene_path.clone(),
@@ -963,6 +972,7 @@ pub fn rotation_sweep(
             &format!("co-rotational FEM ×{scale}"),
             progress,
         )?;
+        setup.choose_tip(&corot);
         let inputs = runtime_inputs(&setup, &scenario, &model, false)?;
         let open = run_runtime(
             &setup,
@@ -1059,6 +1069,18 @@ pub fn format_seconds(s: f64) -> String {
         2
     };
     format!("{v:.digits$} {unit}")
+}
+
+/// 10^d seconds as a tick label: `1 µs`, `10 µs`, `100 µs`, `1 ms`, … (d from −9 to 2;
+/// `1e{d} s` outside).
+fn decade_seconds(d: i32) -> String {
+    let units = ["ns", "µs", "ms", "s"];
+    if !(-9..=2).contains(&d) {
+        return format!("1e{d} s");
+    }
+    let k = (d + 9) / 3;
+    let mantissa = 10i32.pow(((d + 9) % 3) as u32);
+    format!("{mantissa} {}", units[k as usize])
 }
 
 /// Degrees with one decimal, or two significant digits below 0.1°.
@@ -1381,7 +1403,7 @@ impl Comparison {
                 s,
                 r#"<text x="{x:.1}" y="{}" text-anchor="middle">{}</text>"#,
                 y_bottom + 19.0,
-                xml_escape(&format_seconds(10f64.powi(d)))
+                decade_seconds(d)
             );
         }
         for d in (y0 as i32)..=(y1 as i32) {
@@ -1438,13 +1460,14 @@ impl Comparison {
                 );
             }
         }
-        for &(x, y, r) in &open {
+        for (i, &(x, y, r)) in open.iter().enumerate() {
             Shape::Circle.draw(&mut s, x, y, OPEN, "marker");
+            // Neighbouring orders often sit close together: labels alternate in two rows.
+            let dy = if i % 2 == 0 { -9.0 } else { -21.0 };
             let _ = writeln!(
                 s,
-                r#"<text x="{:.1}" y="{:.1}" font-size="10">r={r}</text>"#,
-                x + 7.0,
-                y - 5.0
+                r#"<text x="{x:.1}" y="{:.1}" font-size="10" text-anchor="middle">r={r}</text>"#,
+                y + dy
             );
         }
         for &(x, y, _) in &filtered {

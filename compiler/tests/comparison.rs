@@ -23,8 +23,9 @@ fn case_dir(name: &str) -> PathBuf {
     dir
 }
 
-/// The beam scene with process noise `force_noise_std` (N per component) on the tip load.
-fn scene_text(force_noise_std: f64) -> String {
+/// The beam scene with process noise `force_noise_std` (N per component) on the tip load and
+/// the end sensor named `tip_name`.
+fn scene_text(force_noise_std: f64, tip_name: &str) -> String {
     format!(
         r#"
 [mesh]
@@ -57,7 +58,7 @@ components = ["x", "y", "z"]
 noise_std = 1.0e-3
 
 [[sensor]]
-name = "tip"
+name = "{tip_name}"
 position = [0.95, 0.05, 0.09]
 components = ["x", "y", "z"]
 noise_std = 1.0e-3
@@ -80,6 +81,17 @@ theta = 1.4
 /// Writes the beam scene and a scenario with a downward tip force `force` (N) ramped in over
 /// 0.05 s, `steps` steps of 5 ms; returns (scene, scenario).
 fn beam_case(name: &str, force: f64, steps: usize, force_noise_std: f64) -> (PathBuf, PathBuf) {
+    beam_case_with(name, force, steps, force_noise_std, "tip")
+}
+
+/// [`beam_case`] with the end sensor named `tip_name`.
+fn beam_case_with(
+    name: &str,
+    force: f64,
+    steps: usize,
+    force_noise_std: f64,
+    tip_name: &str,
+) -> (PathBuf, PathBuf) {
     let dir = case_dir(name);
     write_msh22(
         &box_mesh([12, 2, 2], [1.0, 0.1, 0.1]),
@@ -87,7 +99,7 @@ fn beam_case(name: &str, force: f64, steps: usize, force_noise_std: f64) -> (Pat
     )
     .expect("mesh");
     let scene = dir.join("scene.toml");
-    std::fs::write(&scene, scene_text(force_noise_std)).expect("scene");
+    std::fs::write(&scene, scene_text(force_noise_std, tip_name)).expect("scene");
     let scenario = dir.join("scenario.toml");
     std::fs::write(
         &scenario,
@@ -265,13 +277,15 @@ fn filter_tracks_a_withheld_load_from_the_measurements() {
     // The runtime gets no load input; the 1 N tip force is process noise of 1 N per component
     // to the filter. Open loop stays at rest (error exactly 1); the filter follows the
     // co-rotational reference through the noisy sensors.
-    let (scene, scenario) = beam_case("withheld", 1.0, 60, 1.0);
+    // The end sensor is not called `tip`: the report picks the sensor that moves most.
+    let (scene, scenario) = beam_case_with("withheld", 1.0, 60, 1.0, "end_marker");
     let options = ComparisonOptions {
         orders: vec![8],
         withhold_loads: true,
         ..ComparisonOptions::default()
     };
     let c = run(&scene, &scenario, &options);
+    assert_eq!(c.tip.as_deref(), Some("end_marker"));
     let row = &c.reduced[0];
     assert!((row.error - 1.0).abs() < 1e-12, "{}", row.error);
     assert!((row.tip_error - 1.0).abs() < 1e-12, "{}", row.tip_error);
@@ -409,7 +423,8 @@ fn a_steady_scenario_and_bad_orders_are_refused() {
 // Release-build reports of the committed scenarios (slow: run with --release --ignored).
 
 fn models() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../models")
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models");
+    dir.canonicalize().unwrap_or(dir)
 }
 
 /// Runs the report, writes `target/tmp/report_<name>.{md,csv,svg}` and prints the markdown.
@@ -455,4 +470,40 @@ fn report_meniscus() {
         &dir.join("scene.toml"),
         &dir.join("scenario_report.toml"),
     );
+}
+
+#[test]
+#[ignore = "release-build sweep: cargo test --release -p crokf-compile --test comparison -- --ignored --nocapture"]
+fn sweep_cantilever() {
+    // The report scenario (20 N tip force ramped over 0.5 s, 1.5 s) scaled from 1 N to 20 N.
+    let dir = models().join("cantilever");
+    let scales = [0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0];
+    let order = 16;
+    let mut last = String::new();
+    let points = rotation_sweep(
+        &dir.join("scene.toml"),
+        &dir.join("scenario_report.toml"),
+        order,
+        &scales,
+        &ComparisonOptions::default(),
+        &mut |p| {
+            if p.phase != last {
+                eprintln!("  {} …", p.phase);
+                last = p.phase.to_owned();
+            }
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let md = comparison::sweep_markdown(&points, order);
+    println!("{md}");
+    std::fs::write(
+        PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("sweep_cantilever.md"),
+        &md,
+    )
+    .expect("write sweep");
+    // The rotation grows with the load, and the warped runtime beats the linear FEM.
+    for w in points.windows(2) {
+        assert!(w[1].max_rotation_deg > w[0].max_rotation_deg);
+    }
+    assert!(points.iter().all(|p| p.open_loop_error < p.linear_error));
 }
