@@ -614,8 +614,14 @@ pub fn compile(scene_path: &Path, options: &CompileOptions) -> Result<Compiled, 
         hankel_singular_values: reduced.hankel_singular_values.clone(),
         error_bound: reduced.error_bound,
         order: r as u32,
-        modes: basis.frequencies_hz.len() as u32,
-        highest_kept_frequency_hz: basis.frequencies_hz.iter().copied().fold(0.0, f64::max),
+        modes: basis.n_eigenmodes as u32,
+        highest_kept_frequency_hz: basis
+            .frequencies_hz
+            .iter()
+            .zip(&basis.static_correction)
+            .filter(|(_, &is_static)| !is_static)
+            .map(|(&f, _)| f)
+            .fold(0.0, f64::max),
         nyquist_hz: 0.5 / wilson.dt,
         spectral_radius: reduced.spectral_radius,
         riccati_residual: schedule.worst_relative_residual,
@@ -714,7 +720,7 @@ impl Compiled {
         );
         let _ = writeln!(
             out,
-            "modes: {} kept, highest {:.3} Hz (Nyquist {:.3} Hz)",
+            "modes: {} vibration modes kept (+ static correction), highest {:.3} Hz (Nyquist {:.3} Hz)",
             r.modes, r.highest_kept_frequency_hz, r.nyquist_hz
         );
         let hsv: Vec<String> = r
