@@ -1460,18 +1460,24 @@ impl Comparison {
                 );
             }
         }
-        for (i, &(x, y, r)) in open.iter().enumerate() {
+        for &(x, y, _) in &open {
             Shape::Circle.draw(&mut s, x, y, OPEN, "marker");
-            // Neighbouring orders often sit close together: labels alternate in two rows.
-            let dy = if i % 2 == 0 { -9.0 } else { -21.0 };
-            let _ = writeln!(
-                s,
-                r#"<text x="{x:.1}" y="{:.1}" font-size="10" text-anchor="middle">r={r}</text>"#,
-                y + dy
-            );
         }
         for &(x, y, _) in &filtered {
             Shape::Square.draw(&mut s, x, y, FILTERED, "marker");
+        }
+        // Order labels above the upper marker of each order, on top of the markers (white
+        // halo); neighbouring orders often sit close together, so the labels take three rows.
+        for (i, &(x, y, r)) in open.iter().enumerate() {
+            let top = filtered
+                .iter()
+                .find(|p| p.2 == r && (p.0 - x).abs() < 0.5)
+                .map_or(y, |p| p.1.min(y));
+            let _ = writeln!(
+                s,
+                r#"<text x="{x:.1}" y="{:.1}" font-size="10" text-anchor="middle" stroke="white" stroke-width="3" paint-order="stroke">r={r}</text>"#,
+                top - 9.0 - 12.0 * (i % 3) as f64
+            );
         }
         if finite_pos(self.linear.step_s) && finite_pos(self.linear.error) {
             let (x, y) = (sx(self.linear.step_s), sy(self.linear.error));
