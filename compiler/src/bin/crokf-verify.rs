@@ -2,6 +2,7 @@
 //!
 //! ```text
 //! crokf-verify simulate SCENE SCENARIO --model linear|corotational --out DIR [--vtu] [--every k]
+//! crokf-verify report SCENE SCENARIO [--orders 4,8,16,32,64] --out DIR [--sweep 0.1,0.5,1]
 //! crokf-verify beam --tetrahedra N --out DIR      # a structured beam mesh + scene (benchmarks)
 //! crokf-verify bench [--assembly 10000,50000,200000] [--steps 2000,20000,50000] [--orders 10,20,40,80]
 //! ```
@@ -13,7 +14,7 @@ use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use crokf_compile::reference::{self, Model, NewtonOptions, SimulationOptions};
-use crokf_compile::{bench, generate};
+use crokf_compile::{bench, comparison, generate};
 
 #[derive(Parser)]
 #[command(
@@ -30,10 +31,128 @@ struct Cli {
 enum Command {
     /// Run a full-order reference simulation of a scene through a scenario.
     Simulate(SimulateArgs),
+    /// Speed against error: full-order linear and co-rotational FEM vs the reduced runtime at
+    /// several orders (open loop and filtered); Markdown, CSV and SVG.
+    Report(ReportArgs),
     /// Write a structured beam mesh (MSH 2.2) of about N tetrahedra and a scene, for benchmarks.
     Beam(BeamArgs),
     /// Benchmarks: assembly, full-order step and runtime step times, medians, ratios in one run.
     Bench(BenchArgs),
+}
+
+#[derive(Args)]
+struct ReportArgs {
+    /// Scene file (TOML).
+    scene: PathBuf,
+    /// Scenario file (TOML) with a fixed horizon.
+    scenario: PathBuf,
+    /// Reduced orders r.
+    #[arg(long, value_delimiter = ',', default_value = "4,8,16,32,64")]
+    orders: Vec<usize>,
+    /// Output directory: report.md, report.csv, report.svg (and sweep.md).
+    #[arg(long)]
+    out: PathBuf,
+    /// Seed of the synthetic measurement noise.
+    #[arg(long, default_value_t = 0x5eed_c0ff_ee00_0001)]
+    seed: u64,
+    /// Co-rotational reference: most Newton solves per step.
+    #[arg(long, default_value_t = 10)]
+    max_newton: usize,
+    /// Co-rotational reference: Newton tolerance on ‖δ‖/‖Û‖.
+    #[arg(long, default_value_t = 1e-8)]
+    tolerance: f64,
+    /// Give the runtime no load inputs: only the measurements carry the force.
+    #[arg(long)]
+    withhold_loads: bool,
+    /// Also sweep the load scale (e.g. 0.05,0.1,0.25,0.5,1) to find where warping breaks down.
+    #[arg(long, value_delimiter = ',')]
+    sweep: Vec<f64>,
+    /// Order of the sweep's reduced model.
+    #[arg(long, default_value_t = 16)]
+    sweep_order: usize,
+}
+
+/// Draws a one-line progress bar on stderr.
+fn progress_bar() -> impl FnMut(comparison::Progress) {
+    let mut last = (String::new(), usize::MAX);
+    move |p: comparison::Progress| {
+        let percent = if p.total == 0 {
+            100
+        } else {
+            100 * p.done / p.total
+        };
+        if last.0 == p.phase && last.1 == percent {
+            return;
+        }
+        last = (p.phase.to_owned(), percent);
+        let filled = percent / 5;
+        eprint!(
+            "\r{:<26} [{}{}] {:>3}%",
+            p.phase,
+            "#".repeat(filled),
+            " ".repeat(20 - filled),
+            percent
+        );
+        if p.done >= p.total {
+            eprintln!();
+        }
+    }
+}
+
+fn report(args: &ReportArgs) -> Result<(), String> {
+    let options = comparison::ComparisonOptions {
+        orders: args.orders.clone(),
+        newton: NewtonOptions {
+            max_newton: args.max_newton,
+            tolerance: args.tolerance,
+            consistent: true,
+        },
+        seed: args.seed,
+        withhold_loads: args.withhold_loads,
+        ..comparison::ComparisonOptions::default()
+    };
+    let mut bar = progress_bar();
+    let result = comparison::run(&args.scene, &args.scenario, &options, &mut bar)
+        .map_err(|e| e.to_string())?;
+    std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    let write = |name: &str, text: &str| {
+        let path = args.out.join(name);
+        std::fs::write(&path, text).map_err(|e| format!("{}: {e}", path.display()))
+    };
+    let markdown = result.markdown();
+    write("report.md", &markdown)?;
+    write("report.csv", &result.csv())?;
+    write("report.svg", &result.svg())?;
+    println!("{markdown}");
+    if !args.sweep.is_empty() {
+        let points = comparison::rotation_sweep(
+            &args.scene,
+            &args.scenario,
+            args.sweep_order,
+            &args.sweep,
+            &options,
+            &mut bar,
+        )
+        .map_err(|e| e.to_string())?;
+        let mut text = comparison::sweep_markdown(&points, args.sweep_order);
+        for threshold in [0.05, 0.10] {
+            let limit = comparison::breakdown_rotation(&points, threshold)
+                .map_or("none of the measured points".to_owned(), |deg| {
+                    format!("{deg:.1}°")
+                });
+            text.push_str(&format!(
+                "\nLargest measured rotation with open-loop error < {:.0} %: {limit}\n",
+                100.0 * threshold
+            ));
+        }
+        write("sweep.md", &text)?;
+        println!("{text}");
+    }
+    println!(
+        "wrote report.md, report.csv, report.svg in {}",
+        args.out.display()
+    );
+    Ok(())
 }
 
 #[derive(Args)]
@@ -227,6 +346,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Simulate(args) => simulate(args).map_err(|e| e.to_string()),
+        Command::Report(args) => report(args),
         Command::Beam(args) => beam(args),
         Command::Bench(args) => bench_cmd(args),
     };
