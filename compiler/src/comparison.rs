@@ -744,9 +744,10 @@ fn synthetic_measurements(
             let phase = &model.kalman.phases[(k + 1) % period];
             let mut y = vec![None; model.measurements.len()];
             let noise: Vec<f64> = model
-                .measurements
+                .kalman
+                .measurement_variance
                 .iter()
-                .map(|ch| model.sensors[ch.sensor as usize].noise_std * rng.normal())
+                .map(|variance| variance.sqrt() * rng.normal())
                 .collect();
             for &j in &phase.measured {
                 let ch = model.measurements[j as usize];

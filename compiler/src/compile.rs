@@ -336,7 +336,13 @@ pub fn assemble_model(
             displacement_rows,
             rotation_rows,
             components: s.components.iter().map(|c| c.index() as u8).collect(),
-            noise_std: s.noise_std,
+            // The largest σ of the measured components; per-channel values are in
+            // `kalman.measurement_variance`.
+            noise_std: s
+                .components
+                .iter()
+                .map(|c| s.noise_std[c.index()])
+                .fold(0.0, f64::max),
             every: s.every,
         });
     }
@@ -437,7 +443,7 @@ pub fn measurement_channels(ops: &Operators) -> (Vec<fmt::MeasurementChannel>, V
                 sensor: si as u32,
                 component: c as u8,
             });
-            variance.push(s.noise_std * s.noise_std);
+            variance.push(s.noise_std[c] * s.noise_std[c]);
             every.push(s.every);
         }
     }

@@ -32,7 +32,7 @@
 //! name = "marker_1"
 //! position = [1.0, 0.05, 0.05]  # mesh units, interpolated in the containing tetrahedron
 //! components = ["x", "y", "z"]
-//! noise_std = 1.0e-4            # m
+//! noise_std = 1.0e-4            # m, or per component: [1.0e-4, 1.0e-4, 3.0e-4]
 //! every = 1                     # a measurement every k steps
 //!
 //! [[display]]
@@ -247,11 +247,32 @@ pub struct Sensor {
     /// Measured world displacement components (default all three).
     #[serde(default = "all_components")]
     pub components: Vec<Component>,
-    /// Measurement noise standard deviation, m (> 0).
-    pub noise_std: f64,
+    /// Measurement noise standard deviation, m (> 0): one value for all components, or one per
+    /// world component `[σx, σy, σz]`.
+    pub noise_std: SensorNoise,
     /// A measurement arrives every `every` steps (1: each step).
     #[serde(default = "one")]
     pub every: u32,
+}
+
+/// Measurement noise of a sensor: one standard deviation, or one per world component (m).
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(untagged)]
+pub enum SensorNoise {
+    /// The same σ for x, y and z.
+    Uniform(f64),
+    /// σx, σy, σz.
+    PerComponent([f64; 3]),
+}
+
+impl SensorNoise {
+    /// σ of component `c`, m.
+    pub fn of(self, c: Component) -> f64 {
+        match self {
+            SensorNoise::Uniform(s) => s,
+            SensorNoise::PerComponent(s) => s[c.index()],
+        }
+    }
 }
 
 fn one() -> u32 {
@@ -467,11 +488,16 @@ impl Scene {
             if s.components.is_empty() {
                 return Err(format!("sensor '{}': no measured components", s.name));
             }
-            if !(s.noise_std.is_finite() && s.noise_std > 0.0) {
-                return Err(format!(
-                    "sensor '{}': noise_std must be > 0 m (R must be positive definite), got {}",
-                    s.name, s.noise_std
-                ));
+            for &c in &s.components {
+                let sigma = s.noise_std.of(c);
+                if !(sigma.is_finite() && sigma > 0.0) {
+                    return Err(format!(
+                        "sensor '{}': noise_std of component {} must be > 0 m (R must be positive \
+                         definite), got {sigma}",
+                        s.name,
+                        c.label()
+                    ));
+                }
             }
             if s.every == 0 {
                 return Err(format!("sensor '{}': every must be ≥ 1", s.name));
@@ -545,6 +571,28 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("young_modulus"), "{e}");
+    }
+
+    #[test]
+    fn sensor_noise_per_component() {
+        let sensor = |noise: &str| {
+            format!(
+                "{MINIMAL}\n[[sensor]]\nname = \"m\"\nposition = [0.0, 0.0, 0.0]\n\
+                 components = [\"x\", \"z\"]\nnoise_std = {noise}\n"
+            )
+        };
+        let s = parse(&sensor("[1e-3, 0.0, 3e-3]")).unwrap();
+        assert_eq!(s.sensors[0].noise_std.of(Component::Z), 3e-3);
+        assert_eq!(s.sensors[0].noise_std.of(Component::X), 1e-3);
+        // σ = 0 on a measured component is refused, on an unmeasured one it is not used.
+        let e = parse(&sensor("[0.0, 1e-3, 1e-3]")).unwrap_err().to_string();
+        assert!(e.contains("sensor 'm'") && e.contains("component x"), "{e}");
+        assert_eq!(
+            parse(&sensor("2e-4")).unwrap().sensors[0]
+                .noise_std
+                .of(Component::Y),
+            2e-4
+        );
     }
 
     #[test]

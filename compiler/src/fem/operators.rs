@@ -57,8 +57,8 @@ pub struct PointSensor {
     pub weights: [(usize, f64); 4],
     /// Measured components.
     pub components: Vec<Component>,
-    /// Noise standard deviation, m.
-    pub noise_std: f64,
+    /// Noise standard deviation per world component, m.
+    pub noise_std: [f64; 3],
     /// A measurement every k steps.
     pub every: u32,
 }
@@ -176,7 +176,8 @@ impl Operators {
                     element,
                     weights: std::array::from_fn(|a| (nodes[a], bary[a])),
                     components: s.components.clone(),
-                    noise_std: s.noise_std,
+                    noise_std: [Component::X, Component::Y, Component::Z]
+                        .map(|c| s.noise_std.of(c)),
                     every: s.every,
                 })
             })
