@@ -134,17 +134,7 @@ fn report(args: &ReportArgs) -> Result<(), String> {
             &mut bar,
         )
         .map_err(|e| e.to_string())?;
-        let mut text = comparison::sweep_markdown(&points, args.sweep_order);
-        for threshold in [0.05, 0.10] {
-            let limit = comparison::breakdown_rotation(&points, threshold)
-                .map_or("none of the measured points".to_owned(), |deg| {
-                    format!("{deg:.1}°")
-                });
-            text.push_str(&format!(
-                "\nLargest measured rotation with open-loop error < {:.0} %: {limit}\n",
-                100.0 * threshold
-            ));
-        }
+        let text = comparison::sweep_markdown(&points, args.sweep_order);
         write("sweep.md", &text)?;
         println!("{text}");
     }
