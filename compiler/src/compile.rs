@@ -18,7 +18,7 @@ use crate::mesh::{read_mesh, Mesh, MeshError};
 use crate::reduce::{self, ReduceError};
 use crate::reference::ReferenceError;
 use crate::report::StageTimer;
-use crate::scene::{SceneError, SceneFile};
+use crate::scene::{ForceModel, SceneError, SceneFile};
 
 /// The compiler's version string, part of every model's input digest.
 pub const COMPILER_VERSION: &str = concat!("crokf-compile ", env!("CARGO_PKG_VERSION"));
@@ -283,6 +283,71 @@ pub struct ReducedParts {
 }
 
 impl ReducedParts {
+    /// Augments the state with the (local-frame) force of each random-walk load group
+    /// (3 states each): x_aug = [x; f], F_aug = [[F, G_g], [0, I]], G_aug = [G; 0], the group's
+    /// white-noise channels replaced by N(0, σ²I) increments of f, outputs padded with zeros.
+    /// `loads` lists (load group index, σ in N per step).
+    pub fn with_force_states(self, ops: &Operators, loads: &[(usize, f64)]) -> Self {
+        let r = self.transition.nrows();
+        let extra = 3 * loads.len();
+        let r2 = r + extra;
+        let mut transition = Mat::<f64>::zeros(r2, r2);
+        transition
+            .submatrix_mut(0, 0, r, r)
+            .copy_from(&self.transition);
+        let mut input = Mat::<f64>::zeros(r2, self.input.ncols());
+        input
+            .submatrix_mut(0, 0, r, self.input.ncols())
+            .copy_from(&self.input);
+        for (k, &(load, _)) in loads.iter().enumerate() {
+            for c in 0..3 {
+                let channel = ops
+                    .inputs
+                    .iter()
+                    .position(|ch| ch.kind == InputKind::Load { load, component: c })
+                    .expect("every load group has three input channels");
+                let state = r + 3 * k + c;
+                for i in 0..r {
+                    transition[(i, state)] = self.input[(i, channel)];
+                }
+                transition[(state, state)] = 1.0;
+            }
+        }
+        // White-noise channels of random-walk loads are replaced by the force increments.
+        let replaced: Vec<String> = loads
+            .iter()
+            .map(|&(load, _)| format!("noise:{}.", ops.loads[load].name))
+            .collect();
+        let kept: Vec<usize> = (0..ops.noise.len())
+            .filter(|&j| {
+                !replaced
+                    .iter()
+                    .any(|p| ops.noise[j].label.starts_with(p.as_str()))
+            })
+            .collect();
+        let mut noise_input = Mat::<f64>::zeros(r2, kept.len() + extra);
+        for (col, &j) in kept.iter().enumerate() {
+            for i in 0..r {
+                noise_input[(i, col)] = self.noise_input[(i, j)];
+            }
+        }
+        for (k, &(_, sigma)) in loads.iter().enumerate() {
+            for c in 0..3 {
+                noise_input[(r + 3 * k + c, kept.len() + 3 * k + c)] = sigma;
+            }
+        }
+        let mut outputs = Mat::<f64>::zeros(self.outputs.nrows(), r2);
+        outputs
+            .submatrix_mut(0, 0, self.outputs.nrows(), r)
+            .copy_from(&self.outputs);
+        ReducedParts {
+            transition,
+            input,
+            noise_input,
+            outputs,
+        }
+    }
+
     /// Fixes the sign of each balanced state (a similarity x ↦ S x, S = diag(±1)) so that the
     /// largest-magnitude entry of each output column is positive. Singular vectors are defined
     /// up to sign only, and a rounding difference between machines must not flip the model file.
@@ -570,6 +635,19 @@ pub fn compile(scene_path: &Path, options: &CompileOptions) -> Result<Compiled, 
         outputs: out,
     };
     parts.normalise_signs();
+    let random_walk = full
+        .scene
+        .scene
+        .loads
+        .iter()
+        .enumerate()
+        .filter(|(_, l)| l.force_model == ForceModel::RandomWalk && l.force_noise_std > 0.0)
+        .map(|(i, l)| (i, l.force_noise_std))
+        .collect::<Vec<_>>();
+    if !random_walk.is_empty() {
+        parts = parts.with_force_states(ops, &random_walk);
+    }
+    let r = parts.transition.nrows();
 
     let (measurements, variance, every) = measurement_channels(ops);
     let schedule = timer
@@ -619,7 +697,7 @@ pub fn compile(scene_path: &Path, options: &CompileOptions) -> Result<Compiled, 
     let report = fmt::CompileReport {
         hankel_singular_values: reduced.hankel_singular_values.clone(),
         error_bound: reduced.error_bound,
-        order: r as u32,
+        order: reduced.order as u32,
         modes: basis.n_eigenmodes as u32,
         highest_kept_frequency_hz: basis
             .frequencies_hz

@@ -27,6 +27,7 @@
 //! group = "tip"                 # nodes receiving the force
 //! distribution = "area"         # "area" (by surface triangle area) or "uniform" (equal shares)
 //! force_noise_std = 0.01        # N per world component, process noise
+//! force_model = "white"         # or "random_walk": the filter estimates a persistent force
 //!
 //! [[sensor]]
 //! name = "marker_1"
@@ -215,9 +216,25 @@ pub struct Load {
     /// Distribution of the total force.
     #[serde(default)]
     pub distribution: LoadDistribution,
-    /// Standard deviation of the force process noise per world component, N (0: none).
+    /// Standard deviation of the force process noise per world component, N (0: none): of the
+    /// force itself (`force_model = "white"`) or of its change per step (`"random_walk"`).
     #[serde(default)]
     pub force_noise_std: f64,
+    /// How the Kalman filter models the unknown part of this load.
+    #[serde(default)]
+    pub force_model: ForceModel,
+}
+
+/// Process-noise model of a load group's unknown force.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum ForceModel {
+    /// White noise: an independent force each step (no memory).
+    #[default]
+    White,
+    /// Random walk: the filter carries the force as 3 extra states, f⁺ = f + w; a persistent
+    /// unknown force (or a persistent model error at the load) is then estimated, not lagged.
+    RandomWalk,
 }
 
 /// A distributed force-noise density over a physical group (process noise only).

@@ -1,0 +1,121 @@
+//! `force_model = "random_walk"`: the filter carries a load group's force as states, so a
+//! persistent force the runtime is not told about is estimated without the lag (bias) of the
+//! white-noise model.
+
+use crokf_compile::compile::{compile, CompileOptions, FullOrder};
+use crokf_compile::generate::{box_mesh, write_msh22};
+use crokf_compile::reference::{LinearSimulator, Simulator};
+use crokf_compile::report::StageTimer;
+use crokf_runtime::Estimator;
+
+fn scene(force_model: &str) -> String {
+    format!(
+        r#"
+        [mesh]
+        file = "beam.msh"
+        [[material]]
+        group = "body"
+        young_modulus = 1.0e6
+        poisson_ratio = 0.3
+        density = 1000.0
+        [damping]
+        alpha = 2.0
+        beta = 1.0e-3
+        [[fixed]]
+        group = "xmin"
+        [[load]]
+        name = "tip"
+        group = "xmax"
+        force_noise_std = 0.01
+        force_model = "{force_model}"
+        [[sensor]]
+        name = "tip"
+        position = [0.99, 0.05, 0.05]
+        noise_std = 1.0e-5
+        [[display]]
+        name = "end"
+        group = "xmax"
+        [time]
+        dt = 0.005
+        "#
+    )
+}
+
+/// Final relative tip error of the filter, and the model's state dimension, when the runtime is
+/// not told about a constant 0.01 N tip force (exact measurements of a full-order linear run).
+fn tip_errors(force_model: &str) -> (f64, usize) {
+    let dir =
+        std::env::temp_dir().join(format!("crokf-force-{force_model}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    write_msh22(
+        &box_mesh([12, 2, 2], [1.0, 0.1, 0.1]),
+        &dir.join("beam.msh"),
+    )
+    .unwrap();
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, scene(force_model)).unwrap();
+    let full = FullOrder::build(&path, &mut StageTimer::default()).unwrap();
+    let compiled = compile(
+        &path,
+        &CompileOptions {
+            order: Some(12),
+            skip_measured_error: true,
+            ..CompileOptions::default()
+        },
+    )
+    .unwrap();
+    let model = compiled.model;
+    // Full-order linear truth under a constant 0.01 N downward tip force (tiny: no warping).
+    let z = full
+        .operators
+        .inputs
+        .iter()
+        .position(|c| c.label == "tip.z")
+        .unwrap();
+    let f: Vec<f64> = full.operators.inputs[z]
+        .column
+        .iter()
+        .map(|b| -0.01 * b)
+        .collect();
+    let mut truth = LinearSimulator::new(&full.fem, full.wilson()).unwrap();
+    let sensor = &full.operators.sensors[0];
+    let mut est = Estimator::new(&model).unwrap();
+    let zero = vec![0.0; model.inputs.len()];
+    let mut estimate = vec![0.0; 3];
+    let mut exact = [0.0; 3];
+    for _ in 0..4000 {
+        truth.step(&f).unwrap();
+        exact = [0.0; 3];
+        for &(node, w) in &sensor.weights {
+            for (c, e) in exact.iter_mut().enumerate() {
+                if let Some(d) = full.fem.dofs.index[node][c] {
+                    *e += w * truth.displacement()[d];
+                }
+            }
+        }
+        let y: Vec<Option<f64>> = model
+            .measurements
+            .iter()
+            .map(|m| Some(exact[m.component as usize]))
+            .collect();
+        est.step(&zero, &y).unwrap();
+        est.sensor_displacements(&mut estimate).unwrap();
+    }
+    let error = ((0..3)
+        .map(|c| (estimate[c] - exact[c]).powi(2))
+        .sum::<f64>()
+        / exact.iter().map(|v| v * v).sum::<f64>())
+    .sqrt();
+    std::fs::remove_dir_all(&dir).ok();
+    (error, model.r())
+}
+
+#[test]
+fn random_walk_force_removes_the_white_noise_bias() {
+    let (white, r_white) = tip_errors("white");
+    let (walk, r_walk) = tip_errors("random_walk");
+    eprintln!("tip error with the force withheld: white {white:.3e} (r = {r_white}), random walk {walk:.3e} (r = {r_walk})");
+    assert_eq!(r_walk, r_white + 3);
+    assert!(walk < 1e-3, "random walk: {walk}");
+    assert!(white > 10.0 * walk, "white {white} vs random walk {walk}");
+}
