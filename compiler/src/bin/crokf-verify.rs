@@ -76,11 +76,7 @@ struct ReportArgs {
 fn progress_bar() -> impl FnMut(comparison::Progress) {
     let mut last = (String::new(), usize::MAX);
     move |p: comparison::Progress| {
-        let percent = if p.total == 0 {
-            100
-        } else {
-            100 * p.done / p.total
-        };
+        let percent = (100 * p.done).checked_div(p.total).unwrap_or(100).min(100);
         if last.0 == p.phase && last.1 == percent {
             return;
         }
