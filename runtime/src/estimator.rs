@@ -3,7 +3,7 @@
 //! [`Estimator::new`]; `predict`, `update`, `step` and the read-outs never allocate (except to
 //! build an error value).
 
-use crate::warp::{self, Vec3};
+use crate::warp::{Vec3, Warp};
 use crate::RuntimeError;
 use crokf_formats::{InputKind, Matrix, Model};
 
@@ -293,7 +293,7 @@ impl Estimator {
             }
             let f_world: Vec3 = [0, 1, 2].map(|c| chans[c].map_or(0.0, |j| inputs[j]));
             let omega = rows3(&self.model.loads[g].rotation_rows, 0, &self.x);
-            let f_lin = warp::rotate_transpose(&omega, &f_world);
+            let f_lin = Warp::new(&omega).rotate_transpose(&f_world);
             for c in 0..3 {
                 if let Some(j) = chans[c] {
                     self.u_lin[j] = f_lin[c];
@@ -375,8 +375,8 @@ impl Estimator {
             }
         }
         for &s in &self.phase_sensors[self.phase] {
-            let omega = rows3(&self.model.sensors[s].rotation_rows, 0, &self.x);
-            let pred_world = warp::warp(&omega, &self.u_pred[s]);
+            let maps = Warp::new(&rows3(&self.model.sensors[s].rotation_rows, 0, &self.x));
+            let pred_world = maps.warp(&self.u_pred[s]);
             let y_world: Vec3 = [0, 1, 2].map(|c| {
                 if self.filled[s][c] {
                     self.y_lin[s][c]
@@ -384,13 +384,12 @@ impl Estimator {
                     pred_world[c]
                 }
             });
-            match warp::unwarp(&omega, &y_world) {
+            match maps.unwarp(&y_world) {
                 Some(y) => self.y_lin[s] = y,
                 None => {
                     return Err(RuntimeError::SingularWarp {
                         sensor: self.model.sensors[s].name.clone(),
-                        angle: (omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2])
-                            .sqrt(),
+                        angle: maps.angle(),
                     })
                 }
             }
@@ -458,12 +457,17 @@ impl Estimator {
             3 * self.model.sensors.len(),
             out.len(),
         )?;
-        for (s, o) in self.model.sensors.iter().zip(out.chunks_exact_mut(3)) {
-            let u = rows3(&s.displacement_rows, 0, &self.x);
-            let omega = rows3(&s.rotation_rows, 0, &self.x);
-            o.copy_from_slice(&warp::warp(&omega, &u));
+        for (s, o) in out.chunks_exact_mut(3).enumerate() {
+            o.copy_from_slice(&self.sensor_world(s));
         }
         Ok(())
+    }
+
+    /// World-frame displacement of sensor `s`, R̃(W_s x) C_s x (m).
+    fn sensor_world(&self, s: usize) -> Vec3 {
+        let sensor = &self.model.sensors[s];
+        let u = rows3(&sensor.displacement_rows, 0, &self.x);
+        Warp::new(&rows3(&sensor.rotation_rows, 0, &self.x)).warp(&u)
     }
 
     /// Standard deviation of every sensor's displacement, sqrt(diag(C_s P C_sᵀ)), 3 per sensor
@@ -479,11 +483,18 @@ impl Estimator {
     /// Estimated world value of every measurement channel (length q, m).
     pub fn measurement_estimates(&self, out: &mut [f64]) -> Result<(), RuntimeError> {
         check_len("measurement read-out buffer", self.channel.len(), out.len())?;
+        // Channels of one sensor are adjacent: evaluate each sensor once.
+        let mut current: Option<(usize, Vec3)> = None;
         for (o, &(s, c)) in out.iter_mut().zip(&self.channel) {
-            let sensor = &self.model.sensors[s];
-            let u = rows3(&sensor.displacement_rows, 0, &self.x);
-            let omega = rows3(&sensor.rotation_rows, 0, &self.x);
-            *o = warp::warp(&omega, &u)[c];
+            let world = match current {
+                Some((cs, w)) if cs == s => w,
+                _ => {
+                    let w = self.sensor_world(s);
+                    current = Some((s, w));
+                    w
+                }
+            };
+            *o = world[c];
         }
         Ok(())
     }
@@ -506,7 +517,7 @@ impl Estimator {
         for (i, o) in out.chunks_exact_mut(3).enumerate() {
             let u = rows3(&ns.displacement_rows, i, &self.x);
             let omega = rows3(&ns.rotation_rows, i, &self.x);
-            o.copy_from_slice(&warp::warp(&omega, &u));
+            o.copy_from_slice(&Warp::new(&omega).warp(&u));
         }
         Ok(())
     }

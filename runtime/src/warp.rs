@@ -97,44 +97,104 @@ fn poly(omega: &Vec3, a: f64, b: f64, v: &Vec3) -> Vec3 {
     ]
 }
 
+/// The maps of one rotation vector ω, with the coefficients (A₀, A₁, B₁) computed once.
+#[derive(Clone, Copy, Debug)]
+pub struct Warp {
+    omega: Vec3,
+    /// θ² = |ω|².
+    t: f64,
+    a0: f64,
+    a1: f64,
+    b1: f64,
+}
+
+impl Warp {
+    /// The maps of ω (rad).
+    #[inline]
+    pub fn new(omega: &Vec3) -> Self {
+        let (a0, a1, b1) = coefficients(omega);
+        let t = omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2];
+        Warp {
+            omega: *omega,
+            t,
+            a0,
+            a1,
+            b1,
+        }
+    }
+
+    /// |ω|, rad.
+    pub fn angle(&self) -> f64 {
+        self.t.sqrt()
+    }
+
+    /// R(ω) v.
+    #[inline]
+    pub fn rotate(&self, v: &Vec3) -> Vec3 {
+        poly(&self.omega, self.a0, self.a1, v)
+    }
+
+    /// R(ω)ᵀ v.
+    #[inline]
+    pub fn rotate_transpose(&self, v: &Vec3) -> Vec3 {
+        poly(&self.omega, -self.a0, self.a1, v)
+    }
+
+    /// R̃(ω) v.
+    #[inline]
+    pub fn warp(&self, v: &Vec3) -> Vec3 {
+        poly(&self.omega, self.a1, self.b1, v)
+    }
+
+    /// det R̃(ω) = A₀² + θ²A₁² = (sin(θ/2)/(θ/2))².
+    #[inline]
+    pub fn determinant(&self) -> f64 {
+        self.a0 * self.a0 + self.t * self.a1 * self.a1
+    }
+
+    /// R̃(ω)⁻¹ v, or `None` when det R̃ < 1e-10 (θ near 2π: not invertible).
+    #[inline]
+    pub fn unwarp(&self, v: &Vec3) -> Option<Vec3> {
+        let d = self.determinant();
+        if d < 1e-10 || !d.is_finite() {
+            return None;
+        }
+        Some(poly(
+            &self.omega,
+            -self.a1 / d,
+            (self.a1 * self.a1 - self.a0 * self.b1) / d,
+            v,
+        ))
+    }
+}
+
 /// R(ω) v: rotation by the angle |ω| about ω/|ω|.
 #[inline]
 pub fn rotate(omega: &Vec3, v: &Vec3) -> Vec3 {
-    let (a0, a1, _) = coefficients(omega);
-    poly(omega, a0, a1, v)
+    Warp::new(omega).rotate(v)
 }
 
 /// R(ω)ᵀ v = R(−ω) v: world-frame vector into the local (co-rotated) frame.
 #[inline]
 pub fn rotate_transpose(omega: &Vec3, v: &Vec3) -> Vec3 {
-    let (a0, a1, _) = coefficients(omega);
-    poly(omega, -a0, a1, v)
+    Warp::new(omega).rotate_transpose(v)
 }
 
 /// R̃(ω) v: local-frame displacement to world-frame displacement (modal warping).
 #[inline]
 pub fn warp(omega: &Vec3, v: &Vec3) -> Vec3 {
-    let (_, a1, b1) = coefficients(omega);
-    poly(omega, a1, b1, v)
+    Warp::new(omega).warp(v)
 }
 
 /// R̃(ω)⁻¹ v, or `None` when det R̃ = (sin(θ/2)/(θ/2))² < 1e-10 (θ near 2π: not invertible).
 #[inline]
 pub fn unwarp(omega: &Vec3, v: &Vec3) -> Option<Vec3> {
-    let (a0, a1, b1) = coefficients(omega);
-    let t = omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2];
-    let d = a0 * a0 + t * a1 * a1;
-    if d < 1e-10 || !d.is_finite() {
-        return None;
-    }
-    Some(poly(omega, -a1 / d, (a1 * a1 - a0 * b1) / d, v))
+    Warp::new(omega).unwarp(v)
 }
 
 /// det R̃(ω) = (sin(θ/2)/(θ/2))².
 pub fn warp_determinant(omega: &Vec3) -> f64 {
-    let (a0, a1, _) = coefficients(omega);
-    let t = omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2];
-    a0 * a0 + t * a1 * a1
+    Warp::new(omega).determinant()
 }
 
 fn matrix_of(f: impl Fn(&Vec3) -> Vec3) -> Mat3 {
