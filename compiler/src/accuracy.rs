@@ -63,20 +63,19 @@ pub fn standard_tests(full: &FullOrder, steps: usize, f_high: f64) -> Vec<LoadTe
 /// Displacement rows the error is measured on: sensors and displayed nodes, with their row
 /// indices in [`OutputRows::weighted`] order.
 fn measured_rows(rows: &OutputRows) -> Vec<(usize, &SparseRow)> {
-    let mut out = Vec::new();
-    let mut at = 0;
-    for (u, _) in &rows.sensors {
-        out.extend(u.iter().enumerate().map(|(c, r)| (at + c, r)));
-        at += 6;
-    }
-    at += 3 * rows.loads.len();
-    for set in &rows.node_sets {
-        for (u, _) in set {
-            out.extend(u.iter().enumerate().map(|(c, r)| (at + c, r)));
-            at += 6;
-        }
-    }
-    out
+    let sensors = rows.sensors.iter().enumerate().flat_map(|(s, (u, _))| {
+        u.iter()
+            .enumerate()
+            .map(move |(c, r)| (rows.sensor_row(s) + c, r))
+    });
+    let nodes = rows.node_sets.iter().enumerate().flat_map(|(k, set)| {
+        set.iter().enumerate().flat_map(move |(i, (u, _))| {
+            u.iter()
+                .enumerate()
+                .map(move |(c, r)| (rows.node_row(k, i) + c, r))
+        })
+    });
+    sensors.chain(nodes).collect()
 }
 
 /// Relative L2 errors of the reduced model per test: `"<test>"` over displayed nodes and

@@ -14,7 +14,7 @@ use crate::dynamics::WilsonTheta;
 use crate::fem::operators::{displacement_rows, InputKind, Operators, SparseRow};
 use crate::fem::{FemError, FemModel};
 use crate::kalman::{self, KalmanError};
-use crate::mesh::{read_mesh, Mesh, MeshError};
+use crate::mesh::{read_mesh_bytes, Mesh, MeshError};
 use crate::reduce::{self, ReduceError};
 use crate::reference::ReferenceError;
 use crate::report::StageTimer;
@@ -123,7 +123,7 @@ impl FullOrder {
                 path: mesh_path.clone(),
                 source,
             })?;
-            Ok((read_mesh(&mesh_path)?, bytes))
+            Ok((read_mesh_bytes(&bytes, &mesh_path)?, bytes))
         })?;
         let unit = scene.scene.mesh.units.to_metres();
         let fem_err = |source| CompileError::Fem {
@@ -223,6 +223,23 @@ impl OutputRows {
             node_sets,
             length_scale,
         }
+    }
+
+    /// Row of sensor `s`'s displacement x component in [`OutputRows::weighted`] order; y, z
+    /// follow, then its ω rows (x, y, z).
+    pub fn sensor_row(&self, s: usize) -> usize {
+        6 * s
+    }
+
+    /// Row of load group `g`'s ω x component; y, z follow.
+    pub fn load_row(&self, g: usize) -> usize {
+        6 * self.sensors.len() + 3 * g
+    }
+
+    /// Row of node `i` of node set `set`: displacement x, y, z, then ω x, y, z.
+    pub fn node_row(&self, set: usize, i: usize) -> usize {
+        let before: usize = self.node_sets[..set].iter().map(Vec::len).sum();
+        self.load_row(self.loads.len()) + 6 * (before + i)
     }
 
     /// All rows with their balancing weights, in the order sensors (u, ω), loads (ω), node sets
@@ -378,6 +395,7 @@ impl ReducedParts {
 /// Builds the model file's contents from the reduced system and the Kalman schedule.
 pub fn assemble_model(
     full: &FullOrder,
+    rows: &OutputRows,
     parts: &ReducedParts,
     schedule: &kalman::PeriodicSchedule,
     measurements: &[fmt::MeasurementChannel],
@@ -389,17 +407,14 @@ pub fn assemble_model(
     let fem = &full.fem;
     let out = parts.outputs.as_ref();
     let block = |start: usize, len: usize| to_matrix(out.subrows(start, len));
-    let mut at = 0;
     let mut sensors = Vec::new();
-    for s in &ops.sensors {
-        let displacement_rows = block(at, 3);
-        let rotation_rows = block(at + 3, 3);
-        at += 6;
+    for (si, s) in ops.sensors.iter().enumerate() {
+        let at = rows.sensor_row(si);
         sensors.push(fmt::SensorInfo {
             name: s.name.clone(),
             position: s.position,
-            displacement_rows,
-            rotation_rows,
+            displacement_rows: block(at, 3),
+            rotation_rows: block(at + 3, 3),
             components: s.components.iter().map(|c| c.index() as u8).collect(),
             // The largest σ of the measured components; per-channel values are in
             // `kalman.measurement_variance`.
@@ -411,28 +426,29 @@ pub fn assemble_model(
             every: s.every,
         });
     }
-    let mut loads = Vec::new();
-    for l in &ops.loads {
-        loads.push(fmt::LoadGroup {
+    let loads = ops
+        .loads
+        .iter()
+        .enumerate()
+        .map(|(g, l)| fmt::LoadGroup {
             name: l.name.clone(),
-            rotation_rows: block(at, 3),
-        });
-        at += 3;
-    }
+            rotation_rows: block(rows.load_row(g), 3),
+        })
+        .collect();
     let mut node_sets = Vec::new();
-    for set in &ops.node_sets {
+    for (k, set) in ops.node_sets.iter().enumerate() {
         let n = set.nodes.len();
         let mut disp = Mat::<f64>::zeros(3 * n, r);
         let mut rot = Mat::<f64>::zeros(3 * n, r);
         for i in 0..n {
+            let at = rows.node_row(k, i);
             for c in 0..3 {
                 for j in 0..r {
-                    disp[(3 * i + c, j)] = out[(at + 6 * i + c, j)];
-                    rot[(3 * i + c, j)] = out[(at + 6 * i + 3 + c, j)];
+                    disp[(3 * i + c, j)] = out[(at + c, j)];
+                    rot[(3 * i + c, j)] = out[(at + 3 + c, j)];
                 }
             }
         }
-        at += 6 * n;
         node_sets.push(fmt::NodeSet {
             name: set.name.clone(),
             node_tags: set.nodes.iter().map(|&i| fem.node_tags[i]).collect(),
@@ -444,7 +460,6 @@ pub fn assemble_model(
             rotation_rows: to_matrix(rot.as_ref()),
         });
     }
-    debug_assert_eq!(at, out.nrows());
     let inputs = ops
         .inputs
         .iter()
@@ -654,7 +669,10 @@ pub fn compile(scene_path: &Path, options: &CompileOptions) -> Result<Compiled, 
         .stage("kalman", || {
             let h = Mat::from_fn(measurements.len(), r, |i, j| {
                 let ch = measurements[i];
-                parts.outputs[(6 * ch.sensor as usize + ch.component as usize, j)]
+                parts.outputs[(
+                    rows.sensor_row(ch.sensor as usize) + ch.component as usize,
+                    j,
+                )]
             });
             let q = &parts.noise_input * parts.noise_input.transpose();
             kalman::periodic_gains(
@@ -717,6 +735,7 @@ pub fn compile(scene_path: &Path, options: &CompileOptions) -> Result<Compiled, 
     let model = timer.stage("model_file", || {
         assemble_model(
             &full,
+            &rows,
             &parts,
             &schedule,
             &measurements,
