@@ -1,4 +1,4 @@
-//! Measured error of a reduced model against the full-order linear reference (DESIGN.md §7).
+//! Measured error of a reduced model against the full-order linear reference (docs/design.md §7).
 //!
 //! Both are driven by the same input history u_k (one value per deterministic input channel);
 //! the full-order model by f_k = B u_k through [`LinearSimulator`], the reduced one by
@@ -9,9 +9,11 @@ use std::collections::BTreeMap;
 
 use faer::Mat;
 
-use crate::compile::{FullOrder, OutputRows, ReducedParts};
 use crate::fem::operators::{InputKind, SparseRow};
-use crate::reference::{LinearSimulator, ReferenceError, Simulator};
+use crate::full_order::FullOrder;
+use crate::outputs::OutputRows;
+use crate::reduced::ReducedModel;
+use crate::stepping::{LinearSimulator, Simulator, SteppingError};
 
 /// A named input history: `inputs[k][j]` is channel j at step k.
 #[derive(Clone, Debug)]
@@ -26,7 +28,7 @@ pub struct LoadTest {
 /// the unit direction (1, 1, 1)/√3 (gravity channel at 1 when there is no load group).
 /// The chirp sweeps 0 → `f_high` Hz over the run; `steps` steps each.
 pub fn standard_tests(full: &FullOrder, steps: usize, f_high: f64) -> Vec<LoadTest> {
-    let dt = full.scene.scene.time.dt;
+    let dt = full.wilson.dt;
     let has_loads = !full.operators.loads.is_empty();
     let direction: Vec<f64> = full
         .operators
@@ -78,56 +80,91 @@ fn measured_rows(rows: &OutputRows) -> Vec<(usize, &SparseRow)> {
     sensors.chain(nodes).collect()
 }
 
-/// Relative L2 errors of the reduced model per test: `"<test>"` over displayed nodes and
-/// sensors, `"<test>.sensors"` over the sensors only.
-pub fn measured_errors(
-    full: &FullOrder,
-    rows: &OutputRows,
-    parts: &ReducedParts,
-    tests: &[LoadTest],
-) -> Result<BTreeMap<String, f64>, ReferenceError> {
-    let fem = &full.fem;
-    let n = fem.dof_count();
-    let r = parts.transition.nrows();
-    let measured = measured_rows(rows);
-    let sensor_rows = 3 * rows.sensors.len();
-    let mut errors = BTreeMap::new();
-    for test in tests {
-        let mut reference = LinearSimulator::new(fem, full.wilson())?;
-        let mut x = Mat::<f64>::zeros(r, 1);
-        let (mut err, mut norm, mut err_s, mut norm_s) = (0.0, 0.0, 0.0, 0.0);
-        let mut f = vec![0.0; n];
-        for u in &test.inputs {
-            f.iter_mut().for_each(|v| *v = 0.0);
-            for (channel, &value) in full.operators.inputs.iter().zip(u) {
-                if value != 0.0 {
-                    f.iter_mut()
-                        .zip(&channel.column)
-                        .for_each(|(fi, b)| *fi += value * b);
+/// The full-order linear responses of a set of load tests on the measured rows, simulated once
+/// and compared with any number of reduced models (one per order r).
+pub struct ReferenceResponses {
+    tests: Vec<LoadTest>,
+    /// (row index in [`OutputRows::weighted`] order, exact value per step), per test:
+    /// `values[t][k * rows + i]`.
+    values: Vec<Vec<f64>>,
+    rows: Vec<usize>,
+    sensor_rows: usize,
+}
+
+impl ReferenceResponses {
+    /// Runs the full-order linear Wilson-θ reference through every test and records the
+    /// displacement rows of the sensors and displayed nodes.
+    pub fn simulate(
+        full: &FullOrder,
+        rows: &OutputRows,
+        tests: Vec<LoadTest>,
+    ) -> Result<Self, SteppingError> {
+        let fem = &full.fem;
+        let n = fem.dof_count();
+        let measured = measured_rows(rows);
+        let mut values = Vec::with_capacity(tests.len());
+        for test in &tests {
+            let mut reference = LinearSimulator::new(fem, full.wilson)?;
+            let mut f = vec![0.0; n];
+            let mut recorded = Vec::with_capacity(test.inputs.len() * measured.len());
+            for u in &test.inputs {
+                f.iter_mut().for_each(|v| *v = 0.0);
+                for (channel, &value) in full.operators.inputs.iter().zip(u) {
+                    if value != 0.0 {
+                        f.iter_mut()
+                            .zip(&channel.column)
+                            .for_each(|(fi, b)| *fi += value * b);
+                    }
                 }
+                reference.step(&f)?;
+                let full_u = reference.displacement();
+                recorded.extend(
+                    measured
+                        .iter()
+                        .map(|(_, row)| row.iter().map(|&(d, w)| w * full_u[d]).sum::<f64>()),
+                );
             }
-            reference.step(&f)?;
-            let u_in = Mat::from_fn(u.len(), 1, |i, _| u[i]);
-            x = &parts.transition * &x + &parts.input * &u_in;
-            let full_u = reference.displacement();
-            for (k, &(row_index, row)) in measured.iter().enumerate() {
-                let exact: f64 = row.iter().map(|&(d, w)| w * full_u[d]).sum();
-                let approx: f64 = (0..r)
-                    .map(|j| parts.outputs[(row_index, j)] * x[(j, 0)])
-                    .sum();
-                let e2 = (approx - exact).powi(2);
-                err += e2;
-                norm += exact * exact;
-                if k < sensor_rows {
-                    err_s += e2;
-                    norm_s += exact * exact;
-                }
-            }
+            values.push(recorded);
         }
-        errors.insert(test.name.clone(), (err / norm).sqrt());
-        if sensor_rows > 0 {
-            errors.insert(format!("{}.sensors", test.name), (err_s / norm_s).sqrt());
-        }
+        Ok(ReferenceResponses {
+            tests,
+            values,
+            rows: measured.iter().map(|&(i, _)| i).collect(),
+            sensor_rows: 3 * rows.sensors.len(),
+        })
     }
-    Ok(errors)
+
+    /// Relative L2 errors of the reduced model per test: `"<test>"` over displayed nodes and
+    /// sensors, `"<test>.sensors"` over the sensors only.
+    pub fn errors(&self, reduced: &ReducedModel) -> BTreeMap<String, f64> {
+        let r = reduced.state_dim();
+        let p = self.rows.len();
+        let mut errors = BTreeMap::new();
+        for (test, exact_values) in self.tests.iter().zip(&self.values) {
+            let mut x = Mat::<f64>::zeros(r, 1);
+            let (mut err, mut norm, mut err_s, mut norm_s) = (0.0, 0.0, 0.0, 0.0);
+            for (k, u) in test.inputs.iter().enumerate() {
+                let u_in = Mat::from_fn(u.len(), 1, |i, _| u[i]);
+                x = &reduced.transition * &x + &reduced.input * &u_in;
+                for (i, &row_index) in self.rows.iter().enumerate() {
+                    let exact = exact_values[k * p + i];
+                    let approx: f64 = (0..r)
+                        .map(|j| reduced.outputs[(row_index, j)] * x[(j, 0)])
+                        .sum();
+                    let e2 = (approx - exact).powi(2);
+                    err += e2;
+                    norm += exact * exact;
+                    if i < self.sensor_rows {
+                        err_s += e2;
+                        norm_s += exact * exact;
+                    }
+                }
+            }
+            errors.insert(test.name.clone(), (err / norm).sqrt());
+            if self.sensor_rows > 0 {
+                errors.insert(format!("{}.sensors", test.name), (err_s / norm_s).sqrt());
+            }
+        }
+        errors
+    }
 }

@@ -1,4 +1,4 @@
-//! Rotation rows for the run-time warping of DESIGN.md §5.
+//! Rotation rows for the run-time warping of docs/design.md §5.
 //!
 //! For a linear tetrahedron the infinitesimal rotation ωₑ = ½ ∇×u is constant and linear in the
 //! nodal displacements ([`TetGeometry::rotation`](crate::fem::TetGeometry::rotation)). A node's ω

@@ -1,4 +1,4 @@
-//! Wilson-θ time stepping (DESIGN.md §2) as a linear recursion in s = [U; U̇; Ü].
+//! Wilson-θ time stepping (docs/design.md §2) as a linear recursion in s = [U; U̇; Ü].
 //!
 //! With τ = θΔt and the load f held constant over the step:
 //! ```text
@@ -22,6 +22,14 @@ pub struct WilsonTheta {
 }
 
 impl WilsonTheta {
+    /// The scene's time spec `[time]`: the one place Δt and θ become a Wilson-θ scheme.
+    pub fn from_time(time: &crate::scene::TimeSpec) -> Self {
+        WilsonTheta {
+            dt: time.dt,
+            theta: time.theta,
+        }
+    }
+
     /// τ = θΔt, s.
     pub fn tau(&self) -> f64 {
         self.theta * self.dt

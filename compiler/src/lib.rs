@@ -1,28 +1,48 @@
-//! crokf-compile: the offline half of CROKF-FEM.
+//! crokf-compile: the offline half of CROKF-FEM (docs/design.md).
 //!
 //! Data flows one way, one pipeline stage per module:
 //!
 //! ```text
-//! scene ─▶ mesh ─▶ fem ─▶ dynamics ─▶ reduce ─▶ kalman ─▶ corotation ─▶ model file
-//!                     └──▶ reference (full-order simulators, for verification)
+//! scene ─▶ mesh ─▶ fem ─▶ dynamics ─▶ reduce ─▶ kalman ─▶ model_file
+//!                   │        (corotation: rotation rows for warping, outputs: the kept rows)
+//!                   └──▶ stepping (full-order linear and co-rotational Wilson-θ)
 //! ```
 //!
-//! `compile` wires the stages; `accuracy` measures the reduced model against the full-order
-//! reference, `comparison` produces the speed-against-error report, `report` records stage
-//! costs, `bench` and `generate` serve the benchmarks. See `DESIGN.md` in the shared notes for
-//! the equations each module implements.
+//! Beside the stages: [`full_order`] (the front end, built once), [`reductor`] (build once,
+//! reduce at many orders), [`reduced`] (one reduced system), [`accuracy`] (measured error
+//! against the full-order reference), [`report`], [`check`] (`--check`), and [`compile`], which
+//! only wires them. Stages never import the wiring; [`error`] holds the boundary error type.
+//! Verification (scenarios, comparison reports, benchmarks) lives in the `crokf-verify` crate.
 
-pub mod accuracy;
-pub mod bench;
-pub mod comparison;
-pub mod compile;
+pub mod scene;
+
+pub mod generate;
+pub mod mesh;
+
+pub mod fem;
+
 pub mod corotation;
 pub mod dynamics;
-pub mod fem;
-pub mod generate;
-pub mod kalman;
-pub mod mesh;
+pub mod outputs;
+
 pub mod reduce;
-pub mod reference;
+pub mod reduced;
+
+pub mod kalman;
+
+pub mod model_file;
+
+pub mod stepping;
+
+pub mod accuracy;
+pub mod check;
+pub mod compile;
+pub mod error;
+pub mod full_order;
+pub mod reductor;
 pub mod report;
-pub mod scene;
+
+pub use compile::{compile, CompileOptions, Compiled};
+pub use error::CompileError;
+pub use full_order::{FullOrder, COMPILER_VERSION};
+pub use reductor::Reductor;

@@ -1,4 +1,4 @@
-//! Model reduction (DESIGN.md §4): modes with static correction, the modal Wilson-θ system and
+//! Model reduction (docs/design.md §4): modes with static correction, the modal Wilson-θ system and
 //! square-root balanced truncation.
 //!
 //! ```text

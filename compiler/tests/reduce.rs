@@ -1,7 +1,7 @@
 //! Model reduction against independent dense computations on small spring lattices.
 //!
 //! The reference discrete system is the full 3n-state Wilson-θ recursion assembled densely from
-//! K, M, C (DESIGN.md §2), independently of `WilsonTheta::modal_block`; its Gramians come from
+//! K, M, C (docs/design.md §2), independently of `WilsonTheta::modal_block`; its Gramians come from
 //! Smith doubling and its Hankel singular values from eig(P Q).
 
 // Index loops mirror the equations (σᵢ, ω²ᵢ compared entry by entry).
@@ -142,7 +142,7 @@ fn dense_eigenvalues(k: &Mat<f64>, m: &Mat<f64>) -> Vec<f64> {
     c.self_adjoint_eigenvalues(Side::Lower).unwrap()
 }
 
-/// Dense full-order Wilson-θ system s' = Φ s + Γ u, s = [U; U̇; Ü] (3n), from DESIGN.md §2.
+/// Dense full-order Wilson-θ system s' = Φ s + Γ u, s = [U; U̇; Ü] (3n), from docs/design.md §2.
 fn dense_wilson(
     k: &Mat<f64>,
     m: &Mat<f64>,

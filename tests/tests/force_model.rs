@@ -2,10 +2,10 @@
 //! persistent force the runtime is not told about is estimated without the lag (bias) of the
 //! white-noise model.
 
-use crokf_compile::compile::{compile, CompileOptions, FullOrder};
 use crokf_compile::generate::{box_mesh, write_msh22};
-use crokf_compile::reference::{LinearSimulator, Simulator};
 use crokf_compile::report::StageTimer;
+use crokf_compile::stepping::{LinearSimulator, Simulator};
+use crokf_compile::{compile, CompileOptions, FullOrder};
 use crokf_runtime::Estimator;
 
 fn scene(force_model: &str) -> String {
@@ -77,7 +77,7 @@ fn tip_errors(force_model: &str) -> (f64, usize) {
         .iter()
         .map(|b| -0.01 * b)
         .collect();
-    let mut truth = LinearSimulator::new(&full.fem, full.wilson()).unwrap();
+    let mut truth = LinearSimulator::new(&full.fem, full.wilson).unwrap();
     let sensor = &full.operators.sensors[0];
     let mut est = Estimator::new(&model).unwrap();
     let zero = vec![0.0; model.inputs.len()];

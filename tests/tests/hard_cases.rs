@@ -1,18 +1,18 @@
-//! The hard-case suite of DESIGN.md §7, in one place: every case either compiles with a stated
+//! The hard-case suite of docs/design.md §7, in one place: every case either compiles with a stated
 //! accuracy or is refused with a clear error whose text is asserted.
 //!
 //! Every case uses the same small cantilever: a box mesh 1 m × 0.1 m × 0.1 m, 12 × 2 × 2 cells
 //! (288 linear tetrahedra, Kuhn subdivision), written as MSH 2.2 into a temporary directory,
 //! clamped on `xmin` and loaded on `xmax`. Accuracy is the compiler's own measured error
 //! (relative L2 of the reduced model against the full-order linear Wilson-θ reference over the
-//! sensors and displayed nodes, step and chirp load histories, DESIGN.md §7); stability is
+//! sensors and displayed nodes, step and chirp load histories, docs/design.md §7); stability is
 //! ρ(F) < 1 and ρ((I − K H) F) < 1 with a relative Riccati residual below 1e-10.
 
 use std::path::{Path, PathBuf};
 
-use crokf_compile::compile::{compile, CompileOptions, Compiled};
 use crokf_compile::generate::{box_mesh, write_msh22};
 use crokf_compile::mesh::Mesh;
+use crokf_compile::{compile, CompileOptions, Compiled};
 
 /// Box cells along x, y, z.
 const CELLS: [usize; 3] = [12, 2, 2];
@@ -232,7 +232,7 @@ fn deflection_ratio(poisson_ratio: f64) -> f64 {
     };
     let scene = write_case(&dir, &params, None);
     let mut timer = crokf_compile::report::StageTimer::default();
-    let full = crokf_compile::compile::FullOrder::build(&scene, &mut timer).expect("build");
+    let full = crokf_compile::FullOrder::build(&scene, &mut timer).expect("build");
     std::fs::remove_dir_all(&dir).ok();
     let column = &full
         .operators
@@ -241,7 +241,7 @@ fn deflection_ratio(poisson_ratio: f64) -> f64 {
         .find(|c| matches!(c.kind, InputKind::Load { component: 2, .. }))
         .expect("load channel z")
         .column;
-    let u = crokf_compile::reference::static_solve(&full.fem, column).expect("static solve");
+    let u = crokf_compile::stepping::static_solve(&full.fem, column).expect("static solve");
     let tip = full.mesh.group("xmax").expect("xmax").nodes.clone();
     let fem = &full.fem;
     let mean_w = tip
@@ -255,7 +255,7 @@ fn deflection_ratio(poisson_ratio: f64) -> f64 {
 }
 
 /// Case 1: ν = 0.49: compiles, measured error below 2e-3. Linear tetrahedra lock near
-/// incompressibility (DESIGN.md §3): the full-order reference locks too, so the measured error
+/// incompressibility (docs/design.md §3): the full-order reference locks too, so the measured error
 /// (reduced vs full order) does not show it; the static deflection against beam theory does.
 #[test]
 fn near_incompressible_compiles_accurately_and_locking_is_visible() {

@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crokf_compile::compile::{check, CheckOutcome};
+use crokf_compile::check::{check, CheckOutcome};
 use crokf_runtime::{load_model, Estimator};
 
 fn models() -> Vec<PathBuf> {

@@ -2,7 +2,8 @@
 
 use std::path::{Path, PathBuf};
 
-use crokf_compile::compile::{check, compile, CheckOutcome, CompileOptions};
+use crokf_compile::check::{check, CheckOutcome};
+use crokf_compile::{compile, CompileOptions};
 use crokf_runtime::Estimator;
 
 fn cantilever() -> PathBuf {

@@ -1,12 +1,12 @@
-//! Large rotations through the runtime's warping (DESIGN.md §5): on the cantilever under a
+//! Large rotations through the runtime's warping (docs/design.md §5): on the cantilever under a
 //! growing tip load, the reduced runtime's tip follows the co-rotational reference (the tip
 //! draws in along x as the beam bends), not the linear model's straight-line growth.
 
 use std::path::Path;
 
-use crokf_compile::compile::{compile, CompileOptions, FullOrder};
-use crokf_compile::reference::{static_solve, CorotationalSimulator, NewtonOptions};
 use crokf_compile::report::StageTimer;
+use crokf_compile::stepping::{static_solve, CorotationalSimulator, NewtonOptions};
+use crokf_compile::{compile, CompileOptions, FullOrder};
 use crokf_runtime::Estimator;
 
 fn norm(v: [f64; 3]) -> f64 {
@@ -43,7 +43,7 @@ fn warped_tip_follows_the_corotational_reference_under_a_growing_load() {
         .position(|c| c.label == "tip.z")
         .unwrap();
     let mut corotational =
-        CorotationalSimulator::new(&full.fem, full.wilson(), NewtonOptions::default()).unwrap();
+        CorotationalSimulator::new(&full.fem, full.wilson, NewtonOptions::default()).unwrap();
     let mut figures = Vec::new();
     for load in [-2.0, -8.0, -16.0] {
         let f: Vec<f64> = full.operators.inputs[z_channel]

@@ -5,9 +5,10 @@ use std::process::ExitCode;
 
 use clap::Parser;
 
-use crokf_compile::compile::{self, CompileOptions};
+use crokf_compile::check::{check, CheckOutcome};
 use crokf_compile::fem::export::export_matrices;
 use crokf_compile::report::StageTimer;
+use crokf_compile::{compile, CompileOptions, FullOrder};
 
 /// Compile a scene (TOML) and its gmsh mesh into a crokf model file.
 #[derive(Parser, Debug)]
@@ -55,8 +56,8 @@ fn main() -> ExitCode {
 
 fn run(args: &Args) -> Result<ExitCode, String> {
     if let Some(model) = &args.check {
-        return match compile::check(model, &args.scene).map_err(|e| e.to_string())? {
-            compile::CheckOutcome::UpToDate => {
+        return match check(model, &args.scene).map_err(|e| e.to_string())? {
+            CheckOutcome::UpToDate => {
                 eprintln!(
                     "{}: up to date with {}",
                     model.display(),
@@ -64,7 +65,7 @@ fn run(args: &Args) -> Result<ExitCode, String> {
                 );
                 Ok(ExitCode::SUCCESS)
             }
-            compile::CheckOutcome::Stale(why) => {
+            CheckOutcome::Stale(why) => {
                 eprintln!(
                     "{}: STALE: {why}; rebuild with `crokf-compile {} -o {}`",
                     model.display(),
@@ -77,7 +78,7 @@ fn run(args: &Args) -> Result<ExitCode, String> {
     }
     if let Some(dir) = &args.export_matrices {
         let mut timer = StageTimer::default();
-        let full = compile::FullOrder::build(&args.scene, &mut timer).map_err(|e| e.to_string())?;
+        let full = FullOrder::build(&args.scene, &mut timer).map_err(|e| e.to_string())?;
         export_matrices(&full.fem, &full.operators, dir)
             .map_err(|e| format!("{}: {e}", dir.display()))?;
         eprintln!(
@@ -94,7 +95,7 @@ fn run(args: &Args) -> Result<ExitCode, String> {
         modes: args.modes,
         skip_measured_error: args.no_measure,
     };
-    let compiled = compile::compile(&args.scene, &options).map_err(|e| e.to_string())?;
+    let compiled = compile(&args.scene, &options).map_err(|e| e.to_string())?;
     eprint!("{}", compiled.summary());
     if let Some(path) = &args.output {
         std::fs::write(path, &compiled.bytes).map_err(|e| format!("{}: {e}", path.display()))?;

@@ -1,7 +1,7 @@
 //! Linear 4-node tetrahedron: geometry, strain–displacement B, elasticity D, element K, M and ω.
 //!
 //! Element DOFs are ordered node-major: `[u0x, u0y, u0z, u1x, …, u3z]` (12 entries).
-//! Strains use engineering shear, rows ordered xx, yy, zz, xy, yz, zx (DESIGN.md §2).
+//! Strains use engineering shear, rows ordered xx, yy, zz, xy, yz, zx (docs/design.md §2).
 
 /// An isotropic linear elastic material.
 #[derive(Clone, Copy, Debug, PartialEq)]

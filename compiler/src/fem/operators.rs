@@ -20,8 +20,12 @@ pub enum InputKind {
     },
     /// Gravity as declared in the scene (input value 1 = the declared acceleration).
     Gravity,
-    /// Unit-variance process noise (the column carries the standard deviation).
-    Noise,
+    /// Unit-variance process noise (the column carries the standard deviation): force noise on
+    /// load group `load` (index into [`Operators::loads`]), or distributed force noise (`None`).
+    Noise {
+        /// The load group whose force noise this is, if any.
+        load: Option<usize>,
+    },
 }
 
 /// One input channel: a load vector over the free DOFs.
@@ -106,7 +110,7 @@ impl Operators {
                 if load.force_noise_std > 0.0 {
                     noise.push(InputChannel {
                         label: format!("noise:{}.{}", load.name, AXES[c]),
-                        kind: InputKind::Noise,
+                        kind: InputKind::Noise { load: Some(li) },
                         column: column.iter().map(|v| v * load.force_noise_std).collect(),
                     });
                 }
@@ -149,7 +153,7 @@ impl Operators {
             for c in 0..3 {
                 noise.push(InputChannel {
                     label: format!("noise:{}.{}", fnoise.name, AXES[c]),
-                    kind: InputKind::Noise,
+                    kind: InputKind::Noise { load: None },
                     column: spread(fem, &weights, c, fnoise.std, n),
                 });
             }

@@ -1,4 +1,4 @@
-//! The modal Wilson-θ system and square-root balanced truncation (DESIGN.md §4.2–4.3).
+//! The modal Wilson-θ system and square-root balanced truncation (docs/design.md §4.2–4.3).
 //!
 //! Modal system, block i (state sᵢ = [qᵢ, q̇ᵢ, q̈ᵢ]): sᵢ' = Φᵢ sᵢ + Γᵢ bᵢᵀ u, y = Σᵢ cᵢ qᵢ, with
 //! (Φᵢ, Γᵢ) = `WilsonTheta::modal_block(ωᵢ², α + βωᵢ²)`, bᵢ = (VᵀB)ᵢ, cᵢ = (Cout V)_{:,i}.

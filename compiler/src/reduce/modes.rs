@@ -1,4 +1,4 @@
-//! Modal basis with static correction (DESIGN.md §4.1).
+//! Modal basis with static correction (docs/design.md §4.1).
 //!
 //! Lowest eigenpairs of K φ = ω² M φ, plus static-correction vectors K⁻¹B for every input
 //! channel, M-orthogonalised against the modes and rank revealed; Rayleigh–Ritz on the union

@@ -12,13 +12,14 @@ use std::time::Instant;
 use crokf_formats as fmt;
 use crokf_runtime::Estimator;
 
-use crate::dynamics::WilsonTheta;
-use crate::fem::operators::Operators;
-use crate::fem::FemModel;
-use crate::generate::box_mesh;
-use crate::mesh::Mesh;
-use crate::reference::{CorotationalSimulator, LinearSimulator, NewtonOptions, Simulator};
-use crate::scene::Scene;
+use crokf_compile::dynamics::WilsonTheta;
+use crokf_compile::fem::operators::Operators;
+use crokf_compile::fem::FemModel;
+use crokf_compile::mesh::Mesh;
+use crokf_compile::scene::Scene;
+use crokf_compile::stepping::{CorotationalSimulator, LinearSimulator, NewtonOptions, Simulator};
+
+use crokf_compile::generate::box_mesh;
 
 /// Median of `samples` timings of `f`, s.
 pub fn median_seconds(samples: usize, mut f: impl FnMut()) -> f64 {
@@ -108,10 +109,7 @@ pub fn full_order(tetrahedra: usize, steps: bool, samples: usize) -> FullOrderBe
     });
     let fem = fem.expect("assembled at least once");
     let ops = Operators::build(&mesh, &scene, &fem, 1.0).expect("benchmark operators");
-    let wilson = WilsonTheta {
-        dt: scene.time.dt,
-        theta: scene.time.theta,
-    };
+    let wilson = WilsonTheta::from_time(&scene.time);
     let (mut linear_step_s, mut corotational_step_s) = (f64::NAN, f64::NAN);
     if steps {
         // A tip load of 1 N along z: small enough that one Newton iteration suffices.

@@ -1,11 +1,12 @@
-//! Speed against error (DESIGN.md §7): full-order references and the reduced runtime on one
+//! Speed against error (docs/design.md §7): full-order references and the reduced runtime on one
 //! scene and one scenario, in the same run.
 //!
 //! [`run`] drives, through the same scenario (world-frame dead loads; step k → k+1 holds
 //! f(t_k), t_k = kΔt):
 //! 1. the full-order linear FEM ([`LinearSimulator`], J factored once) and the full-order
 //!    co-rotational FEM ([`CorotationalSimulator`], Newton to a tolerance), timing each step;
-//! 2. for each order r: the model compiled at r ([`compile`]), run through the runtime
+//! 2. for each order r: the model reduced at r from one [`Reductor`] (front end and modes built
+//!    once), run through the runtime
 //!    [`Estimator`] (warping included) open loop (no measurements) and filtered on synthetic
 //!    measurements: the co-rotational reference's world sensor displacements plus Gaussian
 //!    noise N(0, σ_s²) (σ_s the sensor's `noise_std`, fixed seed), on the channels the model's
@@ -35,13 +36,16 @@ use std::time::Instant;
 use crokf_formats as fmt;
 use crokf_runtime::{Estimator, RuntimeError};
 
-use crate::bench::median_seconds;
-use crate::compile::{compile, CompileError, CompileOptions, FullOrder};
-use crate::reference::{
-    deformation_gradient, polar_rotation, CorotationalSimulator, Horizon, LinearSimulator,
-    NewtonOptions, NewtonStats, ReferenceError, Scenario, ScenarioError, Simulator,
+use crokf_compile::compile::compile_reduced;
+use crokf_compile::report::StageTimer;
+use crokf_compile::stepping::{
+    deformation_gradient, polar_rotation, CorotationalSimulator, LinearSimulator, NewtonOptions,
+    NewtonStats, Simulator, SteppingError,
 };
-use crate::report::StageTimer;
+use crokf_compile::{CompileError, CompileOptions, FullOrder, Reductor};
+
+use crate::bench::median_seconds;
+use crate::scenario::{Horizon, Scenario, ScenarioError};
 
 /// Errors of a comparison; each names the file, order or step concerned.
 #[derive(Debug, thiserror::Error)]
@@ -55,7 +59,7 @@ pub enum ComparisonError {
         /// Scenario path.
         path: PathBuf,
         /// What went wrong.
-        source: ReferenceError,
+        source: SteppingError,
     },
     /// Scenario file.
     #[error(transparent)]
@@ -327,7 +331,7 @@ impl Setup {
             what,
         };
         let steps =
-            match scenario.horizon(full.scene.scene.time.dt) {
+            match scenario.horizon(full.wilson.dt) {
                 Horizon::Steps(k) => k,
                 Horizon::Steady(_) => return Err(invalid(
                     "a comparison needs a fixed horizon: give `duration` or `steps`, not `steady`"
@@ -390,7 +394,7 @@ impl Setup {
     }
 
     fn dt(&self) -> f64 {
-        self.full.scene.scene.time.dt
+        self.full.wilson.dt
     }
 
     /// World displacement (3 per displayed node, m) from free-DOF displacements u.
@@ -456,7 +460,7 @@ impl Setup {
         self.tip = (0..ns).max_by(|&a, &b| peak[a].total_cmp(&peak[b]));
     }
 
-    fn reference_error(&self, source: ReferenceError) -> ComparisonError {
+    fn reference_error(&self, source: SteppingError) -> ComparisonError {
         ComparisonError::Reference {
             path: self.scenario_path.clone(),
             source,
@@ -515,9 +519,9 @@ fn run_reference(
     let mut linear = None;
     let mut corot = None;
     let sim: &mut dyn Simulator = match corotational {
-        None => linear.insert(LinearSimulator::new(fem, full.wilson()).map_err(err)?),
+        None => linear.insert(LinearSimulator::new(fem, full.wilson).map_err(err)?),
         Some(newton) => {
-            corot.insert(CorotationalSimulator::new(fem, full.wilson(), newton).map_err(err)?)
+            corot.insert(CorotationalSimulator::new(fem, full.wilson, newton).map_err(err)?)
         }
     };
     let steps = setup.steps;
@@ -759,28 +763,30 @@ fn synthetic_measurements(
         .collect()
 }
 
-/// Compiles the scene at order r and returns the model and the wall time.
+/// Reduces the prepared modal system at order r (truncation, Kalman, model file; the front end
+/// and the modes are built once per report) and returns the model and the wall time.
 fn compile_at(
-    setup: &Setup,
+    reductor: &Reductor,
     order: usize,
     measure: bool,
 ) -> Result<(fmt::Model, f64), ComparisonError> {
     let start = Instant::now();
-    let compiled = compile(
-        &setup.scene_path,
+    let compiled = compile_reduced(
+        reductor,
         &CompileOptions {
             order: Some(order),
             skip_measured_error: !measure,
             ..CompileOptions::default()
         },
+        StageTimer::default(),
     )?;
     Ok((compiled.model, start.elapsed().as_secs_f64()))
 }
 
 /// Runs the comparison of one scene and one scenario (see the module docs).
 ///
-/// Phases reported through `progress`: `linear FEM`, `co-rotational FEM` (steps), then per
-/// order `compile r = R` (0/1), `open loop r = R`, `filtered r = R` (steps) and
+/// Phases reported through `progress`: `linear FEM`, `co-rotational FEM` (steps), `modal
+/// system` (0/1: front end and modes, once), then per order `compile r = R` (0/1), `open loop r = R`, `filtered r = R` (steps) and
 /// `timing r = R` (0/1).
 pub fn run(
     scene: &Path,
@@ -829,6 +835,17 @@ pub fn run(
         newton: corot.newton,
     };
 
+    progress(Progress {
+        phase: "modal system",
+        done: 0,
+        total: 1,
+    });
+    let reductor = Reductor::new(&setup.full, None, &mut StageTimer::default())?;
+    progress(Progress {
+        phase: "modal system",
+        done: 1,
+        total: 1,
+    });
     let mut reduced = Vec::new();
     for &order in &options.orders {
         let phase = format!("compile r = {order}");
@@ -837,7 +854,7 @@ pub fn run(
             done: 0,
             total: 1,
         });
-        let (model, compile_s) = compile_at(&setup, order, options.measure_compile_error)?;
+        let (model, compile_s) = compile_at(&reductor, order, options.measure_compile_error)?;
         progress(Progress {
             phase: &phase,
             done: 1,
@@ -947,7 +964,11 @@ pub fn rotation_sweep(
         });
     }
     let mut setup = Setup::new(scene, scenario)?;
-    let (model, _) = compile_at(&setup, order, false)?;
+    let (model, _) = compile_at(
+        &Reductor::new(&setup.full, None, &mut StageTimer::default())?,
+        order,
+        false,
+    )?;
     let mut est = Estimator::new(&model).map_err(|source| ComparisonError::Runtime {
         path: setup.scene_path.clone(),
         order: model.r(),

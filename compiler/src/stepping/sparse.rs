@@ -9,7 +9,7 @@ use faer::{MatMut, Side};
 
 use crate::fem::{sparse_entries, FemModel};
 
-use super::ReferenceError;
+use super::SteppingError;
 
 /// Both triangles of the symmetric pattern: column j holds every free DOF of every node that
 /// shares a tetrahedron with DOF j's node, rows sorted.
@@ -22,7 +22,7 @@ pub(crate) struct Pattern {
 
 impl Pattern {
     /// Builds the pattern of `fem` and its symbolic Cholesky (lower triangle).
-    pub fn new(fem: &FemModel) -> Result<Self, ReferenceError> {
+    pub fn new(fem: &FemModel) -> Result<Self, SteppingError> {
         let n = fem.dof_count();
         let mut adjacent: Vec<Vec<usize>> = vec![Vec::new(); fem.positions.len()];
         for e in &fem.elements {
@@ -47,7 +47,7 @@ impl Pattern {
         }
         let symbolic = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
         let llt = SymbolicLlt::try_new(symbolic.as_ref(), Side::Lower).map_err(|e| {
-            ReferenceError::Solver(format!("symbolic Cholesky of the {n}×{n} pattern: {e:?}"))
+            SteppingError::Solver(format!("symbolic Cholesky of the {n}×{n} pattern: {e:?}"))
         })?;
         Ok(Pattern { n, symbolic, llt })
     }
@@ -93,7 +93,7 @@ impl Pattern {
     }
 
     /// Numeric Cholesky of the matrix with values `a` (symbolic analysis reused).
-    pub fn factor(&self, a: &[f64], what: &str) -> Result<Factor, ReferenceError> {
+    pub fn factor(&self, a: &[f64], what: &str) -> Result<Factor, SteppingError> {
         let mat = SparseColMatRef::new(self.symbolic.as_ref(), a);
         Llt::try_new_with_symbolic(self.llt.clone(), mat, Side::Lower)
             .map(Factor)
@@ -106,7 +106,7 @@ pub(crate) struct Factor(Llt<usize, f64>);
 
 impl Factor {
     /// Cholesky of a stand-alone symmetric positive definite matrix (both triangles stored).
-    pub fn of(mat: &SparseColMat<usize, f64>, what: &str) -> Result<Self, ReferenceError> {
+    pub fn of(mat: &SparseColMat<usize, f64>, what: &str) -> Result<Self, SteppingError> {
         mat.sp_cholesky(Side::Lower)
             .map(Factor)
             .map_err(|e| not_positive_definite(what, mat.nrows(), e))
@@ -120,12 +120,8 @@ impl Factor {
     }
 }
 
-fn not_positive_definite(
-    what: &str,
-    n: usize,
-    e: faer::sparse::linalg::LltError,
-) -> ReferenceError {
-    ReferenceError::NotPositiveDefinite {
+fn not_positive_definite(what: &str, n: usize, e: faer::sparse::linalg::LltError) -> SteppingError {
+    SteppingError::NotPositiveDefinite {
         what: what.to_owned(),
         n,
         detail: format!("{e:?}"),

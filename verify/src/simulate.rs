@@ -1,77 +1,39 @@
-//! Full-order reference solvers for verification (DESIGN.md §7): the static solution, linear
-//! Wilson-θ with J factored once ([`LinearSimulator`]), co-rotational Wilson-θ with per-element
-//! polar decomposition and warped stiffness ([`CorotationalSimulator`]), scenario files
-//! ([`Scenario`]) and [`simulate`], which drives either simulator through a scenario and records
-//! world displacements at the scene's sensors and the scenario's named points.
-//!
-//! Loads are world-frame dead loads. Both simulators start at rest (U = U̇ = Ü = 0), like the
-//! reduced model's s₀ = 0.
-
-pub mod corotational;
-pub mod linear;
-pub mod scenario;
-mod sparse;
-pub mod vtu;
+//! `crokf-verify simulate`: drives a full-order stepper of the compiler
+//! ([`crokf_compile::stepping`]) through a scenario file and records world displacements at the
+//! scene's sensors and the scenario's named points (docs/design.md §7).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-pub use corotational::{
-    deformation_gradient, element_force, element_tangent, polar_rotation, CorotationalSimulator,
-    NewtonOptions, NewtonStats,
+use crokf_compile::dynamics::WilsonTheta;
+use crokf_compile::fem::operators::Operators;
+use crokf_compile::fem::FemModel;
+use crokf_compile::report::StageTimer;
+use crokf_compile::scene::Scene;
+use crokf_compile::stepping::{
+    CorotationalSimulator, Formulation, LinearSimulator, NewtonOptions, NewtonStats, Simulator,
+    SteppingError,
 };
-pub use linear::{static_solve, LinearSimulator};
-pub use scenario::{Horizon, LoadHistory, NamedPoint, Scenario, ScenarioError, Steady};
+use crokf_compile::{CompileError, FullOrder};
 
-use crate::dynamics::WilsonTheta;
-use crate::fem::operators::Operators;
-use crate::fem::{FemError, FemModel};
-use crate::mesh::MeshError;
-use crate::scene::{Scene, SceneError, SceneFile};
+use crate::scenario::{Horizon, Scenario, ScenarioError};
+use crate::vtu;
 
-/// Errors of the reference solvers and of `crokf-verify simulate`.
+/// Errors of `crokf-verify simulate`; each names the file concerned.
 #[derive(Debug, thiserror::Error)]
-pub enum ReferenceError {
-    /// A matrix that must be symmetric positive definite is not.
-    #[error(
-        "{what} ({n}×{n}) is not positive definite ({detail}): the model has unconstrained \
-         rigid-body modes (add a [[fixed]] group) or inverted elements"
-    )]
-    NotPositiveDefinite {
-        /// Which matrix.
-        what: String,
-        /// Its size.
-        n: usize,
-        /// Solver detail.
-        detail: String,
-    },
-    /// Any other sparse-solver failure.
-    #[error("sparse solver: {0}")]
-    Solver(String),
-    /// A vector of the wrong length.
-    #[error("{what} has length {got}, expected {expected} (the free DOFs)")]
-    Dimension {
-        /// Which vector.
-        what: &'static str,
-        /// n.
-        expected: usize,
-        /// Given length.
-        got: usize,
-    },
-    /// Invalid solver options.
+pub enum SimulateError {
+    /// The full-order stepper failed.
+    #[error(transparent)]
+    Stepping(#[from] SteppingError),
+    /// Scene, mesh or FEM assembly.
+    #[error(transparent)]
+    Compile(#[from] CompileError),
+    /// Scenario file.
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    /// Invalid options.
     #[error("{0}")]
     Options(String),
-    /// The quasi-static co-rotational Newton solve failed even with tiny load increments.
-    #[error(
-        "co-rotational static solve did not converge: stuck at load factor {load_factor:.4} \
-         after {solves} linear solves (load too large for the structure, or buckling)"
-    )]
-    StaticDiverged {
-        /// Load factor reached, 0..1.
-        load_factor: f64,
-        /// Linear solves spent.
-        solves: usize,
-    },
     /// A steady scenario did not settle.
     #[error(
         "{path}: not steady after {steps} steps: relative change per step {change:.3e} > \
@@ -86,14 +48,6 @@ pub enum ReferenceError {
         change: f64,
         /// Requested tolerance.
         tolerance: f64,
-    },
-    /// The state became NaN or infinite.
-    #[error("the simulation diverged (non-finite displacement) at step {step}, t = {time:.6e} s")]
-    NonFinite {
-        /// Step.
-        step: usize,
-        /// Time, s.
-        time: f64,
     },
     /// A named point outside the mesh.
     #[error(
@@ -113,18 +67,6 @@ pub enum ReferenceError {
         /// Distance to it, m.
         distance: f64,
     },
-    /// Scenario file.
-    #[error(transparent)]
-    Scenario(#[from] ScenarioError),
-    /// Scene file.
-    #[error(transparent)]
-    Scene(#[from] SceneError),
-    /// Mesh file.
-    #[error(transparent)]
-    Mesh(#[from] MeshError),
-    /// Scene and mesh disagree.
-    #[error(transparent)]
-    Fem(#[from] FemError),
     /// Output file.
     #[error("{path}: {source}")]
     Io {
@@ -135,34 +77,11 @@ pub enum ReferenceError {
     },
 }
 
-/// A full-order time stepper over the free DOFs.
-pub trait Simulator {
-    /// Advances by Δt with the load f (n, N) held constant over the step.
-    fn step(&mut self, f: &[f64]) -> Result<(), ReferenceError>;
-    /// Displacement U (n, m).
-    fn displacement(&self) -> &[f64];
-    /// Velocity U̇ (n, m/s).
-    fn velocity(&self) -> &[f64];
-    /// Acceleration Ü (n, m/s²).
-    fn acceleration(&self) -> &[f64];
-    /// Simulated time, s.
-    fn time(&self) -> f64;
-}
-
-/// Which full-order model to run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Model {
-    /// Linear FEM, J factored once.
-    Linear,
-    /// Co-rotational FEM (stiffness warping).
-    Corotational,
-}
-
 /// Settings of [`simulate`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SimulationOptions {
-    /// Model.
-    pub model: Model,
+    /// Full-order formulation.
+    pub formulation: Formulation,
     /// Newton settings (co-rotational only).
     pub newton: NewtonOptions,
     /// Record every k-th step (and the first and last), k ≥ 1.
@@ -172,7 +91,7 @@ pub struct SimulationOptions {
 impl Default for SimulationOptions {
     fn default() -> Self {
         SimulationOptions {
-            model: Model::Linear,
+            formulation: Formulation::Linear,
             newton: NewtonOptions::default(),
             every: 1,
         }
@@ -213,7 +132,7 @@ pub fn probes(
     scenario: &Scenario,
     unit: f64,
     path: &Path,
-) -> Result<Vec<Probe>, ReferenceError> {
+) -> Result<Vec<Probe>, SimulateError> {
     let mut out: Vec<Probe> = ops
         .sensors
         .iter()
@@ -231,7 +150,7 @@ pub fn probes(
                 .into_iter()
                 .map(|n| (n, distance(fem.positions[n], position)))
                 .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
-            ReferenceError::PointOutside {
+            SimulateError::PointOutside {
                 path: path.to_owned(),
                 name: p.name.clone(),
                 position,
@@ -294,69 +213,6 @@ pub struct Trajectories {
     pub newton: Option<NewtonStats>,
 }
 
-/// Builds the chosen simulator for the scene's time step.
-pub fn simulator(
-    fem: &FemModel,
-    scene: &Scene,
-    options: &SimulationOptions,
-) -> Result<Box<dyn Simulator>, ReferenceError> {
-    let wilson = WilsonTheta {
-        dt: scene.time.dt,
-        theta: scene.time.theta,
-    };
-    Ok(match options.model {
-        Model::Linear => Box::new(LinearSimulator::new(fem, wilson)?),
-        Model::Corotational => Box::new(CorotationalSimulator::new(fem, wilson, options.newton)?),
-    })
-}
-
-/// out[i] = g(U[i], U̇[i], Ü[i]) per DOF.
-pub(crate) fn map_state(
-    u: &[f64],
-    v: &[f64],
-    a: &[f64],
-    out: &mut [f64],
-    g: impl Fn(f64, f64, f64) -> f64,
-) {
-    for (((o, u), v), a) in out.iter_mut().zip(u).zip(v).zip(a) {
-        *o = g(*u, *v, *a);
-    }
-}
-
-/// [`WilsonTheta::advance`] on every DOF, given Û.
-pub(crate) fn advance_all(
-    w: &WilsonTheta,
-    u: &mut [f64],
-    v: &mut [f64],
-    a: &mut [f64],
-    u_hat: &[f64],
-) {
-    for (((u, v), a), h) in u.iter_mut().zip(v.iter_mut()).zip(a.iter_mut()).zip(u_hat) {
-        (*u, *v, *a) = w.advance(*u, *v, *a, *h);
-    }
-}
-
-/// Euclidean norm.
-pub(crate) fn norm(x: &[f64]) -> f64 {
-    x.iter().map(|v| v * v).sum::<f64>().sqrt()
-}
-
-pub(crate) fn check_len(
-    what: &'static str,
-    expected: usize,
-    got: usize,
-) -> Result<(), ReferenceError> {
-    if expected == got {
-        Ok(())
-    } else {
-        Err(ReferenceError::Dimension {
-            what,
-            expected,
-            got,
-        })
-    }
-}
-
 /// Runs `scenario` on the full-order model: step k → k+1 holds the load f(t_k), t_k = kΔt
 /// (Δt, θ from the scene). Records the probes at step 0, every `options.every` steps and at the
 /// last step, and calls `observer` with each recorded frame. `path` names the scenario file in
@@ -370,31 +226,21 @@ pub fn simulate(
     probes: &[Probe],
     options: &SimulationOptions,
     path: &Path,
-    observer: &mut dyn FnMut(&Frame) -> Result<(), ReferenceError>,
-) -> Result<Trajectories, ReferenceError> {
+    observer: &mut dyn FnMut(&Frame) -> Result<(), SimulateError>,
+) -> Result<Trajectories, SimulateError> {
     if options.every == 0 {
-        return Err(ReferenceError::Options("--every must be ≥ 1".into()));
+        return Err(SimulateError::Options("--every must be ≥ 1".into()));
     }
     let n = fem.dof_count();
-    let dt = scene.time.dt;
+    let wilson = WilsonTheta::from_time(&scene.time);
+    let dt = wilson.dt;
     let mut corotational = None;
     let mut linear = None;
-    let sim: &mut dyn Simulator = match options.model {
-        Model::Linear => linear.insert(LinearSimulator::new(
-            fem,
-            WilsonTheta {
-                dt,
-                theta: scene.time.theta,
-            },
-        )?),
-        Model::Corotational => corotational.insert(CorotationalSimulator::new(
-            fem,
-            WilsonTheta {
-                dt,
-                theta: scene.time.theta,
-            },
-            options.newton,
-        )?),
+    let sim: &mut dyn Simulator = match options.formulation {
+        Formulation::Linear => linear.insert(LinearSimulator::new(fem, wilson)?),
+        Formulation::Corotational => {
+            corotational.insert(CorotationalSimulator::new(fem, wilson, options.newton)?)
+        }
     };
     let mut out = Trajectories {
         labels: probes.iter().map(|p| p.name.clone()).collect(),
@@ -433,10 +279,11 @@ pub fn simulate(
         step += 1;
         let u = sim.displacement();
         if u.iter().any(|v| !v.is_finite()) {
-            return Err(ReferenceError::NonFinite {
+            return Err(SteppingError::NonFinite {
                 step,
                 time: step as f64 * dt,
-            });
+            }
+            .into());
         }
         if let Some(s) = steady {
             let du = u
@@ -464,7 +311,7 @@ pub fn simulate(
     }
     if let Some(s) = steady {
         if !settled {
-            return Err(ReferenceError::SteadyNotReached {
+            return Err(SimulateError::SteadyNotReached {
                 path: path.to_owned(),
                 steps: step,
                 change,
@@ -500,20 +347,17 @@ pub fn run(
     options: &SimulationOptions,
     out: &Path,
     vtu: bool,
-) -> Result<RunSummary, ReferenceError> {
-    let scene_file = SceneFile::read(scene_path)?;
-    let scene = &scene_file.scene;
-    let mesh = crate::mesh::read_mesh(&scene_file.mesh_path())?;
+) -> Result<RunSummary, SimulateError> {
+    let full = FullOrder::build(scene_path, &mut StageTimer::default())?;
+    let (scene, fem, ops) = (&full.scene.scene, &full.fem, &full.operators);
     let unit = scene.mesh.units.to_metres();
-    let fem = FemModel::assemble(&mesh, scene, unit)?;
-    let ops = Operators::build(&mesh, scene, &fem, unit)?;
     let scenario = Scenario::read(scenario_path)?;
     scenario.check_scene(scene, scenario_path)?;
-    let probes = probes(&fem, &ops, &scenario, unit, scenario_path)?;
+    let probes = probes(fem, ops, &scenario, unit, scenario_path)?;
 
     let io = |path: &Path| {
         let path = path.to_owned();
-        move |source| ReferenceError::Io { path, source }
+        move |source| SimulateError::Io { path, source }
     };
     std::fs::create_dir_all(out).map_err(io(out))?;
     let frames_dir = out.join("frames");
@@ -523,7 +367,7 @@ pub fn run(
     let tetrahedra: Vec<[usize; 4]> = fem.elements.iter().map(|e| e.nodes).collect();
     let mut files = Vec::new();
     let mut frames: Vec<(f64, String)> = Vec::new();
-    let mut observer = |frame: &Frame| -> Result<(), ReferenceError> {
+    let mut observer = |frame: &Frame| -> Result<(), SimulateError> {
         if !vtu {
             return Ok(());
         }
@@ -535,8 +379,8 @@ pub fn run(
         Ok(())
     };
     let trajectories = simulate(
-        &fem,
-        &ops,
+        fem,
+        ops,
         scene,
         &scenario,
         &probes,
@@ -559,4 +403,9 @@ pub fn run(
         elements: fem.elements.len(),
         files,
     })
+}
+
+/// Euclidean norm.
+fn norm(x: &[f64]) -> f64 {
+    x.iter().map(|v| v * v).sum::<f64>().sqrt()
 }

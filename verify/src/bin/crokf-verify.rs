@@ -13,8 +13,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use crokf_compile::reference::{self, Model, NewtonOptions, SimulationOptions};
-use crokf_compile::{bench, comparison, generate};
+use crokf_compile::generate;
+use crokf_compile::stepping::{Formulation, NewtonOptions};
+use crokf_verify::simulate::{self, SimulationOptions};
+use crokf_verify::{bench, comparison};
 
 #[derive(Parser)]
 #[command(
@@ -280,11 +282,11 @@ struct SimulateArgs {
     warped: bool,
 }
 
-fn simulate(args: &SimulateArgs) -> Result<(), reference::ReferenceError> {
+fn simulate(args: &SimulateArgs) -> Result<(), simulate::SimulateError> {
     let options = SimulationOptions {
-        model: match args.model {
-            ModelArg::Linear => Model::Linear,
-            ModelArg::Corotational => Model::Corotational,
+        formulation: match args.model {
+            ModelArg::Linear => Formulation::Linear,
+            ModelArg::Corotational => Formulation::Corotational,
         },
         newton: NewtonOptions {
             max_newton: args.max_newton as usize,
@@ -293,7 +295,7 @@ fn simulate(args: &SimulateArgs) -> Result<(), reference::ReferenceError> {
         },
         every: args.every as usize,
     };
-    let summary = reference::run(&args.scene, &args.scenario, &options, &args.out, args.vtu)?;
+    let summary = simulate::run(&args.scene, &args.scenario, &options, &args.out, args.vtu)?;
     let t = &summary.trajectories;
     println!(
         "{} DOFs, {} tetrahedra; {} steps to t = {:.6} s, {:.3} ms per step",

@@ -24,8 +24,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use crate::fem::operators::{InputKind, Operators};
-use crate::scene::Scene;
+use crokf_compile::fem::operators::{InputKind, Operators};
+use crokf_compile::scene::Scene;
 
 /// Errors in reading or checking a scenario file; each names the file.
 #[derive(Debug, thiserror::Error)]
@@ -291,7 +291,7 @@ impl Scenario {
                     .find(|l| l.name == ops.loads[load].name)
                     .map_or(0.0, |l| l.at(t)[component]),
                 InputKind::Gravity => self.gravity.unwrap_or(1.0),
-                InputKind::Noise => 0.0,
+                InputKind::Noise { .. } => 0.0,
             })
             .collect()
     }

@@ -1,6 +1,6 @@
 //! Full-order co-rotational reference (stiffness warping): per element, the rotation Rₑ of the
 //! polar decomposition Fₑ = Rₑ Sₑ of the deformation gradient, the internal force
-//! fₑ = Rₑ Kₑ (Rₑᵀ xₑ − Xₑ) and the warped tangent Rₑ Kₑ Rₑᵀ (DESIGN.md §7 (b)).
+//! fₑ = Rₑ Kₑ (Rₑᵀ xₑ − Xₑ) and the warped tangent Rₑ Kₑ Rₑᵀ (docs/design.md §7 (b)).
 //!
 //! External loads are world-frame dead loads: a force on a load group keeps its world direction
 //! while the body rotates (it is not a follower load).
@@ -11,7 +11,7 @@ use crate::dynamics::WilsonTheta;
 use crate::fem::{FemModel, TetGeometry};
 
 use super::sparse::Pattern;
-use super::{advance_all, check_len, norm, ReferenceError, Simulator};
+use super::{advance_all, check_len, norm, Simulator, SteppingError};
 
 /// The rotation R (det R = +1) of the polar decomposition F = R S, robust to inverted elements
 /// (det F ≤ 0): SVD F = U Σ Vᵀ, and where det U or det V is negative the column belonging to the
@@ -281,9 +281,9 @@ impl CorotationalSimulator {
         fem: &FemModel,
         wilson: WilsonTheta,
         options: NewtonOptions,
-    ) -> Result<Self, ReferenceError> {
+    ) -> Result<Self, SteppingError> {
         if options.max_newton == 0 || options.tolerance.is_nan() || options.tolerance <= 0.0 {
-            return Err(ReferenceError::Options(format!(
+            return Err(SteppingError::Options(format!(
                 "Newton: max_newton must be ≥ 1 and tolerance > 0, got {} and {}",
                 options.max_newton, options.tolerance
             )));
@@ -303,7 +303,7 @@ impl CorotationalSimulator {
             })
             .collect::<Vec<_>>();
         if pattern.nnz() >= u32::MAX as usize {
-            return Err(ReferenceError::Solver(format!(
+            return Err(SteppingError::Solver(format!(
                 "{} stored entries exceed the 32-bit slot index",
                 pattern.nnz()
             )));
@@ -395,7 +395,7 @@ impl CorotationalSimulator {
     }
 
     /// Internal force f_int(u) (n, N) at the free-DOF displacement u (n, m).
-    pub fn internal_force(&mut self, u: &[f64]) -> Result<Vec<f64>, ReferenceError> {
+    pub fn internal_force(&mut self, u: &[f64]) -> Result<Vec<f64>, SteppingError> {
         check_len("displacement u", self.pattern.n, u.len())?;
         self.assemble(u);
         Ok(self.internal.clone())
@@ -409,7 +409,7 @@ impl CorotationalSimulator {
         c_w: f64,
         c_m: f64,
         what: &str,
-    ) -> Result<super::sparse::Factor, ReferenceError> {
+    ) -> Result<super::sparse::Factor, SteppingError> {
         let mut use_consistent = self.options.consistent;
         loop {
             let tangent = if use_consistent {
@@ -428,7 +428,7 @@ impl CorotationalSimulator {
             }
             match self.pattern.factor(&self.jacobian, what) {
                 Ok(factor) => return Ok(factor),
-                Err(ReferenceError::NotPositiveDefinite { .. }) if use_consistent => {
+                Err(SteppingError::NotPositiveDefinite { .. }) if use_consistent => {
                     self.stats.fallbacks += 1;
                     use_consistent = false;
                 }
@@ -441,7 +441,7 @@ impl CorotationalSimulator {
     /// adaptive load stepping (λ from 0 to 1; an increment that does not converge in 30 solves
     /// is halved, one that converges in ≤ 6 lets the next grow by 1.5). Converged when
     /// ‖δ‖ ≤ `tolerance` ‖u‖. The dynamic state is left unchanged.
-    pub fn static_solve(&mut self, f: &[f64], tolerance: f64) -> Result<Vec<f64>, ReferenceError> {
+    pub fn static_solve(&mut self, f: &[f64], tolerance: f64) -> Result<Vec<f64>, SteppingError> {
         let n = self.pattern.n;
         check_len("load vector f", n, f.len())?;
         const MAX_SOLVES: usize = 30;
@@ -488,7 +488,7 @@ impl CorotationalSimulator {
                 None => {
                     increment *= 0.5;
                     if increment < 1e-4 {
-                        return Err(ReferenceError::StaticDiverged {
+                        return Err(SteppingError::StaticDiverged {
                             load_factor: lambda,
                             solves: total_solves,
                         });
@@ -501,7 +501,7 @@ impl CorotationalSimulator {
 }
 
 impl Simulator for CorotationalSimulator {
-    fn step(&mut self, f: &[f64]) -> Result<(), ReferenceError> {
+    fn step(&mut self, f: &[f64]) -> Result<(), SteppingError> {
         let n = self.pattern.n;
         check_len("load vector f", n, f.len())?;
         let w = self.wilson;

@@ -1,17 +1,17 @@
 //! Full-order linear references: the static solution K u = f and Wilson-θ time stepping with
-//! J = K + a₀M + a₂C factored once (a₀ = 6/τ², a₂ = 3/τ, τ = θΔt; DESIGN.md §2).
+//! J = K + a₀M + a₂C factored once (a₀ = 6/τ², a₂ = 3/τ, τ = θΔt; docs/design.md §2).
 
 use crate::dynamics::WilsonTheta;
 use crate::fem::FemModel;
 
 use super::sparse::{Factor, Pattern};
-use super::{advance_all, check_len, map_state, ReferenceError, Simulator};
+use super::{advance_all, check_len, map_state, Simulator, SteppingError};
 
 /// The static displacement u (n, m) of K u = f (f: n, N) by sparse Cholesky of K.
 ///
-/// Fails with [`ReferenceError::NotPositiveDefinite`] when K is singular (no Dirichlet nodes:
+/// Fails with [`SteppingError::NotPositiveDefinite`] when K is singular (no Dirichlet nodes:
 /// rigid-body modes).
-pub fn static_solve(fem: &FemModel, f: &[f64]) -> Result<Vec<f64>, ReferenceError> {
+pub fn static_solve(fem: &FemModel, f: &[f64]) -> Result<Vec<f64>, SteppingError> {
     check_len("load vector f", fem.dof_count(), f.len())?;
     let factor = Factor::of(&fem.stiffness, "stiffness K (static solve)")?;
     let mut u = f.to_vec();
@@ -42,7 +42,7 @@ pub struct LinearSimulator {
 
 impl LinearSimulator {
     /// Factors J for the model and time step; the state starts at rest (U = U̇ = Ü = 0).
-    pub fn new(fem: &FemModel, wilson: WilsonTheta) -> Result<Self, ReferenceError> {
+    pub fn new(fem: &FemModel, wilson: WilsonTheta) -> Result<Self, SteppingError> {
         let pattern = Pattern::new(fem)?;
         let stiffness = pattern.scatter(&fem.stiffness);
         let mass = pattern.scatter(&fem.mass);
@@ -74,7 +74,7 @@ impl LinearSimulator {
 }
 
 impl Simulator for LinearSimulator {
-    fn step(&mut self, f: &[f64]) -> Result<(), ReferenceError> {
+    fn step(&mut self, f: &[f64]) -> Result<(), SteppingError> {
         let n = self.pattern.n;
         check_len("load vector f", n, f.len())?;
         let w = self.wilson;

@@ -1,19 +1,19 @@
-//! Speed against error (`crokf_compile::comparison`): the runtime against the full-order
+//! Speed against error (`crokf_verify::comparison`): the runtime against the full-order
 //! references on a small generated beam, and the report's rendering.
 //!
 //! The beam: 1 m × 0.1 m × 0.1 m, 12 × 2 × 2 cells (288 tetrahedra, 324 free DOFs), E = 1 MPa,
 //! clamped at x = 0, tip load on x = 1, sensors `tip` and `mid`, displayed: the whole surface.
 //! The release-build figures of the committed report scenarios come from the ignored tests
-//! at the end (`cargo test --release -p crokf-compile --test comparison -- --ignored
+//! at the end (`cargo test --release -p crokf-verify --test comparison -- --ignored
 //! --nocapture`).
 
 use std::path::{Path, PathBuf};
 
-use crokf_compile::comparison::{
+use crokf_compile::generate::{box_mesh, write_msh22};
+use crokf_verify::comparison::{
     self, breakdown_rotation, rotation_sweep, Comparison, ComparisonError, ComparisonOptions,
     Gaussian, Progress, SweepPoint,
 };
-use crokf_compile::generate::{box_mesh, write_msh22};
 
 /// A fresh directory under the target's temporary directory.
 fn case_dir(name: &str) -> PathBuf {
@@ -125,7 +125,11 @@ fn run(scene: &Path, scenario: &Path, options: &ComparisonOptions) -> Comparison
     let c = comparison::run(scene, scenario, options, &mut progress)
         .unwrap_or_else(|e| panic!("comparison failed: {e}"));
     eprintln!("{}", c.markdown());
-    let mut expected = vec!["linear FEM".to_owned(), "co-rotational FEM".to_owned()];
+    let mut expected = vec![
+        "linear FEM".to_owned(),
+        "co-rotational FEM".to_owned(),
+        "modal system".to_owned(),
+    ];
     for r in &options.orders {
         for p in ["compile", "open loop", "filtered", "timing"] {
             expected.push(format!("{p} r = {r}"));
@@ -450,7 +454,7 @@ fn report(name: &str, scene: &Path, scenario: &Path) -> Comparison {
 }
 
 #[test]
-#[ignore = "release-build report: cargo test --release -p crokf-compile --test comparison -- --ignored --nocapture"]
+#[ignore = "release-build report: cargo test --release -p crokf-verify --test comparison -- --ignored --nocapture"]
 fn report_cantilever() {
     let dir = models().join("cantilever");
     let c = report(
@@ -462,7 +466,7 @@ fn report_cantilever() {
 }
 
 #[test]
-#[ignore = "release-build report: cargo test --release -p crokf-compile --test comparison -- --ignored --nocapture"]
+#[ignore = "release-build report: cargo test --release -p crokf-verify --test comparison -- --ignored --nocapture"]
 fn report_meniscus() {
     let dir = models().join("meniscus");
     report(
@@ -473,7 +477,7 @@ fn report_meniscus() {
 }
 
 #[test]
-#[ignore = "release-build sweep: cargo test --release -p crokf-compile --test comparison -- --ignored --nocapture"]
+#[ignore = "release-build sweep: cargo test --release -p crokf-verify --test comparison -- --ignored --nocapture"]
 fn sweep_cantilever() {
     // The report scenario (20 N tip force ramped over 0.5 s, 1.5 s) scaled from 1 N to 20 N.
     let dir = models().join("cantilever");

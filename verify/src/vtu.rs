@@ -6,17 +6,17 @@ use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::Path;
 
-use super::{ReferenceError, Trajectories};
+use crate::simulate::{SimulateError, Trajectories};
 
-fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> ReferenceError + '_ {
-    move |source| ReferenceError::Io {
+fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> SimulateError + '_ {
+    move |source| SimulateError::Io {
         path: path.to_owned(),
         source,
     }
 }
 
 /// Writes `text` to `path`, naming the file on failure.
-pub fn write_text(path: &Path, text: &str) -> Result<(), ReferenceError> {
+pub fn write_text(path: &Path, text: &str) -> Result<(), SimulateError> {
     let mut file = std::fs::File::create(path).map_err(io_error(path))?;
     file.write_all(text.as_bytes()).map_err(io_error(path))
 }

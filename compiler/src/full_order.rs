@@ -1,0 +1,86 @@
+//! The full-order model: the front end of the pipeline (scene → mesh → FEM → operators), built
+//! once and shared by `compile`, `check`, the reduction at several orders and `crokf-verify`.
+
+use std::path::Path;
+
+use crokf_formats as fmt;
+
+use crate::dynamics::WilsonTheta;
+use crate::error::CompileError;
+use crate::fem::operators::Operators;
+use crate::fem::FemModel;
+use crate::mesh::{read_mesh_bytes, Mesh};
+use crate::report::StageTimer;
+use crate::scene::SceneFile;
+
+/// The compiler's version string, part of every model's input digest.
+pub const COMPILER_VERSION: &str = concat!("crokf-compile ", env!("CARGO_PKG_VERSION"));
+
+/// Everything the front end produces: the scene, its mesh, the assembled FEM model with its
+/// operators, and the Wilson-θ scheme of the scene's `[time]` table.
+pub struct FullOrder {
+    /// The scene.
+    pub scene: SceneFile,
+    /// The mesh.
+    pub mesh: Mesh,
+    /// Raw mesh bytes (for the digest).
+    pub mesh_bytes: Vec<u8>,
+    /// Assembled K, M, DOF map.
+    pub fem: FemModel,
+    /// Loads, sensors, node sets.
+    pub operators: Operators,
+    /// Δt and θ (docs/design.md §2), from the scene's time spec.
+    pub wilson: WilsonTheta,
+}
+
+impl FullOrder {
+    /// Reads the scene and mesh, assembles K and M and builds the operators; stage costs go to
+    /// `timer` ("mesh", "assembly", "operators").
+    pub fn build(scene_path: &Path, timer: &mut StageTimer) -> Result<Self, CompileError> {
+        let scene = SceneFile::read(scene_path)?;
+        let mesh_path = scene.mesh_path();
+        let (mesh, mesh_bytes) = timer.stage("mesh", || -> Result<_, CompileError> {
+            let bytes = std::fs::read(&mesh_path).map_err(|source| CompileError::Io {
+                path: mesh_path.clone(),
+                source,
+            })?;
+            Ok((read_mesh_bytes(&bytes, &mesh_path)?, bytes))
+        })?;
+        let unit = scene.scene.mesh.units.to_metres();
+        let fem_err = |source| CompileError::Fem {
+            path: scene_path.to_owned(),
+            source,
+        };
+        let fem = timer
+            .stage("assembly", || FemModel::assemble(&mesh, &scene.scene, unit))
+            .map_err(fem_err)?;
+        let operators = timer
+            .stage("operators", || {
+                Operators::build(&mesh, &scene.scene, &fem, unit)
+            })
+            .map_err(fem_err)?;
+        let wilson = WilsonTheta::from_time(&scene.scene.time);
+        Ok(FullOrder {
+            scene,
+            mesh,
+            mesh_bytes,
+            fem,
+            operators,
+            wilson,
+        })
+    }
+
+    /// Digest of the inputs: mesh bytes, scene bytes, compiler version.
+    pub fn digest(&self) -> fmt::InputsDigest {
+        fmt::InputsDigest {
+            mesh_sha256: fmt::sha256_hex(&self.mesh_bytes),
+            scene_sha256: fmt::sha256_hex(self.scene.text.as_bytes()),
+            compiler_version: COMPILER_VERSION.to_owned(),
+        }
+    }
+
+    /// Scene path (for messages).
+    pub fn scene_path(&self) -> &Path {
+        &self.scene.path
+    }
+}

@@ -1,0 +1,164 @@
+//! One reduced linear system (docs/design.md §4, §6): the balanced truncation of order r in the
+//! output layout of [`OutputRows`](crate::outputs::OutputRows), unweighted, with its input
+//! channels split into deterministic inputs and process noise, and what the truncation measured.
+
+use faer::Mat;
+
+use crate::fem::operators::{InputKind, Operators};
+use crate::reduce::ReducedSystem;
+
+/// The reduced model x⁺ = F x + G u + G_w ξ, y = H x, of order r (plus 3 force states per
+/// random-walk load group, docs/design.md §6).
+#[derive(Clone, Debug)]
+pub struct ReducedModel {
+    /// F (r×r).
+    pub transition: Mat<f64>,
+    /// G (r × deterministic inputs), in the order of [`Operators::inputs`].
+    pub input: Mat<f64>,
+    /// G_w (r × noise channels), unit-variance channels.
+    pub noise_input: Mat<f64>,
+    /// All output rows (p×r) in the order of
+    /// [`OutputRows::weighted`](crate::outputs::OutputRows::weighted), weights removed.
+    pub outputs: Mat<f64>,
+    /// Hankel singular values σ₁ ≥ σ₂ ≥ … of the weighted modal system.
+    pub hankel_singular_values: Vec<f64>,
+    /// 2 Σ_{i>r} σᵢ ≥ ‖G − G_r‖∞ (weighted outputs).
+    pub error_bound: f64,
+    /// Balanced states kept (r before any force states).
+    pub balanced_order: usize,
+    /// ρ(F) of the balanced part.
+    pub spectral_radius: f64,
+    /// Notes of the truncation (order capped, …).
+    pub warnings: Vec<String>,
+}
+
+impl ReducedModel {
+    /// Splits a balanced truncation of the weighted system into deterministic and noise input
+    /// columns (the first `deterministic_inputs` are deterministic) and removes the output
+    /// weights `weights` (one per output row), then fixes the states' signs.
+    pub fn from_truncation(
+        system: ReducedSystem,
+        deterministic_inputs: usize,
+        weights: &[f64],
+    ) -> Self {
+        let r = system.order;
+        let m = deterministic_inputs;
+        let noise = system.input.ncols() - m;
+        let mut outputs = system.output;
+        for (i, w) in weights.iter().enumerate() {
+            for j in 0..r {
+                outputs[(i, j)] /= w;
+            }
+        }
+        let mut reduced = ReducedModel {
+            transition: system.transition,
+            input: system.input.subcols(0, m).to_owned(),
+            noise_input: system.input.subcols(m, noise).to_owned(),
+            outputs,
+            hankel_singular_values: system.hankel_singular_values,
+            error_bound: system.error_bound,
+            balanced_order: r,
+            spectral_radius: system.spectral_radius,
+            warnings: system.warnings,
+        };
+        reduced.normalise_signs();
+        reduced
+    }
+
+    /// State dimension (balanced states plus force states).
+    pub fn state_dim(&self) -> usize {
+        self.transition.nrows()
+    }
+
+    /// Q = G_w G_wᵀ (r×r), the process-noise covariance per step.
+    pub fn process_noise(&self) -> Mat<f64> {
+        &self.noise_input * self.noise_input.transpose()
+    }
+
+    /// Fixes the sign of each balanced state (a similarity x ↦ S x, S = diag(±1)) so that the
+    /// largest-magnitude entry of each output column is positive. Singular vectors are defined
+    /// up to sign only, and a rounding difference between machines must not flip the model file.
+    pub fn normalise_signs(&mut self) {
+        let r = self.transition.nrows();
+        for j in 0..r {
+            let column = self.outputs.col(j);
+            let pivot = (0..column.nrows())
+                .max_by(|&a, &b| column[a].abs().total_cmp(&column[b].abs()))
+                .map_or(1.0, |i| column[i]);
+            if pivot >= 0.0 {
+                continue;
+            }
+            for i in 0..r {
+                self.transition[(j, i)] = -self.transition[(j, i)];
+                self.transition[(i, j)] = -self.transition[(i, j)];
+            }
+            self.input.row_mut(j).iter_mut().for_each(|v| *v = -*v);
+            self.noise_input
+                .row_mut(j)
+                .iter_mut()
+                .for_each(|v| *v = -*v);
+            self.outputs.col_mut(j).iter_mut().for_each(|v| *v = -*v);
+        }
+    }
+
+    /// Augments the state with the (local-frame) force of each random-walk load group
+    /// (3 states each): x_aug = [x; f], F_aug = [[F, G_g], [0, I]], G_aug = [G; 0], the group's
+    /// white-noise channels replaced by N(0, σ²I) increments of f, outputs padded with zeros.
+    /// `loads` lists (load group index, σ in N per step).
+    pub fn with_force_states(self, ops: &Operators, loads: &[(usize, f64)]) -> Self {
+        let r = self.transition.nrows();
+        let extra = 3 * loads.len();
+        let r2 = r + extra;
+        let mut transition = Mat::<f64>::zeros(r2, r2);
+        transition
+            .submatrix_mut(0, 0, r, r)
+            .copy_from(&self.transition);
+        let mut input = Mat::<f64>::zeros(r2, self.input.ncols());
+        input
+            .submatrix_mut(0, 0, r, self.input.ncols())
+            .copy_from(&self.input);
+        for (k, &(load, _)) in loads.iter().enumerate() {
+            for c in 0..3 {
+                let channel = ops
+                    .inputs
+                    .iter()
+                    .position(|ch| ch.kind == InputKind::Load { load, component: c })
+                    .expect("every load group has three input channels");
+                let state = r + 3 * k + c;
+                for i in 0..r {
+                    transition[(i, state)] = self.input[(i, channel)];
+                }
+                transition[(state, state)] = 1.0;
+            }
+        }
+        // White-noise channels of random-walk loads are replaced by the force increments.
+        let kept: Vec<usize> = (0..ops.noise.len())
+            .filter(|&j| match ops.noise[j].kind {
+                InputKind::Noise { load: Some(g) } => !loads.iter().any(|&(l, _)| l == g),
+                _ => true,
+            })
+            .collect();
+        let mut noise_input = Mat::<f64>::zeros(r2, kept.len() + extra);
+        for (col, &j) in kept.iter().enumerate() {
+            for i in 0..r {
+                noise_input[(i, col)] = self.noise_input[(i, j)];
+            }
+        }
+        for (k, &(_, sigma)) in loads.iter().enumerate() {
+            for c in 0..3 {
+                noise_input[(r + 3 * k + c, kept.len() + 3 * k + c)] = sigma;
+            }
+        }
+        let mut outputs = Mat::<f64>::zeros(self.outputs.nrows(), r2);
+        outputs
+            .submatrix_mut(0, 0, self.outputs.nrows(), r)
+            .copy_from(&self.outputs);
+        ReducedModel {
+            transition,
+            input,
+            noise_input,
+            outputs,
+            ..self
+        }
+    }
+}

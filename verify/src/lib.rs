@@ -1,0 +1,16 @@
+//! crokf-verify: verification of CROKF-FEM models against full-order references
+//! (docs/design.md §7). Nothing here is needed to compile or run a model.
+//!
+//! - [`scenario`]: scenario files (load histories, horizons, named points);
+//! - [`simulate`]: drives the compiler's full-order steppers through a scenario;
+//! - [`vtu`]: trajectories as CSV and ParaView VTU/PVD series;
+//! - [`comparison`]: speed against error, full-order references vs the runtime at several
+//!   orders (one modal system, truncated per order), with Markdown, CSV and SVG output;
+//! - [`bench`]: structured benchmark meshes and benchmarks (medians, ratios in
+//!   one run).
+
+pub mod bench;
+pub mod comparison;
+pub mod scenario;
+pub mod simulate;
+pub mod vtu;
