@@ -17,6 +17,7 @@ use crokf_compile::generate;
 use crokf_compile::stepping::{Formulation, NewtonOptions};
 use crokf_verify::simulate::{self, SimulationOptions};
 use crokf_verify::{bench, comparison};
+use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Parser)]
 #[command(
@@ -74,25 +75,31 @@ struct ReportArgs {
     sweep_order: usize,
 }
 
-/// Draws a one-line progress bar on stderr.
+/// One progress bar per phase on stderr (indicatif: hidden when stderr is not a terminal, so
+/// logs get no carriage-return noise; rate and ETA for the long full-order phases).
 fn progress_bar() -> impl FnMut(comparison::Progress) {
-    let mut last = (String::new(), usize::MAX);
+    let style = ProgressStyle::with_template(
+        "{msg:<26} [{bar:20}] {percent:>3}% {pos}/{len} {elapsed_precise} (eta {eta})",
+    )
+    .unwrap_or_else(|_| ProgressStyle::default_bar())
+    .progress_chars("#>-");
+    let mut current: Option<(String, ProgressBar)> = None;
     move |p: comparison::Progress| {
-        let percent = (100 * p.done).checked_div(p.total).unwrap_or(100).min(100);
-        if last.0 == p.phase && last.1 == percent {
-            return;
+        let same = current.as_ref().is_some_and(|(phase, _)| phase == p.phase);
+        if !same {
+            if let Some((_, bar)) = current.take() {
+                bar.finish();
+            }
+            let bar = ProgressBar::new(p.total as u64).with_style(style.clone());
+            bar.set_message(p.phase.to_owned());
+            current = Some((p.phase.to_owned(), bar));
         }
-        last = (p.phase.to_owned(), percent);
-        let filled = percent / 5;
-        eprint!(
-            "\r{:<26} [{}{}] {:>3}%",
-            p.phase,
-            "#".repeat(filled),
-            " ".repeat(20 - filled),
-            percent
-        );
-        if p.done >= p.total {
-            eprintln!();
+        if let Some((_, bar)) = &current {
+            bar.set_length(p.total as u64);
+            bar.set_position(p.done as u64);
+            if p.done >= p.total {
+                bar.finish();
+            }
         }
     }
 }

@@ -1,0 +1,519 @@
+//! Rendering of a comparison: Markdown table, CSV and an SVG plot of step time against error.
+
+use std::fmt::Write as _;
+
+use super::{breakdown_rotation, Comparison, ReducedRow, SweepPoint};
+
+/// The sweep as a markdown table, with the 5 % and 10 % breakdown rotations.
+pub fn sweep_markdown(points: &[SweepPoint], order: usize) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "| load scale | max rotation (°) | runtime r = {order} open-loop error | tip error | linear FEM error |"
+    );
+    let _ = writeln!(out, "|---:|---:|---:|---:|---:|");
+    for p in points {
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} | {} | {} |",
+            p.scale,
+            degrees(p.max_rotation_deg),
+            sci(p.open_loop_error),
+            sci(p.tip_error),
+            sci(p.linear_error)
+        );
+    }
+    for t in [0.05, 0.10] {
+        let _ = writeln!(
+            out,
+            "\nopen-loop error < {:.0} % up to {}",
+            100.0 * t,
+            breakdown_rotation(points, t)
+                .map_or("— (not even the smallest load)".to_owned(), |d| {
+                    format!("{d:.1}° of rotation")
+                })
+        );
+    }
+    out
+}
+
+// ---------------------------------------------------------------------------------------------
+// Rendering
+
+/// Seconds with an SI prefix: `1.23 µs`, `45.6 ms`.
+pub fn format_seconds(s: f64) -> String {
+    if !s.is_finite() {
+        return "—".into();
+    }
+    let (v, unit) = if s < 1e-6 {
+        (s * 1e9, "ns")
+    } else if s < 1e-3 {
+        (s * 1e6, "µs")
+    } else if s < 1.0 {
+        (s * 1e3, "ms")
+    } else {
+        (s, "s")
+    };
+    let digits = if v >= 100.0 {
+        0
+    } else if v >= 10.0 {
+        1
+    } else {
+        2
+    };
+    format!("{v:.digits$} {unit}")
+}
+
+/// 10^d seconds as a tick label: `1 µs`, `10 µs`, `100 µs`, `1 ms`, … (d from −9 to 2;
+/// `1e{d} s` outside).
+fn decade_seconds(d: i32) -> String {
+    let units = ["ns", "µs", "ms", "s"];
+    if !(-9..=2).contains(&d) {
+        return format!("1e{d} s");
+    }
+    let k = (d + 9) / 3;
+    let mantissa = 10i32.pow(((d + 9) % 3) as u32);
+    format!("{mantissa} {}", units[k as usize])
+}
+
+/// Degrees with one decimal, or two significant digits below 0.1°.
+fn degrees(v: f64) -> String {
+    if v.abs() >= 0.1 || v == 0.0 {
+        format!("{v:.1}")
+    } else {
+        format!("{v:.1e}")
+    }
+}
+
+fn sci(v: f64) -> String {
+    if v.is_nan() {
+        "—".into()
+    } else if v == 0.0 {
+        "0".into()
+    } else {
+        format!("{v:.2e}")
+    }
+}
+
+fn ratio(a: f64, b: f64) -> String {
+    let r = a / b;
+    if !r.is_finite() {
+        "—".into()
+    } else if r >= 100.0 {
+        format!("{r:.0}×")
+    } else if r >= 1.0 {
+        format!("{r:.1}×")
+    } else {
+        format!("{r:.2}×")
+    }
+}
+
+fn csv_number(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:e}")
+    } else {
+        String::new()
+    }
+}
+
+/// Plot marker shapes.
+#[derive(Clone, Copy, Debug)]
+enum Shape {
+    Circle,
+    Square,
+    Triangle,
+    Diamond,
+}
+
+impl Shape {
+    /// Appends the marker centred at (x, y) (px) as one SVG element of class `class`.
+    fn draw(self, s: &mut String, x: f64, y: f64, colour: &str, class: &str) {
+        let points = |p: &[(f64, f64)]| -> String {
+            p.iter()
+                .map(|(dx, dy)| format!("{:.1},{:.1}", x + dx, y + dy))
+                .collect::<Vec<_>>()
+                .join(" ")
+        };
+        let _ = match self {
+            Shape::Circle => writeln!(
+                s,
+                r#"<circle class="{class}" cx="{x:.1}" cy="{y:.1}" r="5" fill="{colour}"/>"#
+            ),
+            Shape::Square => writeln!(
+                s,
+                r#"<rect class="{class}" x="{:.1}" y="{:.1}" width="9" height="9" fill="{colour}"/>"#,
+                x - 4.5,
+                y - 4.5
+            ),
+            Shape::Triangle => writeln!(
+                s,
+                r#"<polygon class="{class}" points="{}" fill="{colour}"/>"#,
+                points(&[(0.0, -6.0), (-6.0, 5.0), (6.0, 5.0)])
+            ),
+            Shape::Diamond => writeln!(
+                s,
+                r#"<polygon class="{class}" points="{}" fill="{colour}"/>"#,
+                points(&[(0.0, -7.0), (6.0, 0.0), (0.0, 7.0), (-6.0, 0.0)])
+            ),
+        };
+    }
+}
+
+fn xml_escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+impl Comparison {
+    /// The table: one row per full-order model and per runtime order.
+    pub fn markdown(&self) -> String {
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "Scene `{}`, scenario `{}`: {} free DOFs, {} tetrahedra, {} steps of Δt = {} s; \
+             largest rotation in the co-rotational reference {:.1}° (t = {:.3} s).",
+            self.scene.display(),
+            self.scenario.display(),
+            self.dofs,
+            self.tetrahedra,
+            self.steps,
+            self.dt,
+            self.max_rotation_deg,
+            self.max_rotation_time
+        );
+        let _ = writeln!(
+            out,
+            "\nErrors: relative L2 over the {} displayed nodes and the whole trajectory, world \
+             frame, against the co-rotational full-order reference; tip error at sensor `{}`. \
+             Filtered: measurements = reference sensor displacements + Gaussian noise \
+             (noise_std, seed {:#x}){}. Runtime step = predict + update (median of batches); \
+             full-order step = median over the run.\n",
+            self.displayed_nodes,
+            self.tip.as_deref().unwrap_or("—"),
+            self.seed,
+            if self.withheld_loads {
+                "; the runtime got NO load inputs (loads withheld)"
+            } else {
+                ""
+            }
+        );
+        let _ = writeln!(
+            out,
+            "| model | r | step time | speed-up vs co-rotational FEM | speed-up vs linear FEM | relative L2 error | tip error | filtered error |"
+        );
+        let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|---:|");
+        let c = self.corotational.step_s;
+        let l = self.linear.step_s;
+        let _ = writeln!(
+            out,
+            "| co-rotational FEM (reference) | n = {} | {} | 1× | {} | 0 | 0 | — |",
+            self.dofs,
+            format_seconds(c),
+            ratio(l, c)
+        );
+        let _ = writeln!(
+            out,
+            "| linear FEM | n = {} | {} | {} | 1× | {} | {} | — |",
+            self.dofs,
+            format_seconds(l),
+            ratio(c, l),
+            sci(self.linear.error),
+            sci(self.linear.tip_error)
+        );
+        for row in &self.reduced {
+            let r = if row.order == row.requested_order {
+                row.order.to_string()
+            } else {
+                format!("{} (asked {})", row.order, row.requested_order)
+            };
+            let _ = writeln!(
+                out,
+                "| runtime | {r} | {} | {} | {} | {} | {} | {} |",
+                format_seconds(row.step_s),
+                ratio(c, row.step_s),
+                ratio(l, row.step_s),
+                sci(row.error),
+                sci(row.tip_error),
+                sci(row.filtered_error)
+            );
+        }
+        if let Some(n) = self.corotational.newton {
+            let _ = writeln!(
+                out,
+                "\nCo-rotational Newton: {} solves in {} steps, {} unconverged, worst final \
+                 increment {:.1e}.",
+                n.solves, n.steps, n.unconverged, n.worst_increment
+            );
+        }
+        out
+    }
+
+    /// CSV, one row per model and order; empty fields where a figure does not apply.
+    pub fn csv(&self) -> String {
+        let mut out = String::from(
+            "model,r,step_s,speedup_vs_corotational,speedup_vs_linear,error,tip_error,\
+             filtered_error,filtered_tip_error,error_vs_linear,open_loop_step_s,max_rotation_deg\n",
+        );
+        let c = self.corotational.step_s;
+        let l = self.linear.step_s;
+        let rot = csv_number(self.max_rotation_deg);
+        let _ = writeln!(
+            out,
+            "corotational_fem,{},{},1,{},0,0,,,,,{rot}",
+            self.dofs,
+            csv_number(c),
+            csv_number(l / c)
+        );
+        let _ = writeln!(
+            out,
+            "linear_fem,{},{},{},1,{},{},,,0,,{rot}",
+            self.dofs,
+            csv_number(l),
+            csv_number(c / l),
+            csv_number(self.linear.error),
+            csv_number(self.linear.tip_error)
+        );
+        for row in &self.reduced {
+            let _ = writeln!(
+                out,
+                "runtime,{},{},{},{},{},{},{},{},{},{},{rot}",
+                row.order,
+                csv_number(row.step_s),
+                csv_number(c / row.step_s),
+                csv_number(l / row.step_s),
+                csv_number(row.error),
+                csv_number(row.tip_error),
+                csv_number(row.filtered_error),
+                csv_number(row.filtered_tip_error),
+                csv_number(row.error_vs_linear),
+                csv_number(row.open_loop_step_s)
+            );
+        }
+        out
+    }
+
+    /// A self-contained SVG plot: step time (log x) against relative L2 error (log y), one
+    /// marker (`class="marker"`) per open-loop and filtered runtime point and per full-order
+    /// model; the co-rotational reference (error 0) sits on the bottom axis.
+    pub fn svg(&self) -> String {
+        const W: f64 = 720.0;
+        const H: f64 = 480.0;
+        const LEFT: f64 = 80.0;
+        const RIGHT: f64 = 230.0;
+        const TOP: f64 = 50.0;
+        const BOTTOM: f64 = 60.0;
+        let (pw, ph) = (W - LEFT - RIGHT, H - TOP - BOTTOM);
+
+        let finite_pos = |v: f64| v.is_finite() && v > 0.0;
+        let mut times = vec![self.corotational.step_s, self.linear.step_s];
+        let mut errors = vec![self.linear.error];
+        for r in &self.reduced {
+            times.push(r.step_s);
+            errors.push(r.error);
+            errors.push(r.filtered_error);
+        }
+        let decades = |values: &[f64], fallback: (f64, f64)| {
+            let v: Vec<f64> = values.iter().copied().filter(|&v| finite_pos(v)).collect();
+            if v.is_empty() {
+                return fallback;
+            }
+            let lo = v
+                .iter()
+                .copied()
+                .fold(f64::INFINITY, f64::min)
+                .log10()
+                .floor();
+            let hi = v
+                .iter()
+                .copied()
+                .fold(f64::NEG_INFINITY, f64::max)
+                .log10()
+                .ceil();
+            (lo, if hi > lo { hi } else { lo + 1.0 })
+        };
+        let (x0, x1) = decades(&times, (-6.0, 0.0));
+        let (y0, y1) = decades(&errors, (-3.0, 0.0));
+        let sx = |t: f64| LEFT + (t.log10() - x0) / (x1 - x0) * pw;
+        let sy = |e: f64| TOP + ph - (e.log10() - y0) / (y1 - y0) * ph;
+        let y_bottom = TOP + ph;
+
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            r#"<?xml version="1.0" encoding="UTF-8"?>
+<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}" font-family="sans-serif" font-size="12">"#
+        );
+        let _ = writeln!(
+            s,
+            r#"<rect x="0" y="0" width="{W}" height="{H}" fill="white"/>"#
+        );
+        let title = format!(
+            "{} — speed against error (max rotation {:.0}°)",
+            self.scene.parent().and_then(|p| p.file_name()).map_or_else(
+                || self.scene.display().to_string(),
+                |n| n.to_string_lossy().into_owned()
+            ),
+            self.max_rotation_deg
+        );
+        let _ = writeln!(
+            s,
+            r#"<text x="{}" y="28" text-anchor="middle" font-size="15">{}</text>"#,
+            LEFT + pw / 2.0,
+            xml_escape(&title)
+        );
+        // Grid, ticks and tick labels.
+        let _ = writeln!(s, r##"<g stroke="#dddddd" stroke-width="1">"##);
+        for d in (x0 as i32)..=(x1 as i32) {
+            let x = LEFT + (d as f64 - x0) / (x1 - x0) * pw;
+            let _ = writeln!(
+                s,
+                r#"<line x1="{x:.1}" y1="{TOP}" x2="{x:.1}" y2="{y_bottom}"/>"#
+            );
+        }
+        for d in (y0 as i32)..=(y1 as i32) {
+            let y = TOP + ph - (d as f64 - y0) / (y1 - y0) * ph;
+            let _ = writeln!(
+                s,
+                r#"<line x1="{LEFT}" y1="{y:.1}" x2="{}" y2="{y:.1}"/>"#,
+                LEFT + pw
+            );
+        }
+        let _ = writeln!(s, "</g>");
+        let _ = writeln!(
+            s,
+            r#"<rect x="{LEFT}" y="{TOP}" width="{pw}" height="{ph}" fill="none" stroke="black"/>"#
+        );
+        for d in (x0 as i32)..=(x1 as i32) {
+            let x = LEFT + (d as f64 - x0) / (x1 - x0) * pw;
+            let _ = writeln!(
+                s,
+                r#"<line x1="{x:.1}" y1="{y_bottom}" x2="{x:.1}" y2="{}" stroke="black"/>"#,
+                y_bottom + 5.0
+            );
+            let _ = writeln!(
+                s,
+                r#"<text x="{x:.1}" y="{}" text-anchor="middle">{}</text>"#,
+                y_bottom + 19.0,
+                decade_seconds(d)
+            );
+        }
+        for d in (y0 as i32)..=(y1 as i32) {
+            let y = TOP + ph - (d as f64 - y0) / (y1 - y0) * ph;
+            let _ = writeln!(
+                s,
+                r#"<line x1="{}" y1="{y:.1}" x2="{LEFT}" y2="{y:.1}" stroke="black"/>"#,
+                LEFT - 5.0
+            );
+            let _ = writeln!(
+                s,
+                r#"<text x="{}" y="{:.1}" text-anchor="end">1e{d}</text>"#,
+                LEFT - 8.0,
+                y + 4.0
+            );
+        }
+        let _ = writeln!(
+            s,
+            r#"<text x="{}" y="{}" text-anchor="middle">step time (log scale)</text>"#,
+            LEFT + pw / 2.0,
+            H - 18.0
+        );
+        let _ = writeln!(
+            s,
+            r#"<text x="20" y="{}" text-anchor="middle" transform="rotate(-90 20 {})">relative L2 error vs co-rotational FEM (log scale)</text>"#,
+            TOP + ph / 2.0,
+            TOP + ph / 2.0
+        );
+
+        // Series: lines through the runtime points, then markers.
+        let series = |pick: &dyn Fn(&ReducedRow) -> f64| -> Vec<(f64, f64, usize)> {
+            self.reduced
+                .iter()
+                .filter(|r| finite_pos(r.step_s) && finite_pos(pick(r)))
+                .map(|r| (sx(r.step_s), sy(pick(r)), r.order))
+                .collect()
+        };
+        let open = series(&|r| r.error);
+        let filtered = series(&|r| r.filtered_error);
+        const OPEN: &str = "#1f77b4";
+        const FILTERED: &str = "#ff7f0e";
+        const LINEAR: &str = "#2ca02c";
+        const COROT: &str = "#000000";
+        for (points, colour) in [(&open, OPEN), (&filtered, FILTERED)] {
+            if points.len() > 1 {
+                let path: Vec<String> = points
+                    .iter()
+                    .map(|(x, y, _)| format!("{x:.1},{y:.1}"))
+                    .collect();
+                let _ = writeln!(
+                    s,
+                    r#"<polyline points="{}" fill="none" stroke="{colour}" stroke-width="1.5"/>"#,
+                    path.join(" ")
+                );
+            }
+        }
+        for &(x, y, _) in &open {
+            Shape::Circle.draw(&mut s, x, y, OPEN, "marker");
+        }
+        for &(x, y, _) in &filtered {
+            Shape::Square.draw(&mut s, x, y, FILTERED, "marker");
+        }
+        // Order labels above the upper marker of each order, on top of the markers (white
+        // halo); neighbouring orders often sit close together, so the labels take three rows.
+        for (i, &(x, y, r)) in open.iter().enumerate() {
+            let top = filtered
+                .iter()
+                .find(|p| p.2 == r && (p.0 - x).abs() < 0.5)
+                .map_or(y, |p| p.1.min(y));
+            let _ = writeln!(
+                s,
+                r#"<text x="{x:.1}" y="{:.1}" font-size="10" text-anchor="middle" stroke="white" stroke-width="3" paint-order="stroke">r={r}</text>"#,
+                top - 9.0 - 12.0 * (i % 3) as f64
+            );
+        }
+        if finite_pos(self.linear.step_s) && finite_pos(self.linear.error) {
+            let (x, y) = (sx(self.linear.step_s), sy(self.linear.error));
+            Shape::Triangle.draw(&mut s, x, y, LINEAR, "marker");
+            let _ = writeln!(
+                s,
+                r#"<text x="{:.1}" y="{:.1}" font-size="10" text-anchor="end">linear FEM</text>"#,
+                x - 8.0,
+                y - 6.0
+            );
+        }
+        if finite_pos(self.corotational.step_s) {
+            let x = sx(self.corotational.step_s);
+            Shape::Diamond.draw(&mut s, x, y_bottom, COROT, "marker");
+            let _ = writeln!(
+                s,
+                r#"<text x="{:.1}" y="{:.1}" font-size="10" text-anchor="end">reference (error 0)</text>"#,
+                x - 8.0,
+                y_bottom - 8.0
+            );
+        }
+        // Legend.
+        let lx = LEFT + pw + 20.0;
+        let entries = [
+            ("runtime, open loop", OPEN, Shape::Circle),
+            ("runtime, filtered", FILTERED, Shape::Square),
+            ("linear FEM (full order)", LINEAR, Shape::Triangle),
+            ("co-rotational FEM (reference)", COROT, Shape::Diamond),
+        ];
+        let _ = writeln!(s, r#"<g class="legend">"#);
+        for (i, (label, colour, draw)) in entries.iter().enumerate() {
+            let y = TOP + 14.0 + 22.0 * i as f64;
+            draw.draw(&mut s, lx + 6.0, y, colour, "legend-symbol");
+            let _ = writeln!(
+                s,
+                r#"<text x="{:.1}" y="{:.1}">{}</text>"#,
+                lx + 18.0,
+                y + 4.0,
+                xml_escape(label)
+            );
+        }
+        let _ = writeln!(s, "</g>");
+        let _ = writeln!(s, "</svg>");
+        s
+    }
+}
