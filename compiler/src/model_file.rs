@@ -39,13 +39,6 @@ pub fn assemble_model(
             displacement_rows: block(at, 3),
             rotation_rows: block(at + 3, 3),
             components: s.components.iter().map(|c| c.index() as u8).collect(),
-            // The largest σ of the measured components; per-channel values are in
-            // `kalman.measurement_variance`.
-            noise_std: s
-                .components
-                .iter()
-                .map(|c| s.noise_std[c.index()])
-                .fold(0.0, f64::max),
             every: s.every,
         });
     }

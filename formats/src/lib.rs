@@ -14,6 +14,7 @@
 
 mod matrix;
 mod model;
+pub mod output;
 mod validate;
 
 pub use matrix::Matrix;
@@ -26,8 +27,11 @@ use sha2::{Digest, Sha256};
 
 /// File magic, 8 bytes.
 pub const MAGIC: [u8; 8] = *b"CROKF\0\r\n";
-/// The format version this crate writes and the newest it reads.
-pub const FORMAT_VERSION: u32 = 1;
+/// The format version this crate writes and the only one it reads.
+///
+/// Version 2 stores the measurement noise once per channel (`kalman.measurement_variance`);
+/// version 1 also had a lossy per-sensor `noise_std` (the largest σ over its components).
+pub const FORMAT_VERSION: u32 = 2;
 /// Header length in bytes (magic + version + payload length + SHA-256).
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 32;
 
@@ -46,8 +50,8 @@ pub enum FormatError {
         /// The first 8 bytes.
         found: [u8; 8],
     },
-    /// Written by a newer (or unknown) format version.
-    #[error("model file format version {found} is not supported (this build reads versions 1..={supported})")]
+    /// Written by another (older, newer or unknown) format version.
+    #[error("{}", version_message(*found, *supported))]
     UnsupportedVersion {
         /// Version in the file.
         found: u32,
@@ -129,6 +133,17 @@ pub enum FormatError {
     },
 }
 
+/// "model format v1, this runtime reads v2: recompile with crokf-compile" (or, for a newer
+/// file, "…: update the runtime").
+fn version_message(found: u32, supported: u32) -> String {
+    let remedy = if found < supported {
+        "recompile the model with crokf-compile"
+    } else {
+        "use a runtime that reads it, or recompile the model with this crokf-compile"
+    };
+    format!("model format v{found}, this runtime reads v{supported}: {remedy}")
+}
+
 /// Lowercase hex of a byte string.
 pub fn hex(bytes: &[u8]) -> String {
     const DIGITS: &[u8; 16] = b"0123456789abcdef";
@@ -193,7 +208,7 @@ impl Header {
             });
         }
         let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
-        if version == 0 || version > FORMAT_VERSION {
+        if version != FORMAT_VERSION {
             return Err(FormatError::UnsupportedVersion {
                 found: version,
                 supported: FORMAT_VERSION,

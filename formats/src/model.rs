@@ -97,9 +97,6 @@ pub struct SensorInfo {
     pub rotation_rows: Matrix,
     /// Measured components, distinct, each 0 (x), 1 (y) or 2 (z).
     pub components: Vec<u8>,
-    /// Measurement noise standard deviation, m: the largest over the measured components (the
-    /// per-channel variances are [`KalmanGains::measurement_variance`]).
-    pub noise_std: f64,
     /// A measurement arrives at the steps k with k mod `every` = 0 (k = 1, 2, …).
     pub every: u32,
 }

@@ -156,7 +156,6 @@ impl Model {
             let mut sorted = sensor.components.clone();
             sorted.sort_unstable();
             check_increasing(&format!("{path}.components (sorted)"), &sorted)?;
-            check_positive(&format!("{path}.noise_std"), sensor.noise_std)?;
             if sensor.every == 0 {
                 return Err(invalid(format!("{path}.every"), "must be ≥ 1"));
             }

@@ -33,7 +33,6 @@ fn small_model() -> Model {
             displacement_rows: g.matrix(3, r),
             rotation_rows: g.matrix(3, r),
             components: vec![0, 1, 2],
-            noise_std: 1e-3,
             every: 1,
         },
         SensorInfo {
@@ -42,7 +41,6 @@ fn small_model() -> Model {
             displacement_rows: g.matrix(3, r),
             rotation_rows: g.matrix(3, r),
             components: vec![2],
-            noise_std: 2e-3,
             every: 2,
         },
     ];
@@ -160,7 +158,7 @@ fn round_trip_and_determinism() {
     let bytes = encode(&model);
     assert_eq!(bytes, encode(&model), "encoding must be deterministic");
     assert_eq!(&bytes[..8], b"CROKF\0\r\n");
-    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 1);
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 2);
     let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
     assert_eq!(len as usize, bytes.len() - HEADER_LEN);
     assert_eq!(hex(&bytes[20..52]), sha256_hex(&bytes[HEADER_LEN..]));
@@ -228,15 +226,30 @@ fn every_truncation_is_an_error() {
 }
 
 #[test]
-fn newer_version_and_wrong_magic() {
+fn other_versions_and_wrong_magic() {
+    assert_eq!(FORMAT_VERSION, 2);
+    // A version-1 file (per-sensor noise_std, since removed) is refused before its payload is
+    // read, with both versions and the remedy in the message.
     let mut bytes = encode(&small_model());
-    bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
+    bytes[8..12].copy_from_slice(&1u32.to_le_bytes());
+    let err = decode(&bytes).unwrap_err();
     assert_eq!(
-        decode(&bytes),
-        Err(FormatError::UnsupportedVersion {
-            found: 2,
-            supported: 1
-        })
+        err,
+        FormatError::UnsupportedVersion {
+            found: 1,
+            supported: 2
+        }
+    );
+    assert_eq!(
+        err.to_string(),
+        "model format v1, this runtime reads v2: recompile the model with crokf-compile"
+    );
+    bytes[8..12].copy_from_slice(&3u32.to_le_bytes());
+    let err = decode(&bytes).unwrap_err();
+    assert!(
+        err.to_string()
+            .starts_with("model format v3, this runtime reads v2: "),
+        "{err}"
     );
     let mut bytes = encode(&small_model());
     bytes[0] = b'X';

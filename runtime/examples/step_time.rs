@@ -31,7 +31,6 @@ fn model(r: usize, n: usize) -> Model {
             displacement_rows: g.matrix(3, r, 1.0),
             rotation_rows: g.matrix(3, r, 0.01),
             components: vec![0, 1, 2],
-            noise_std: 1e-3,
             every: 1,
         })
         .collect();

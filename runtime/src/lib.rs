@@ -15,9 +15,7 @@
 //! ```
 
 pub mod capi;
-pub mod csv;
 mod estimator;
-pub mod vtu;
 pub mod warp;
 
 pub use crokf_formats::{FormatError, Model};
@@ -103,24 +101,6 @@ pub enum RuntimeError {
         index: usize,
         /// Number of node sets.
         count: usize,
-    },
-    /// A CSV file is malformed.
-    #[error("{path}:{line}: {message}")]
-    Csv {
-        /// File.
-        path: PathBuf,
-        /// 1-based line.
-        line: usize,
-        /// What is wrong.
-        message: String,
-    },
-    /// Writing an output file failed.
-    #[error("cannot write {path}: {source}")]
-    Write {
-        /// File.
-        path: PathBuf,
-        /// Cause.
-        source: std::io::Error,
     },
 }
 

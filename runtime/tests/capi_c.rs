@@ -4,36 +4,8 @@
 mod common;
 use common::*;
 use crokf_runtime::Estimator;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
-
-/// The freshest `libcrokf_runtime.so` next to this test binary (…/deps or its parent), or
-/// `$CROKF_RUNTIME_LIB`.
-fn find_cdylib() -> PathBuf {
-    if let Some(p) = std::env::var_os("CROKF_RUNTIME_LIB") {
-        return PathBuf::from(p);
-    }
-    let name = format!(
-        "{}crokf_runtime{}",
-        std::env::consts::DLL_PREFIX,
-        std::env::consts::DLL_SUFFIX
-    );
-    let exe = std::env::current_exe().unwrap();
-    let mut candidates: Vec<PathBuf> = exe
-        .ancestors()
-        .skip(1)
-        .take(3)
-        .map(|d| d.join(&name))
-        .filter(|p| p.is_file())
-        .collect();
-    candidates.sort_by_key(|p| std::fs::metadata(p).and_then(|m| m.modified()).ok());
-    candidates.pop().unwrap_or_else(|| {
-        panic!(
-            "{name} not found near {}; build the runtime crate first",
-            exe.display()
-        )
-    })
-}
 
 fn parse_line(line: &str) -> (usize, Vec<f64>, Vec<f64>) {
     // "step K used N: d d d ... | std: s s s ..."

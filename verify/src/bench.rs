@@ -215,7 +215,6 @@ pub fn synthetic_model(r: usize, inputs: usize, measured: usize, nodes: usize) -
                 components: (0..3u8)
                     .filter(|c| 3 * s + (*c as usize) < measured)
                     .collect(),
-                noise_std: 1e-3,
                 every: 1,
             })
             .collect(),

@@ -3,6 +3,7 @@
 
 use crokf_formats::*;
 use std::collections::BTreeMap;
+use std::path::PathBuf;
 
 /// SplitMix64 PRNG.
 pub struct Rng(pub u64);
@@ -174,7 +175,6 @@ pub fn synthetic_model(spec: &Spec) -> Model {
             displacement_rows: g.matrix(3, r, 1.0),
             rotation_rows: g.matrix(3, r, rot),
             components: vec![0, 1, 2],
-            noise_std: 0.1,
             every: 1,
         },
         SensorInfo {
@@ -183,7 +183,6 @@ pub fn synthetic_model(spec: &Spec) -> Model {
             displacement_rows: g.matrix(3, r, 1.0),
             rotation_rows: g.matrix(3, r, rot),
             components: vec![0, 2],
-            noise_std: 0.2,
             every: spec.every2,
         },
     ];
@@ -194,9 +193,10 @@ pub fn synthetic_model(spec: &Spec) -> Model {
             component: c,
         })
         .collect();
+    // σ = 0.1 m on "tip", 0.2 m on "mid".
     let variance: Vec<f64> = measurements
         .iter()
-        .map(|m| sensors[m.sensor as usize].noise_std.powi(2))
+        .map(|m| [0.1f64, 0.2][m.sensor as usize].powi(2))
         .collect();
     let period = spec.every2.max(1) as usize;
     let measured_of = |p: usize| -> Vec<u32> {
@@ -365,4 +365,32 @@ pub fn scratch_dir(name: &str) -> std::path::PathBuf {
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
+}
+
+/// The freshest `libcrokf_runtime.so` next to this test binary (…/deps or its parent), or
+/// `$CROKF_RUNTIME_LIB`.
+pub fn find_cdylib() -> PathBuf {
+    if let Some(p) = std::env::var_os("CROKF_RUNTIME_LIB") {
+        return PathBuf::from(p);
+    }
+    let name = format!(
+        "{}crokf_runtime{}",
+        std::env::consts::DLL_PREFIX,
+        std::env::consts::DLL_SUFFIX
+    );
+    let exe = std::env::current_exe().unwrap();
+    let mut candidates: Vec<PathBuf> = exe
+        .ancestors()
+        .skip(1)
+        .take(3)
+        .map(|d| d.join(&name))
+        .filter(|p| p.is_file())
+        .collect();
+    candidates.sort_by_key(|p| std::fs::metadata(p).and_then(|m| m.modified()).ok());
+    candidates.pop().unwrap_or_else(|| {
+        panic!(
+            "{name} not found near {}; build the runtime crate first",
+            exe.display()
+        )
+    })
 }

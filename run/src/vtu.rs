@@ -4,16 +4,9 @@
 //! `.pvd` collection over time.
 //! In ParaView, "Warp By Vector" on `displacement` shows the deformed surface.
 
-use crate::{Estimator, RuntimeError};
+use crokf_formats::output::{OutputError, StagedDir};
+use crokf_runtime::{Estimator, RuntimeError};
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
-
-fn write_err(path: &Path, source: std::io::Error) -> RuntimeError {
-    RuntimeError::Write {
-        path: path.to_path_buf(),
-        source,
-    }
-}
 
 fn xml_escape(s: &str) -> String {
     s.replace('&', "&amp;")
@@ -125,16 +118,29 @@ pub fn render_vtu(est: &Estimator) -> Result<String, RuntimeError> {
     Ok(s)
 }
 
-/// Writes `dir/step_{k:06}.vtu` for the estimator's current step k; returns the file name.
-pub fn write_step(dir: &Path, est: &Estimator) -> Result<String, RuntimeError> {
-    let name = format!("step_{:06}.vtu", est.step_index());
-    let path = dir.join(&name);
-    std::fs::write(&path, render_vtu(est)?).map_err(|e| write_err(&path, e))?;
+/// Writes `step_{k:06}.vtu` for the estimator's current step k into the staged folder;
+/// returns the file name.
+pub fn write_step(dir: &mut StagedDir, est: &Estimator) -> Result<String, crate::RunError> {
+    let name = step_file_name(est.step_index());
+    dir.write(&name, render_vtu(est)?.as_bytes())?;
     Ok(name)
 }
 
-/// Writes `dir/estimates.pvd` listing `(time s, file name)` pairs.
-pub fn write_pvd(dir: &Path, entries: &[(f64, String)]) -> Result<PathBuf, RuntimeError> {
+/// `step_{k:06}.vtu`.
+pub fn step_file_name(k: u64) -> String {
+    format!("step_{k:06}.vtu")
+}
+
+/// Whether `name` is one of the files a VTU series writes (`step_*.vtu`, `estimates.pvd`).
+pub fn is_series_file_name(name: &str) -> bool {
+    name == PVD_NAME || (name.starts_with("step_") && name.ends_with(".vtu"))
+}
+
+/// The collection file's name.
+pub const PVD_NAME: &str = "estimates.pvd";
+
+/// Writes `estimates.pvd` listing `(time s, file name)` pairs into the staged folder.
+pub fn write_pvd(dir: &mut StagedDir, entries: &[(f64, String)]) -> Result<(), OutputError> {
     let mut s = String::from("<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"1.0\" byte_order=\"LittleEndian\">\n<Collection>\n");
     for (t, file) in entries {
         let _ = writeln!(
@@ -144,7 +150,5 @@ pub fn write_pvd(dir: &Path, entries: &[(f64, String)]) -> Result<PathBuf, Runti
         );
     }
     s.push_str("</Collection>\n</VTKFile>\n");
-    let path = dir.join("estimates.pvd");
-    std::fs::write(&path, s).map_err(|e| write_err(&path, e))?;
-    Ok(path)
+    dir.write(PVD_NAME, s.as_bytes())
 }

@@ -1,5 +1,6 @@
 //! `crokf-run` end to end: CSV in, CSV and VTU out, compared with the library estimator.
 
+#[path = "../../runtime/tests/common/mod.rs"]
 mod common;
 use common::*;
 use crokf_runtime::Estimator;

@@ -1,0 +1,165 @@
+//! `crokf-run MODEL --inputs inputs.csv [--measurements m.csv] --out estimates.csv [--vtu DIR]`
+//!
+//! Runs the estimator over an input history (and optional measurements) and writes the
+//! estimated sensor displacements (world frame) and their standard deviations per step.
+//! Output paths are checked before any work (not an input, not twice, folder exists); the
+//! outputs are written to temporary files and renamed into place only when every step has
+//! succeeded.
+
+use clap::Parser;
+use crokf_formats::output::{self, AtomicFile, Output, OutputKind, StagedDir};
+use crokf_run::{table, vtu, RunError};
+use crokf_runtime::{load_model, Estimator};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+/// Run a crokf model over recorded inputs and measurements.
+#[derive(Parser, Debug)]
+#[command(version, about)]
+struct Args {
+    /// Model file written by crokf-compile.
+    model: PathBuf,
+    /// Inputs CSV: `step` (or `t`), then one column per input label; rows are steps 1, 2, ….
+    #[arg(long)]
+    inputs: PathBuf,
+    /// Measurements CSV: `step` (or `t`), then columns `sensor.x|y|z`; empty cell = missing.
+    #[arg(long)]
+    measurements: Option<PathBuf>,
+    /// Output CSV: step, t, estimated sensor displacements, their standard deviations.
+    #[arg(long)]
+    out: PathBuf,
+    /// Also write one .vtu per step and estimates.pvd into this directory.
+    #[arg(long)]
+    vtu: Option<PathBuf>,
+    /// With --vtu: write every N-th step only.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    vtu_every: u64,
+}
+
+/// Refuses outputs that are inputs or collide, before any work.
+fn check_outputs(args: &Args) -> Result<(), RunError> {
+    let mut inputs: Vec<(&str, &Path)> = vec![("model", &args.model), ("--inputs", &args.inputs)];
+    if let Some(m) = &args.measurements {
+        inputs.push(("--measurements", m));
+    }
+    let mut outputs = vec![Output {
+        role: "--out",
+        path: &args.out,
+        kind: OutputKind::File,
+    }];
+    if let Some(dir) = &args.vtu {
+        outputs.push(Output {
+            role: "--vtu",
+            path: dir,
+            kind: OutputKind::Folder,
+        });
+    }
+    output::check_paths(&inputs, &outputs)?;
+    // A file of the VTU series inside --vtu must not be --out or an input either.
+    if let Some(dir) = args.vtu.as_deref().and_then(output::canonical) {
+        for (role, path) in inputs
+            .iter()
+            .copied()
+            .chain([("--out", args.out.as_path())])
+        {
+            let Some(c) = output::canonical(path) else {
+                continue;
+            };
+            let name = c.file_name().map(|n| n.to_string_lossy().into_owned());
+            if c.parent() == Some(dir.as_path())
+                && name.is_some_and(|n| vtu::is_series_file_name(&n))
+            {
+                return Err(output::OutputError::SameOutput {
+                    first_role: "--vtu".into(),
+                    second_role: role.into(),
+                    path: path.to_path_buf(),
+                }
+                .into());
+            }
+        }
+    }
+    Ok(())
+}
+
+fn run(args: &Args) -> Result<(), RunError> {
+    check_outputs(args)?;
+    let model = load_model(&args.model)?;
+    let inputs = table::read_inputs(&args.inputs, &model)?;
+    let measurements = match &args.measurements {
+        Some(p) => table::read_measurements(p, &model)?,
+        None => Default::default(),
+    };
+    let mut est = Estimator::new(&model)?;
+    let q = model.measurements.len();
+    let ns = model.sensors.len();
+    let none = vec![None; q];
+    let mut u = vec![0.0; 3 * ns];
+    let mut sd = vec![0.0; 3 * ns];
+    let write_err = |source| output::OutputError::Io {
+        path: args.out.clone(),
+        source,
+    };
+    let mut out = AtomicFile::create(&args.out)?;
+    writeln!(out, "{}", table::estimates_header(&model)).map_err(write_err)?;
+    let mut staged = match &args.vtu {
+        Some(dir) => Some(StagedDir::create(dir)?),
+        None => None,
+    };
+    let mut pvd = Vec::new();
+    let inputs_name = args.inputs.display().to_string();
+    for (row, &line) in inputs.rows.iter().zip(&inputs.lines) {
+        let k = est.step_index() + 1;
+        let measured = measurements.get(&k);
+        let y = measured.map_or(&none, |m| &m.values);
+        let step_err = |source| {
+            let mut location = format!("{inputs_name}:{line}");
+            if let (Some(m), Some(p)) = (measured, &args.measurements) {
+                location.push_str(&format!(", {}:{}", p.display(), m.line));
+            }
+            RunError::Step {
+                step: k,
+                location,
+                source,
+            }
+        };
+        est.step(row, y).map_err(step_err)?;
+        est.sensor_displacements(&mut u).map_err(step_err)?;
+        est.sensor_std(&mut sd).map_err(step_err)?;
+        let mut text = format!("{},{}", k, est.time());
+        for v in u.iter().chain(&sd) {
+            text.push_str(&format!(",{v:e}"));
+        }
+        writeln!(out, "{text}").map_err(write_err)?;
+        if let Some(dir) = staged.as_mut() {
+            if k % args.vtu_every == 0 {
+                pvd.push((est.time(), vtu::write_step(dir, &est)?));
+            }
+        }
+    }
+    if let Some(mut dir) = staged {
+        vtu::write_pvd(&mut dir, &pvd)?;
+        dir.commit()?;
+    }
+    out.commit()?;
+    if let Some(&last) = measurements.keys().next_back() {
+        if last > inputs.rows.len() as u64 {
+            eprintln!(
+                "warning: measurements after step {} (the last input row) were ignored",
+                inputs.rows.len()
+            );
+        }
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    match run(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("crokf-run: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

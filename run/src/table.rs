@@ -1,0 +1,310 @@
+//! CSV input/output for `crokf-run`, read with the `csv` crate: comma-separated, a header row,
+//! RFC 4180 quoting, CRLF or LF line ends, a UTF-8 byte-order mark ignored, cells trimmed; blank
+//! lines and lines starting with `#` are skipped.
+//!
+//! Step convention (`docs/design.md` §6, `docs/model-format.md` §2): step k = 1, 2, … is the
+//! k-th prediction; the load of step k acts over (t_{k−1}, t_k] and the measurement and
+//! estimate of step k are at t_k = k·Δt. The first column of an input or measurement file is
+//! `step` (k, an integer) or `t` (t_k in seconds, k = round(t/Δt)).
+
+use crate::RunError;
+use crokf_runtime::Model;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// One value per input channel (model order) for steps 1, 2, …, n.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InputTable {
+    /// `rows[k − 1]` = inputs of step k (N for load channels, a scale for gravity).
+    pub rows: Vec<Vec<f64>>,
+    /// `lines[k − 1]` = 1-based line of step k's row in the file.
+    pub lines: Vec<usize>,
+}
+
+/// One step's measurements: one entry per measurement channel (model order), `None` =
+/// missing, and the 1-based line of the row.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MeasurementRow {
+    /// World-frame values, m.
+    pub values: Vec<Option<f64>>,
+    /// 1-based line in the file.
+    pub line: usize,
+}
+
+/// Measurements by step k.
+pub type MeasurementTable = BTreeMap<u64, MeasurementRow>;
+
+/// The non-blank, non-comment records of a CSV text with their 1-based line numbers.
+struct Records {
+    path: PathBuf,
+    /// (1-based line, trimmed cells).
+    rows: Vec<(usize, Vec<String>)>,
+}
+
+impl Records {
+    /// Parses `text` (the content of `path`).
+    fn parse(path: &Path, text: &[u8]) -> Result<Records, RunError> {
+        let mut reader = csv::ReaderBuilder::new()
+            .has_headers(false)
+            .flexible(true)
+            .comment(Some(b'#'))
+            .trim(csv::Trim::All)
+            .from_reader(text);
+        let mut rows = Vec::new();
+        let mut record = csv::StringRecord::new();
+        loop {
+            let line = reader.position().line() as usize;
+            match reader.read_record(&mut record) {
+                Ok(false) => break,
+                Ok(true) => {
+                    let line = record.position().map_or(line, |p| p.line() as usize);
+                    if record.iter().all(str::is_empty) {
+                        continue; // a line of blanks
+                    }
+                    rows.push((line, record.iter().map(str::to_owned).collect()));
+                }
+                Err(e) => {
+                    let line = e.position().map_or(line, |p| p.line() as usize);
+                    let message = match e.kind() {
+                        csv::ErrorKind::Utf8 { .. } => "not valid UTF-8".to_owned(),
+                        _ => e.to_string(),
+                    };
+                    return Err(RunError::Csv {
+                        path: path.to_path_buf(),
+                        line,
+                        message,
+                    });
+                }
+            }
+        }
+        Ok(Records {
+            path: path.to_path_buf(),
+            rows,
+        })
+    }
+
+    fn read(path: &Path) -> Result<Records, RunError> {
+        let text = std::fs::read(path).map_err(|source| RunError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Records::parse(path, &text)
+    }
+
+    /// Every data row must have as many cells as the header.
+    fn check_widths(&self) -> Result<(), RunError> {
+        let width = self.rows.first().map_or(0, |(_, h)| h.len());
+        for (line, cells) in self.rows.iter().skip(1) {
+            if cells.len() != width {
+                return Err(self.err(
+                    *line,
+                    format!("{} cells, the header has {width}", cells.len()),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn err(&self, line: usize, message: impl Into<String>) -> RunError {
+        RunError::Csv {
+            path: self.path.clone(),
+            line,
+            message: message.into(),
+        }
+    }
+
+    /// Header → (first column is `t`, column index of each label).
+    fn header(
+        &self,
+        labels: &[String],
+        all_required: bool,
+    ) -> Result<(bool, Vec<Option<usize>>), RunError> {
+        let Some((line, head)) = self.rows.first() else {
+            return Err(self.err(1, "empty file: expected a header row"));
+        };
+        let by_time = match head.first().map(String::as_str) {
+            Some("step") => false,
+            Some("t") => true,
+            other => {
+                return Err(self.err(
+                    *line,
+                    format!(
+                        "first column must be `step` or `t`, found `{}`",
+                        other.unwrap_or("")
+                    ),
+                ))
+            }
+        };
+        let mut cols = vec![None; labels.len()];
+        for (c, name) in head.iter().enumerate().skip(1) {
+            let Some(i) = labels.iter().position(|l| l == name) else {
+                return Err(self.err(
+                    *line,
+                    format!(
+                        "unknown column `{name}` (the model's are: {})",
+                        labels.join(", ")
+                    ),
+                ));
+            };
+            if cols[i].is_some() {
+                return Err(self.err(*line, format!("column `{name}` appears twice")));
+            }
+            cols[i] = Some(c);
+        }
+        if all_required {
+            if let Some(i) = cols.iter().position(Option::is_none) {
+                return Err(self.err(*line, format!("missing column `{}`", labels[i])));
+            }
+        }
+        Ok((by_time, cols))
+    }
+
+    fn step_of(&self, line: usize, cell: &str, by_time: bool, dt: f64) -> Result<u64, RunError> {
+        if by_time {
+            let t: f64 = cell
+                .parse()
+                .map_err(|_| self.err(line, format!("time `{cell}` is not a number")))?;
+            let k = (t / dt).round();
+            if !(k >= 1.0 && (t - k * dt).abs() <= 1e-6 * dt.max(t.abs())) || k > 1e15 {
+                return Err(self.err(
+                    line,
+                    format!("time {t} s is not a positive multiple of Δt = {dt} s"),
+                ));
+            }
+            Ok(k as u64)
+        } else {
+            match cell.parse::<u64>() {
+                Ok(k) if k >= 1 => Ok(k),
+                _ => Err(self.err(line, format!("step `{cell}` is not an integer ≥ 1"))),
+            }
+        }
+    }
+
+    fn value(
+        &self,
+        line: usize,
+        cells: &[String],
+        c: usize,
+        label: &str,
+    ) -> Result<Option<f64>, RunError> {
+        let Some(cell) = cells.get(c) else {
+            return Err(self.err(
+                line,
+                format!("row has {} cells, column `{label}` missing", cells.len()),
+            ));
+        };
+        if cell.is_empty() {
+            return Ok(None);
+        }
+        match cell.parse::<f64>() {
+            Ok(v) if v.is_finite() => Ok(Some(v)),
+            _ => Err(self.err(line, format!("`{label}`: `{cell}` is not a finite number"))),
+        }
+    }
+}
+
+/// Parses the text of an inputs file (`path` only names it in errors): first column `step` or
+/// `t`, then one column per input label (all required, any order). Rows must be steps
+/// 1, 2, 3, … in order; a file with a header and no rows is an error.
+pub fn parse_inputs(path: &Path, text: &[u8], model: &Model) -> Result<InputTable, RunError> {
+    inputs_from(Records::parse(path, text)?, model)
+}
+
+/// Reads `inputs.csv` (see [`parse_inputs`]).
+pub fn read_inputs(path: &Path, model: &Model) -> Result<InputTable, RunError> {
+    inputs_from(Records::read(path)?, model)
+}
+
+fn inputs_from(records: Records, model: &Model) -> Result<InputTable, RunError> {
+    let labels = model.input_labels();
+    let (by_time, cols) = records.header(&labels, true)?;
+    records.check_widths()?;
+    let mut rows = Vec::with_capacity(records.rows.len().saturating_sub(1));
+    let mut lines = Vec::with_capacity(rows.capacity());
+    for (line, cells) in &records.rows[1..] {
+        let k = records.step_of(*line, &cells[0], by_time, model.dt)?;
+        let expected = rows.len() as u64 + 1;
+        if k != expected {
+            return Err(records.err(
+                *line,
+                format!("step {k}, expected {expected} (rows must be steps 1, 2, 3, … in order)"),
+            ));
+        }
+        let mut row = Vec::with_capacity(labels.len());
+        for (label, c) in labels.iter().zip(&cols) {
+            let v = records.value(*line, cells, c.unwrap_or(0), label)?;
+            row.push(v.ok_or_else(|| records.err(*line, format!("input `{label}` is empty")))?);
+        }
+        rows.push(row);
+        lines.push(*line);
+    }
+    if rows.is_empty() {
+        let line = records.rows.first().map_or(1, |(l, _)| *l);
+        return Err(records.err(line, "header only: no input rows, nothing to run"));
+    }
+    Ok(InputTable { rows, lines })
+}
+
+/// Parses the text of a measurements file (`path` only names it in errors): first column
+/// `step` or `t`, then columns named by measurement labels (`sensor.x`; any subset, any order).
+/// Empty cell = missing; absent column = always missing. Steps strictly increasing; steps
+/// without a row have no measurement.
+pub fn parse_measurements(
+    path: &Path,
+    text: &[u8],
+    model: &Model,
+) -> Result<MeasurementTable, RunError> {
+    measurements_from(Records::parse(path, text)?, model)
+}
+
+/// Reads `measurements.csv` (see [`parse_measurements`]).
+pub fn read_measurements(path: &Path, model: &Model) -> Result<MeasurementTable, RunError> {
+    measurements_from(Records::read(path)?, model)
+}
+
+fn measurements_from(records: Records, model: &Model) -> Result<MeasurementTable, RunError> {
+    let labels = model.measurement_labels();
+    let (by_time, cols) = records.header(&labels, false)?;
+    records.check_widths()?;
+    let mut table = MeasurementTable::new();
+    let mut last = 0;
+    for (line, cells) in &records.rows[1..] {
+        let k = records.step_of(*line, &cells[0], by_time, model.dt)?;
+        if k <= last {
+            return Err(records.err(
+                *line,
+                format!("step {k} after step {last}: steps must increase"),
+            ));
+        }
+        last = k;
+        let mut values = Vec::with_capacity(labels.len());
+        for (label, c) in labels.iter().zip(&cols) {
+            values.push(match c {
+                Some(c) => records.value(*line, cells, *c, label)?,
+                None => None,
+            });
+        }
+        table.insert(
+            k,
+            MeasurementRow {
+                values,
+                line: *line,
+            },
+        );
+    }
+    Ok(table)
+}
+
+/// Header of `estimates.csv`: `step,t`, then per sensor `name.x,name.y,name.z`, then per
+/// sensor `name.x_std,name.y_std,name.z_std`.
+pub fn estimates_header(model: &Model) -> String {
+    let mut h = String::from("step,t");
+    for suffix in ["", "_std"] {
+        for s in &model.sensors {
+            for c in ["x", "y", "z"] {
+                h.push_str(&format!(",{}.{c}{suffix}", s.name));
+            }
+        }
+    }
+    h
+}
