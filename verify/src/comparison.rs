@@ -204,12 +204,23 @@ pub struct Comparison {
     pub corotational: FullOrderRow,
     /// Linear full-order model.
     pub linear: FullOrderRow,
-    /// Runtime rows, in the order of `options.orders`.
+    /// Runtime rows, in the order of `options.orders` (orders that failed are left out).
     pub reduced: Vec<ReducedRow>,
+    /// Orders whose compile or run failed, with the reason.
+    pub failures: Vec<ReducedFailure>,
     /// Noise seed used.
     pub seed: u64,
     /// Whether the runtime got the loads.
     pub withheld_loads: bool,
+}
+
+/// An order the comparison could not complete.
+#[derive(Clone, Debug)]
+pub struct ReducedFailure {
+    /// Requested order r.
+    pub order: usize,
+    /// What went wrong (the compiler's or the runtime's message, with the step).
+    pub reason: String,
 }
 
 /// One point of [`rotation_sweep`].
@@ -760,75 +771,87 @@ pub fn run(
         total: 1,
     });
     let mut reduced = Vec::new();
+    let mut failures = Vec::new();
     for &order in &options.orders {
-        let phase = format!("compile r = {order}");
-        progress(Progress {
-            phase: &phase,
-            done: 0,
-            total: 1,
-        });
-        let (model, compile_s) = compile_at(&reductor, order, options.measure_compile_error)?;
-        progress(Progress {
-            phase: &phase,
-            done: 1,
-            total: 1,
-        });
-        let r = model.r();
-        let mut est = Estimator::new(&model).map_err(|source| ComparisonError::Runtime {
-            path: setup.scene_path.clone(),
-            order: r,
-            step: 0,
-            source,
-        })?;
-        let inputs = runtime_inputs(&setup, &setup.scenario, &model, options.withhold_loads)?;
-        let none = vec![vec![None; model.measurements.len()]; setup.steps];
-        let open = run_runtime(
-            &setup,
-            &mut est,
-            &inputs,
-            &none,
-            &corot,
-            Some(&linear),
-            &format!("open loop r = {order}"),
-            progress,
-        )?;
-        let measurements = synthetic_measurements(&model, &corot, setup.steps, options.seed);
-        let filtered = run_runtime(
-            &setup,
-            &mut est,
-            &inputs,
-            &measurements,
-            &corot,
-            None,
-            &format!("filtered r = {order}"),
-            progress,
-        )?;
-        let phase = format!("timing r = {order}");
-        progress(Progress {
-            phase: &phase,
-            done: 0,
-            total: 1,
-        });
-        let step_s = time_runtime(&mut est, &inputs, &measurements, options.timing_samples);
-        let open_loop_step_s = time_runtime(&mut est, &inputs, &none, options.timing_samples);
-        progress(Progress {
-            phase: &phase,
-            done: 1,
-            total: 1,
-        });
-        reduced.push(ReducedRow {
-            requested_order: order,
-            order: r,
-            step_s,
-            open_loop_step_s,
-            error: open.display.relative(),
-            tip_error: open.tip.relative(),
-            filtered_error: filtered.display.relative(),
-            filtered_tip_error: filtered.tip.relative(),
-            error_vs_linear: open.display_vs_linear.relative(),
-            compile_measured_errors: model.report.measured_errors.clone(),
-            compile_s,
-        });
+        // One order's failure (a refused compile, a runtime that leaves its envelope) is
+        // recorded with its reason and the report goes on with the next order.
+        let one = |progress: &mut dyn FnMut(Progress)| -> Result<ReducedRow, ComparisonError> {
+            let phase = format!("compile r = {order}");
+            progress(Progress {
+                phase: &phase,
+                done: 0,
+                total: 1,
+            });
+            let (model, compile_s) = compile_at(&reductor, order, options.measure_compile_error)?;
+            progress(Progress {
+                phase: &phase,
+                done: 1,
+                total: 1,
+            });
+            let r = model.r();
+            let mut est = Estimator::new(&model).map_err(|source| ComparisonError::Runtime {
+                path: setup.scene_path.clone(),
+                order: r,
+                step: 0,
+                source,
+            })?;
+            let inputs = runtime_inputs(&setup, &setup.scenario, &model, options.withhold_loads)?;
+            let none = vec![vec![None; model.measurements.len()]; setup.steps];
+            let open = run_runtime(
+                &setup,
+                &mut est,
+                &inputs,
+                &none,
+                &corot,
+                Some(&linear),
+                &format!("open loop r = {order}"),
+                progress,
+            )?;
+            let measurements = synthetic_measurements(&model, &corot, setup.steps, options.seed);
+            let filtered = run_runtime(
+                &setup,
+                &mut est,
+                &inputs,
+                &measurements,
+                &corot,
+                None,
+                &format!("filtered r = {order}"),
+                progress,
+            )?;
+            let phase = format!("timing r = {order}");
+            progress(Progress {
+                phase: &phase,
+                done: 0,
+                total: 1,
+            });
+            let step_s = time_runtime(&mut est, &inputs, &measurements, options.timing_samples);
+            let open_loop_step_s = time_runtime(&mut est, &inputs, &none, options.timing_samples);
+            progress(Progress {
+                phase: &phase,
+                done: 1,
+                total: 1,
+            });
+            Ok(ReducedRow {
+                requested_order: order,
+                order: r,
+                step_s,
+                open_loop_step_s,
+                error: open.display.relative(),
+                tip_error: open.tip.relative(),
+                filtered_error: filtered.display.relative(),
+                filtered_tip_error: filtered.tip.relative(),
+                error_vs_linear: open.display_vs_linear.relative(),
+                compile_measured_errors: model.report.measured_errors.clone(),
+                compile_s,
+            })
+        };
+        match one(progress) {
+            Ok(row) => reduced.push(row),
+            Err(e) => failures.push(ReducedFailure {
+                order,
+                reason: e.to_string(),
+            }),
+        }
     }
     Ok(Comparison {
         scene: setup.scene_path.clone(),
@@ -846,6 +869,7 @@ pub fn run(
         corotational: corot_row,
         linear: linear_row,
         reduced,
+        failures,
         seed: options.seed,
         withheld_loads: options.withhold_loads,
     })

@@ -16,6 +16,10 @@ use crokf_compile::stepping::{
 };
 use crokf_compile::{CompileError, FullOrder};
 
+use crokf_formats::output::{
+    check_paths, write_atomically, Output, OutputError, OutputKind, StagedDir,
+};
+
 use crate::scenario::{Horizon, Scenario, ScenarioError};
 use crate::vtu;
 
@@ -67,6 +71,9 @@ pub enum SimulateError {
         /// Distance to it, m.
         distance: f64,
     },
+    /// An output path refused before any work, or a failed write.
+    #[error(transparent)]
+    Output(#[from] OutputError),
     /// Output file.
     #[error("{path}: {source}")]
     Io {
@@ -355,26 +362,39 @@ pub fn run(
     scenario.check_scene(scene, scenario_path)?;
     let probes = probes(fem, ops, &scenario, unit, scenario_path)?;
 
-    let io = |path: &Path| {
-        let path = path.to_owned();
-        move |source| SimulateError::Io { path, source }
-    };
-    std::fs::create_dir_all(out).map_err(io(out))?;
+    check_paths(
+        &[
+            ("scene", scene_path),
+            ("scenario", scenario_path),
+            ("mesh", &full.scene.mesh_path()),
+        ],
+        &[Output {
+            role: "--out",
+            path: out,
+            kind: OutputKind::Folder,
+        }],
+    )?;
+    // Frames are staged beside `out/frames` and moved in only when the whole run succeeded;
+    // a failed run leaves the old files or nothing.
     let frames_dir = out.join("frames");
+    let mut staged_frames = None;
     if vtu {
-        std::fs::create_dir_all(&frames_dir).map_err(io(&frames_dir))?;
+        std::fs::create_dir_all(out).map_err(|source| SimulateError::Io {
+            path: out.to_owned(),
+            source,
+        })?;
+        staged_frames = Some(StagedDir::create(&frames_dir)?);
     }
     let tetrahedra: Vec<[usize; 4]> = fem.elements.iter().map(|e| e.nodes).collect();
     let mut files = Vec::new();
     let mut frames: Vec<(f64, String)> = Vec::new();
     let mut observer = |frame: &Frame| -> Result<(), SimulateError> {
-        if !vtu {
+        let Some(staged) = staged_frames.as_mut() else {
             return Ok(());
-        }
+        };
         let name = format!("frame_{:04}.vtu", frames.len());
         let text = vtu::vtu(&fem.positions, &tetrahedra, &fem.nodal(frame.displacement));
-        let path = frames_dir.join(&name);
-        vtu::write_text(&path, &text)?;
+        staged.write(&name, text.as_bytes())?;
         frames.push((frame.time, format!("frames/{name}")));
         Ok(())
     };
@@ -388,12 +408,17 @@ pub fn run(
         scenario_path,
         &mut observer,
     )?;
+    std::fs::create_dir_all(out).map_err(|source| SimulateError::Io {
+        path: out.to_owned(),
+        source,
+    })?;
     let csv = out.join("trajectories.csv");
-    vtu::write_text(&csv, &vtu::trajectories_csv(&trajectories))?;
+    write_atomically(&csv, vtu::trajectories_csv(&trajectories).as_bytes())?;
     files.push(csv);
-    if vtu {
+    if let Some(staged) = staged_frames {
+        staged.commit()?;
         let pvd = out.join("series.pvd");
-        vtu::write_text(&pvd, &vtu::pvd(&frames))?;
+        write_atomically(&pvd, vtu::pvd(&frames).as_bytes())?;
         files.push(pvd);
         files.extend(frames.iter().map(|(_, f)| out.join(f)));
     }

@@ -3,23 +3,8 @@
 //! by a PVD file.
 
 use std::fmt::Write as _;
-use std::io::Write as _;
-use std::path::Path;
 
-use crate::simulate::{SimulateError, Trajectories};
-
-fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> SimulateError + '_ {
-    move |source| SimulateError::Io {
-        path: path.to_owned(),
-        source,
-    }
-}
-
-/// Writes `text` to `path`, naming the file on failure.
-pub fn write_text(path: &Path, text: &str) -> Result<(), SimulateError> {
-    let mut file = std::fs::File::create(path).map_err(io_error(path))?;
-    file.write_all(text.as_bytes()).map_err(io_error(path))
-}
+use crate::simulate::Trajectories;
 
 /// CSV text: `step,t` then `<label>.ux,<label>.uy,<label>.uz` per recorded point (world
 /// displacement, m), one row per recorded step.

@@ -334,7 +334,8 @@ fn crokf_verify_simulate_writes_csv_and_a_vtu_series() {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("crokf_verify_simulate");
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    let mesh = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/cube_41_ascii.msh");
+    let mesh =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../compiler/tests/fixtures/cube_41_ascii.msh");
     let scene_path = dir.join("scene.toml");
     std::fs::write(
         &scene_path,

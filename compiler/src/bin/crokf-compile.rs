@@ -8,7 +8,9 @@ use clap::Parser;
 use crokf_compile::check::{check, CheckOutcome};
 use crokf_compile::fem::export::export_matrices;
 use crokf_compile::report::StageTimer;
+use crokf_compile::scene::SceneFile;
 use crokf_compile::{compile, CompileOptions, FullOrder};
+use crokf_formats::output::{check_paths, AtomicFile, Output, OutputKind};
 
 /// Compile a scene (TOML) and its gmsh mesh into a crokf model file.
 #[derive(Parser, Debug)]
@@ -54,7 +56,48 @@ fn main() -> ExitCode {
     }
 }
 
+/// Refuses, before any work, an output that is the scene, its mesh or the model being checked,
+/// two outputs on one path, and an output whose folder does not exist.
+fn check_outputs(args: &Args) -> Result<(), String> {
+    let scene = SceneFile::read(&args.scene).map_err(|e| e.to_string())?;
+    let mesh = scene.mesh_path();
+    let mut inputs = vec![("scene", args.scene.as_path()), ("mesh", mesh.as_path())];
+    if let Some(model) = &args.check {
+        inputs.push(("--check model", model.as_path()));
+    }
+    let mut outputs = Vec::new();
+    let file = |role, path| Output {
+        role,
+        path,
+        kind: OutputKind::File,
+    };
+    if let Some(path) = &args.output {
+        outputs.push(file("-o", path.as_path()));
+    }
+    if let Some(path) = &args.report {
+        outputs.push(file("--report", path.as_path()));
+    }
+    if let Some(dir) = &args.export_matrices {
+        outputs.push(Output {
+            role: "--export-matrices",
+            path: dir.as_path(),
+            kind: OutputKind::Folder,
+        });
+    }
+    check_paths(&inputs, &outputs).map_err(|e| e.to_string())
+}
+
+/// Writes `bytes` to `path` through a temporary sibling; the target appears only on commit.
+fn staged(path: &std::path::Path, bytes: &[u8]) -> Result<AtomicFile, String> {
+    use std::io::Write as _;
+    let mut file = AtomicFile::create(path).map_err(|e| e.to_string())?;
+    file.write_all(bytes)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(file)
+}
+
 fn run(args: &Args) -> Result<ExitCode, String> {
+    check_outputs(args)?;
     if let Some(model) = &args.check {
         return match check(model, &args.scene).map_err(|e| e.to_string())? {
             CheckOutcome::UpToDate => {
@@ -97,13 +140,18 @@ fn run(args: &Args) -> Result<ExitCode, String> {
     };
     let compiled = compile(&args.scene, &options).map_err(|e| e.to_string())?;
     eprint!("{}", compiled.summary());
-    if let Some(path) = &args.output {
-        std::fs::write(path, &compiled.bytes).map_err(|e| format!("{}: {e}", path.display()))?;
-        eprintln!("wrote {} ({} bytes)", path.display(), compiled.bytes.len());
-    }
-    if let Some(path) = &args.report {
-        std::fs::write(path, compiled.report_json())
-            .map_err(|e| format!("{}: {e}", path.display()))?;
+    // Both files are written in full to temporary siblings before either replaces its target.
+    let model = match &args.output {
+        Some(path) => Some(staged(path, &compiled.bytes)?),
+        None => None,
+    };
+    let report = match &args.report {
+        Some(path) => Some(staged(path, compiled.report_json().as_bytes())?),
+        None => None,
+    };
+    for file in [model, report].into_iter().flatten() {
+        let path = file.target().to_path_buf();
+        file.commit().map_err(|e| e.to_string())?;
         eprintln!("wrote {}", path.display());
     }
     if args.output.is_none() && args.report.is_none() {

@@ -15,6 +15,7 @@ use std::process::ExitCode;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use crokf_compile::generate;
 use crokf_compile::stepping::{Formulation, NewtonOptions};
+use crokf_formats::output::{check_paths, write_atomically, Output, OutputKind, StagedDir};
 use crokf_verify::simulate::{self, SimulationOptions};
 use crokf_verify::{bench, comparison};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -116,19 +117,40 @@ fn report(args: &ReportArgs) -> Result<(), String> {
         withhold_loads: args.withhold_loads,
         ..comparison::ComparisonOptions::default()
     };
+    check_paths(
+        &[("scene", &args.scene), ("scenario", &args.scenario)],
+        &[Output {
+            role: "--out",
+            path: &args.out,
+            kind: OutputKind::Folder,
+        }],
+    )
+    .map_err(|e| e.to_string())?;
     let mut bar = progress_bar();
     let result = comparison::run(&args.scene, &args.scenario, &options, &mut bar)
         .map_err(|e| e.to_string())?;
     std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
-    let write = |name: &str, text: &str| {
-        let path = args.out.join(name);
-        std::fs::write(&path, text).map_err(|e| format!("{}: {e}", path.display()))
-    };
     let markdown = result.markdown();
-    write("report.md", &markdown)?;
-    write("report.csv", &result.csv())?;
-    write("report.svg", &result.svg())?;
+    // The three files appear together, complete, or not at all.
+    let mut staged = StagedDir::create(&args.out).map_err(|e| e.to_string())?;
+    staged
+        .write("report.md", markdown.as_bytes())
+        .and_then(|()| staged.write("report.csv", result.csv().as_bytes()))
+        .and_then(|()| staged.write("report.svg", result.svg().as_bytes()))
+        .map_err(|e| e.to_string())?;
+    staged.commit().map_err(|e| e.to_string())?;
     println!("{markdown}");
+    println!(
+        "wrote report.md, report.csv, report.svg in {}",
+        args.out.display()
+    );
+    if !result.failures.is_empty() {
+        eprintln!(
+            "crokf-verify: {} of {} orders failed (reasons in report.md)",
+            result.failures.len(),
+            args.orders.len()
+        );
+    }
     if !args.sweep.is_empty() {
         let points = comparison::rotation_sweep(
             &args.scene,
@@ -140,13 +162,10 @@ fn report(args: &ReportArgs) -> Result<(), String> {
         )
         .map_err(|e| e.to_string())?;
         let text = comparison::sweep_markdown(&points, args.sweep_order);
-        write("sweep.md", &text)?;
+        let path = args.out.join("sweep.md");
+        write_atomically(&path, text.as_bytes()).map_err(|e| e.to_string())?;
         println!("{text}");
     }
-    println!(
-        "wrote report.md, report.csv, report.svg in {}",
-        args.out.display()
-    );
     Ok(())
 }
 

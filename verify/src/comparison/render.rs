@@ -228,15 +228,36 @@ impl Comparison {
             } else {
                 format!("{} (asked {})", row.order, row.requested_order)
             };
+            // A reduced row that is worse than the full-order linear FEM is flagged: the
+            // reduction or the warping costs more than the co-rotation gains there.
+            let flag = if row.error > self.linear.error {
+                " ⚠ worse than linear FEM"
+            } else {
+                ""
+            };
             let _ = writeln!(
                 out,
-                "| runtime | {r} | {} | {} | {} | {} | {} | {} |",
+                "| runtime | {r} | {} | {} | {} | {}{flag} | {} | {} |",
                 format_seconds(row.step_s),
                 ratio(c, row.step_s),
                 ratio(l, row.step_s),
                 sci(row.error),
                 sci(row.tip_error),
                 sci(row.filtered_error)
+            );
+        }
+        for failure in &self.failures {
+            let _ = writeln!(
+                out,
+                "| runtime | {} | failed | — | — | — | — | — |",
+                failure.order
+            );
+        }
+        for failure in &self.failures {
+            let _ = writeln!(
+                out,
+                "\nOrder r = {} failed: {}",
+                failure.order, failure.reason
             );
         }
         if let Some(n) = self.corotational.newton {

@@ -1,0 +1,71 @@
+//! `crokf-compile` never destroys its inputs or leaves a half-written result: outputs that are
+//! inputs, two outputs on one path and outputs into a missing folder are refused before any
+//! work, with a message naming both paths.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn case_dir(name: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("compile_cli_{name}"));
+    std::fs::remove_dir_all(&dir).ok();
+    std::fs::create_dir_all(&dir).expect("create test directory");
+    dir
+}
+
+/// Copies the cube fixture and a scene for it into `dir`; returns the scene path.
+fn scene_in(dir: &Path) -> PathBuf {
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
+    std::fs::copy(fixtures.join("cube_41_ascii.msh"), dir.join("cube.msh")).expect("copy mesh");
+    let scene = dir.join("scene.toml");
+    std::fs::write(
+        &scene,
+        "[mesh]\nfile = \"cube.msh\"\n[[material]]\ngroup = \"body\"\nyoung_modulus = 1.0e6\n\
+         poisson_ratio = 0.3\ndensity = 1000.0\n[[fixed]]\ngroup = \"bottom\"\n[time]\ndt = 0.01\n",
+    )
+    .expect("write scene");
+    scene
+}
+
+fn compile(args: &[&Path]) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_crokf-compile"))
+        .args(args)
+        .output()
+        .expect("run crokf-compile");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn outputs_that_are_inputs_or_collide_are_refused_before_any_work() {
+    let dir = case_dir("refusals");
+    let scene = scene_in(&dir);
+    let mesh = dir.join("cube.msh");
+    let scene_bytes = std::fs::read(&scene).expect("scene");
+    let mesh_bytes = std::fs::read(&mesh).expect("mesh");
+    let o = Path::new("-o");
+    let report = Path::new("--report");
+
+    let (ok, err) = compile(&[&scene, o, &scene]);
+    assert!(!ok && err.contains("scene") && err.contains("refusing"), "{err}");
+    let (ok, err) = compile(&[&scene, o, &mesh]);
+    assert!(!ok && err.contains("mesh") && err.contains("refusing"), "{err}");
+    let model = dir.join("model.crokf");
+    let (ok, err) = compile(&[&scene, o, &model, report, &model]);
+    assert!(!ok && err.contains("same file"), "{err}");
+    let missing = dir.join("no/such/folder/report.json");
+    let (ok, err) = compile(&[&scene, o, &model, report, &missing]);
+    assert!(!ok && err.contains("does not exist"), "{err}");
+
+    assert_eq!(std::fs::read(&scene).expect("scene"), scene_bytes);
+    assert_eq!(std::fs::read(&mesh).expect("mesh"), mesh_bytes);
+    assert!(!model.exists(), "no model is written when the command is refused");
+    let strays: Vec<_> = std::fs::read_dir(&dir)
+        .expect("list")
+        .filter_map(Result::ok)
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with('.'))
+        .collect();
+    assert!(strays.is_empty(), "stray temporary files: {strays:?}");
+}
