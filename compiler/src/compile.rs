@@ -685,7 +685,10 @@ pub fn compile(scene_path: &Path, options: &CompileOptions) -> Result<Compiled, 
         })
         .map_err(kalman_err)?;
 
-    let mut notes: Vec<String> = basis.warnings.clone();
+    // Scene warnings, mesh notes and what each selection took (fem, operators) come first.
+    let mut notes: Vec<String> = full.fem.notes.clone();
+    notes.extend(full.operators.notes.iter().cloned());
+    notes.extend(basis.warnings.iter().cloned());
     notes.extend(reduced.warnings.iter().cloned());
     if ops.noise.is_empty() {
         notes.push("no process noise declared (force_noise_std / force_noise): Q = 0, so the steady-state gain is zero and measurements are ignored".to_owned());

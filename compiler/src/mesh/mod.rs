@@ -1,18 +1,32 @@
-//! Tetrahedral meshes read from gmsh files (MSH 4.1 ASCII/binary through mshio, MSH 2.2 ASCII).
+//! Tetrahedral meshes read from gmsh and VTK files.
 //!
 //! Coordinates are stored as read (mesh units); the scene's unit factor is applied by the caller.
 //!
-//! [`read_mesh`] dispatches on the `$MeshFormat` header:
-//! - MSH 4.1, ASCII or binary: parsed by `mshio`; physical tags come from `$Entities`, names from
-//!   `$PhysicalNames` (read here: mshio skips it; it is ASCII even in binary files). mshio drops
-//!   node tags when they are contiguous; they are then read back from the `$Nodes` section here.
-//! - MSH 2.0–2.2, ASCII: a small reader in this module; the first element tag is the physical
-//!   tag, the second the elementary entity. gmsh writes an element once per physical group it
-//!   belongs to (with a new element number); such copies (same type, entity and nodes) are merged
-//!   and keep the first number.
+//! [`read_mesh`] recognises the format from the file's content, not its name (a UTF-8 byte-order
+//! mark is skipped):
+//! - `$MeshFormat` 4.1, ASCII or binary: parsed by `mshio`; physical tags come from `$Entities`,
+//!   names from `$PhysicalNames` (read here: mshio skips it; it is ASCII even in binary files).
+//!   mshio drops node tags when they are contiguous; they are then read back from the `$Nodes`
+//!   section here.
+//! - `$MeshFormat` 2.0–2.2, ASCII: a small reader in this module; the first element tag is the
+//!   physical tag, the second the elementary entity. gmsh writes an element once per physical
+//!   group it belongs to (with a new element number); such copies (same type, entity and nodes)
+//!   are merged and keep the first number.
+//! - `$NOD` (MSH 1.0, ASCII): [`msh1`]; `reg-phys` is the physical tag (there are no names).
+//! - `<?xml`/`<VTKFile` (VTU: ASCII, base64 binary or appended data, zlib or LZ4 compressed) and
+//!   `# vtk DataFile` (legacy VTK, ASCII or binary) unstructured grids: [`vtk`], through
+//!   `vtkio`. Node and element tags are the 0-based point and cell ids (as ParaView shows them);
+//!   every integer cell-data array becomes volume groups named `"<array>:<value>"`
+//!   (e.g. `"MaterialIds:2"`).
 //!
 //! Element types 4 (tet4) and 2 (tri3) are kept; 15 (point) and 1 (line2) only contribute nodes
-//! to their groups. Any other type is an error naming it.
+//! to their groups. Any other type is an error naming it. Node coordinates must be finite.
+//! Nodes that belong to no tetrahedron ([`Mesh::orphan_nodes`]) stay in the mesh but not in the
+//! model (the FEM numbers only the nodes of tetrahedra).
+
+pub mod msh1;
+pub mod selection;
+pub mod vtk;
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -77,6 +91,36 @@ impl Mesh {
     /// Names of all physical groups, for error messages.
     pub fn group_names(&self) -> Vec<String> {
         self.groups.iter().map(|g| g.name.clone()).collect()
+    }
+
+    /// Indices of the nodes that belong to no tetrahedron (left out of the model), sorted.
+    pub fn orphan_nodes(&self) -> Vec<usize> {
+        let mut used = vec![false; self.nodes.len()];
+        for t in &self.tetrahedra {
+            for &n in &t.nodes {
+                if let Some(u) = used.get_mut(n) {
+                    *u = true;
+                }
+            }
+        }
+        (0..self.nodes.len()).filter(|&i| !used[i]).collect()
+    }
+
+    /// Axis-aligned bounding box `(min, max)` of the nodes of the tetrahedra, mesh units.
+    pub fn extent(&self) -> ([f64; 3], [f64; 3]) {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for t in &self.tetrahedra {
+            for &n in &t.nodes {
+                if let Some(p) = self.nodes.get(n) {
+                    for c in 0..3 {
+                        lo[c] = lo[c].min(p[c]);
+                        hi[c] = hi[c].max(p[c]);
+                    }
+                }
+            }
+        }
+        (lo, hi)
     }
 
     /// Signed volume of tetrahedron `i` (mesh units³):
@@ -155,19 +199,29 @@ fn det3(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> f64 {
     dot(a, cross(b, c))
 }
 
-/// How to get a file crokf can read.
-const CONVERT_HINT: &str =
-    "convert it to MSH 4.1 with gmsh (`gmsh FILE -save -format msh41 -o out.msh`) \
-     or meshio (`meshio convert FILE out.msh --output-format gmsh`)";
+/// How to get a file crokf can read, for a format it does not recognise (checked: meshio 5.3
+/// converts an Abaqus .inp file with this command).
+const CONVERT_HINT: &str = "crokf reads gmsh MSH 4.1 (ASCII or binary), 2.2 and 1.0 (ASCII), \
+     VTK XML unstructured grids (.vtu) and legacy VTK unstructured grids; for another format \
+     that meshio reads, convert it with `meshio convert FILE out.vtu` (`pip install meshio`)";
+
+/// How to convert another MSH version (checked with gmsh 4.15 on MSH 4.0 ASCII, 3.0 ASCII and
+/// 2.2 binary files).
+const MSH_VERSION_HINT: &str = "convert it to MSH 4.1 with gmsh: \
+     `gmsh FILE -save -format msh41 -o out.msh` (`pip install gmsh` provides the command)";
 
 /// How to get linear tetrahedra.
 const TET4_HINT: &str =
     "crokf needs linear tetrahedra (type 4; types 2, 1 and 15 are accepted for groups): \
      re-mesh with `gmsh model.geo -3 -order 1 -format msh41 -o out.msh` \
-     (hexahedra or prisms: mesh the volume with tetrahedra), or convert with meshio";
+     (hexahedra or prisms: mesh the volume with tetrahedra)";
 
 fn hint(path: &Path) -> String {
     CONVERT_HINT.replace("FILE", &path.display().to_string())
+}
+
+fn version_hint(path: &Path) -> String {
+    MSH_VERSION_HINT.replace("FILE", &path.display().to_string())
 }
 
 /// Errors in reading a gmsh mesh file. Every message names the file.
@@ -181,9 +235,9 @@ pub enum MeshError {
         /// Underlying error.
         source: std::io::Error,
     },
-    /// The file does not start with a gmsh `$MeshFormat` section.
-    #[error("{}: not a gmsh MSH file (expected `$MeshFormat` on the first line, found {found:?}); {}",
-        .path.display(), hint(.path))]
+    /// The file is in none of the formats crokf reads.
+    #[error("{}: not a mesh format crokf recognises (expected `$MeshFormat`, `$NOD`, `<?xml` or \
+        `# vtk DataFile` at the start, found {found:?}); {}", .path.display(), hint(.path))]
     NotGmsh {
         /// Mesh path.
         path: PathBuf,
@@ -192,7 +246,7 @@ pub enum MeshError {
     },
     /// A gmsh format version or encoding this reader does not handle.
     #[error("{}: MSH version {version} {encoding} is not supported (crokf reads MSH 4.1 ASCII or \
-        binary and MSH 2.2 ASCII); {}", .path.display(), hint(.path))]
+        binary, 2.2 ASCII and 1.0); {}", .path.display(), version_hint(.path))]
     UnsupportedVersion {
         /// Mesh path.
         path: PathBuf,
@@ -218,6 +272,25 @@ pub enum MeshError {
         path: PathBuf,
         /// (gmsh element type number, count), sorted by type.
         found: Vec<(u32, usize)>,
+    },
+    /// A node coordinate that is NaN or infinite.
+    #[error("{}: node {node} has a non-finite coordinate ({:?}, {:?}, {:?}); every coordinate \
+        must be a finite number", .path.display(), .position[0], .position[1], .position[2])]
+    NonFiniteNode {
+        /// Mesh path.
+        path: PathBuf,
+        /// Node tag (gmsh tag, or 0-based VTK point id).
+        node: u64,
+        /// Coordinates as read.
+        position: [f64; 3],
+    },
+    /// A VTK file that is not a serial unstructured grid, or that vtkio cannot parse.
+    #[error("{}: {message}", .path.display())]
+    Vtk {
+        /// Mesh path.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
     },
     /// An element references a node tag that `$Nodes` does not define.
     #[error("{}: element {element} references node {node}, which is not defined in $Nodes",
@@ -298,6 +371,21 @@ pub fn read_mesh(path: &Path) -> Result<Mesh, MeshError> {
 
 /// Reads a gmsh mesh from its bytes; `path` is recorded in [`Mesh::source`] and in messages.
 pub fn read_mesh_bytes(bytes: &[u8], path: &Path) -> Result<Mesh, MeshError> {
+    let body = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    let start = body
+        .iter()
+        .position(|b| !b.is_ascii_whitespace())
+        .map_or(&body[body.len()..], |i| &body[i..]);
+    if start.starts_with(b"$NOD") || start.starts_with(b"$NOE") {
+        return assemble(msh1::read(body, path)?, path);
+    }
+    if start.starts_with(b"<?xml") || start.starts_with(b"<VTKFile") {
+        return assemble(vtk::read_xml(start, path)?, path);
+    }
+    if start.starts_with(b"# vtk DataFile") {
+        return assemble(vtk::read_legacy(start, path)?, path);
+    }
+    let bytes = body;
     let header = parse_header(bytes, path)?;
     let encoding = if header.binary { "binary" } else { "ASCII" };
     let unsupported = || MeshError::UnsupportedVersion {
@@ -448,6 +536,7 @@ fn not_gmsh(path: &Path, first: &[u8]) -> MeshError {
 /// An element as read from either format.
 struct RawElement {
     tag: u64,
+    /// gmsh element type number.
     kind: u32,
     /// Physical tags of the element (2.2: the first tag; 4.1: those of its entity).
     physical: Vec<i32>,
@@ -488,6 +577,18 @@ fn assemble(raw: RawMesh, path: &Path) -> Result<Mesh, MeshError> {
         });
     }
 
+    if let Some((&node, &position)) = raw
+        .node_tags
+        .iter()
+        .zip(&raw.nodes)
+        .find(|(_, p)| p.iter().any(|v| !v.is_finite()))
+    {
+        return Err(MeshError::NonFiniteNode {
+            path: path.to_owned(),
+            node,
+            position,
+        });
+    }
     let mut index: HashMap<u64, usize> = HashMap::with_capacity(raw.node_tags.len());
     for (i, &t) in raw.node_tags.iter().enumerate() {
         if index.insert(t, i).is_some() {
