@@ -71,7 +71,10 @@ pub fn compile_reduced(
     let reduced = timer.stage("balanced_truncation", || reductor.reduce(order))?;
     let schedule = timer.stage("kalman", || reductor.kalman(&reduced))?;
 
-    let mut notes: Vec<String> = reductor.basis.warnings.clone();
+    // Scene warnings, mesh notes and what each selection took (fem, operators) come first.
+    let mut notes: Vec<String> = full.fem.notes.clone();
+    notes.extend(full.operators.notes.iter().cloned());
+    notes.extend(reductor.basis.warnings.iter().cloned());
     notes.extend(reduced.warnings.iter().cloned());
     if ops.noise.is_empty() {
         notes.push("no process noise declared (force_noise_std / force_noise): Q = 0, so the steady-state gain is zero and measurements are ignored".to_owned());

@@ -11,28 +11,42 @@ use faer::sparse::{SparseColMat, Triplet};
 
 pub use element::{ElasticMaterial, TetGeometry};
 
+use crate::mesh::selection::{SelectionError, Selections};
 use crate::mesh::Mesh;
-use crate::scene::Scene;
+use crate::scene::{Scene, Target};
 
 /// Errors in building the finite-element model from a mesh and a scene.
 #[derive(Debug, thiserror::Error)]
 pub enum FemError {
     /// The scene names a physical group the mesh does not have.
-    #[error("{context}: the mesh has no physical group named '{name}'; it has: {}", available.join(", "))]
+    #[error("{context}: the mesh has no physical group named '{name}'; it has: {}{hint}",
+        available.join(", "))]
     UnknownGroup {
         /// Where the name appeared (e.g. "material", "fixed", "load 'tip'").
         context: String,
         /// The unknown name.
         name: String,
-        /// Names that exist.
+        /// Names that exist, each with its dimension and size.
         available: Vec<String>,
+        /// What to do (name the groups, use "dim:tag", or a selection); may be empty.
+        hint: String,
     },
-    /// A tetrahedron with negative (inverted) or near-zero volume.
+    /// A selection (`select = [...]`) that cannot be resolved or takes nothing.
+    #[error(transparent)]
+    Selection(#[from] SelectionError),
+    /// Tetrahedra with negative (inverted) or near-zero volume: all of them are counted, the
+    /// first ten listed, and the first described in full.
     #[error(
-        "tetrahedron {tag} (nodes {nodes:?}) is {kind}: volume {volume:e} m³; \
-         fix the mesh (gmsh: Mesh.Optimize = 1) or re-orient the element"
+        "{count} tetrahedra are inverted or degenerate (first ten, tag: volume m³: {}); \
+         tetrahedron {tag} (nodes {nodes:?}) is {kind}: volume {volume:e} m³; \
+         fix the mesh (gmsh: Mesh.Optimize = 1) or re-orient the elements",
+        listed.iter().map(|(t, v)| format!("{t}: {v:.3e}")).collect::<Vec<_>>().join(", ")
     )]
     DegenerateElement {
+        /// Number of inverted or degenerate tetrahedra.
+        count: usize,
+        /// (gmsh element tag, signed volume in m³) of the first ten.
+        listed: Vec<(u64, f64)>,
         /// gmsh element tag.
         tag: u64,
         /// gmsh node tags.
@@ -127,19 +141,90 @@ pub struct FemModel {
     pub alpha: f64,
     /// Rayleigh β (s).
     pub beta: f64,
+    /// What the wiring should tell the user: scene warnings, orphan nodes left out, a mesh
+    /// extent that looks like the wrong unit, what each `select` took.
+    pub notes: Vec<String>,
 }
 
-/// The mesh's physical group `name`, or an error listing the names that exist.
+/// The mesh's physical group `name`, or an error listing the groups that exist with their sizes
+/// and, when the mesh has no physical names, how to name them or select nodes instead.
 pub fn find_group<'m>(
     mesh: &'m Mesh,
     name: &str,
     context: &str,
 ) -> Result<&'m crate::mesh::PhysicalGroup, FemError> {
-    mesh.group(name).ok_or_else(|| FemError::UnknownGroup {
-        context: context.to_owned(),
-        name: name.to_owned(),
-        available: mesh.group_names(),
+    mesh.group(name).ok_or_else(|| {
+        let available: Vec<String> = mesh
+            .groups
+            .iter()
+            .map(|g| {
+                let size = match g.dim {
+                    3 => format!("{} tetrahedra", g.elements.len()),
+                    2 => format!("{} triangles", g.elements.len()),
+                    _ => format!("{} nodes", g.nodes.len()),
+                };
+                format!("'{}' ({}-D, {size})", g.name, g.dim)
+            })
+            .collect();
+        let unnamed = mesh
+            .groups
+            .iter()
+            .all(|g| g.name == format!("{}:{}", g.dim, g.tag));
+        let hint = if mesh.groups.is_empty() {
+            "(no groups at all); use a selection instead, e.g. `select = [{ everything = true }]` \
+             for a material or `select = [{ box = { min = [..], max = [..] }, nodes = \"boundary\" }]` \
+             for nodes (schema in compiler/src/scene.rs)"
+                .to_owned()
+        } else if unnamed {
+            "; the mesh has no physical names: refer to a group as \"dim:tag\" as listed \
+             (e.g. group = \"3:1\"), name the groups in gmsh (Physical Volume(\"body\") = {1};), \
+             or select nodes by geometry (`select = [{ box = { min = [..], max = [..] }, \
+             nodes = \"boundary\" }]`, schema in compiler/src/scene.rs)"
+                .to_owned()
+        } else {
+            String::new()
+        };
+        FemError::UnknownGroup {
+            context: context.to_owned(),
+            name: name.to_owned(),
+            available,
+            hint,
+        }
     })
+}
+
+/// Notes about the mesh that need the scene's unit: nodes left out, an extent that looks like
+/// the wrong unit (bounding-box diagonal above 50 m or below 5 mm).
+pub fn mesh_notes(mesh: &Mesh, unit: f64) -> Vec<String> {
+    let mut notes = Vec::new();
+    let orphans = mesh.orphan_nodes();
+    if !orphans.is_empty() {
+        let tags: Vec<String> = orphans
+            .iter()
+            .take(10)
+            .map(|&i| mesh.node_tags[i].to_string())
+            .collect();
+        notes.push(format!(
+            "{}: {} node(s) belong to no tetrahedron and are left out of the model (first tags: {})",
+            mesh.source.display(),
+            orphans.len(),
+            tags.join(", ")
+        ));
+    }
+    let (lo, hi) = mesh.extent();
+    let diag = (0..3).map(|c| (hi[c] - lo[c]).powi(2)).sum::<f64>().sqrt() * unit;
+    if diag.is_finite() && diag > 50.0 {
+        notes.push(format!(
+            "the mesh spans {diag:.3e} m (bounding-box diagonal, mesh.units applied): if its \
+             coordinates are millimetres or centimetres, set mesh.units = \"mm\" or \"cm\""
+        ));
+    } else if diag.is_finite() && diag < 5e-3 {
+        notes.push(format!(
+            "the mesh spans only {diag:.3e} m (bounding-box diagonal, mesh.units applied): if its \
+             coordinates are metres, set mesh.units = \"m\""
+        ));
+    }
+    notes
 }
 
 impl FemModel {
@@ -157,20 +242,40 @@ impl FemModel {
             .collect();
 
         // Material of each tetrahedron: exactly one material group.
+        let mut notes = scene.warnings();
+        notes.extend(mesh_notes(mesh, unit));
+        let mut selections = Selections::new(mesh);
         let mut material_of = vec![None::<usize>; mesh.tetrahedra.len()];
         for (mi, m) in scene.materials.iter().enumerate() {
-            let group = find_group(mesh, &m.group, "material")?;
-            if group.dim != 3 {
-                return Err(FemError::Scene(format!(
-                    "material: physical group '{}' is {}-dimensional; materials need a volume (3-D) group",
-                    m.group, group.dim
-                )));
-            }
-            for &e in &group.elements {
+            let selected;
+            let (label, elements): (String, &[usize]) = match m.target() {
+                Target::Group(name) => {
+                    let group = find_group(mesh, name, "material")?;
+                    if group.dim != 3 {
+                        return Err(FemError::Scene(format!(
+                            "material: physical group '{name}' is {}-dimensional; materials need a volume (3-D) group",
+                            group.dim
+                        )));
+                    }
+                    (name.to_owned(), &group.elements)
+                }
+                Target::Select(list) => {
+                    let context = format!("material {}", mi + 1);
+                    let (s, note) = selections.tetrahedra(list, &context)?;
+                    notes.push(note);
+                    selected = s;
+                    (context, &selected.tetrahedra)
+                }
+            };
+            for &e in elements {
                 if let Some(other) = material_of[e] {
+                    let other_label = match scene.materials[other].target() {
+                        Target::Group(g) => g.to_owned(),
+                        Target::Select(_) => format!("material {}", other + 1),
+                    };
                     return Err(FemError::Materials(format!(
-                        "tetrahedron {} belongs to two material groups, '{}' and '{}'",
-                        mesh.tetrahedra[e].tag, scene.materials[other].group, m.group
+                        "tetrahedron {} belongs to two material groups, '{other_label}' and '{label}'",
+                        mesh.tetrahedra[e].tag
                     )));
                 }
                 material_of[e] = Some(mi);
@@ -195,6 +300,7 @@ impl FemModel {
 
         // Geometry; reject inverted and degenerate elements.
         let mut elements = Vec::with_capacity(mesh.tetrahedra.len());
+        let mut bad: Vec<(usize, &'static str, f64)> = Vec::new();
         for (tet, material) in mesh.tetrahedra.iter().zip(&material_of) {
             let x = tet.nodes.map(|n| positions[n]);
             let geometry = TetGeometry::new(&x);
@@ -213,18 +319,29 @@ impl FemModel {
                 None
             };
             if let Some(kind) = kind {
-                return Err(FemError::DegenerateElement {
-                    tag: tet.tag,
-                    nodes: tet.nodes.map(|n| mesh.node_tags[n]),
-                    kind,
-                    volume: geometry.volume,
-                });
+                bad.push((elements.len(), kind, geometry.volume));
             }
             elements.push(Element {
                 tag: tet.tag,
                 nodes: tet.nodes,
                 material: material.unwrap_or(0),
                 geometry,
+            });
+        }
+
+        if let Some(&(first, kind, volume)) = bad.first() {
+            let tet = &mesh.tetrahedra[first];
+            return Err(FemError::DegenerateElement {
+                count: bad.len(),
+                listed: bad
+                    .iter()
+                    .take(10)
+                    .map(|&(i, _, v)| (mesh.tetrahedra[i].tag, v))
+                    .collect(),
+                tag: tet.tag,
+                nodes: tet.nodes.map(|n| mesh.node_tags[n]),
+                kind,
+                volume,
             });
         }
 
@@ -236,9 +353,19 @@ impl FemModel {
             }
         }
         let mut fixed = vec![[false; 3]; positions.len()];
-        for f in &scene.fixed {
-            let group = find_group(mesh, &f.group, "fixed")?;
-            for &n in &group.nodes {
+        for (fi, f) in scene.fixed.iter().enumerate() {
+            let selected;
+            let nodes: &[usize] = match f.target() {
+                Target::Group(name) => &find_group(mesh, name, "fixed")?.nodes,
+                Target::Select(list) => {
+                    let context = format!("fixed {}", fi + 1);
+                    let (s, note) = selections.nodes(list, &context)?;
+                    notes.push(note);
+                    selected = s;
+                    &selected.nodes
+                }
+            };
+            for &n in nodes {
                 for c in &f.components {
                     fixed[n][c.index()] = true;
                 }
@@ -296,6 +423,7 @@ impl FemModel {
             mass,
             alpha: scene.damping.alpha,
             beta: scene.damping.beta,
+            notes,
         })
     }
 

@@ -16,7 +16,6 @@
 
 pub mod scene;
 
-pub mod generate;
 pub mod mesh;
 
 pub mod fem;

@@ -1,18 +1,35 @@
-//! Tetrahedral meshes read from gmsh files (MSH 4.1 ASCII/binary through mshio, MSH 2.2 ASCII).
+//! Tetrahedral meshes read from gmsh and VTK files.
 //!
 //! Coordinates are stored as read (mesh units); the scene's unit factor is applied by the caller.
 //!
-//! [`read_mesh`] dispatches on the `$MeshFormat` header:
-//! - MSH 4.1, ASCII or binary: parsed by `mshio`; physical tags come from `$Entities`, names from
-//!   `$PhysicalNames` (read here: mshio skips it; it is ASCII even in binary files). mshio drops
-//!   node tags when they are contiguous; they are then read back from the `$Nodes` section here.
-//! - MSH 2.0–2.2, ASCII: a small reader in this module; the first element tag is the physical
-//!   tag, the second the elementary entity. gmsh writes an element once per physical group it
-//!   belongs to (with a new element number); such copies (same type, entity and nodes) are merged
-//!   and keep the first number.
+//! [`read_mesh`] recognises the format from the file's content, not its name (a UTF-8 byte-order
+//! mark is skipped):
+//! - `$MeshFormat` 4.1, ASCII or binary: parsed by `mshio`; physical tags come from `$Entities`,
+//!   names from `$PhysicalNames` (read here: mshio skips it; it is ASCII even in binary files).
+//!   mshio drops node tags when they are contiguous; they are then read back from the `$Nodes`
+//!   section here.
+//! - `$MeshFormat` 2.0–2.2, ASCII: a small reader in this module; the first element tag is the
+//!   physical tag, the second the elementary entity. gmsh writes an element once per physical
+//!   group it belongs to (with a new element number); such copies (same type, entity and nodes)
+//!   are merged and keep the first number.
+//! - `$NOD` (MSH 1.0, ASCII): [`msh1`]; `reg-phys` is the physical tag (there are no names).
+//! - `<?xml`/`<VTKFile` (VTU: ASCII, base64 binary or appended data, zlib or LZ4 compressed) and
+//!   `# vtk DataFile` (legacy VTK, ASCII or binary) unstructured grids: [`vtk`], through
+//!   `vtkio`. Node and element tags are the 0-based point and cell ids (as ParaView shows them);
+//!   every integer cell-data array becomes volume groups named `"<array>:<value>"`
+//!   (e.g. `"MaterialIds:2"`).
 //!
 //! Element types 4 (tet4) and 2 (tri3) are kept; 15 (point) and 1 (line2) only contribute nodes
-//! to their groups. Any other type is an error naming it.
+//! to their groups. Any other type is an error naming it. Node coordinates must be finite.
+//! Nodes that belong to no tetrahedron ([`Mesh::orphan_nodes`]) stay in the mesh but not in the
+//! model (the FEM numbers only the nodes of tetrahedra).
+
+pub mod msh1;
+mod msh22;
+mod msh41;
+pub mod procedural;
+pub mod selection;
+pub mod vtk;
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -77,6 +94,36 @@ impl Mesh {
     /// Names of all physical groups, for error messages.
     pub fn group_names(&self) -> Vec<String> {
         self.groups.iter().map(|g| g.name.clone()).collect()
+    }
+
+    /// Indices of the nodes that belong to no tetrahedron (left out of the model), sorted.
+    pub fn orphan_nodes(&self) -> Vec<usize> {
+        let mut used = vec![false; self.nodes.len()];
+        for t in &self.tetrahedra {
+            for &n in &t.nodes {
+                if let Some(u) = used.get_mut(n) {
+                    *u = true;
+                }
+            }
+        }
+        (0..self.nodes.len()).filter(|&i| !used[i]).collect()
+    }
+
+    /// Axis-aligned bounding box `(min, max)` of the nodes of the tetrahedra, mesh units.
+    pub fn extent(&self) -> ([f64; 3], [f64; 3]) {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for t in &self.tetrahedra {
+            for &n in &t.nodes {
+                if let Some(p) = self.nodes.get(n) {
+                    for c in 0..3 {
+                        lo[c] = lo[c].min(p[c]);
+                        hi[c] = hi[c].max(p[c]);
+                    }
+                }
+            }
+        }
+        (lo, hi)
     }
 
     /// Signed volume of tetrahedron `i` (mesh units³):
@@ -155,19 +202,29 @@ fn det3(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> f64 {
     dot(a, cross(b, c))
 }
 
-/// How to get a file crokf can read.
-const CONVERT_HINT: &str =
-    "convert it to MSH 4.1 with gmsh (`gmsh FILE -save -format msh41 -o out.msh`) \
-     or meshio (`meshio convert FILE out.msh --output-format gmsh`)";
+/// How to get a file crokf can read, for a format it does not recognise (checked: meshio 5.3
+/// converts an Abaqus .inp file with this command).
+const CONVERT_HINT: &str = "crokf reads gmsh MSH 4.1 (ASCII or binary), 2.2 and 1.0 (ASCII), \
+     VTK XML unstructured grids (.vtu) and legacy VTK unstructured grids; for another format \
+     that meshio reads, convert it with `meshio convert FILE out.vtu` (`pip install meshio`)";
+
+/// How to convert another MSH version (checked with gmsh 4.15 on MSH 4.0 ASCII, 3.0 ASCII and
+/// 2.2 binary files).
+const MSH_VERSION_HINT: &str = "convert it to MSH 4.1 with gmsh: \
+     `gmsh FILE -save -format msh41 -o out.msh` (`pip install gmsh` provides the command)";
 
 /// How to get linear tetrahedra.
 const TET4_HINT: &str =
     "crokf needs linear tetrahedra (type 4; types 2, 1 and 15 are accepted for groups): \
      re-mesh with `gmsh model.geo -3 -order 1 -format msh41 -o out.msh` \
-     (hexahedra or prisms: mesh the volume with tetrahedra), or convert with meshio";
+     (hexahedra or prisms: mesh the volume with tetrahedra)";
 
 fn hint(path: &Path) -> String {
     CONVERT_HINT.replace("FILE", &path.display().to_string())
+}
+
+fn version_hint(path: &Path) -> String {
+    MSH_VERSION_HINT.replace("FILE", &path.display().to_string())
 }
 
 /// Errors in reading a gmsh mesh file. Every message names the file.
@@ -181,9 +238,9 @@ pub enum MeshError {
         /// Underlying error.
         source: std::io::Error,
     },
-    /// The file does not start with a gmsh `$MeshFormat` section.
-    #[error("{}: not a gmsh MSH file (expected `$MeshFormat` on the first line, found {found:?}); {}",
-        .path.display(), hint(.path))]
+    /// The file is in none of the formats crokf reads.
+    #[error("{}: not a mesh format crokf recognises (expected `$MeshFormat`, `$NOD`, `<?xml` or \
+        `# vtk DataFile` at the start, found {found:?}); {}", .path.display(), hint(.path))]
     NotGmsh {
         /// Mesh path.
         path: PathBuf,
@@ -192,7 +249,7 @@ pub enum MeshError {
     },
     /// A gmsh format version or encoding this reader does not handle.
     #[error("{}: MSH version {version} {encoding} is not supported (crokf reads MSH 4.1 ASCII or \
-        binary and MSH 2.2 ASCII); {}", .path.display(), hint(.path))]
+        binary, 2.2 ASCII and 1.0); {}", .path.display(), version_hint(.path))]
     UnsupportedVersion {
         /// Mesh path.
         path: PathBuf,
@@ -218,6 +275,25 @@ pub enum MeshError {
         path: PathBuf,
         /// (gmsh element type number, count), sorted by type.
         found: Vec<(u32, usize)>,
+    },
+    /// A node coordinate that is NaN or infinite.
+    #[error("{}: node {node} has a non-finite coordinate ({:?}, {:?}, {:?}); every coordinate \
+        must be a finite number", .path.display(), .position[0], .position[1], .position[2])]
+    NonFiniteNode {
+        /// Mesh path.
+        path: PathBuf,
+        /// Node tag (gmsh tag, or 0-based VTK point id).
+        node: u64,
+        /// Coordinates as read.
+        position: [f64; 3],
+    },
+    /// A VTK file that is not a serial unstructured grid, or that vtkio cannot parse.
+    #[error("{}: {message}", .path.display())]
+    Vtk {
+        /// Mesh path.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
     },
     /// An element references a node tag that `$Nodes` does not define.
     #[error("{}: element {element} references node {node}, which is not defined in $Nodes",
@@ -298,6 +374,21 @@ pub fn read_mesh(path: &Path) -> Result<Mesh, MeshError> {
 
 /// Reads a gmsh mesh from its bytes; `path` is recorded in [`Mesh::source`] and in messages.
 pub fn read_mesh_bytes(bytes: &[u8], path: &Path) -> Result<Mesh, MeshError> {
+    let body = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    let start = body
+        .iter()
+        .position(|b| !b.is_ascii_whitespace())
+        .map_or(&body[body.len()..], |i| &body[i..]);
+    if start.starts_with(b"$NOD") || start.starts_with(b"$NOE") {
+        return assemble(msh1::read(body, path)?, path);
+    }
+    if start.starts_with(b"<?xml") || start.starts_with(b"<VTKFile") {
+        return assemble(vtk::read_xml(start, path)?, path);
+    }
+    if start.starts_with(b"# vtk DataFile") {
+        return assemble(vtk::read_legacy(start, path)?, path);
+    }
+    let bytes = body;
     let header = parse_header(bytes, path)?;
     let encoding = if header.binary { "binary" } else { "ASCII" };
     let unsupported = || MeshError::UnsupportedVersion {
@@ -307,9 +398,9 @@ pub fn read_mesh_bytes(bytes: &[u8], path: &Path) -> Result<Mesh, MeshError> {
     };
     let version: f64 = header.version.parse().map_err(|_| unsupported())?;
     let raw = if version == 4.1 {
-        read_msh41(bytes, &header, path)?
+        msh41::read_msh41(bytes, &header, path)?
     } else if (2.0..3.0).contains(&version) && !header.binary {
-        read_msh2(bytes, path)?
+        msh22::read_msh2(bytes, path)?
     } else {
         return Err(unsupported());
     };
@@ -448,6 +539,7 @@ fn not_gmsh(path: &Path, first: &[u8]) -> MeshError {
 /// An element as read from either format.
 struct RawElement {
     tag: u64,
+    /// gmsh element type number.
     kind: u32,
     /// Physical tags of the element (2.2: the first tag; 4.1: those of its entity).
     physical: Vec<i32>,
@@ -488,6 +580,18 @@ fn assemble(raw: RawMesh, path: &Path) -> Result<Mesh, MeshError> {
         });
     }
 
+    if let Some((&node, &position)) = raw
+        .node_tags
+        .iter()
+        .zip(&raw.nodes)
+        .find(|(_, p)| p.iter().any(|v| !v.is_finite()))
+    {
+        return Err(MeshError::NonFiniteNode {
+            path: path.to_owned(),
+            node,
+            position,
+        });
+    }
     let mut index: HashMap<u64, usize> = HashMap::with_capacity(raw.node_tags.len());
     for (i, &t) in raw.node_tags.iter().enumerate() {
         if index.insert(t, i).is_some() {
@@ -732,411 +836,4 @@ fn line_of(bytes: &[u8], offset: usize) -> usize {
         .iter()
         .filter(|&&b| b == b'\n')
         .count()
-}
-
-// ---------------------------------------------------------------------------------------------
-// MSH 2.2 ASCII
-
-fn read_msh2(bytes: &[u8], path: &Path) -> Result<RawMesh, MeshError> {
-    let text = String::from_utf8_lossy(bytes);
-    let mut lines = Lines::new(&text, 0, path);
-    let mut raw = RawMesh::default();
-    // (type, elementary entity, nodes) -> index into raw.elements, to merge per-group copies.
-    let mut seen: HashMap<(u32, i64, Vec<u64>), usize> = HashMap::new();
-    let (mut have_nodes, mut have_elements) = (false, false);
-    while let Some((no, l)) = lines.next_opt() {
-        match l {
-            "" => {}
-            "$MeshFormat" => lines.skip_to("$EndMeshFormat")?,
-            "$PhysicalNames" => parse_physical_names(&mut lines, &mut raw.names)?,
-            "$Nodes" => {
-                if std::mem::replace(&mut have_nodes, true) {
-                    return Err(lines.error(no, "second $Nodes section"));
-                }
-                let n = lines.count("nodes")?;
-                raw.node_tags.reserve(n.min(1 << 24));
-                raw.nodes.reserve(n.min(1 << 24));
-                for _ in 0..n {
-                    let (no, l) = lines.next("$Nodes")?;
-                    let mut t = l.split_ascii_whitespace();
-                    let tag: u64 = parse_num(&lines, no, t.next(), "node tag")?;
-                    let mut x = [0.0; 3];
-                    for (c, v) in x.iter_mut().enumerate() {
-                        let what = format!("node {tag}: coordinate {}", ["x", "y", "z"][c]);
-                        *v = parse_num(&lines, no, t.next(), &what)?;
-                    }
-                    raw.node_tags.push(tag);
-                    raw.nodes.push(x);
-                }
-                lines.end("$EndNodes")?;
-            }
-            "$Elements" => {
-                if std::mem::replace(&mut have_elements, true) {
-                    return Err(lines.error(no, "second $Elements section"));
-                }
-                let n = lines.count("elements")?;
-                for _ in 0..n {
-                    let (no, l) = lines.next("$Elements")?;
-                    let mut t = l.split_ascii_whitespace();
-                    let tag: u64 = parse_num(&lines, no, t.next(), "element tag")?;
-                    let what = format!("element {tag}");
-                    let kind: u32 = parse_num(&lines, no, t.next(), &format!("{what}: type"))?;
-                    let ntags: usize =
-                        parse_num(&lines, no, t.next(), &format!("{what}: number of tags"))?;
-                    let mut tags = Vec::with_capacity(ntags.min(16));
-                    for _ in 0..ntags {
-                        tags.push(parse_num::<i64>(
-                            &lines,
-                            no,
-                            t.next(),
-                            &format!("{what}: tag"),
-                        )?);
-                    }
-                    let nodes = t
-                        .map(|s| parse_num::<u64>(&lines, no, Some(s), &format!("{what}: node")))
-                        .collect::<Result<Vec<u64>, _>>()?;
-                    if let Some(dim) = kept_dim(kind) {
-                        let expected = [1, 2, 3, 4][dim as usize];
-                        if nodes.len() != expected {
-                            return Err(lines.error(
-                                no,
-                                format!(
-                                    "{what} of type {kind} ({}) has {} nodes, expected {expected}",
-                                    element_type_name(kind),
-                                    nodes.len()
-                                ),
-                            ));
-                        }
-                    }
-                    let physical = match tags.first() {
-                        Some(&p) if p != 0 => vec![i32::try_from(p).map_err(|_| {
-                            lines.error(no, format!("{what}: physical tag {p} out of range"))
-                        })?],
-                        _ => Vec::new(),
-                    };
-                    let entity = tags.get(1).copied().unwrap_or(0);
-                    match seen.entry((kind, entity, nodes)) {
-                        std::collections::hash_map::Entry::Occupied(o) => {
-                            let e = &mut raw.elements[*o.get()];
-                            for p in physical {
-                                if !e.physical.contains(&p) {
-                                    e.physical.push(p);
-                                }
-                            }
-                        }
-                        std::collections::hash_map::Entry::Vacant(v) => {
-                            raw.elements.push(RawElement {
-                                tag,
-                                kind,
-                                physical,
-                                nodes: v.key().2.clone(),
-                            });
-                            v.insert(raw.elements.len() - 1);
-                        }
-                    }
-                }
-                lines.end("$EndElements")?;
-            }
-            s if s.starts_with('$') && !s.starts_with("$End") => {
-                let end = format!("$End{}", &s[1..]);
-                lines.skip_to(&end)?;
-            }
-            _ => {
-                return Err(lines.error(no, format!("unexpected {l:?} outside any section")));
-            }
-        }
-    }
-    Ok(raw)
-}
-
-// ---------------------------------------------------------------------------------------------
-// MSH 4.1 through mshio
-
-/// Reads `$PhysicalNames` wherever it is (it is ASCII in binary files too).
-fn physical_names_41(
-    bytes: &[u8],
-    path: &Path,
-    names: &mut BTreeMap<(u8, i32), String>,
-) -> Result<(), MeshError> {
-    let Some(start) = find_section(bytes, b"$PhysicalNames") else {
-        return Ok(());
-    };
-    let end =
-        find_section(&bytes[start..], b"$EndPhysicalNames").map_or(bytes.len(), |e| start + e);
-    let text = String::from_utf8_lossy(&bytes[start..end]);
-    let mut lines = Lines::new(&text, line_of(bytes, start) - 1, path);
-    parse_physical_names(&mut lines, names)
-}
-
-/// Bounds-checked reader of binary MSH 4.1 values.
-struct Cursor<'a> {
-    bytes: &'a [u8],
-    pos: usize,
-    big_endian: bool,
-    size_t: usize,
-}
-
-impl Cursor<'_> {
-    fn take<const N: usize>(&mut self) -> Option<[u8; N]> {
-        let s = self.bytes.get(self.pos..self.pos.checked_add(N)?)?;
-        self.pos += N;
-        let mut a: [u8; N] = s.try_into().ok()?;
-        if self.big_endian {
-            a.reverse();
-        }
-        Some(a)
-    }
-
-    fn size_t(&mut self) -> Option<u64> {
-        if self.size_t == 4 {
-            self.take::<4>().map(|a| u32::from_le_bytes(a) as u64)
-        } else {
-            self.take::<8>().map(u64::from_le_bytes)
-        }
-    }
-
-    fn int(&mut self) -> Option<i32> {
-        self.take::<4>().map(i32::from_le_bytes)
-    }
-
-    fn skip(&mut self, n: u64) -> Option<()> {
-        let n = usize::try_from(n).ok()?;
-        let end = self.pos.checked_add(n)?;
-        (end <= self.bytes.len()).then(|| self.pos = end)
-    }
-}
-
-/// Node tags of every `$Nodes` block, read directly from the section (mshio drops them when
-/// they are contiguous). One Vec per block.
-fn node_tags_41(bytes: &[u8], header: &Header, path: &Path) -> Result<Vec<Vec<u64>>, MeshError> {
-    let start = find_section(bytes, b"$Nodes")
-        .ok_or_else(|| syntax(path, "$Nodes".into(), "cannot locate the $Nodes section"))?;
-    let truncated = |off: usize| {
-        let location = if header.binary {
-            format!("byte {off}")
-        } else {
-            format!("line {}", line_of(bytes, off))
-        };
-        syntax(path, location, "$Nodes section malformed or truncated")
-    };
-    let blocks = if header.binary {
-        let mut c = Cursor {
-            bytes,
-            pos: start,
-            big_endian: header.big_endian,
-            size_t: header.data_size,
-        };
-        let mut read = || -> Option<Vec<Vec<u64>>> {
-            let num_blocks = c.size_t()?;
-            for _ in 0..3 {
-                c.size_t()?;
-            }
-            let mut blocks = Vec::new();
-            for _ in 0..num_blocks {
-                c.int()?;
-                c.int()?;
-                let parametric = c.int()?;
-                let n = c.size_t()?;
-                if parametric != 0 {
-                    return None;
-                }
-                let mut tags = Vec::with_capacity(usize::try_from(n).ok()?.min(1 << 20));
-                for _ in 0..n {
-                    tags.push(c.size_t()?);
-                }
-                c.skip(n.checked_mul(24)?)?;
-                blocks.push(tags);
-            }
-            Some(blocks)
-        };
-        read().ok_or_else(|| truncated(c.pos))?
-    } else {
-        let text = String::from_utf8_lossy(&bytes[start..]);
-        ascii_node_tags(&text).ok_or_else(|| truncated(start))?
-    };
-    Ok(blocks)
-}
-
-/// Node tags per block of an ASCII `$Nodes` section body.
-fn ascii_node_tags(text: &str) -> Option<Vec<Vec<u64>>> {
-    fn num(tok: &mut std::str::SplitAsciiWhitespace<'_>) -> Option<u64> {
-        tok.next().and_then(|t| t.parse::<u64>().ok())
-    }
-    let mut tok = text.split_ascii_whitespace();
-    let num_blocks = num(&mut tok)?;
-    for _ in 0..3 {
-        num(&mut tok)?;
-    }
-    let mut blocks = Vec::new();
-    for _ in 0..num_blocks {
-        num(&mut tok)?; // entity dim
-        tok.next()?; // entity tag (int)
-        let parametric = num(&mut tok)?;
-        let n = num(&mut tok)?;
-        if parametric != 0 {
-            return None;
-        }
-        let mut tags = Vec::with_capacity(usize::try_from(n).ok()?.min(1 << 20));
-        for _ in 0..n {
-            tags.push(num(&mut tok)?);
-        }
-        for _ in 0..n.checked_mul(3)? {
-            tok.next()?; // coordinates: only their presence matters here
-        }
-        blocks.push(tags);
-    }
-    Some(blocks)
-}
-
-/// Location and message of an mshio parse error (innermost error first in its backtrace).
-fn describe_mshio_error(
-    bytes: &[u8],
-    binary: bool,
-    e: &mshio::MshParserError<&[u8]>,
-) -> (String, String) {
-    let base = bytes.as_ptr() as usize;
-    let offset = e
-        .begin_msh_errors()
-        .next()
-        .or(e.backtrace.first())
-        .map(|(s, _)| (s.as_ptr() as usize).saturating_sub(base).min(bytes.len()))
-        .unwrap_or(0);
-    let location = if binary {
-        format!("byte {offset}")
-    } else {
-        format!("line {}", line_of(bytes, offset))
-    };
-    let mut parts: Vec<String> = e
-        .filter_msh_errors()
-        .map(|(_, k)| k.to_string().trim_end_matches('.').to_owned())
-        .collect();
-    parts.reverse();
-    parts.dedup();
-    let message = if parts.is_empty() {
-        "malformed MSH 4.1 content (file truncated?)".to_owned()
-    } else {
-        format!(
-            "malformed MSH 4.1 content (file truncated?): {}",
-            parts.join(": ")
-        )
-    };
-    (location, message)
-}
-
-/// Whether the `$Nodes` or `$Elements` section (`marker`) exists and declares 0 entries.
-fn section_is_empty(bytes: &[u8], header: &Header, marker: &[u8]) -> bool {
-    let Some(start) = find_section(bytes, marker) else {
-        return false;
-    };
-    if header.binary {
-        let mut c = Cursor {
-            bytes,
-            pos: start,
-            big_endian: header.big_endian,
-            size_t: header.data_size,
-        };
-        c.size_t().and_then(|_| c.size_t()) == Some(0)
-    } else {
-        let head = &bytes[start..bytes.len().min(start + 200)];
-        let head = String::from_utf8_lossy(head);
-        head.split_ascii_whitespace().nth(1) == Some("0")
-    }
-}
-
-fn read_msh41(bytes: &[u8], header: &Header, path: &Path) -> Result<RawMesh, MeshError> {
-    // mshio 0.4 computes `count - 1` on u64 for these sections: an empty one overflows.
-    if section_is_empty(bytes, header, b"$Nodes") || section_is_empty(bytes, header, b"$Elements") {
-        return Err(MeshError::NoTetrahedra {
-            path: path.to_owned(),
-        });
-    }
-    // mshio 0.4 panics on a few malformed inputs (`unimplemented!`, `expect`, overflow);
-    // those known are checked above; any other panic is reported as a parse error.
-    let parsed = std::panic::catch_unwind(|| {
-        mshio::parse_msh_bytes(bytes).map_err(|e| describe_mshio_error(bytes, header.binary, &e))
-    });
-    let gave_up = "malformed MSH 4.1 content: the mshio parser failed (its message is above)";
-    let msh = match parsed {
-        Ok(Ok(msh)) => msh,
-        Ok(Err((location, message))) => return Err(syntax(path, location, message)),
-        Err(_) => return Err(syntax(path, "MSH 4.1 body".into(), gave_up)),
-    };
-
-    let mut raw = RawMesh::default();
-    physical_names_41(bytes, path, &mut raw.names)?;
-
-    // Physical tags of each entity (dim, tag).
-    let mut physical: HashMap<(i32, i32), Vec<i32>> = HashMap::new();
-    if let Some(ent) = &msh.data.entities {
-        for p in &ent.points {
-            physical.insert((0, p.tag), p.physical_tags.clone());
-        }
-        for c in &ent.curves {
-            physical.insert((1, c.tag), c.physical_tags.clone());
-        }
-        for s in &ent.surfaces {
-            physical.insert((2, s.tag), s.physical_tags.clone());
-        }
-        for v in &ent.volumes {
-            physical.insert((3, v.tag), v.physical_tags.clone());
-        }
-    }
-
-    if let Some(nodes) = &msh.data.nodes {
-        let scanned = if nodes.node_blocks.iter().any(|b| b.node_tags.is_none()) {
-            Some(node_tags_41(bytes, header, path)?)
-        } else {
-            None
-        };
-        for (k, block) in nodes.node_blocks.iter().enumerate() {
-            let tags: Vec<u64> = match (&block.node_tags, &scanned) {
-                (Some(map), _) => {
-                    let mut tags = vec![0; block.nodes.len()];
-                    for (&tag, &i) in map {
-                        if let Some(t) = tags.get_mut(i) {
-                            *t = tag;
-                        }
-                    }
-                    tags
-                }
-                (None, Some(s)) => s.get(k).cloned().unwrap_or_default(),
-                (None, None) => Vec::new(),
-            };
-            if tags.len() != block.nodes.len() || tags.contains(&0) {
-                return Err(syntax(
-                    path,
-                    "$Nodes".into(),
-                    format!(
-                        "node block {} (entity {}:{}): cannot recover its {} node tags",
-                        k + 1,
-                        block.entity_dim,
-                        block.entity_tag,
-                        block.nodes.len()
-                    ),
-                ));
-            }
-            raw.node_tags.extend_from_slice(&tags);
-            raw.nodes
-                .extend(block.nodes.iter().map(|n| [n.x, n.y, n.z]));
-        }
-    }
-
-    if let Some(elements) = &msh.data.elements {
-        for block in &elements.element_blocks {
-            let kind = block.element_type as u32;
-            let phys = physical
-                .get(&(block.entity_dim, block.entity_tag))
-                .cloned()
-                .unwrap_or_default();
-            for e in &block.elements {
-                raw.elements.push(RawElement {
-                    tag: e.element_tag,
-                    kind,
-                    physical: phys.clone(),
-                    nodes: e.nodes.clone(),
-                });
-            }
-        }
-    }
-    Ok(raw)
 }

@@ -1,8 +1,45 @@
 //! Scene files (TOML): what to simulate, what acts on it, what is measured and what is shown.
 //!
-//! All lengths in the scene (sensor positions) are in mesh units; `mesh.units` converts them and
-//! the mesh coordinates to metres. Material constants, forces and noise are SI (Pa, kg/m³, N, m).
-//! Unknown keys are errors.
+//! All lengths in the scene (sensor positions, selection shapes) are in mesh units; `mesh.units`
+//! converts them and the mesh coordinates to metres. Material constants, forces and noise are SI
+//! (Pa, kg/m³, N, m). Unknown keys are errors. A UTF-8 byte-order mark is accepted.
+//!
+//! Every physical value is range-checked before any numerics (the message names the field and
+//! the accepted range): E in [1, 1e13] Pa, ν in (−1, 0.5), ρ in [1e-3, 1e6] kg/m³, α in
+//! [0, 1e6] 1/s, β in [0, 1e3] s, |g| ≤ 1e4 m/s², force noise σ in [0, 1e9] N, sensor noise σ in
+//! [1e-12, 1e3] m, Δt in [1e-7, 10] s, θ in [1.37, 10], coordinates finite and |x| ≤ 1e9 mesh
+//! units. [`Scene::warnings`] lists what is legal but suspect (ν ≥ 0.49 on linear tetrahedra).
+//!
+//! **Where a group is accepted** (`[[material]]`, `[[fixed]]`, `[[load]]`, `[[force_noise]]`,
+//! `[[display]]`), give either `group = "name"` (a gmsh physical name, `"<dim>:<tag>"` for an
+//! unnamed gmsh group, `"<array>:<value>"` for an integer cell-data array of a VTK file, e.g.
+//! `"MaterialIds:2"`) or `select = [ ... ]`, a union of selectors (each takes exactly one of):
+//!
+//! ```toml
+//! select = [
+//!   { box = { min = [0.0, 0.0, 0.0], max = [0.1, 0.1, 0.001] }, nodes = "boundary" },
+//!   { sphere = { center = [0.09, 0.0, 0.05], radius = 0.012 }, nodes = "boundary" },
+//!   { half_space = { point = [0.0, 0.0, 0.002], normal = [0.0, 0.0, -1.0] }, nodes = "all" },
+//!   { node_list = "base_nodes.txt" },   # node tags, relative to the scene file
+//!   { group = "clamp" },                # a mesh group, as `group = ...` above
+//!   { everything = true, nodes = "all" },
+//! ]
+//! ```
+//!
+//! - Shapes are in mesh units, closed (points on the boundary are inside, to 1e-9 of the mesh's
+//!   bounding-box diagonal). A half-space holds the points x with (x − point)·normal ≥ 0: the
+//!   normal points into the selected side.
+//! - `nodes` (required with a shape or `everything` outside `[[material]]`): `"boundary"` takes
+//!   only nodes on the boundary of the tetrahedral mesh, `"all"` every node of a tetrahedron.
+//! - `node_list`: a text file of node tags (gmsh node tags; 0-based point ids for VTK files),
+//!   separated by spaces, commas or newlines; `#` starts a comment.
+//! - In `[[material]]` a shape takes the tetrahedra whose centroid lies inside it; `nodes` and
+//!   `node_list` do not apply there.
+//! - Loads with `distribution = "area"` and displays use the boundary faces whose three nodes
+//!   are all selected (a 2-D `group` keeps its own triangles).
+//!
+//! The compiler reports how many nodes, faces or tetrahedra every selection took and refuses a
+//! selector that takes none.
 //!
 //! ```toml
 //! [mesh]
@@ -10,7 +47,7 @@
 //! units = "m"                   # m, cm or mm
 //!
 //! [[material]]
-//! group = "beam"                # gmsh physical name of a volume group
+//! group = "beam"                # gmsh physical name of a volume group (or `select`, above)
 //! young_modulus = 1.0e6         # E, Pa
 //! poisson_ratio = 0.3           # ν
 //! density = 1000.0              # ρ, kg/m³
@@ -119,8 +156,12 @@ pub struct MeshSpec {
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Material {
-    /// gmsh physical name of a 3D group.
-    pub group: String,
+    /// Mesh group name of a volume group (or `select`).
+    #[serde(default)]
+    pub group: Option<String>,
+    /// Union of selectors taking tetrahedra (instead of `group`).
+    #[serde(default)]
+    pub select: Option<Vec<Selector>>,
     /// Young's modulus E, Pa (> 0).
     pub young_modulus: f64,
     /// Poisson's ratio ν, in (-1, 0.5).
@@ -186,8 +227,12 @@ fn all_components() -> Vec<Component> {
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Fixed {
-    /// gmsh physical name (any dimension).
-    pub group: String,
+    /// Mesh group name (any dimension), or `select`.
+    #[serde(default)]
+    pub group: Option<String>,
+    /// Union of node selectors (instead of `group`).
+    #[serde(default)]
+    pub select: Option<Vec<Selector>>,
     /// Fixed components (default all three).
     #[serde(default = "all_components")]
     pub components: Vec<Component>,
@@ -211,8 +256,12 @@ pub enum LoadDistribution {
 pub struct Load {
     /// Input label.
     pub name: String,
-    /// gmsh physical name.
-    pub group: String,
+    /// Mesh group name, or `select`.
+    #[serde(default)]
+    pub group: Option<String>,
+    /// Union of node selectors (instead of `group`).
+    #[serde(default)]
+    pub select: Option<Vec<Selector>>,
     /// Distribution of the total force.
     #[serde(default)]
     pub distribution: LoadDistribution,
@@ -243,8 +292,12 @@ pub enum ForceModel {
 pub struct ForceNoise {
     /// Label.
     pub name: String,
-    /// gmsh physical name.
-    pub group: String,
+    /// Mesh group name, or `select`.
+    #[serde(default)]
+    pub group: Option<String>,
+    /// Union of node selectors (instead of `group`).
+    #[serde(default)]
+    pub select: Option<Vec<Selector>>,
     /// Standard deviation of the total force over the group per component, N, spread like a
     /// load with `distribution`.
     pub std: f64,
@@ -302,8 +355,165 @@ fn one() -> u32 {
 pub struct Display {
     /// Label.
     pub name: String,
-    /// gmsh physical name, or `"surface"` for the boundary of the tetrahedral mesh.
-    pub group: String,
+    /// Mesh group name, or `"surface"` for the boundary of the tetrahedral mesh (or `select`).
+    #[serde(default)]
+    pub group: Option<String>,
+    /// Union of node selectors (instead of `group`).
+    #[serde(default)]
+    pub select: Option<Vec<Selector>>,
+}
+
+/// Where a scene entry acts: a named mesh group or a union of selectors.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Target<'a> {
+    /// A mesh group name (or a keyword such as `"surface"` for displays).
+    Group(&'a str),
+    /// A union of selectors.
+    Select(&'a [Selector]),
+}
+
+fn target<'a>(group: &'a Option<String>, select: &'a Option<Vec<Selector>>) -> Target<'a> {
+    match (group, select) {
+        (Some(g), _) => Target::Group(g),
+        (None, Some(s)) => Target::Select(s),
+        // Scene::check refuses an entry with neither.
+        (None, None) => Target::Select(&[]),
+    }
+}
+
+impl Material {
+    /// The tetrahedra this material covers.
+    pub fn target(&self) -> Target<'_> {
+        target(&self.group, &self.select)
+    }
+}
+
+impl Fixed {
+    /// The nodes this entry fixes.
+    pub fn target(&self) -> Target<'_> {
+        target(&self.group, &self.select)
+    }
+}
+
+impl Load {
+    /// The nodes the force acts on.
+    pub fn target(&self) -> Target<'_> {
+        target(&self.group, &self.select)
+    }
+}
+
+impl ForceNoise {
+    /// The nodes the noise acts on.
+    pub fn target(&self) -> Target<'_> {
+        target(&self.group, &self.select)
+    }
+}
+
+impl Display {
+    /// The displayed nodes.
+    pub fn target(&self) -> Target<'_> {
+        target(&self.group, &self.select)
+    }
+}
+
+impl std::fmt::Display for Target<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Target::Group(g) => write!(f, "group '{g}'"),
+            Target::Select(s) => write!(f, "select ({} selector(s))", s.len()),
+        }
+    }
+}
+
+/// One selector of a `select = [...]` union; exactly one of `box`, `sphere`, `half_space`,
+/// `node_list`, `group`, `everything` is given. Coordinates in mesh units.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Selector {
+    /// Axis-aligned box.
+    #[serde(rename = "box")]
+    pub aabb: Option<BoxRegion>,
+    /// Ball.
+    pub sphere: Option<Sphere>,
+    /// Half-space (x − point)·normal ≥ 0.
+    pub half_space: Option<HalfSpace>,
+    /// File of node tags, relative to the scene file (resolved by [`Scene::parse`]).
+    pub node_list: Option<PathBuf>,
+    /// A mesh group by name.
+    pub group: Option<String>,
+    /// Every tetrahedron, or every node of the given `nodes` kind.
+    pub everything: Option<bool>,
+    /// Boundary nodes or all nodes (shapes and `everything`, outside materials).
+    pub nodes: Option<NodeDomain>,
+}
+
+/// An axis-aligned box `min ≤ x ≤ max`, mesh units.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BoxRegion {
+    /// Lower corner.
+    pub min: [f64; 3],
+    /// Upper corner.
+    pub max: [f64; 3],
+}
+
+/// A closed ball `|x − center| ≤ radius`, mesh units.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Sphere {
+    /// Centre.
+    pub center: [f64; 3],
+    /// Radius (> 0).
+    pub radius: f64,
+}
+
+/// A closed half-space `(x − point)·normal ≥ 0`, mesh units (the normal need not be unit).
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct HalfSpace {
+    /// A point on the bounding plane.
+    pub point: [f64; 3],
+    /// Normal pointing into the selected side (non-zero).
+    pub normal: [f64; 3],
+}
+
+/// Which nodes a shape selector takes.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum NodeDomain {
+    /// Nodes on the boundary of the tetrahedral mesh.
+    Boundary,
+    /// Every node of a tetrahedron.
+    All,
+}
+
+impl Selector {
+    /// Short description for messages, e.g. `sphere at (0.09, 0, 0.05) r = 0.012`.
+    pub fn describe(&self) -> String {
+        let on = match self.nodes {
+            Some(NodeDomain::Boundary) => " on boundary nodes",
+            Some(NodeDomain::All) => " on all nodes",
+            None => "",
+        };
+        let p = |x: [f64; 3]| format!("({}, {}, {})", x[0], x[1], x[2]);
+        if let Some(b) = &self.aabb {
+            format!("box {} to {}{on}", p(b.min), p(b.max))
+        } else if let Some(s) = &self.sphere {
+            format!("sphere at {} r = {}{on}", p(s.center), s.radius)
+        } else if let Some(h) = &self.half_space {
+            format!(
+                "half_space through {} normal {}{on}",
+                p(h.point),
+                p(h.normal)
+            )
+        } else if let Some(f) = &self.node_list {
+            format!("node_list {}", f.display())
+        } else if let Some(g) = &self.group {
+            format!("group '{g}'")
+        } else {
+            format!("everything{on}")
+        }
+    }
 }
 
 /// Time stepping.
@@ -385,18 +595,32 @@ pub struct SceneFile {
 }
 
 impl SceneFile {
-    /// Reads, parses and range-checks a scene file.
+    /// Reads, parses and range-checks a scene file. A UTF-8 byte-order mark is skipped (and
+    /// kept in [`SceneFile::text`], so the digest is that of the file); a `mesh.file` that names
+    /// a directory is refused here, naming the field.
     pub fn read(path: &Path) -> Result<Self, SceneError> {
         let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
             path: path.to_owned(),
             source,
         })?;
         let scene = Scene::parse(&text, path)?;
-        Ok(SceneFile {
+        let file = SceneFile {
             path: path.to_owned(),
             text,
             scene,
-        })
+        };
+        let mesh = file.mesh_path();
+        if mesh.is_dir() {
+            return Err(SceneError::Invalid {
+                path: path.to_owned(),
+                what: format!(
+                    "mesh.file = {:?}: {} is a directory, not a mesh file",
+                    file.scene.mesh.file.display().to_string(),
+                    mesh.display()
+                ),
+            });
+        }
+        Ok(file)
     }
 
     /// Absolute or working-directory path of the mesh file.
@@ -408,10 +632,172 @@ impl SceneFile {
     }
 }
 
+/// Accepted ranges of the physical fields, (min, max) inclusive, SI units.
+pub mod limits {
+    /// Young's modulus E, Pa (a soft gel is ~1e2 Pa, diamond 1.2e12 Pa).
+    pub const YOUNG_MODULUS: (f64, f64) = (1.0, 1e13);
+    /// Density ρ, kg/m³ (aerogels ~1, osmium 2.3e4).
+    pub const DENSITY: (f64, f64) = (1e-3, 1e6);
+    /// Rayleigh α, 1/s.
+    pub const ALPHA: (f64, f64) = (0.0, 1e6);
+    /// Rayleigh β, s.
+    pub const BETA: (f64, f64) = (0.0, 1e3);
+    /// Largest gravity component magnitude, m/s².
+    pub const GRAVITY: f64 = 1e4;
+    /// Force noise standard deviation, N.
+    pub const FORCE_NOISE: (f64, f64) = (0.0, 1e9);
+    /// Sensor noise standard deviation, m.
+    pub const SENSOR_NOISE: (f64, f64) = (1e-12, 1e3);
+    /// Time step Δt, s.
+    pub const DT: (f64, f64) = (1e-7, 10.0);
+    /// Wilson θ.
+    pub const THETA: (f64, f64) = (1.37, 10.0);
+    /// Largest coordinate magnitude in a scene, mesh units.
+    pub const COORDINATE: f64 = 1e9;
+    /// Poisson's ratio from which linear tetrahedra lock noticeably (a warning, not an error).
+    pub const LOCKING_POISSON: f64 = 0.49;
+}
+
+/// `Ok` when `v` is finite and in `[lo, hi]`, else a message naming `field`, its unit and range.
+fn in_range(field: &str, v: f64, (lo, hi): (f64, f64), unit: &str) -> Result<(), String> {
+    if v.is_finite() && v >= lo && v <= hi {
+        Ok(())
+    } else {
+        let lower = if lo > 0.0 { " > 0 and" } else { "" };
+        Err(format!(
+            "{field} = {v} {unit} is out of range: it must be{lower} within [{lo:e}, {hi:e}] {unit}"
+        ))
+    }
+}
+
+fn check_point(field: &str, p: [f64; 3]) -> Result<(), String> {
+    if p.iter()
+        .all(|v| v.is_finite() && v.abs() <= limits::COORDINATE)
+    {
+        Ok(())
+    } else {
+        Err(format!(
+            "{field} = {p:?} is out of range: coordinates must be finite with |x| ≤ {:e} (mesh \
+             units)",
+            limits::COORDINATE
+        ))
+    }
+}
+
+/// Checks a `group`/`select` pair; `material` when the entry takes tetrahedra.
+fn check_target(
+    context: &str,
+    group: &Option<String>,
+    select: &Option<Vec<Selector>>,
+    material: bool,
+) -> Result<(), String> {
+    match (group, select) {
+        (Some(_), Some(_)) => {
+            return Err(format!(
+                "{context}: give either `group` or `select`, not both"
+            ))
+        }
+        (None, None) => {
+            return Err(format!(
+                "{context}: missing `group = \"name\"` or `select = [...]` (see the scene schema \
+                 in compiler/src/scene.rs)"
+            ))
+        }
+        (Some(_), None) => return Ok(()),
+        (None, Some(list)) if list.is_empty() => {
+            return Err(format!("{context}: `select` is empty"))
+        }
+        (None, Some(_)) => {}
+    }
+    for (i, sel) in select.iter().flatten().enumerate() {
+        let here = format!("{context}: select[{i}]");
+        let given = [
+            sel.aabb.is_some(),
+            sel.sphere.is_some(),
+            sel.half_space.is_some(),
+            sel.node_list.is_some(),
+            sel.group.is_some(),
+            sel.everything.is_some(),
+        ]
+        .iter()
+        .filter(|&&b| b)
+        .count();
+        if given != 1 {
+            return Err(format!(
+                "{here}: a selector takes exactly one of box, sphere, half_space, node_list, \
+                 group, everything ({given} given)"
+            ));
+        }
+        if sel.everything == Some(false) {
+            return Err(format!(
+                "{here}: `everything = false` selects nothing; remove it"
+            ));
+        }
+        if let Some(b) = &sel.aabb {
+            check_point(&format!("{here}: box.min"), b.min)?;
+            check_point(&format!("{here}: box.max"), b.max)?;
+            if (0..3).any(|c| b.min[c] > b.max[c]) {
+                return Err(format!(
+                    "{here}: box.min {:?} must not exceed box.max {:?} in any component",
+                    b.min, b.max
+                ));
+            }
+        }
+        if let Some(sp) = &sel.sphere {
+            check_point(&format!("{here}: sphere.center"), sp.center)?;
+            if !(sp.radius.is_finite() && sp.radius > 0.0 && sp.radius <= limits::COORDINATE) {
+                return Err(format!(
+                    "{here}: sphere.radius = {} is out of range: it must be > 0 and ≤ {:e} (mesh \
+                     units)",
+                    sp.radius,
+                    limits::COORDINATE
+                ));
+            }
+        }
+        if let Some(h) = &sel.half_space {
+            check_point(&format!("{here}: half_space.point"), h.point)?;
+            check_point(&format!("{here}: half_space.normal"), h.normal)?;
+            if h.normal.iter().all(|&v| v == 0.0) {
+                return Err(format!("{here}: half_space.normal must not be zero"));
+            }
+        }
+        let shape = sel.aabb.is_some()
+            || sel.sphere.is_some()
+            || sel.half_space.is_some()
+            || sel.everything.is_some();
+        if material {
+            if sel.nodes.is_some() {
+                return Err(format!(
+                    "{here}: `nodes` does not apply to a material, which takes the tetrahedra \
+                     whose centroid lies in the shape; remove it"
+                ));
+            }
+            if sel.node_list.is_some() {
+                return Err(format!(
+                    "{here}: a material takes tetrahedra, not a node list; use a shape or a group"
+                ));
+            }
+        } else if shape && sel.nodes.is_none() {
+            return Err(format!(
+                "{here}: state which nodes the {} takes: add nodes = \"boundary\" (nodes on the \
+                 mesh boundary) or nodes = \"all\"",
+                sel.describe()
+            ));
+        } else if !shape && sel.nodes.is_some() {
+            return Err(format!(
+                "{here}: `nodes` applies to shapes and `everything` only; remove it"
+            ));
+        }
+    }
+    Ok(())
+}
+
 impl Scene {
-    /// Parses scene text; `path` is used in messages only.
+    /// Parses scene text; `path` names the file in messages and anchors relative `node_list`
+    /// paths. A leading UTF-8 byte-order mark is skipped.
     pub fn parse(text: &str, path: &Path) -> Result<Self, SceneError> {
-        let scene: Scene = toml::from_str(text).map_err(|e| SceneError::Parse {
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+        let mut scene: Scene = toml::from_str(text).map_err(|e| SceneError::Parse {
             path: path.to_owned(),
             message: e.to_string(),
         })?;
@@ -419,7 +805,47 @@ impl Scene {
             path: path.to_owned(),
             what,
         })?;
+        if let Some(dir) = path.parent() {
+            for sel in scene.selectors_mut() {
+                if let Some(f) = &mut sel.node_list {
+                    *f = dir.join(&*f);
+                }
+            }
+        }
         Ok(scene)
+    }
+
+    fn selectors_mut(&mut self) -> impl Iterator<Item = &mut Selector> {
+        let m = self.materials.iter_mut().map(|x| &mut x.select);
+        let f = self.fixed.iter_mut().map(|x| &mut x.select);
+        let l = self.loads.iter_mut().map(|x| &mut x.select);
+        let n = self.force_noise.iter_mut().map(|x| &mut x.select);
+        let d = self.display.iter_mut().map(|x| &mut x.select);
+        m.chain(f)
+            .chain(l)
+            .chain(n)
+            .chain(d)
+            .flat_map(|s| s.iter_mut().flatten())
+    }
+
+    /// Legal but suspect settings, one sentence each (the wiring prints them as notes):
+    /// ν ≥ 0.49 on linear tetrahedra (volumetric locking).
+    pub fn warnings(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for (i, m) in self.materials.iter().enumerate() {
+            if m.poisson_ratio >= limits::LOCKING_POISSON {
+                out.push(format!(
+                    "material {} ({}): poisson_ratio = {} ≥ {}: linear tetrahedra lock near \
+                     incompressibility, so the model is too stiff (docs/design.md §3); expect \
+                     displacements well below the true ones",
+                    i + 1,
+                    m.target(),
+                    m.poisson_ratio,
+                    limits::LOCKING_POISSON
+                ));
+            }
+        }
+        out
     }
 
     /// Range checks that need no mesh.
@@ -427,72 +853,98 @@ impl Scene {
         if self.materials.is_empty() {
             return Err("no [[material]]: every volume group needs E, ν and ρ".into());
         }
-        for m in &self.materials {
-            let g = &m.group;
-            if !(m.young_modulus.is_finite() && m.young_modulus > 0.0) {
-                return Err(format!(
-                    "material '{g}': young_modulus must be > 0 Pa, got {}",
-                    m.young_modulus
-                ));
-            }
+        for (i, m) in self.materials.iter().enumerate() {
+            let context = match &m.group {
+                Some(g) => format!("material '{g}'"),
+                None => format!("material {}", i + 1),
+            };
+            check_target(&context, &m.group, &m.select, true)?;
+            let g = &context;
+            in_range(
+                &format!("{g}: young_modulus"),
+                m.young_modulus,
+                limits::YOUNG_MODULUS,
+                "Pa",
+            )?;
             if !(m.poisson_ratio.is_finite() && m.poisson_ratio > -1.0 && m.poisson_ratio < 0.5) {
                 return Err(format!(
-                    "material '{g}': poisson_ratio must lie in (-1, 0.5), got {} \
+                    "{g}: poisson_ratio must lie in (-1, 0.5), got {} \
                      (ν = 0.5 is incompressible: linear tetrahedra cannot represent it)",
                     m.poisson_ratio
                 ));
             }
-            if !(m.density.is_finite() && m.density > 0.0) {
-                return Err(format!(
-                    "material '{g}': density must be > 0 kg/m³, got {}",
-                    m.density
-                ));
-            }
+            in_range(
+                &format!("{g}: density"),
+                m.density,
+                limits::DENSITY,
+                "kg/m³",
+            )?;
         }
         let d = self.damping;
-        if !(d.alpha.is_finite() && d.alpha >= 0.0 && d.beta.is_finite() && d.beta >= 0.0) {
-            return Err(format!(
-                "damping: alpha and beta must be finite and ≥ 0, got α = {}, β = {}",
-                d.alpha, d.beta
-            ));
-        }
+        in_range("damping.alpha", d.alpha, limits::ALPHA, "1/s")?;
+        in_range("damping.beta", d.beta, limits::BETA, "s")?;
         let t = self.time;
-        if !(t.dt.is_finite() && t.dt > 0.0) {
-            return Err(format!("time.dt must be > 0 s, got {}", t.dt));
-        }
-        if !(t.theta.is_finite() && t.theta >= 1.37) {
+        in_range("time.dt", t.dt, limits::DT, "s")?;
+        if !(t.theta.is_finite() && t.theta >= limits::THETA.0 && t.theta <= limits::THETA.1) {
             return Err(format!(
-                "time.theta must be ≥ 1.37 for unconditional stability, got {}",
+                "time.theta must be ≥ 1.37 for unconditional stability (and ≤ {}), got {}",
+                limits::THETA.1,
                 t.theta
             ));
         }
         if let Some(g) = self.gravity {
-            if g.iter().any(|v| !v.is_finite()) {
-                return Err(format!("gravity must be finite, got {g:?}"));
+            if g.iter()
+                .any(|v| !(v.is_finite() && v.abs() <= limits::GRAVITY))
+            {
+                return Err(format!(
+                    "gravity = {g:?} m/s² is out of range: every component must be finite with \
+                     |g| ≤ {:e} m/s²",
+                    limits::GRAVITY
+                ));
             }
+        }
+        for (i, f) in self.fixed.iter().enumerate() {
+            let context = match &f.group {
+                Some(g) => format!("fixed '{g}'"),
+                None => format!("fixed {}", i + 1),
+            };
+            check_target(&context, &f.group, &f.select, false)?;
         }
         let mut names = std::collections::BTreeSet::new();
         for l in &self.loads {
             if !names.insert(l.name.as_str()) {
                 return Err(format!("load '{}': name used twice", l.name));
             }
-            if !(l.force_noise_std.is_finite() && l.force_noise_std >= 0.0) {
-                return Err(format!(
-                    "load '{}': force_noise_std must be ≥ 0 N, got {}",
-                    l.name, l.force_noise_std
-                ));
-            }
+            check_target(&format!("load '{}'", l.name), &l.group, &l.select, false)?;
+            in_range(
+                &format!("load '{}': force_noise_std", l.name),
+                l.force_noise_std,
+                limits::FORCE_NOISE,
+                "N",
+            )?;
         }
         for n in &self.force_noise {
             if !names.insert(n.name.as_str()) {
                 return Err(format!("force_noise '{}': name used twice", n.name));
             }
+            check_target(
+                &format!("force_noise '{}'", n.name),
+                &n.group,
+                &n.select,
+                false,
+            )?;
             if !(n.std.is_finite() && n.std > 0.0) {
                 return Err(format!(
                     "force_noise '{}': std must be > 0 N, got {}",
                     n.name, n.std
                 ));
             }
+            in_range(
+                &format!("force_noise '{}': std", n.name),
+                n.std,
+                limits::FORCE_NOISE,
+                "N",
+            )?;
         }
         let mut sensor_names = std::collections::BTreeSet::new();
         for s in &self.sensors {
@@ -502,6 +954,7 @@ impl Scene {
             if s.position.iter().any(|v| !v.is_finite()) {
                 return Err(format!("sensor '{}': position must be finite", s.name));
             }
+            check_point(&format!("sensor '{}': position", s.name), s.position)?;
             if s.components.is_empty() {
                 return Err(format!("sensor '{}': no measured components", s.name));
             }
@@ -515,6 +968,12 @@ impl Scene {
                         c.label()
                     ));
                 }
+                in_range(
+                    &format!("sensor '{}': noise_std of component {}", s.name, c.label()),
+                    sigma,
+                    limits::SENSOR_NOISE,
+                    "m",
+                )?;
             }
             if s.every == 0 {
                 return Err(format!("sensor '{}': every must be ≥ 1", s.name));
@@ -525,6 +984,7 @@ impl Scene {
             if !display_names.insert(d.name.as_str()) {
                 return Err(format!("display '{}': name used twice", d.name));
             }
+            check_target(&format!("display '{}'", d.name), &d.group, &d.select, false)?;
         }
         if let Some(tol) = self.reduction.tolerance {
             if !(tol > 0.0 && tol < 1.0) {

@@ -48,9 +48,15 @@ fn outputs_that_are_inputs_or_collide_are_refused_before_any_work() {
     let report = Path::new("--report");
 
     let (ok, err) = compile(&[&scene, o, &scene]);
-    assert!(!ok && err.contains("scene") && err.contains("refusing"), "{err}");
+    assert!(
+        !ok && err.contains("scene") && err.contains("refusing"),
+        "{err}"
+    );
     let (ok, err) = compile(&[&scene, o, &mesh]);
-    assert!(!ok && err.contains("mesh") && err.contains("refusing"), "{err}");
+    assert!(
+        !ok && err.contains("mesh") && err.contains("refusing"),
+        "{err}"
+    );
     let model = dir.join("model.crokf");
     let (ok, err) = compile(&[&scene, o, &model, report, &model]);
     assert!(!ok && err.contains("same file"), "{err}");
@@ -60,7 +66,10 @@ fn outputs_that_are_inputs_or_collide_are_refused_before_any_work() {
 
     assert_eq!(std::fs::read(&scene).expect("scene"), scene_bytes);
     assert_eq!(std::fs::read(&mesh).expect("mesh"), mesh_bytes);
-    assert!(!model.exists(), "no model is written when the command is refused");
+    assert!(
+        !model.exists(),
+        "no model is written when the command is refused"
+    );
     let strays: Vec<_> = std::fs::read_dir(&dir)
         .expect("list")
         .filter_map(Result::ok)

@@ -4,7 +4,7 @@ use std::path::Path;
 
 use crokf_compile::fem::operators::Operators;
 use crokf_compile::fem::{sparse_entries, sparse_mul, FemError, FemModel};
-use crokf_compile::generate::box_mesh;
+use crokf_compile::mesh::procedural::box_mesh;
 use crokf_compile::mesh::Mesh;
 use crokf_compile::scene::Scene;
 

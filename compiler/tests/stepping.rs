@@ -7,7 +7,7 @@ use std::path::Path;
 use crokf_compile::dynamics::WilsonTheta;
 use crokf_compile::fem::operators::Operators;
 use crokf_compile::fem::{FemModel, TetGeometry};
-use crokf_compile::generate::box_mesh;
+use crokf_compile::mesh::procedural::box_mesh;
 use crokf_compile::mesh::Mesh;
 use crokf_compile::scene::Scene;
 use crokf_compile::stepping::{

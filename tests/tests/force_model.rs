@@ -2,7 +2,7 @@
 //! persistent force the runtime is not told about is estimated without the lag (bias) of the
 //! white-noise model.
 
-use crokf_compile::generate::{box_mesh, write_msh22};
+use crokf_compile::mesh::procedural::{box_mesh, write_msh22};
 use crokf_compile::report::StageTimer;
 use crokf_compile::stepping::{LinearSimulator, Simulator};
 use crokf_compile::{compile, CompileOptions, FullOrder};

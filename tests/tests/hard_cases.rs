@@ -10,7 +10,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crokf_compile::generate::{box_mesh, write_msh22};
+use crokf_compile::mesh::procedural::{box_mesh, write_msh22};
 use crokf_compile::mesh::Mesh;
 use crokf_compile::{compile, CompileOptions, Compiled};
 

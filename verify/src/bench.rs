@@ -19,7 +19,7 @@ use crokf_compile::mesh::Mesh;
 use crokf_compile::scene::Scene;
 use crokf_compile::stepping::{CorotationalSimulator, LinearSimulator, NewtonOptions, Simulator};
 
-use crokf_compile::generate::box_mesh;
+use crokf_compile::mesh::procedural::box_mesh;
 
 /// Median of `samples` timings of `f`, s.
 pub fn median_seconds(samples: usize, mut f: impl FnMut()) -> f64 {

@@ -9,7 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crokf_compile::generate::{box_mesh, write_msh22};
+use crokf_compile::mesh::procedural::{box_mesh, write_msh22};
 use crokf_verify::comparison::{
     self, breakdown_rotation, rotation_sweep, Comparison, ComparisonError, ComparisonOptions,
     Gaussian, Progress, SweepPoint,

@@ -2,8 +2,9 @@
 //! each), gravity, process-noise channels, point sensors and displayed node sets.
 
 use crate::fem::{find_group, FemError, FemModel};
+use crate::mesh::selection::{Selected, Selections};
 use crate::mesh::Mesh;
-use crate::scene::{Component, LoadDistribution, Scene};
+use crate::scene::{Component, LoadDistribution, Scene, Selector, Target};
 
 /// A sparse row over the free DOFs: (DOF index, coefficient).
 pub type SparseRow = Vec<(usize, f64)>;
@@ -91,6 +92,8 @@ pub struct Operators {
     pub sensors: Vec<PointSensor>,
     /// Displayed node sets, scene order.
     pub node_sets: Vec<NodeSet>,
+    /// What each `select` took (one line per selection), for the wiring to print.
+    pub notes: Vec<String>,
 }
 
 const AXES: [&str; 3] = ["x", "y", "z"];
@@ -102,9 +105,22 @@ impl Operators {
         let mut loads = Vec::new();
         let mut inputs = Vec::new();
         let mut noise = Vec::new();
+        let mut notes = Vec::new();
+        let mut selections = Selections::new(mesh);
+        let mut select = |list: &[Selector], context: &str| -> Result<Selected, FemError> {
+            let (s, note) = selections.nodes(list, context)?;
+            notes.push(note);
+            Ok(s)
+        };
         for (li, load) in scene.loads.iter().enumerate() {
             let context = format!("load '{}'", load.name);
-            let weights = node_weights(mesh, fem, &load.group, load.distribution, &context)?;
+            let weights = match load.target() {
+                Target::Group(g) => node_weights(mesh, fem, g, load.distribution, &context)?,
+                Target::Select(list) => {
+                    let s = select(list, &context)?;
+                    selection_weights(fem, &s, load.distribution, &context)?
+                }
+            };
             for c in 0..3 {
                 let column = spread(fem, &weights, c, 1.0, n);
                 if load.force_noise_std > 0.0 {
@@ -149,7 +165,13 @@ impl Operators {
         }
         for fnoise in &scene.force_noise {
             let context = format!("force_noise '{}'", fnoise.name);
-            let weights = node_weights(mesh, fem, &fnoise.group, fnoise.distribution, &context)?;
+            let weights = match fnoise.target() {
+                Target::Group(g) => node_weights(mesh, fem, g, fnoise.distribution, &context)?,
+                Target::Select(list) => {
+                    let s = select(list, &context)?;
+                    selection_weights(fem, &s, fnoise.distribution, &context)?
+                }
+            };
             for c in 0..3 {
                 noise.push(InputChannel {
                     label: format!("noise:{}.{}", fnoise.name, AXES[c]),
@@ -189,38 +211,21 @@ impl Operators {
 
         let mut node_sets = Vec::new();
         for d in &scene.display {
-            let triangles_global: Vec<[usize; 3]> = if d.group == "surface" {
-                mesh.surface_triangles()
-            } else {
-                let group = find_group(mesh, &d.group, &format!("display '{}'", d.name))?;
-                if group.dim == 2 {
-                    group
-                        .elements
-                        .iter()
-                        .map(|&t| mesh.triangles[t].nodes)
-                        .collect()
-                } else {
-                    Vec::new()
-                }
-            };
-            let nodes: Vec<usize> = if d.group == "surface" {
-                let set: std::collections::BTreeSet<usize> =
-                    triangles_global.iter().flatten().copied().collect();
-                set.into_iter().collect()
-            } else {
-                let used = fem.used_nodes();
-                let group = find_group(mesh, &d.group, &format!("display '{}'", d.name))?;
-                group
-                    .nodes
-                    .iter()
-                    .copied()
-                    .filter(|n| used.contains(n))
-                    .collect()
-            };
+            let (triangles_global, nodes, what): (Vec<[usize; 3]>, Vec<usize>, String) =
+                match d.target() {
+                    Target::Group(g) => {
+                        let (t, n) = display_group(mesh, fem, g, &d.name)?;
+                        (t, n, format!("group '{g}'"))
+                    }
+                    Target::Select(list) => {
+                        let s = select(list, &format!("display '{}'", d.name))?;
+                        (s.faces, s.nodes, "its selection".to_owned())
+                    }
+                };
             if nodes.is_empty() {
                 return Err(FemError::Scene(format!(
-                    "display '{}': group '{}' has no nodes of the tetrahedral mesh",
-                    d.name, d.group
+                    "display '{}': {what} has no nodes of the tetrahedral mesh",
+                    d.name
                 )));
             }
             let local = |g: usize| nodes.binary_search(&g).ok().map(|i| i as u32);
@@ -241,6 +246,7 @@ impl Operators {
             noise,
             sensors,
             node_sets,
+            notes,
         })
     }
 
@@ -248,6 +254,95 @@ impl Operators {
     pub fn sensor_rows(fem: &FemModel, sensor: &PointSensor) -> [SparseRow; 3] {
         interpolate_rows(&sensor.weights, |node| displacement_rows(fem, node))
     }
+}
+
+/// Triangles and nodes of a display given by group name (or the keyword `"surface"`).
+fn display_group(
+    mesh: &Mesh,
+    fem: &FemModel,
+    group_name: &str,
+    display: &str,
+) -> Result<(Vec<[usize; 3]>, Vec<usize>), FemError> {
+    let context = format!("display '{display}'");
+    let triangles_global: Vec<[usize; 3]> = if group_name == "surface" {
+        mesh.surface_triangles()
+    } else {
+        let group = find_group(mesh, group_name, &context)?;
+        if group.dim == 2 {
+            group
+                .elements
+                .iter()
+                .map(|&t| mesh.triangles[t].nodes)
+                .collect()
+        } else {
+            Vec::new()
+        }
+    };
+    let nodes: Vec<usize> = if group_name == "surface" {
+        let set: std::collections::BTreeSet<usize> =
+            triangles_global.iter().flatten().copied().collect();
+        set.into_iter().collect()
+    } else {
+        let used = fem.used_nodes();
+        let group = find_group(mesh, group_name, &context)?;
+        group
+            .nodes
+            .iter()
+            .copied()
+            .filter(|n| used.contains(n))
+            .collect()
+    };
+    Ok((triangles_global, nodes))
+}
+
+/// Node weights (summing to 1) of a selection: equal shares (`uniform`) or a third of the area
+/// of every selected face per face node (`area`, consistent with a uniform traction).
+fn selection_weights(
+    fem: &FemModel,
+    selected: &Selected,
+    distribution: LoadDistribution,
+    context: &str,
+) -> Result<Vec<(usize, f64)>, FemError> {
+    let mut weights: Vec<(usize, f64)> = match distribution {
+        LoadDistribution::Uniform => selected.nodes.iter().map(|&n| (n, 1.0)).collect(),
+        LoadDistribution::Area => {
+            let mut w = std::collections::BTreeMap::new();
+            for tri in &selected.faces {
+                let area = triangle_area(tri.map(|i| fem.positions[i]));
+                for &node in tri {
+                    *w.entry(node).or_insert(0.0) += area / 3.0;
+                }
+            }
+            w.into_iter().collect()
+        }
+    };
+    let total: f64 = weights.iter().map(|(_, w)| w).sum();
+    if total.is_nan() || total <= 0.0 {
+        return Err(FemError::Scene(format!(
+            "{context}: the selection has no boundary face (three selected boundary nodes) to \
+             spread the force by area; select a boundary patch (nodes = \"boundary\") or use \
+             distribution = \"uniform\""
+        )));
+    }
+    for (_, w) in &mut weights {
+        *w /= total;
+    }
+    if !weights
+        .iter()
+        .any(|&(n, _)| fem.dofs.index[n].iter().any(Option::is_some))
+    {
+        return Err(FemError::Scene(format!(
+            "{context}: every selected node is fixed, so the load cannot act"
+        )));
+    }
+    Ok(weights)
+}
+
+fn triangle_area(p: [[f64; 3]; 3]) -> f64 {
+    let e1 = [p[1][0] - p[0][0], p[1][1] - p[0][1], p[1][2] - p[0][2]];
+    let e2 = [p[2][0] - p[0][0], p[2][1] - p[0][1], p[2][2] - p[0][2]];
+    let c = crate::fem::element::cross(e1, e2);
+    0.5 * crate::fem::element::dot(c, c).sqrt()
 }
 
 /// Displacement rows (x, y, z) of one node over the free DOFs (empty where fixed).

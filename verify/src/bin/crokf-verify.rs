@@ -13,7 +13,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use crokf_compile::generate;
+use crokf_compile::mesh::procedural;
 use crokf_compile::stepping::{Formulation, NewtonOptions};
 use crokf_formats::output::{check_paths, write_atomically, Output, OutputKind, StagedDir};
 use crokf_verify::simulate::{self, SimulationOptions};
@@ -205,7 +205,7 @@ fn beam(args: &BeamArgs) -> Result<(), String> {
     let mesh = bench::beam_of_size(args.tetrahedra);
     std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
     let msh = args.out.join("beam.msh");
-    generate::write_msh22(&mesh, &msh).map_err(|e| format!("{}: {e}", msh.display()))?;
+    procedural::write_msh22(&mesh, &msh).map_err(|e| format!("{}: {e}", msh.display()))?;
     let scene = args.out.join("scene.toml");
     std::fs::write(&scene, bench::BEAM_SCENE.replace("generated", "beam.msh"))
         .map_err(|e| format!("{}: {e}", scene.display()))?;

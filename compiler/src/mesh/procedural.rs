@@ -6,7 +6,7 @@
 //! Physical groups: volume `body`; surfaces `xmin` and `xmax` (the end faces, as triangles);
 //! `surface` is not a group: use the display keyword.
 
-use crate::mesh::{Mesh, PhysicalGroup, Tetrahedron, Triangle};
+use super::{Mesh, PhysicalGroup, Tetrahedron, Triangle};
 
 /// A structured box mesh with 6·nx·ny·nz tetrahedra; lengths in mesh units.
 pub fn box_mesh(cells: [usize; 3], lengths: [f64; 3]) -> Mesh {
