@@ -3,9 +3,12 @@
 //!
 //! Synthetic models of the shape (6 inputs on two load groups, 30 measured components
 //! on 10 sensors, one displayed set of 5,000 nodes with warping), as in `crokf-verify bench`:
-//! - step (predict + update) at r = 10, 20, 40, 80: median over 21 batches of 1,000 steps;
-//! - read-out of the 5,000 node positions (warped): median over 51 calls;
+//! - step (predict + update) at r = 10, 20, 40, 80: median over 301 batches of 100 steps
+//!   (batches short against a scheduler time slice, so that the median is an undisturbed one);
+//! - read-out of the 5,000 node positions (warped): median over 101 calls;
 //! - 1,000 estimators at r = 20 sharing one model: steps per second over all of them.
+//!
+//! `bench steps R N` runs only N steps at order R (for `perf stat -e cycles:u,instructions:u`).
 
 use crokf_formats::*;
 use crokf_runtime::Estimator;
@@ -116,6 +119,20 @@ fn synthetic_model(r: usize, inputs: usize, measured: usize, nodes: usize) -> Mo
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (inputs, measured, nodes) = (6, 30, 5000);
+    // `bench steps R N`: only N steps at order R (for `perf stat` cycle and instruction counts).
+    let args: Vec<String> = std::env::args().collect();
+    if args.len() == 4 && args[1] == "steps" {
+        let (r, n): (usize, usize) = (args[2].parse()?, args[3].parse()?);
+        let model = synthetic_model(r, inputs, measured, 8);
+        let mut est = Estimator::new(&model)?;
+        let u = vec![0.5; inputs];
+        let y: Vec<Option<f64>> = (0..measured).map(|i| Some(1e-4 * i as f64)).collect();
+        for _ in 0..n {
+            est.step(black_box(&u), black_box(&y))?;
+        }
+        println!("{:?}", &est.state()[..2]);
+        return Ok(());
+    }
     println!("runtime benchmark: {inputs} inputs, {measured} measured components, {nodes} displayed nodes (medians)");
     println!(
         "{:>4} {:>12} {:>22}",
@@ -127,9 +144,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let u = vec![0.5; inputs];
         let mut rng = Noise(7);
         let y: Vec<Option<f64>> = (0..measured).map(|_| Some(1e-3 * rng.next())).collect();
-        let batch = 1000;
+        let batch = 100;
         let mut failed = None;
-        let step_s = median_seconds(21, || {
+        let step_s = median_seconds(301, || {
             for _ in 0..batch {
                 if let Err(e) = est.step(black_box(&u), black_box(&y)) {
                     failed = Some(e);
@@ -141,7 +158,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         let mut out = vec![0.0; 3 * nodes];
         let mut failed = None;
-        let readout_s = median_seconds(51, || {
+        let readout_s = median_seconds(101, || {
             if let Err(e) = est.node_positions(0, black_box(&mut out)) {
                 failed = Some(e);
             }
@@ -182,7 +199,10 @@ fn many_instances() -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
-/// `n` estimators over `model`.
+/// `n` estimators sharing one prepared `model` (one copy of the matrices).
 fn instances(model: &Model, n: usize) -> Result<Vec<Estimator>, crokf_runtime::RuntimeError> {
-    (0..n).map(|_| Estimator::new(model)).collect()
+    let shared = std::sync::Arc::new(crokf_runtime::PreparedModel::new(model.clone())?);
+    Ok((0..n)
+        .map(|_| Estimator::from_prepared(std::sync::Arc::clone(&shared)))
+        .collect())
 }

@@ -4,7 +4,7 @@
 //! build an error value).
 
 use crate::prepared::PreparedModel;
-use crate::simd::matvec;
+use crate::simd::{matvec, matvec_t};
 use crate::warp::{Vec3, Warp};
 use crate::RuntimeError;
 use crokf_formats::{Matrix, Model};
@@ -54,7 +54,7 @@ pub struct Estimator {
     r: usize,
     /// Current state x (posterior after `update`, prior after `predict`).
     x: Vec<f64>,
-    /// x in single precision, padded with zeros (the display read-out's operand).
+    /// x in single precision (the display read-out's operand).
     x32: Vec<f32>,
     /// Scratch for F x + G u, and the state before the last prediction (for a rollback).
     x_next: Vec<f64>,
@@ -72,6 +72,9 @@ pub struct Estimator {
     filled: Vec<[bool; 3]>,
     /// Per sensor scratch: the warp at the predicted state.
     warps: Vec<Option<Warp>>,
+    /// [C_s x; W_s x] of the current phase's sensors (6 each), and W_g x of the load groups.
+    sensor_vals: Vec<f64>,
+    load_vals: Vec<f64>,
     /// Innovation per active channel of the current phase.
     innovation: Vec<f64>,
     /// Whether each active channel of the current phase was gated.
@@ -106,7 +109,7 @@ impl Estimator {
         Estimator {
             r,
             x: vec![0.0; r],
-            x32: vec![0.0; prepared.padded],
+            x32: vec![0.0; r],
             x_next: vec![0.0; r],
             x_upd: vec![0.0; r],
             u_lin: vec![0.0; prepared.model.inputs.len()],
@@ -116,6 +119,8 @@ impl Estimator {
             u_pred: vec![[0.0; 3]; ns],
             filled: vec![[false; 3]; ns],
             warps: vec![None; ns],
+            sensor_vals: vec![0.0; 6 * ns],
+            load_vals: vec![0.0; 3 * prepared.model.loads.len()],
             innovation: vec![0.0; prepared.max_measured],
             gated_now: vec![false; prepared.max_measured],
             k: 0,
@@ -203,7 +208,7 @@ impl Estimator {
         Ok(())
     }
 
-    /// x32 ← x (single precision, padding stays zero).
+    /// x32 ← x (single precision).
     fn sync_x32(&mut self) {
         for (a, b) in self.x32.iter_mut().zip(&self.x) {
             *a = *b as f32;
@@ -278,12 +283,13 @@ impl Estimator {
         let sh: &PreparedModel = &self.shared;
         let model = &sh.model;
         self.u_lin.copy_from_slice(inputs);
+        matvec_t(&sh.load_rows_t, &self.x, &mut self.load_vals, false);
         for (g, chans) in sh.load_channels.iter().enumerate() {
             if chans.iter().all(Option::is_none) {
                 continue;
             }
             let f_world: Vec3 = [0, 1, 2].map(|c| chans[c].map_or(0.0, |j| inputs[j]));
-            let omega = rows3(&model.loads[g].rotation_rows, 0, &self.x);
+            let omega = [0, 1, 2].map(|c| self.load_vals[3 * g + c]);
             let f_lin = Warp::new(&omega).rotate_transpose(&f_world);
             for c in 0..3 {
                 if let Some(j) = chans[c] {
@@ -291,10 +297,8 @@ impl Estimator {
                 }
             }
         }
-        let r = self.r;
-        matvec(&model.transition.data, r, &self.x, &mut self.x_next, false);
-        let m = self.u_lin.len();
-        matvec(&model.input.data, m, &self.u_lin, &mut self.x_next, true);
+        matvec_t(&sh.transition_t, &self.x, &mut self.x_next, false);
+        matvec_t(&sh.input_t, &self.u_lin, &mut self.x_next, true);
         if let Some(index) = self.x_next.iter().position(|v| !v.is_finite()) {
             return Err(RuntimeError::NonFiniteState {
                 step: self.k + 1,
@@ -386,10 +390,11 @@ impl Estimator {
         let step = self.k;
         let phase = &model.kalman.phases[p];
         let sensors = &sh.phase_sensors[p];
-        for &s in sensors {
-            let info = &model.sensors[s];
-            self.u_pred[s] = rows3(&info.displacement_rows, 0, &self.x);
-            self.warps[s] = Some(Warp::new(&rows3(&info.rotation_rows, 0, &self.x)));
+        let vals = &mut self.sensor_vals[..6 * sensors.len()];
+        matvec_t(&sh.phase_rows_t[p], &self.x, vals, false);
+        for (v, &s) in vals.chunks_exact(6).zip(sensors) {
+            self.u_pred[s] = [v[0], v[1], v[2]];
+            self.warps[s] = Some(Warp::new(&[v[3], v[4], v[5]]));
             self.filled[s] = [false; 3];
         }
         for &j in &phase.measured {
@@ -457,13 +462,7 @@ impl Estimator {
             used += self.filled[s][c] as usize;
         }
         self.x_upd.copy_from_slice(&self.x);
-        matvec(
-            &phase.gain.data,
-            nm,
-            &self.innovation[..nm],
-            &mut self.x_upd,
-            true,
-        );
+        matvec_t(&sh.gain_t[p], &self.innovation[..nm], &mut self.x_upd, true);
         if let Some(index) = self.x_upd.iter().position(|v| !v.is_finite()) {
             return Err(RuntimeError::NonFiniteState {
                 step,
@@ -608,24 +607,22 @@ impl Estimator {
 
     /// World displacement of every node of node set `set`, u_i = R̃(ω_i) u_lin,i, 3 per node
     /// (m), with u_lin,i and ω_i from the set's displacement and rotation rows stored in single
-    /// precision and dot products accumulated in f32 (`docs/design.md` §5; half the bytes of
-    /// [`Estimator::node_displacements_exact`], from which it differs by f32 rounding: about
-    /// 1e-7 of the displacement, measured in `tests/readout.rs`). Rotation rows that are all
-    /// zero skip the warp.
+    /// precision, dot products and the warp in f32 (`docs/design.md` §5; half the bytes of
+    /// [`Estimator::node_displacements_exact`], from which it differs by f32 rounding, a few
+    /// 1e-7 of the largest displacement: measured in `tests/readout.rs`). Rotation rows that
+    /// are all zero skip the warp.
     pub fn node_displacements(&self, set: usize, out: &mut [f64]) -> Result<(), RuntimeError> {
         let ns = self.node_set(set)?;
         check_len("node read-out buffer", 3 * ns.node_tags.len(), out.len())?;
         let rows = &self.shared.display[set];
-        let warped = rows.warped;
-        crate::simd::display_blocks(&rows.rows, &self.x32, self.shared.padded, |i, v| {
-            let u = [v[0] as f64, v[1] as f64, v[2] as f64];
-            let d = if warped {
-                crate::warp::warp_small(&[v[3] as f64, v[4] as f64, v[5] as f64], &u)
-            } else {
-                u
-            };
-            out[3 * i..3 * i + 3].copy_from_slice(&d);
-        });
+        crate::simd::display(
+            &rows.rows,
+            &self.x32,
+            self.r,
+            ns.node_tags.len(),
+            rows.warped,
+            out,
+        );
         check_finite_readout("node displacements", out)
     }
 

@@ -12,8 +12,9 @@
 //!   node reaches per unit of input j in the linear step response after 2²⁰ steps,
 //!   d_j = max_rows |c · Σ_{i<2²⁰} Fⁱ G e_j| (an input that would statically move a point by ten
 //!   times the body's size is not physical; d_j = 0 leaves only the finiteness check);
-//! - the displayed node rows in single precision, interleaved per node as a 6×r̂ block
-//!   [C_i; W_i] (r̂ = r rounded up to 8, zero padded), half the bytes of the f64 rows.
+//! - the displayed node rows in single precision, grouped by 8 nodes so that one state entry
+//!   multiplies 6 × 8 contiguous values (no horizontal sums; the warp runs on 8 nodes at
+//!   once): half the bytes of the f64 rows.
 
 use crate::simd;
 use crate::RuntimeError;
@@ -28,10 +29,11 @@ pub(crate) struct PhaseStd {
     pub nodes: Vec<Vec<f64>>,
 }
 
-/// One displayed node set's rows in single precision.
+/// One displayed node set's rows in single precision, grouped by 8 nodes.
 #[derive(Clone, Debug)]
 pub(crate) struct DisplayRows {
-    /// n blocks of 6 × `padded` f32: rows u_x, u_y, u_z, ω_x, ω_y, ω_z of node i.
+    /// ⌈n/8⌉ groups of r × 6 × 8 f32: entry ((g·r + k)·6 + c)·8 + l is column k of row c
+    /// (u_x, u_y, u_z, ω_x, ω_y, ω_z) of node 8g + l (zero for padding nodes).
     pub rows: Vec<f32>,
     /// Whether any rotation row is non-zero (otherwise the warp is the identity and skipped).
     pub warped: bool,
@@ -42,8 +44,6 @@ pub(crate) struct DisplayRows {
 pub struct PreparedModel {
     pub(crate) model: Model,
     pub(crate) r: usize,
-    /// r rounded up to a multiple of 8 (f32 display rows and the f32 state copy).
-    pub(crate) padded: usize,
     /// Per load group: the input channel of each world component.
     pub(crate) load_channels: Vec<[Option<usize>; 3]>,
     /// Per measurement channel: (sensor, component).
@@ -52,6 +52,15 @@ pub struct PreparedModel {
     pub(crate) every: Vec<u64>,
     /// Per phase: sensors with at least one active channel.
     pub(crate) phase_sensors: Vec<Vec<usize>>,
+    /// Per phase: the rows [C_s; W_s] (6 per sensor of `phase_sensors[p]`, r columns), stacked
+    /// and transposed (r × 6·sensors) so that the update evaluates them in one product.
+    pub(crate) phase_rows_t: Vec<Vec<f64>>,
+    /// The load groups' rotation rows W_g stacked (3 per group) and transposed (r × 3·groups).
+    pub(crate) load_rows_t: Vec<f64>,
+    /// Fᵀ (r × r), Gᵀ (m × r) and per phase K_pᵀ (active channels × r), for [`simd::matvec_t`].
+    pub(crate) transition_t: Vec<f64>,
+    pub(crate) input_t: Vec<f64>,
+    pub(crate) gain_t: Vec<Vec<f64>>,
     /// Largest number of active channels in a phase.
     pub(crate) max_measured: usize,
     pub(crate) std_prior: Vec<PhaseStd>,
@@ -133,7 +142,6 @@ impl PreparedModel {
     pub fn new(model: Model) -> Result<PreparedModel, RuntimeError> {
         model.validate()?;
         let r = model.r();
-        let padded = r.div_ceil(simd::LANES) * simd::LANES;
         let mut load_channels = vec![[None; 3]; model.loads.len()];
         for (j, ch) in model.inputs.iter().enumerate() {
             if let InputKind::Load { load, component } = ch.kind {
@@ -149,7 +157,7 @@ impl PreparedModel {
             .iter()
             .map(|&(s, _)| model.sensors[s].every as u64)
             .collect();
-        let phase_sensors = model
+        let phase_sensors: Vec<Vec<usize>> = model
             .kalman
             .phases
             .iter()
@@ -160,6 +168,31 @@ impl PreparedModel {
                 s.dedup();
                 s
             })
+            .collect();
+        let phase_rows_t: Vec<Vec<f64>> = phase_sensors
+            .iter()
+            .map(|sensors: &Vec<usize>| {
+                let mut rows = Vec::with_capacity(6 * r * sensors.len());
+                for &s in sensors {
+                    rows.extend_from_slice(&model.sensors[s].displacement_rows.data);
+                    rows.extend_from_slice(&model.sensors[s].rotation_rows.data);
+                }
+                simd::transpose(&rows, 6 * sensors.len(), r)
+            })
+            .collect();
+        let load_rows: Vec<f64> = model
+            .loads
+            .iter()
+            .flat_map(|g| g.rotation_rows.data.iter().copied())
+            .collect();
+        let load_rows_t = simd::transpose(&load_rows, 3 * model.loads.len(), r);
+        let transition_t = simd::transpose(&model.transition.data, r, r);
+        let input_t = simd::transpose(&model.input.data, r, model.inputs.len());
+        let gain_t = model
+            .kalman
+            .phases
+            .iter()
+            .map(|ph| simd::transpose(&ph.gain.data, r, ph.measured.len()))
             .collect();
         let max_measured = model
             .kalman
@@ -290,15 +323,17 @@ impl PreparedModel {
             .iter()
             .map(|set| {
                 let n = set.node_tags.len();
-                let mut rows = vec![0.0f32; 6 * padded * n];
+                let groups = n.div_ceil(simd::GROUP);
+                let mut rows = vec![0.0f32; groups * r * 6 * simd::GROUP];
                 for i in 0..n {
+                    let (g, lane) = (i / simd::GROUP, i % simd::GROUP);
                     for c in 0..3 {
-                        let block = &mut rows[6 * padded * i..6 * padded * (i + 1)];
                         let d = set.displacement_rows.row(3 * i + c);
                         let w = set.rotation_rows.row(3 * i + c);
                         for k in 0..r {
-                            block[c * padded + k] = d[k] as f32;
-                            block[(3 + c) * padded + k] = w[k] as f32;
+                            let at = ((g * r + k) * 6 + c) * simd::GROUP + lane;
+                            rows[at] = d[k] as f32;
+                            rows[at + 3 * simd::GROUP] = w[k] as f32;
                         }
                     }
                 }
@@ -311,11 +346,15 @@ impl PreparedModel {
 
         Ok(PreparedModel {
             r,
-            padded,
             load_channels,
             channel,
             every,
             phase_sensors,
+            phase_rows_t,
+            load_rows_t,
+            transition_t,
+            input_t,
+            gain_t,
             max_measured,
             std_prior,
             std_posterior,

@@ -72,22 +72,6 @@ fn series(t: f64, j: usize) -> f64 {
     SERIES[j - 1].iter().rev().fold(0.0, |acc, &c| acc * t + c)
 }
 
-/// R̃(ω) v for the display read-out: as [`Warp::warp`], with six terms of the series for
-/// θ < 1/2 (first omitted term below 3e-15 relative) instead of nine.
-#[inline(always)]
-pub fn warp_small(omega: &Vec3, v: &Vec3) -> Vec3 {
-    let t = omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2];
-    let (a1, b1) = if t < 0.25 {
-        let s = |j: usize| SERIES[j][..6].iter().rev().fold(0.0, |acc, &c| acc * t + c);
-        (s(1), s(2))
-    } else {
-        let th = t.sqrt();
-        let (s, c) = th.sin_cos();
-        ((1.0 - c) / t, (th - s) / (t * th))
-    };
-    poly(omega, a1, b1, v)
-}
-
 /// (A₀, A₁, B₁) = (sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³) at θ = |ω|.
 #[inline]
 pub fn coefficients(omega: &Vec3) -> (f64, f64, f64) {
