@@ -32,6 +32,10 @@ struct Args {
     /// Also write one .vtu per step and estimates.pvd into this directory.
     #[arg(long)]
     vtu: Option<PathBuf>,
+    /// Innovation gate in standard deviations of the innovation: a measurement beyond it is
+    /// skipped for that step and counted (summary on stderr); 0 turns the gate off.
+    #[arg(long, default_value_t = crokf_runtime::DEFAULT_GATE_SIGMAS)]
+    gate: f64,
     /// With --vtu: write every N-th step only.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
     vtu_every: u64,
@@ -91,6 +95,7 @@ fn run(args: &Args) -> Result<(), RunError> {
         None => Default::default(),
     };
     let mut est = Estimator::new(&model)?;
+    est.set_innovation_gate(Some(args.gate));
     let q = model.measurements.len();
     let ns = model.sensors.len();
     let none = vec![None; q];
@@ -107,6 +112,7 @@ fn run(args: &Args) -> Result<(), RunError> {
         None => None,
     };
     let mut pvd = Vec::new();
+    let mut offered = 0u64;
     let inputs_name = args.inputs.display().to_string();
     for (row, &line) in inputs.rows.iter().zip(&inputs.lines) {
         let k = est.step_index() + 1;
@@ -123,7 +129,13 @@ fn run(args: &Args) -> Result<(), RunError> {
                 source,
             }
         };
+        let active = est.model().kalman.phases[(k % est.model().kalman.period as u64) as usize]
+            .measured
+            .iter()
+            .filter(|&&j| y[j as usize].is_some())
+            .count();
         est.step(row, y).map_err(step_err)?;
+        offered += active as u64;
         est.sensor_displacements(&mut u).map_err(step_err)?;
         est.sensor_std(&mut sd).map_err(step_err)?;
         let mut text = format!("{},{}", k, est.time());
@@ -142,6 +154,7 @@ fn run(args: &Args) -> Result<(), RunError> {
         dir.commit()?;
     }
     out.commit()?;
+    eprintln!("{}", gate_summary(&est, offered));
     if let Some(&last) = measurements.keys().next_back() {
         if last > inputs.rows.len() as u64 {
             eprintln!(
@@ -151,6 +164,29 @@ fn run(args: &Args) -> Result<(), RunError> {
         }
     }
     Ok(())
+}
+
+/// `innovation gate 5σ: skipped 2 of 1200 measurements (tip.x 2)`.
+fn gate_summary(est: &Estimator, offered: u64) -> String {
+    let Some(g) = est.innovation_gate() else {
+        return format!("innovation gate off: {offered} measurements used");
+    };
+    let labels = est.model().measurement_labels();
+    let per: Vec<String> = est
+        .gated_per_channel()
+        .iter()
+        .zip(&labels)
+        .filter(|(&n, _)| n > 0)
+        .map(|(n, l)| format!("{l} {n}"))
+        .collect();
+    let mut s = format!(
+        "innovation gate {g}σ: skipped {} of {offered} measurements",
+        est.gated_total()
+    );
+    if !per.is_empty() {
+        s.push_str(&format!(" ({})", per.join(", ")));
+    }
+    s
 }
 
 fn main() -> ExitCode {

@@ -19,7 +19,7 @@ extern "C" {
 #endif
 
 typedef struct CrokfModel CrokfModel;         /* a loaded, validated model file */
-typedef struct CrokfEstimator CrokfEstimator; /* filter state over a model (owns a copy) */
+typedef struct CrokfEstimator CrokfEstimator; /* filter state over a model (shares its matrices) */
 
 /* Message of the last failed call on this thread ("" if none); valid until the next failure. */
 const char *crokf_last_error(void);
@@ -42,23 +42,31 @@ const char *crokf_model_measurement_label(const CrokfModel *model, size_t i); /*
 const char *crokf_model_sensor_name(const CrokfModel *model, size_t i);
 const char *crokf_model_node_set_name(const CrokfModel *model, size_t i);
 
-/* Estimators (the model may be freed after creating one). */
+/* Estimators (the model may be freed after creating one; estimators share its matrices). */
 CrokfEstimator *crokf_estimator_new(const CrokfModel *model);
 void crokf_estimator_free(CrokfEstimator *est); /* NULL is a no-op */
 
-/* x- = F x + G R^T(omega) u: n_inputs = m world-frame inputs (N; gravity: a scale factor). */
+/* x- = F x + G R^T(omega) u: n_inputs = m world-frame inputs (N; gravity: a scale factor).
+ * Non-finite inputs and inputs beyond the model's plausibility bound fail (state untouched). */
 int crokf_predict(CrokfEstimator *est, const double *inputs, size_t n_inputs);
 /* Update of the current phase. y: q world-frame values (m); present[i] == 0 marks y[i]
  * missing (present NULL: all present; y NULL: no measurement this step). Returns the number of
  * values used. A non-finite present value fails and leaves the state untouched. */
 int crokf_update(CrokfEstimator *est, const double *y, const uint8_t *present, size_t n);
-/* crokf_predict then crokf_update. */
+/* crokf_predict then crokf_update, all or nothing: on failure (-1) the estimator is exactly as
+ * before the call (step index included). */
 int crokf_step(CrokfEstimator *est, const double *inputs, size_t n_inputs,
                const double *y, const uint8_t *present, size_t n);
+/* Innovation gate: a present measurement whose innovation exceeds `sigmas` standard deviations
+ * of its innovation covariance is skipped for that step and counted (default 5; a value that is
+ * not finite and > 0 turns the gate off). */
+int crokf_set_innovation_gate(CrokfEstimator *est, double sigmas);
+uint64_t crokf_gated_count(const CrokfEstimator *est); /* skipped since creation/reset */
 int crokf_reset(CrokfEstimator *est);
 uint64_t crokf_step_index(const CrokfEstimator *est);
 
-/* Read-outs into caller buffers; len must be exact. */
+/* Read-outs into caller buffers; len must be exact. A read-out never succeeds with a
+ * non-finite value. */
 int crokf_sensor_displacements(const CrokfEstimator *est, double *out, size_t len); /* 3*sensors */
 int crokf_sensor_std(const CrokfEstimator *est, double *out, size_t len);           /* 3*sensors */
 int crokf_measurement_estimates(const CrokfEstimator *est, double *out, size_t len); /* q */

@@ -2,22 +2,24 @@
 //! `-1` / NULL on failure with the message in [`crokf_last_error`] (thread-local). No panic
 //! crosses the boundary (every entry point runs under `catch_unwind`).
 
-use crate::{load_model, model_from_bytes, Estimator, Model};
+use crate::{load_model, model_from_bytes, Estimator, Model, PreparedModel};
 use std::cell::RefCell;
 use std::ffi::{c_char, c_int, CStr, CString};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::ptr;
+use std::sync::Arc;
 
-/// A loaded model plus C strings of its labels.
+/// A loaded, prepared model plus C strings of its labels. Estimators made from it share its
+/// matrices (an `Arc`), so freeing the handle early is safe.
 pub struct CrokfModel {
-    model: Model,
+    prepared: Arc<PreparedModel>,
     input_labels: Vec<CString>,
     measurement_labels: Vec<CString>,
     sensor_names: Vec<CString>,
     node_set_names: Vec<CString>,
 }
 
-/// An estimator over a model (owns a copy of it).
+/// An estimator over a model (shares the model's matrices).
 pub struct CrokfEstimator {
     est: Estimator,
 }
@@ -52,15 +54,15 @@ fn cstrings(v: impl IntoIterator<Item = String>) -> Vec<CString> {
         .collect()
 }
 
-fn wrap_model(model: Model) -> *mut CrokfModel {
+fn wrap_model(model: Model) -> Result<*mut CrokfModel, String> {
     let m = CrokfModel {
         input_labels: cstrings(model.input_labels()),
         measurement_labels: cstrings(model.measurement_labels()),
         sensor_names: cstrings(model.sensors.iter().map(|s| s.name.clone())),
         node_set_names: cstrings(model.node_sets.iter().map(|s| s.name.clone())),
-        model,
+        prepared: Arc::new(PreparedModel::new(model).map_err(|e| e.to_string())?),
     };
-    Box::into_raw(Box::new(m))
+    Ok(Box::into_raw(Box::new(m)))
 }
 
 unsafe fn model_ref<'a>(m: *const CrokfModel) -> Result<&'a CrokfModel, String> {
@@ -117,7 +119,7 @@ pub unsafe extern "C" fn crokf_model_load(path: *const c_char) -> *mut CrokfMode
         let p = CStr::from_ptr(path)
             .to_str()
             .map_err(|_| "model path is not UTF-8".to_string())?;
-        load_model(p).map(wrap_model).map_err(|e| e.to_string())
+        wrap_model(load_model(p).map_err(|e| e.to_string())?)
     })
 }
 
@@ -129,9 +131,7 @@ pub unsafe extern "C" fn crokf_model_load(path: *const c_char) -> *mut CrokfMode
 pub unsafe extern "C" fn crokf_model_from_bytes(bytes: *const u8, len: usize) -> *mut CrokfModel {
     guard(ptr::null_mut(), || {
         let b = slice(bytes, len, "bytes")?;
-        model_from_bytes(b)
-            .map(wrap_model)
-            .map_err(|e| e.to_string())
+        wrap_model(model_from_bytes(b).map_err(|e| e.to_string())?)
     })
 }
 
@@ -155,7 +155,7 @@ macro_rules! model_count {
         #[no_mangle]
         pub unsafe extern "C" fn $name(m: *const CrokfModel) -> usize {
             guard(0, || {
-                let $m = &model_ref(m)?.model;
+                let $m = model_ref(m)?.prepared.model();
                 Ok($e)
             })
         }
@@ -185,7 +185,7 @@ model_count!(
 #[no_mangle]
 pub unsafe extern "C" fn crokf_model_node_set_len(m: *const CrokfModel, set: usize) -> usize {
     guard(0, || {
-        let m = &model_ref(m)?.model;
+        let m = model_ref(m)?.prepared.model();
         m.node_sets
             .get(set)
             .map(|s| s.node_tags.len())
@@ -199,7 +199,7 @@ pub unsafe extern "C" fn crokf_model_node_set_len(m: *const CrokfModel, set: usi
 /// `m` must be NULL or a live model handle.
 #[no_mangle]
 pub unsafe extern "C" fn crokf_model_dt(m: *const CrokfModel) -> f64 {
-    guard(f64::NAN, || Ok(model_ref(m)?.model.dt))
+    guard(f64::NAN, || Ok(model_ref(m)?.prepared.model().dt))
 }
 
 macro_rules! model_label {
@@ -234,14 +234,15 @@ model_label!(
     /// Name of node set i.
     crokf_model_node_set_name, node_set_names);
 
-/// A new estimator at rest over the model (which may be freed afterwards); NULL on error.
+/// A new estimator at rest over the model (which may be freed afterwards; the estimator shares
+/// the model's matrices, so many estimators cost O(r + q) each); NULL on error.
 ///
 /// # Safety
 /// `m` must be NULL or a live model handle.
 #[no_mangle]
 pub unsafe extern "C" fn crokf_estimator_new(m: *const CrokfModel) -> *mut CrokfEstimator {
     guard(ptr::null_mut(), || {
-        let est = Estimator::new(&model_ref(m)?.model).map_err(|e| e.to_string())?;
+        let est = Estimator::from_prepared(Arc::clone(&model_ref(m)?.prepared));
         Ok(Box::into_raw(Box::new(CrokfEstimator { est })))
     })
 }
@@ -321,7 +322,8 @@ pub unsafe extern "C" fn crokf_update(
     guard(-1, || do_update(&mut est_mut(e)?.est, y, present, n))
 }
 
-/// `crokf_predict` then `crokf_update`; returns the number of measurements used or -1.
+/// `crokf_predict` then `crokf_update`, all or nothing: returns the number of measurements
+/// used, or -1 with the estimator exactly as before the call.
 ///
 /// # Safety
 /// As for `crokf_predict` and `crokf_update`.
@@ -336,28 +338,49 @@ pub unsafe extern "C" fn crokf_step(
 ) -> c_int {
     guard(-1, || {
         let est = &mut est_mut(e)?.est;
-        if !y.is_null() {
-            // Check measurements before the prediction changes the state.
-            let ys = slice(y, n, "measurements")?;
-            let p = if present.is_null() {
-                None
-            } else {
-                Some(slice(present, n, "present")?)
-            };
-            if let Some(i) =
-                (0..ys.len()).find(|&i| p.is_none_or(|p| p[i] != 0) && !ys[i].is_finite())
-            {
-                return Err(format!("measurement {i} is not finite ({})", ys[i]));
-            }
+        let u = slice(inputs, n_inputs, "inputs")?;
+        let result = if y.is_null() {
+            est.step_with(u, |_| None)
+        } else {
             let q = est.model().measurements.len();
             if n != q {
                 return Err(format!("measurements: expected length {q}, got {n}"));
             }
-        }
-        let u = slice(inputs, n_inputs, "inputs")?;
-        est.predict(u).map_err(|e| e.to_string())?;
-        do_update(est, y, present, n)
+            let ys = slice(y, n, "measurements")?;
+            let present = if present.is_null() {
+                None
+            } else {
+                Some(slice(present, n, "present")?)
+            };
+            est.step_with(u, |i| match present {
+                Some(p) if p[i] == 0 => None,
+                _ => Some(ys[i]),
+            })
+        };
+        result.map(|k| k as c_int).map_err(|e| e.to_string())
     })
+}
+
+/// Sets the innovation gate to `sigmas` standard deviations of the innovation (default 5); a
+/// value that is not finite and > 0 turns the gate off. Returns 0 or -1 (NULL handle).
+///
+/// # Safety
+/// `e` live estimator.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_set_innovation_gate(e: *mut CrokfEstimator, sigmas: f64) -> c_int {
+    guard(-1, || {
+        est_mut(e)?.est.set_innovation_gate(Some(sigmas));
+        Ok(0)
+    })
+}
+
+/// Measurements skipped by the innovation gate since creation/reset; 0 on a NULL handle.
+///
+/// # Safety
+/// `e` NULL or a live estimator.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_gated_count(e: *const CrokfEstimator) -> u64 {
+    guard(0, || Ok(est_ref(e)?.est.gated_total()))
 }
 
 /// Back to rest (x = 0, step 0).

@@ -3,9 +3,12 @@
 //! [`Estimator::new`]; `predict`, `update`, `step` and the read-outs never allocate (except to
 //! build an error value).
 
+use crate::prepared::PreparedModel;
+use crate::simd::{matvec, matvec_t};
 use crate::warp::{Vec3, Warp};
 use crate::RuntimeError;
-use crokf_formats::{InputKind, Matrix, Model};
+use crokf_formats::{Matrix, Model};
+use std::sync::Arc;
 
 /// Which covariance the read-out standard deviations come from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -16,63 +19,8 @@ pub enum CovarianceKind {
     Posterior,
 }
 
-/// sqrt(diag(C P Cᵀ)) for every read-out row C, precomputed for one phase and one covariance.
-#[derive(Clone, Debug)]
-struct PhaseStd {
-    /// 3 per sensor.
-    sensors: Vec<f64>,
-    /// 3n per node set.
-    nodes: Vec<Vec<f64>>,
-}
-
-/// sqrt(cᵀ P c) for every row c of `rows` (k×r), P r×r row-major.
-fn row_std(rows: &Matrix, p: &Matrix, out: &mut Vec<f64>, tmp: &mut [f64]) {
-    let r = p.cols as usize;
-    for i in 0..rows.rows as usize {
-        let c = rows.row(i);
-        p.mul_vec_into(c, &mut tmp[..r]);
-        let v: f64 = c.iter().zip(tmp.iter()).map(|(a, b)| a * b).sum();
-        out.push(v.max(0.0).sqrt());
-    }
-}
-
-/// Σ aᵢ bᵢ over the common length, with four independent partial sums (lets the compiler
-/// vectorise; the summation order differs from a plain left-to-right sum by rounding only).
-#[inline]
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let n = a.len().min(b.len());
-    let (a, b) = (&a[..n], &b[..n]);
-    let mut acc = [0.0f64; 4];
-    let (ac, bc) = (a.chunks_exact(4), b.chunks_exact(4));
-    let (ar, br) = (ac.remainder(), bc.remainder());
-    for (x, y) in ac.zip(bc) {
-        acc[0] += x[0] * y[0];
-        acc[1] += x[1] * y[1];
-        acc[2] += x[2] * y[2];
-        acc[3] += x[3] * y[3];
-    }
-    let tail: f64 = ar.iter().zip(br).map(|(x, y)| x * y).sum();
-    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
-}
-
-/// Dense row-major y = A x (+= when `add`), A given as a flat slice with `cols` columns.
-#[inline]
-fn matvec(a: &[f64], cols: usize, x: &[f64], y: &mut [f64], add: bool) {
-    if cols == 0 {
-        if !add {
-            y.iter_mut().for_each(|v| *v = 0.0);
-        }
-        return;
-    }
-    for (yi, row) in y.iter_mut().zip(a.chunks_exact(cols)) {
-        let s = dot(row, x);
-        if add {
-            *yi += s;
-        } else {
-            *yi = s;
-        }
-    }
-}
+/// Default innovation gate, in standard deviations of the innovation (`docs/design.md` §6).
+pub const DEFAULT_GATE_SIGMAS: f64 = 5.0;
 
 /// Three rows (3×r block starting at row `3i`) times x.
 #[inline]
@@ -80,147 +28,160 @@ fn rows3(m: &Matrix, block: usize, x: &[f64]) -> Vec3 {
     let r = m.cols as usize;
     let base = 3 * block * r;
     let mut out = [0.0; 3];
-    for (c, o) in out.iter_mut().enumerate() {
-        let row = &m.data[base + c * r..base + (c + 1) * r];
-        *o = dot(row, x);
-    }
+    matvec(&m.data[base..base + 3 * r], r, x, &mut out, false);
     out
 }
 
-/// A periodic steady-state Kalman filter over one [`Model`].
+/// A periodic steady-state Kalman filter over one model (`docs/design.md` §5, §6).
 ///
 /// Step k = 1, 2, …: `predict` forms x⁻_k = F x_{k−1} + G u_lin(k) and selects phase
 /// p = k mod period; `update` forms x_k = x⁻_k + K_p (y_lin − H_p x⁻_k) over the channels of
 /// phase p. The state starts at rest (x₀ = 0).
+///
+/// Robustness (issue 14 item 2): inputs and measurements are checked against the model's
+/// plausibility bounds ([`PreparedModel`]) before anything changes; an active measurement
+/// whose world-frame innovation ν_j exceeds the gate, ν_j² > g² (s_j + n_j g_j) with
+/// s_j = (H P⁻ Hᵀ + R)_jj (local frame: equal for small rotations),
+/// g_j = (H Q Hᵀ)_jj and n_j the steps channel j went without an accepted value beyond its
+/// period, is skipped for that step and counted; a step whose result would not be finite is
+/// refused; every failing call leaves the estimator exactly as it was.
+///
+/// Many estimators can share one [`PreparedModel`] ([`Estimator::from_prepared`]): the
+/// matrices exist once, each estimator holds only its state and scratch (O(r + q) numbers).
 #[derive(Clone, Debug)]
 pub struct Estimator {
-    model: Model,
+    shared: Arc<PreparedModel>,
     r: usize,
     /// Current state x (posterior after `update`, prior after `predict`).
     x: Vec<f64>,
-    /// Scratch for F x.
+    /// x in single precision (the display read-out's operand).
+    x32: Vec<f32>,
+    /// Scratch for F x + G u, and the state before the last prediction (for a rollback).
     x_next: Vec<f64>,
+    /// Scratch for x⁻ + K ν.
+    x_upd: Vec<f64>,
     /// Inputs after rotating load channels into the local frame (m).
     u_lin: Vec<f64>,
-    /// Per load group: the input channel of each world component.
-    load_channels: Vec<[Option<usize>; 3]>,
-    /// Per measurement channel: (sensor, component).
-    channel: Vec<(usize, usize)>,
-    /// Per phase: sensors with at least one active channel.
-    phase_sensors: Vec<Vec<usize>>,
-    /// Per sensor scratch: y_lin (local frame) and u_lin predicted.
+    /// Per sensor scratch: y_world as measured, its prediction R̃(ω̄) C_s x⁻, y_lin (local
+    /// frame) and u_lin predicted.
+    y_world: Vec<Vec3>,
+    pred_world: Vec<Vec3>,
     y_lin: Vec<Vec3>,
     u_pred: Vec<Vec3>,
-    /// Per sensor scratch: which components were filled from measurements.
+    /// Per sensor scratch: which components were filled from accepted measurements.
     filled: Vec<[bool; 3]>,
+    /// Per sensor scratch: the warp at the predicted state.
+    warps: Vec<Option<Warp>>,
+    /// [C_s x; W_s x] of the current phase's sensors (6 each), and W_g x of the load groups.
+    sensor_vals: Vec<f64>,
+    load_vals: Vec<f64>,
     /// Innovation per active channel of the current phase.
     innovation: Vec<f64>,
-    std_prior: Vec<PhaseStd>,
-    std_posterior: Vec<PhaseStd>,
-    /// Number of predictions since construction/reset.
+    /// Whether each active channel of the current phase was gated.
+    gated_now: Vec<bool>,
     k: u64,
     phase: usize,
     cov: CovarianceKind,
     awaiting_update: bool,
+    /// Gate in σ of the innovation; `None` = off.
+    gate: Option<f64>,
+    /// Per measurement channel: the step of its last accepted value (0 = none yet).
+    last_accepted: Vec<u64>,
+    /// Per measurement channel: values skipped by the gate.
+    gated: Vec<u64>,
+    gated_total: u64,
+    gated_last: usize,
 }
 
 impl Estimator {
-    /// Validates the model, copies it and allocates every buffer; precomputes the read-out
-    /// standard deviations sqrt(diag(C P Cᵀ)) for every phase (prior and posterior).
+    /// Validates the model, copies it into a new [`PreparedModel`] and allocates every buffer.
     pub fn new(model: &Model) -> Result<Self, RuntimeError> {
-        model.validate()?;
-        let model = model.clone();
-        let r = model.r();
-        let mut load_channels = vec![[None; 3]; model.loads.len()];
-        for (j, ch) in model.inputs.iter().enumerate() {
-            if let InputKind::Load { load, component } = ch.kind {
-                load_channels[load as usize][component as usize] = Some(j);
-            }
-        }
-        let channel: Vec<(usize, usize)> = model
-            .measurements
-            .iter()
-            .map(|c| (c.sensor as usize, c.component as usize))
-            .collect();
-        let phase_sensors = model
-            .kalman
-            .phases
-            .iter()
-            .map(|ph| {
-                let mut s: Vec<usize> =
-                    ph.measured.iter().map(|&j| channel[j as usize].0).collect();
-                s.sort_unstable();
-                s.dedup();
-                s
-            })
-            .collect();
-        let max_measured = model
-            .kalman
-            .phases
-            .iter()
-            .map(|p| p.measured.len())
-            .max()
-            .unwrap_or(0);
-        let mut tmp = vec![0.0; r];
-        let std_of = |p: &Matrix, tmp: &mut [f64]| {
-            let mut sensors = Vec::with_capacity(3 * model.sensors.len());
-            for s in &model.sensors {
-                row_std(&s.displacement_rows, p, &mut sensors, tmp);
-            }
-            let nodes = model
-                .node_sets
-                .iter()
-                .map(|set| {
-                    let mut v = Vec::with_capacity(set.displacement_rows.rows as usize);
-                    row_std(&set.displacement_rows, p, &mut v, tmp);
-                    v
-                })
-                .collect();
-            PhaseStd { sensors, nodes }
-        };
-        let std_prior = model
-            .kalman
-            .phases
-            .iter()
-            .map(|ph| std_of(&ph.prior_covariance, &mut tmp))
-            .collect();
-        let std_posterior = model
-            .kalman
-            .phases
-            .iter()
-            .map(|ph| std_of(&ph.posterior_covariance, &mut tmp))
-            .collect();
-        let ns = model.sensors.len();
-        Ok(Estimator {
+        Ok(Self::from_prepared(Arc::new(PreparedModel::new(
+            model.clone(),
+        )?)))
+    }
+
+    /// An estimator at rest sharing `prepared` (no copy of the model's matrices).
+    pub fn from_prepared(prepared: Arc<PreparedModel>) -> Self {
+        let r = prepared.r;
+        let ns = prepared.model.sensors.len();
+        let q = prepared.channel.len();
+        Estimator {
             r,
             x: vec![0.0; r],
+            x32: vec![0.0; r],
             x_next: vec![0.0; r],
-            u_lin: vec![0.0; model.inputs.len()],
-            load_channels,
-            channel,
-            phase_sensors,
+            x_upd: vec![0.0; r],
+            u_lin: vec![0.0; prepared.model.inputs.len()],
+            y_world: vec![[0.0; 3]; ns],
+            pred_world: vec![[0.0; 3]; ns],
             y_lin: vec![[0.0; 3]; ns],
             u_pred: vec![[0.0; 3]; ns],
             filled: vec![[false; 3]; ns],
-            innovation: vec![0.0; max_measured],
-            std_prior,
-            std_posterior,
+            warps: vec![None; ns],
+            sensor_vals: vec![0.0; 6 * ns],
+            load_vals: vec![0.0; 3 * prepared.model.loads.len()],
+            innovation: vec![0.0; prepared.max_measured],
+            gated_now: vec![false; prepared.max_measured],
             k: 0,
             phase: 0,
             cov: CovarianceKind::Posterior,
             awaiting_update: false,
-            model,
-        })
+            gate: Some(DEFAULT_GATE_SIGMAS),
+            last_accepted: vec![0; q],
+            gated: vec![0; q],
+            gated_total: 0,
+            gated_last: 0,
+            shared: prepared,
+        }
+    }
+
+    /// The shared, prepared model (clone the `Arc` to make more estimators over it).
+    pub fn prepared(&self) -> &Arc<PreparedModel> {
+        &self.shared
+    }
+
+    /// The innovation gate in standard deviations of the innovation (`None`: off).
+    pub fn innovation_gate(&self) -> Option<f64> {
+        self.gate
+    }
+
+    /// Sets the innovation gate: `Some(g)` skips an active measurement whose innovation exceeds
+    /// g standard deviations (g > 0, finite); `None` (or a g that is not finite and > 0) turns
+    /// it off. Default [`DEFAULT_GATE_SIGMAS`].
+    pub fn set_innovation_gate(&mut self, sigmas: Option<f64>) {
+        self.gate = sigmas.filter(|g| g.is_finite() && *g > 0.0);
+    }
+
+    /// Measurements skipped by the gate since construction or `reset`, per channel (model
+    /// order).
+    pub fn gated_per_channel(&self) -> &[u64] {
+        &self.gated
+    }
+
+    /// Measurements skipped by the gate since construction or `reset`.
+    pub fn gated_total(&self) -> u64 {
+        self.gated_total
+    }
+
+    /// Measurements skipped by the gate in the last update.
+    pub fn gated_last_update(&self) -> usize {
+        self.gated_last
     }
 
     /// The model.
     pub fn model(&self) -> &Model {
-        &self.model
+        &self.shared.model
     }
 
     /// Back to rest: x = 0, k = 0, phase 0.
     pub fn reset(&mut self) {
         self.x.iter_mut().for_each(|v| *v = 0.0);
+        self.x32.iter_mut().for_each(|v| *v = 0.0);
+        self.last_accepted.iter_mut().for_each(|v| *v = 0);
+        self.gated.iter_mut().for_each(|v| *v = 0);
+        self.gated_total = 0;
+        self.gated_last = 0;
         self.k = 0;
         self.phase = 0;
         self.cov = CovarianceKind::Posterior;
@@ -243,7 +204,15 @@ impl Estimator {
             });
         }
         self.x.copy_from_slice(x);
+        self.sync_x32();
         Ok(())
+    }
+
+    /// x32 ← x (single precision).
+    fn sync_x32(&mut self) {
+        for (a, b) in self.x32.iter_mut().zip(&self.x) {
+            *a = *b as f32;
+        }
     }
 
     /// Number of predictions since construction or `reset` (the step index k).
@@ -253,7 +222,7 @@ impl Estimator {
 
     /// Time of the current estimate, k·Δt (s).
     pub fn time(&self) -> f64 {
-        self.k as f64 * self.model.dt
+        self.k as f64 * self.shared.model.dt
     }
 
     /// Phase of the current step, k mod period.
@@ -268,7 +237,7 @@ impl Estimator {
 
     /// Measurement channels active in the current phase (indices into `model().measurements`).
     pub fn active_measurements(&self) -> &[u32] {
-        &self.model.kalman.phases[self.phase].measured
+        &self.shared.model.kalman.phases[self.phase].measured
     }
 
     /// x⁻ = F x + G u_lin, then k += 1 and the phase becomes k mod period.
@@ -277,22 +246,50 @@ impl Estimator {
     /// channels, a dimensionless scale for gravity. Load channels of group g are rotated into
     /// the local frame, f_lin = R(ω_g)ᵀ f_world with ω_g = W_g x (the current state; a world
     /// component without its own channel counts as 0 and its local image is dropped).
-    /// Non-finite inputs are rejected before anything changes.
+    /// Non-finite inputs, inputs beyond the plausibility bound
+    /// ([`PreparedModel::input_bounds`]) and a non-finite result are refused, naming the step
+    /// and channel, and leave the estimator unchanged.
     pub fn predict(&mut self, inputs: &[f64]) -> Result<(), RuntimeError> {
+        self.check_inputs(inputs)?;
+        self.predict_checked(inputs)
+    }
+
+    fn check_inputs(&self, inputs: &[f64]) -> Result<(), RuntimeError> {
         check_len("inputs", self.u_lin.len(), inputs.len())?;
-        if let Some(i) = inputs.iter().position(|v| !v.is_finite()) {
-            return Err(RuntimeError::NonFiniteInput {
-                channel: self.model.inputs[i].label.clone(),
-                value: inputs[i],
-            });
+        let step = self.k + 1;
+        let sh = &*self.shared;
+        for (i, (&value, &bound)) in inputs.iter().zip(&sh.input_bound).enumerate() {
+            if !value.is_finite() {
+                return Err(RuntimeError::NonFiniteInput {
+                    step,
+                    channel: sh.model.inputs[i].label.clone(),
+                    value,
+                });
+            }
+            if value.abs() > bound {
+                return Err(RuntimeError::ImplausibleInput {
+                    step,
+                    channel: sh.model.inputs[i].label.clone(),
+                    value,
+                    bound,
+                });
+            }
         }
+        Ok(())
+    }
+
+    /// The prediction after the inputs were checked; keeps the previous state in `x_next`.
+    fn predict_checked(&mut self, inputs: &[f64]) -> Result<(), RuntimeError> {
+        let sh: &PreparedModel = &self.shared;
+        let model = &sh.model;
         self.u_lin.copy_from_slice(inputs);
-        for (g, chans) in self.load_channels.iter().enumerate() {
+        matvec_t(&sh.load_rows_t, &self.x, &mut self.load_vals, false);
+        for (g, chans) in sh.load_channels.iter().enumerate() {
             if chans.iter().all(Option::is_none) {
                 continue;
             }
             let f_world: Vec3 = [0, 1, 2].map(|c| chans[c].map_or(0.0, |j| inputs[j]));
-            let omega = rows3(&self.model.loads[g].rotation_rows, 0, &self.x);
+            let omega = [0, 1, 2].map(|c| self.load_vals[3 * g + c]);
             let f_lin = Warp::new(&omega).rotate_transpose(&f_world);
             for c in 0..3 {
                 if let Some(j) = chans[c] {
@@ -300,44 +297,45 @@ impl Estimator {
                 }
             }
         }
-        let r = self.r;
-        matvec(
-            &self.model.transition.data,
-            r,
-            &self.x,
-            &mut self.x_next,
-            false,
-        );
-        let m = self.u_lin.len();
-        matvec(
-            &self.model.input.data,
-            m,
-            &self.u_lin,
-            &mut self.x_next,
-            true,
-        );
+        matvec_t(&sh.transition_t, &self.x, &mut self.x_next, false);
+        matvec_t(&sh.input_t, &self.u_lin, &mut self.x_next, true);
+        if let Some(index) = self.x_next.iter().position(|v| !v.is_finite()) {
+            return Err(RuntimeError::NonFiniteState {
+                step: self.k + 1,
+                stage: "prediction",
+                index,
+            });
+        }
+        let period = model.kalman.period as u64;
         std::mem::swap(&mut self.x, &mut self.x_next);
         self.k += 1;
-        self.phase = (self.k % self.model.kalman.period as u64) as usize;
+        self.phase = (self.k % period) as usize;
         self.cov = CovarianceKind::Prior;
         self.awaiting_update = true;
+        self.sync_x32();
         Ok(())
     }
 
     /// Measurement update of the current phase; `measurements[i]` is the world-frame value of
     /// channel i (`model().measurements`, m), `None` when missing. Returns the number of values
-    /// used.
+    /// used (present, active and not gated).
     ///
     /// Only channels active in the phase are used (others are ignored). For each sensor with
     /// an active channel: ω̄ = W_s x⁻; the world displacement y_world is the measured
-    /// components, with every other component (unmeasured, inactive or missing) filled from the
-    /// prediction R̃(ω̄) C_s x⁻; then y_lin = R̃(ω̄)⁻¹ y_world and the innovation of an active
-    /// channel is `y_lin[c] − (C_s x⁻)[c]`. x = x⁻ + K_p · innovation. A phase without active
-    /// channels (or with all of them missing) leaves the state unchanged. Errors — wrong
-    /// length, a non-finite value, `update` without a preceding `predict`, a non-invertible
-    /// R̃ — leave the state untouched.
+    /// components, with every other component (unmeasured, inactive, missing or gated) filled
+    /// from the prediction R̃(ω̄) C_s x⁻; then y_lin = R̃(ω̄)⁻¹ y_world and the innovation of an
+    /// active channel is `y_lin[c] − (C_s x⁻)[c]`; a sensor without an accepted value has zero
+    /// innovation. A channel whose world-frame innovation y_world[c] − (R̃(ω̄) C_s x⁻)[c] fails
+    /// the gate (see [`Estimator`]) is treated as missing.
+    /// x = x⁻ + K_p · innovation. Errors — wrong length, a non-finite or implausible value,
+    /// `update` without a preceding `predict`, a non-invertible R̃, a non-finite result — leave
+    /// the estimator untouched.
     pub fn update(&mut self, measurements: &[Option<f64>]) -> Result<usize, RuntimeError> {
-        check_len("measurements", self.channel.len(), measurements.len())?;
+        check_len(
+            "measurements",
+            self.shared.channel.len(),
+            measurements.len(),
+        )?;
         self.update_with(|i| measurements[i])
     }
 
@@ -349,123 +347,222 @@ impl Estimator {
         if !self.awaiting_update {
             return Err(RuntimeError::UpdateWithoutPredict);
         }
-        for i in 0..self.channel.len() {
-            if let Some(v) = get(i) {
-                if !v.is_finite() {
+        self.check_measurements(&get, self.k)?;
+        self.update_checked(&get)
+    }
+
+    fn check_measurements(
+        &self,
+        get: &impl Fn(usize) -> Option<f64>,
+        step: u64,
+    ) -> Result<(), RuntimeError> {
+        let bound = self.shared.measurement_bound;
+        for i in 0..self.shared.channel.len() {
+            if let Some(value) = get(i) {
+                if !value.is_finite() {
                     return Err(RuntimeError::NonFiniteMeasurement {
+                        step,
                         channel: self.channel_label(i),
-                        value: v,
+                        value,
+                    });
+                }
+                if value.abs() > bound {
+                    return Err(RuntimeError::ImplausibleMeasurement {
+                        step,
+                        channel: self.channel_label(i),
+                        value,
+                        bound,
                     });
                 }
             }
         }
-        let phase = &self.model.kalman.phases[self.phase];
-        // Predicted local displacement and world measurement per active sensor.
-        for &s in &self.phase_sensors[self.phase] {
-            self.u_pred[s] = rows3(&self.model.sensors[s].displacement_rows, 0, &self.x);
+        Ok(())
+    }
+
+    /// The update after the measurements were checked. Changes nothing on error.
+    fn update_checked(
+        &mut self,
+        get: &impl Fn(usize) -> Option<f64>,
+    ) -> Result<usize, RuntimeError> {
+        let sh: &PreparedModel = &self.shared;
+        let model = &sh.model;
+        let p = self.phase;
+        let step = self.k;
+        let phase = &model.kalman.phases[p];
+        let sensors = &sh.phase_sensors[p];
+        let vals = &mut self.sensor_vals[..6 * sensors.len()];
+        matvec_t(&sh.phase_rows_t[p], &self.x, vals, false);
+        for (v, &s) in vals.chunks_exact(6).zip(sensors) {
+            self.u_pred[s] = [v[0], v[1], v[2]];
+            self.warps[s] = Some(Warp::new(&[v[3], v[4], v[5]]));
             self.filled[s] = [false; 3];
         }
-        let mut used = 0;
         for &j in &phase.measured {
-            let (s, c) = self.channel[j as usize];
+            let (s, c) = sh.channel[j as usize];
             if let Some(v) = get(j as usize) {
-                self.y_lin[s][c] = v; // world value for now
+                self.y_world[s][c] = v;
                 self.filled[s][c] = true;
-                used += 1;
             }
         }
-        for &s in &self.phase_sensors[self.phase] {
-            let maps = Warp::new(&rows3(&self.model.sensors[s].rotation_rows, 0, &self.x));
-            let pred_world = maps.warp(&self.u_pred[s]);
-            let y_world: Vec3 = [0, 1, 2].map(|c| {
+        // Gate in the world frame, channel by channel: ν_j = y_world − (R̃(ω̄) C_s x⁻)_c, so an
+        // outlier cannot leak into its sensor's other components through the un-warp.
+        for &s in sensors {
+            if let Some(maps) = self.warps[s] {
+                self.pred_world[s] = maps.warp(&self.u_pred[s]);
+            }
+        }
+        for (a, &j) in phase.measured.iter().enumerate() {
+            let j = j as usize;
+            let (s, c) = sh.channel[j];
+            self.gated_now[a] = false;
+            let (Some(g), true) = (self.gate, self.filled[s][c]) else {
+                continue;
+            };
+            let nu = self.y_world[s][c] - self.pred_world[s][c];
+            let missed = step
+                .saturating_sub(self.last_accepted[j])
+                .saturating_sub(sh.every[j]);
+            let variance = sh.innovation_variance[p][a] + missed as f64 * sh.variance_growth[j];
+            if nu * nu > g * g * variance {
+                self.gated_now[a] = true;
+                self.filled[s][c] = false;
+            }
+        }
+        // Un-warp: y_lin = R̃(ω̄)⁻¹ y_world, unmeasured components from the prediction; a sensor
+        // without an accepted value has y_lin = C_s x⁻ (zero innovation).
+        for &s in sensors {
+            let Some(maps) = self.warps[s] else { continue };
+            if !self.filled[s].iter().any(|&f| f) {
+                self.y_lin[s] = self.u_pred[s];
+                continue;
+            }
+            let y: Vec3 = [0, 1, 2].map(|c| {
                 if self.filled[s][c] {
-                    self.y_lin[s][c]
+                    self.y_world[s][c]
                 } else {
-                    pred_world[c]
+                    self.pred_world[s][c]
                 }
             });
-            match maps.unwarp(&y_world) {
+            match maps.unwarp(&y) {
                 Some(y) => self.y_lin[s] = y,
                 None => {
                     return Err(RuntimeError::SingularWarp {
-                        sensor: self.model.sensors[s].name.clone(),
+                        step,
+                        sensor: model.sensors[s].name.clone(),
                         angle: maps.angle(),
                     })
                 }
             }
         }
-        // Nothing above touched x; apply the update.
         let nm = phase.measured.len();
+        let mut used = 0;
         for (a, &j) in phase.measured.iter().enumerate() {
-            let (s, c) = self.channel[j as usize];
+            let (s, c) = sh.channel[j as usize];
             self.innovation[a] = self.y_lin[s][c] - self.u_pred[s][c];
+            used += self.filled[s][c] as usize;
         }
-        matvec(
-            &phase.gain.data,
-            nm,
-            &self.innovation[..nm],
-            &mut self.x,
-            true,
-        );
+        self.x_upd.copy_from_slice(&self.x);
+        matvec_t(&sh.gain_t[p], &self.innovation[..nm], &mut self.x_upd, true);
+        if let Some(index) = self.x_upd.iter().position(|v| !v.is_finite()) {
+            return Err(RuntimeError::NonFiniteState {
+                step,
+                stage: "update",
+                index,
+            });
+        }
+        // Commit.
+        let mut gated = 0;
+        for (a, &j) in phase.measured.iter().enumerate() {
+            let j = j as usize;
+            let (s, c) = sh.channel[j];
+            if self.gated_now[a] {
+                self.gated[j] += 1;
+                gated += 1;
+            } else if self.filled[s][c] {
+                self.last_accepted[j] = step;
+            }
+        }
+        self.gated_total += gated as u64;
+        self.gated_last = gated;
+        std::mem::swap(&mut self.x, &mut self.x_upd);
         self.cov = CovarianceKind::Posterior;
         self.awaiting_update = false;
+        self.sync_x32();
         Ok(used)
     }
 
-    /// `predict(inputs)` then `update(measurements)`. Wrong lengths and non-finite values are
-    /// rejected before the prediction; only a non-invertible R̃ (|ω̄| near 2π) can fail after it.
+    /// `predict(inputs)` then `update(measurements)`, all or nothing: every input and
+    /// measurement is checked before the prediction, and if the update still fails (a
+    /// non-invertible R̃, a non-finite result) the prediction is rolled back, so a failed step
+    /// leaves the estimator exactly as before.
     pub fn step(
         &mut self,
         inputs: &[f64],
         measurements: &[Option<f64>],
     ) -> Result<usize, RuntimeError> {
-        check_len("measurements", self.channel.len(), measurements.len())?;
-        // Reject bad measurements before the prediction changes the state.
-        if let Some(i) = measurements
-            .iter()
-            .position(|v| v.is_some_and(|v| !v.is_finite()))
-        {
-            return Err(RuntimeError::NonFiniteMeasurement {
-                channel: self.channel_label(i),
-                value: measurements[i].unwrap_or(f64::NAN),
-            });
+        check_len(
+            "measurements",
+            self.shared.channel.len(),
+            measurements.len(),
+        )?;
+        self.step_with(inputs, |i| measurements[i])
+    }
+
+    /// [`Estimator::step`] with measurement i given by `get(i)` (i < number of channels).
+    pub fn step_with(
+        &mut self,
+        inputs: &[f64],
+        get: impl Fn(usize) -> Option<f64>,
+    ) -> Result<usize, RuntimeError> {
+        self.check_inputs(inputs)?;
+        self.check_measurements(&get, self.k + 1)?;
+        let saved = (self.k, self.phase, self.cov, self.awaiting_update);
+        self.predict_checked(inputs)?;
+        match self.update_checked(&get) {
+            Ok(used) => Ok(used),
+            Err(e) => {
+                // predict_checked left the previous state in x_next.
+                std::mem::swap(&mut self.x, &mut self.x_next);
+                (self.k, self.phase, self.cov, self.awaiting_update) = saved;
+                self.sync_x32();
+                Err(e)
+            }
         }
-        self.predict(inputs)?;
-        self.update(measurements)
     }
 
     fn channel_label(&self, i: usize) -> String {
-        let (s, c) = self.channel[i];
+        let (s, c) = self.shared.channel[i];
         format!(
             "{}.{}",
-            self.model.sensors[s].name,
+            self.shared.model.sensors[s].name,
             crokf_formats::component_label(c as u8)
         )
     }
 
-    fn current_std(&self) -> &PhaseStd {
+    fn current_std(&self) -> &crate::prepared::PhaseStd {
         match self.cov {
-            CovarianceKind::Prior => &self.std_prior[self.phase],
-            CovarianceKind::Posterior => &self.std_posterior[self.phase],
+            CovarianceKind::Prior => &self.shared.std_prior[self.phase],
+            CovarianceKind::Posterior => &self.shared.std_posterior[self.phase],
         }
     }
 
     /// World-frame displacement of every sensor, u = R̃(W_s x) C_s x, 3 per sensor (m).
+    /// Fails (leaving `out` unspecified) rather than return a non-finite value.
     pub fn sensor_displacements(&self, out: &mut [f64]) -> Result<(), RuntimeError> {
         check_len(
             "sensor read-out buffer",
-            3 * self.model.sensors.len(),
+            3 * self.shared.model.sensors.len(),
             out.len(),
         )?;
         for (s, o) in out.chunks_exact_mut(3).enumerate() {
             o.copy_from_slice(&self.sensor_world(s));
         }
-        Ok(())
+        check_finite_readout("sensor displacements", out)
     }
 
     /// World-frame displacement of sensor `s`, R̃(W_s x) C_s x (m).
     fn sensor_world(&self, s: usize) -> Vec3 {
-        let sensor = &self.model.sensors[s];
+        let sensor = &self.shared.model.sensors[s];
         let u = rows3(&sensor.displacement_rows, 0, &self.x);
         Warp::new(&rows3(&sensor.rotation_rows, 0, &self.x)).warp(&u)
     }
@@ -482,10 +579,11 @@ impl Estimator {
 
     /// Estimated world value of every measurement channel (length q, m).
     pub fn measurement_estimates(&self, out: &mut [f64]) -> Result<(), RuntimeError> {
-        check_len("measurement read-out buffer", self.channel.len(), out.len())?;
+        let channels = &self.shared.channel;
+        check_len("measurement read-out buffer", channels.len(), out.len())?;
         // Channels of one sensor are adjacent: evaluate each sensor once.
         let mut current: Option<(usize, Vec3)> = None;
-        for (o, &(s, c)) in out.iter_mut().zip(&self.channel) {
+        for (o, &(s, c)) in out.iter_mut().zip(channels) {
             let world = match current {
                 Some((cs, w)) if cs == s => w,
                 _ => {
@@ -496,22 +594,45 @@ impl Estimator {
             };
             *o = world[c];
         }
-        Ok(())
+        check_finite_readout("measurement estimates", out)
     }
 
     fn node_set(&self, set: usize) -> Result<&crokf_formats::NodeSet, RuntimeError> {
-        self.model
-            .node_sets
-            .get(set)
-            .ok_or(RuntimeError::NoSuchNodeSet {
-                index: set,
-                count: self.model.node_sets.len(),
-            })
+        let sets = &self.shared.model.node_sets;
+        sets.get(set).ok_or(RuntimeError::NoSuchNodeSet {
+            index: set,
+            count: sets.len(),
+        })
     }
 
     /// World displacement of every node of node set `set`, u_i = R̃(ω_i) u_lin,i, 3 per node
-    /// (m), with u_lin,i and ω_i from the set's displacement and rotation rows.
+    /// (m), with u_lin,i and ω_i from the set's displacement and rotation rows stored in single
+    /// precision, dot products and the warp in f32 (`docs/design.md` §5; half the bytes of
+    /// [`Estimator::node_displacements_exact`], from which it differs by f32 rounding, a few
+    /// 1e-7 of the largest displacement: measured in `tests/readout.rs`). Rotation rows that
+    /// are all zero skip the warp.
     pub fn node_displacements(&self, set: usize, out: &mut [f64]) -> Result<(), RuntimeError> {
+        let ns = self.node_set(set)?;
+        check_len("node read-out buffer", 3 * ns.node_tags.len(), out.len())?;
+        let rows = &self.shared.display[set];
+        crate::simd::display(
+            &rows.rows,
+            &self.x32,
+            self.r,
+            ns.node_tags.len(),
+            rows.warped,
+            out,
+        );
+        check_finite_readout("node displacements", out)
+    }
+
+    /// [`Estimator::node_displacements`] from the model's f64 rows (the reference the single-
+    /// precision read-out is measured against; twice the bytes).
+    pub fn node_displacements_exact(
+        &self,
+        set: usize,
+        out: &mut [f64],
+    ) -> Result<(), RuntimeError> {
         let ns = self.node_set(set)?;
         check_len("node read-out buffer", 3 * ns.node_tags.len(), out.len())?;
         for (i, o) in out.chunks_exact_mut(3).enumerate() {
@@ -519,13 +640,14 @@ impl Estimator {
             let omega = rows3(&ns.rotation_rows, i, &self.x);
             o.copy_from_slice(&Warp::new(&omega).warp(&u));
         }
-        Ok(())
+        check_finite_readout("node displacements", out)
     }
 
-    /// World position X + u of every node of node set `set`, 3 per node (m).
+    /// World position X + u of every node of node set `set`, 3 per node (m), u from
+    /// [`Estimator::node_displacements`].
     pub fn node_positions(&self, set: usize, out: &mut [f64]) -> Result<(), RuntimeError> {
         self.node_displacements(set, out)?;
-        let ns = &self.model.node_sets[set];
+        let ns = &self.shared.model.node_sets[set];
         for (o, x) in out.iter_mut().zip(&ns.rest_positions.data) {
             *o += x;
         }
@@ -540,6 +662,14 @@ impl Estimator {
         check_len("node std buffer", std.len(), out.len())?;
         out.copy_from_slice(std);
         Ok(())
+    }
+}
+
+/// Refuses a read-out holding NaN or ±∞ (reached only through values near the f64 range).
+fn check_finite_readout(what: &'static str, out: &[f64]) -> Result<(), RuntimeError> {
+    match out.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(index) => Err(RuntimeError::NonFiniteReadout { what, index }),
     }
 }
 

@@ -16,10 +16,13 @@
 
 pub mod capi;
 mod estimator;
+mod prepared;
+mod simd;
 pub mod warp;
 
 pub use crokf_formats::{FormatError, Model};
-pub use estimator::{CovarianceKind, Estimator};
+pub use estimator::{CovarianceKind, Estimator, DEFAULT_GATE_SIGMAS};
+pub use prepared::PreparedModel;
 
 use std::path::{Path, PathBuf};
 
@@ -55,21 +58,67 @@ pub enum RuntimeError {
         /// Given length.
         found: usize,
     },
-    /// A non-finite input value (state untouched).
-    #[error("input '{channel}' is not finite ({value})")]
+    /// A non-finite input value (estimator untouched).
+    #[error("step {step}: input '{channel}' is not finite ({value})")]
     NonFiniteInput {
+        /// The step k being computed.
+        step: u64,
         /// Input label.
         channel: String,
         /// The value.
         value: f64,
     },
-    /// A non-finite measurement (state untouched).
-    #[error("measurement '{channel}' is not finite ({value})")]
+    /// An input beyond the model's plausibility bound (estimator untouched).
+    #[error("step {step}: input '{channel}' = {value:e} is beyond the model's plausibility bound ±{bound:.3e} (a load that would statically move a point by 10× the body's size)")]
+    ImplausibleInput {
+        /// The step k being computed.
+        step: u64,
+        /// Input label.
+        channel: String,
+        /// The value.
+        value: f64,
+        /// The bound.
+        bound: f64,
+    },
+    /// A non-finite measurement (estimator untouched).
+    #[error("step {step}: measurement '{channel}' is not finite ({value})")]
     NonFiniteMeasurement {
+        /// The step k being computed.
+        step: u64,
         /// Measurement label `sensor.c`.
         channel: String,
         /// The value.
         value: f64,
+    },
+    /// A measurement beyond the model's plausibility bound (estimator untouched).
+    #[error("step {step}: measurement '{channel}' = {value:e} m is beyond the model's plausibility bound ±{bound:.3e} m (10× the body's size)")]
+    ImplausibleMeasurement {
+        /// The step k being computed.
+        step: u64,
+        /// Measurement label `sensor.c`.
+        channel: String,
+        /// The value, m.
+        value: f64,
+        /// The bound, m.
+        bound: f64,
+    },
+    /// The step's result would not be finite (estimator untouched).
+    #[error("step {step}: the {stage} would make state entry {index} non-finite; step refused")]
+    NonFiniteState {
+        /// The step k being computed.
+        step: u64,
+        /// `prediction` or `update`.
+        stage: &'static str,
+        /// State index.
+        index: usize,
+    },
+    /// A read-out would hold a non-finite value.
+    #[error("{what}: value {index} is not finite")]
+    NonFiniteReadout {
+        /// Which read-out.
+        what: &'static str,
+        /// Index into the output buffer.
+        index: usize,
     },
     /// A non-finite value elsewhere.
     #[error("{what}[{index}] is not finite ({value})")]
@@ -87,8 +136,10 @@ pub enum RuntimeError {
     )]
     UpdateWithoutPredict,
     /// R̃(ω̄) is not invertible at a sensor (|ω̄| near 2π): the measurement cannot be un-warped.
-    #[error("sensor '{sensor}': rotation angle {angle} rad makes the warp map singular; measurement not usable")]
+    #[error("step {step}: sensor '{sensor}': rotation angle {angle} rad makes the warp map singular; step refused")]
     SingularWarp {
+        /// The step k being computed.
+        step: u64,
         /// Sensor name.
         sensor: String,
         /// |ω̄|, rad.

@@ -71,6 +71,17 @@ fn c_example_matches_rust() {
         stdout.contains("expected error: sensor read-out buffer: expected length 6, got 7"),
         "{stdout}"
     );
+    assert!(
+        stdout.contains(
+            "refused step: step 7: input 'push.x' = 1e300 is beyond the model's plausibility bound"
+        ),
+        "{stdout}"
+    );
+    // The example's zero measurements at step 2 lie beyond 5σ of one channel's innovation.
+    assert!(
+        stdout.contains("after the refused step: step 6, read-outs unchanged, gated 1"),
+        "{stdout}"
+    );
 
     // The same protocol in Rust.
     let mut est = Estimator::new(&model).unwrap();

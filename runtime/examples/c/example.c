@@ -48,6 +48,23 @@ int main(int argc, char **argv) {
     /* A failing call must report an error, not crash. */
     if (crokf_sensor_displacements(est, d, 3 * ns + 1) != -1) return 3;
     printf("expected error: %s\n", crokf_last_error());
+    /* A refused step (an implausible input) leaves the estimator exactly as it was. */
+    if (m > 0) {
+        uint64_t k0 = crokf_step_index(est);
+        double *before = calloc(3 * ns + 1, sizeof(double));
+        if (crokf_sensor_displacements(est, before, 3 * ns) != 0) return 4;
+        u[0] = 1e300;
+        if (crokf_step(est, u, m, NULL, NULL, q) != -1) return 5;
+        printf("refused step: %s\n", crokf_last_error());
+        if (crokf_step_index(est) != k0) return 6;
+        if (crokf_sensor_displacements(est, d, 3 * ns) != 0) return 7;
+        for (size_t i = 0; i < 3 * ns; i++)
+            if (d[i] != before[i]) return 8;
+        printf("after the refused step: step %llu, read-outs unchanged, gated %llu\n",
+               (unsigned long long)crokf_step_index(est),
+               (unsigned long long)crokf_gated_count(est));
+        free(before);
+    }
     crokf_estimator_free(est);
     free(u); free(y); free(d); free(s);
     return 0;

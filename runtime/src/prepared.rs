@@ -1,0 +1,397 @@
+//! Everything the estimator derives from a model once, at load, shared read-only by any number
+//! of estimators (`Arc<PreparedModel>`, no copy of the matrices per instance; issue 14 item 6).
+//!
+//! - read-out standard deviations sqrt(diag(C P Cᵀ)) per phase (`docs/design.md` §6);
+//! - the innovation gate's variances: per phase and active channel j,
+//!   s_j = (H P⁻_p Hᵀ)_jj + R_jj (m²), and the per-step growth g_j = (H Q Hᵀ)_jj (m²) used while
+//!   channel j goes without an accepted value (§6);
+//! - plausibility bounds (stated in `docs/model-format.md` §4): a length scale L (m), the
+//!   bounding-box diagonal of the sensors' and displayed nodes' rest positions (at least
+//!   1000 σ_max when the model has no extent); every measurement |y| ≤ 10 L; input channel j
+//!   bounded by |u_j| ≤ 10 L / d_j, where d_j is the largest displacement any sensor or displayed
+//!   node reaches per unit of input j in the linear step response after 2²⁰ steps,
+//!   d_j = max_rows |c · Σ_{i<2²⁰} Fⁱ G e_j| (an input that would statically move a point by ten
+//!   times the body's size is not physical; d_j = 0 leaves only the finiteness check);
+//! - the displayed node rows in single precision, grouped by 8 nodes so that one state entry
+//!   multiplies 6 × 8 contiguous values (no horizontal sums; the warp runs on 8 nodes at
+//!   once): half the bytes of the f64 rows.
+
+use crate::simd;
+use crate::RuntimeError;
+use crokf_formats::{InputKind, Matrix, Model};
+
+/// sqrt(diag(C P Cᵀ)) for every read-out row C, for one phase and one covariance.
+#[derive(Clone, Debug)]
+pub(crate) struct PhaseStd {
+    /// 3 per sensor, m.
+    pub sensors: Vec<f64>,
+    /// 3n per node set, m.
+    pub nodes: Vec<Vec<f64>>,
+}
+
+/// One displayed node set's rows in single precision, grouped by 8 nodes.
+#[derive(Clone, Debug)]
+pub(crate) struct DisplayRows {
+    /// ⌈n/8⌉ groups of r × 6 × 8 f32: entry ((g·r + k)·6 + c)·8 + l is column k of row c
+    /// (u_x, u_y, u_z, ω_x, ω_y, ω_z) of node 8g + l (zero for padding nodes).
+    pub rows: Vec<f32>,
+    /// Whether any rotation row is non-zero (otherwise the warp is the identity and skipped).
+    pub warped: bool,
+}
+
+/// A validated model plus everything derived from it at load (see the module docs).
+#[derive(Clone, Debug)]
+pub struct PreparedModel {
+    pub(crate) model: Model,
+    pub(crate) r: usize,
+    /// Per load group: the input channel of each world component.
+    pub(crate) load_channels: Vec<[Option<usize>; 3]>,
+    /// Per measurement channel: (sensor, component).
+    pub(crate) channel: Vec<(usize, usize)>,
+    /// Per measurement channel: the sensor's `every`.
+    pub(crate) every: Vec<u64>,
+    /// Per phase: sensors with at least one active channel.
+    pub(crate) phase_sensors: Vec<Vec<usize>>,
+    /// Per phase: the rows [C_s; W_s] (6 per sensor of `phase_sensors[p]`, r columns), stacked
+    /// and transposed (r × 6·sensors) so that the update evaluates them in one product.
+    pub(crate) phase_rows_t: Vec<Vec<f64>>,
+    /// The load groups' rotation rows W_g stacked (3 per group) and transposed (r × 3·groups).
+    pub(crate) load_rows_t: Vec<f64>,
+    /// Fᵀ (r × r), Gᵀ (m × r) and per phase K_pᵀ (active channels × r), for [`simd::matvec_t`].
+    pub(crate) transition_t: Vec<f64>,
+    pub(crate) input_t: Vec<f64>,
+    pub(crate) gain_t: Vec<Vec<f64>>,
+    /// Largest number of active channels in a phase.
+    pub(crate) max_measured: usize,
+    pub(crate) std_prior: Vec<PhaseStd>,
+    pub(crate) std_posterior: Vec<PhaseStd>,
+    /// Per phase, per active channel: (H P⁻ Hᵀ)_jj + R_jj, m².
+    pub(crate) innovation_variance: Vec<Vec<f64>>,
+    /// Per measurement channel: (H Q Hᵀ)_jj, m² per step.
+    pub(crate) variance_growth: Vec<f64>,
+    /// Length scale L, m.
+    pub(crate) length_scale: f64,
+    /// Per input channel: the largest plausible |u_j| (N, or a scale for gravity; may be ∞).
+    pub(crate) input_bound: Vec<f64>,
+    /// The largest plausible |y|, m.
+    pub(crate) measurement_bound: f64,
+    pub(crate) display: Vec<DisplayRows>,
+}
+
+/// sqrt(cᵀ P c) for every row c of `rows` (k×r), P r×r row-major.
+fn row_std(rows: &Matrix, p: &Matrix, out: &mut Vec<f64>, tmp: &mut [f64]) {
+    let r = p.cols as usize;
+    for i in 0..rows.rows as usize {
+        let c = rows.row(i);
+        p.mul_vec_into(c, &mut tmp[..r]);
+        let v: f64 = c.iter().zip(tmp.iter()).map(|(a, b)| a * b).sum();
+        out.push(v.max(0.0).sqrt());
+    }
+}
+
+/// cᵀ P c.
+fn quadratic(c: &[f64], p: &Matrix, tmp: &mut [f64]) -> f64 {
+    p.mul_vec_into(c, tmp);
+    c.iter().zip(tmp.iter()).map(|(a, b)| a * b).sum()
+}
+
+/// Dense row-major n×n product.
+fn square_product(a: &[f64], b: &[f64], n: usize) -> Vec<f64> {
+    let mut c = vec![0.0; n * n];
+    for i in 0..n {
+        for k in 0..n {
+            let aik = a[i * n + k];
+            if aik != 0.0 {
+                for j in 0..n {
+                    c[i * n + j] += aik * b[k * n + j];
+                }
+            }
+        }
+    }
+    c
+}
+
+/// Σ_{i<2^20} Fⁱ G (r×m, row-major) by doubling: X ← X + A X, A ← A², twenty times.
+fn step_response_sum(f: &Matrix, g: &Matrix) -> Vec<f64> {
+    let (r, m) = (f.rows as usize, g.cols as usize);
+    let mut x = g.data.clone();
+    let mut a = f.data.clone();
+    for _ in 0..20 {
+        let mut ax = vec![0.0; r * m];
+        for i in 0..r {
+            for k in 0..r {
+                let aik = a[i * r + k];
+                if aik != 0.0 {
+                    for j in 0..m {
+                        ax[i * m + j] += aik * x[k * m + j];
+                    }
+                }
+            }
+        }
+        x.iter_mut().zip(&ax).for_each(|(v, d)| *v += d);
+        a = square_product(&a, &a, r);
+        if !x.iter().all(|v| v.is_finite()) {
+            break;
+        }
+    }
+    x
+}
+
+impl PreparedModel {
+    /// Validates `model` and derives the shared data (see the module docs).
+    pub fn new(model: Model) -> Result<PreparedModel, RuntimeError> {
+        model.validate()?;
+        let r = model.r();
+        let mut load_channels = vec![[None; 3]; model.loads.len()];
+        for (j, ch) in model.inputs.iter().enumerate() {
+            if let InputKind::Load { load, component } = ch.kind {
+                load_channels[load as usize][component as usize] = Some(j);
+            }
+        }
+        let channel: Vec<(usize, usize)> = model
+            .measurements
+            .iter()
+            .map(|c| (c.sensor as usize, c.component as usize))
+            .collect();
+        let every = channel
+            .iter()
+            .map(|&(s, _)| model.sensors[s].every as u64)
+            .collect();
+        let phase_sensors: Vec<Vec<usize>> = model
+            .kalman
+            .phases
+            .iter()
+            .map(|ph| {
+                let mut s: Vec<usize> =
+                    ph.measured.iter().map(|&j| channel[j as usize].0).collect();
+                s.sort_unstable();
+                s.dedup();
+                s
+            })
+            .collect();
+        let phase_rows_t: Vec<Vec<f64>> = phase_sensors
+            .iter()
+            .map(|sensors: &Vec<usize>| {
+                let mut rows = Vec::with_capacity(6 * r * sensors.len());
+                for &s in sensors {
+                    rows.extend_from_slice(&model.sensors[s].displacement_rows.data);
+                    rows.extend_from_slice(&model.sensors[s].rotation_rows.data);
+                }
+                simd::transpose(&rows, 6 * sensors.len(), r)
+            })
+            .collect();
+        let load_rows: Vec<f64> = model
+            .loads
+            .iter()
+            .flat_map(|g| g.rotation_rows.data.iter().copied())
+            .collect();
+        let load_rows_t = simd::transpose(&load_rows, 3 * model.loads.len(), r);
+        let transition_t = simd::transpose(&model.transition.data, r, r);
+        let input_t = simd::transpose(&model.input.data, r, model.inputs.len());
+        let gain_t = model
+            .kalman
+            .phases
+            .iter()
+            .map(|ph| simd::transpose(&ph.gain.data, r, ph.measured.len()))
+            .collect();
+        let max_measured = model
+            .kalman
+            .phases
+            .iter()
+            .map(|p| p.measured.len())
+            .max()
+            .unwrap_or(0);
+        let mut tmp = vec![0.0; r];
+        let std_of = |p: &Matrix, tmp: &mut [f64]| {
+            let mut sensors = Vec::with_capacity(3 * model.sensors.len());
+            for s in &model.sensors {
+                row_std(&s.displacement_rows, p, &mut sensors, tmp);
+            }
+            let nodes = model
+                .node_sets
+                .iter()
+                .map(|set| {
+                    let mut v = Vec::with_capacity(set.displacement_rows.rows as usize);
+                    row_std(&set.displacement_rows, p, &mut v, tmp);
+                    v
+                })
+                .collect();
+            PhaseStd { sensors, nodes }
+        };
+        let std_prior = model
+            .kalman
+            .phases
+            .iter()
+            .map(|ph| std_of(&ph.prior_covariance, &mut tmp))
+            .collect();
+        let std_posterior = model
+            .kalman
+            .phases
+            .iter()
+            .map(|ph| std_of(&ph.posterior_covariance, &mut tmp))
+            .collect();
+        let h_row = |j: usize| {
+            let (s, c) = channel[j];
+            model.sensors[s].displacement_rows.row(c)
+        };
+        let innovation_variance = model
+            .kalman
+            .phases
+            .iter()
+            .map(|ph| {
+                ph.measured
+                    .iter()
+                    .map(|&j| {
+                        let j = j as usize;
+                        quadratic(h_row(j), &ph.prior_covariance, &mut tmp)
+                            + model.kalman.measurement_variance[j]
+                    })
+                    .collect()
+            })
+            .collect();
+        let variance_growth = (0..channel.len())
+            .map(|j| quadratic(h_row(j), &model.kalman.process_noise, &mut tmp).max(0.0))
+            .collect();
+
+        // Plausibility bounds.
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        let mut extend = |p: &[f64]| {
+            for c in 0..3 {
+                lo[c] = lo[c].min(p[c]);
+                hi[c] = hi[c].max(p[c]);
+            }
+        };
+        for s in &model.sensors {
+            extend(&s.position);
+        }
+        for set in &model.node_sets {
+            for p in set.rest_positions.data.chunks_exact(3) {
+                extend(p);
+            }
+        }
+        let diagonal = (0..3).map(|c| (hi[c] - lo[c]).powi(2)).sum::<f64>().sqrt();
+        let sigma_max = model
+            .kalman
+            .measurement_variance
+            .iter()
+            .fold(0.0f64, |a, &v| a.max(v.sqrt()));
+        let length_scale = if diagonal.is_finite() {
+            diagonal.max(1e3 * sigma_max)
+        } else {
+            1e3 * sigma_max
+        };
+        let measurement_bound = if length_scale > 0.0 {
+            10.0 * length_scale
+        } else {
+            f64::INFINITY
+        };
+        let response = step_response_sum(&model.transition, &model.input);
+        let m = model.inputs.len();
+        let mut reach = vec![0.0f64; m];
+        let mut col = vec![0.0; r];
+        for (j, d) in reach.iter_mut().enumerate() {
+            for (i, c) in col.iter_mut().enumerate() {
+                *c = response[i * m + j];
+            }
+            let rows = model
+                .sensors
+                .iter()
+                .map(|s| &s.displacement_rows)
+                .chain(model.node_sets.iter().map(|n| &n.displacement_rows));
+            for mat in rows {
+                for i in 0..mat.rows as usize {
+                    let v: f64 = mat.row(i).iter().zip(&col).map(|(a, b)| a * b).sum();
+                    *d = d.max(v.abs());
+                }
+            }
+        }
+        let input_bound = reach
+            .iter()
+            .map(|&d| {
+                let b = 10.0 * length_scale / d;
+                if d > 0.0 && b.is_finite() && b > 0.0 {
+                    b
+                } else {
+                    f64::INFINITY
+                }
+            })
+            .collect();
+
+        let display = model
+            .node_sets
+            .iter()
+            .map(|set| {
+                let n = set.node_tags.len();
+                let groups = n.div_ceil(simd::GROUP);
+                let mut rows = vec![0.0f32; groups * r * 6 * simd::GROUP];
+                for i in 0..n {
+                    let (g, lane) = (i / simd::GROUP, i % simd::GROUP);
+                    for c in 0..3 {
+                        let d = set.displacement_rows.row(3 * i + c);
+                        let w = set.rotation_rows.row(3 * i + c);
+                        for k in 0..r {
+                            let at = ((g * r + k) * 6 + c) * simd::GROUP + lane;
+                            rows[at] = d[k] as f32;
+                            rows[at + 3 * simd::GROUP] = w[k] as f32;
+                        }
+                    }
+                }
+                DisplayRows {
+                    rows,
+                    warped: set.rotation_rows.data.iter().any(|&v| v != 0.0),
+                }
+            })
+            .collect();
+
+        Ok(PreparedModel {
+            r,
+            load_channels,
+            channel,
+            every,
+            phase_sensors,
+            phase_rows_t,
+            load_rows_t,
+            transition_t,
+            input_t,
+            gain_t,
+            max_measured,
+            std_prior,
+            std_posterior,
+            innovation_variance,
+            variance_growth,
+            length_scale,
+            input_bound,
+            measurement_bound,
+            display,
+            model,
+        })
+    }
+
+    /// The model.
+    pub fn model(&self) -> &Model {
+        &self.model
+    }
+
+    /// Length scale L of the plausibility bounds, m.
+    pub fn length_scale(&self) -> f64 {
+        self.length_scale
+    }
+
+    /// Largest plausible |u_j| per input channel (N, or a scale for gravity; ∞ = finiteness
+    /// only).
+    pub fn input_bounds(&self) -> &[f64] {
+        &self.input_bound
+    }
+
+    /// Per phase, per active channel (in the order of `kalman.phases[p].measured`): the
+    /// innovation variance (H P⁻ Hᵀ + R)_jj the gate compares with, m².
+    pub fn innovation_variances(&self) -> &[Vec<f64>] {
+        &self.innovation_variance
+    }
+
+    /// Largest plausible |y| of a measurement, m.
+    pub fn measurement_bound(&self) -> f64 {
+        self.measurement_bound
+    }
+}
