@@ -111,6 +111,7 @@ pub struct Server {
     stop: Arc<AtomicBool>,
     shared: Arc<sim::Shared>,
     threads: Vec<JoinHandle<()>>,
+    handover: Arc<sim::Handover>,
 }
 
 impl Server {
@@ -156,17 +157,30 @@ impl Server {
         let stop = Arc::new(AtomicBool::new(false));
         let model_json = sim::model_json(&model, set, &options);
         let shared = Arc::new(sim::Shared::new(&model, options.playing));
+        let handover = Arc::new(sim::Handover::default());
+        let view = estimator.clone();
         let sim_thread = {
             let shared = shared.clone();
+            let handover = handover.clone();
             let stop = stop.clone();
             let frame_interval = Duration::from_secs_f64(1.0 / options.frame_rate);
-            let sim = sim::Simulation::new(estimator, set, frame_interval);
+            let sim = sim::Simulation::new(estimator, frame_interval);
             std::thread::Builder::new()
-                .name("crokf-viewer-sim".into())
-                .spawn(move || sim.run(&shared, &stop))
+                .name("crokf-viewer-step".into())
+                .spawn(move || sim.run(&shared, &handover, &stop))
                 .map_err(|e| {
-                    ViewerError::Server(format!("cannot start the simulation thread: {e}"))
+                    ViewerError::Server(format!("cannot start the stepping thread: {e}"))
                 })?
+        };
+        let frame_thread = {
+            let shared = shared.clone();
+            let handover = handover.clone();
+            let stop = stop.clone();
+            let framer = sim::Framer::new(view, set);
+            std::thread::Builder::new()
+                .name("crokf-viewer-frames".into())
+                .spawn(move || framer.run(&shared, &handover, &stop))
+                .map_err(|e| ViewerError::Server(format!("cannot start the frame thread: {e}")))?
         };
         let http_thread = {
             let state = http::State {
@@ -188,7 +202,8 @@ impl Server {
             url: format!("http://{host}:{}/", local.port()),
             stop,
             shared,
-            threads: vec![sim_thread, http_thread],
+            threads: vec![sim_thread, frame_thread, http_thread],
+            handover,
         })
     }
 
@@ -217,6 +232,7 @@ impl Server {
     fn shutdown(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
         self.shared.wake_all();
+        self.handover.wake_all();
         for t in self.threads.drain(..) {
             let _ = t.join();
         }

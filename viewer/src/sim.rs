@@ -4,7 +4,8 @@
 //! the thread performs every step k with t₀ + k Δt ≤ now (docs/design.md §5 for one step), so
 //! the simulated time follows the wall clock at 1/Δt steps per second. When it falls more than
 //! [`MAX_CATCH_UP`] steps behind (a stalled machine), it drops the backlog and counts the
-//! dropped steps instead of running faster than real time afterwards.
+//! dropped steps instead of running faster than real time afterwards. Read-outs for the page
+//! happen on a second thread from a copy of the state, so they never delay a step.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
@@ -17,7 +18,7 @@ use crokf_runtime::Estimator;
 use crate::ServeOptions;
 
 /// Largest backlog of steps run at once before the rest is dropped, steps.
-const MAX_CATCH_UP: u64 = 100;
+const MAX_CATCH_UP: u64 = 250;
 
 /// Figures of the running viewer (all measured, none configured).
 #[derive(Clone, Debug, Default, serde::Serialize)]
@@ -37,7 +38,8 @@ pub struct Stats {
     pub frame_rate_hz: f64,
     /// Frames published in total.
     pub frames: u64,
-    /// Steps dropped because the thread fell more than 100 steps behind real time.
+    /// Steps dropped because the stepping thread fell more than 250 steps behind real time
+    /// (the machine stalled it for longer than that).
     pub dropped_steps: u64,
     /// Whether stepping is running.
     pub playing: bool,
@@ -172,36 +174,54 @@ impl Recent {
     }
 }
 
-/// The estimator, the node set drawn and the read-out buffers.
+/// The latest stepped state, handed from the stepping thread to the frame thread.
+#[derive(Clone, Default)]
+struct Snapshot {
+    generation: u64,
+    x: Vec<f64>,
+    step: u64,
+    time: f64,
+    stats: Stats,
+    forces: Vec<[f64; 3]>,
+    gravity: f64,
+    error: Option<String>,
+}
+
+/// Stepping thread → frame thread hand-over (the stepping thread never waits on a read-out).
+#[derive(Default)]
+pub(crate) struct Handover {
+    latest: Mutex<Snapshot>,
+    fresh: Condvar,
+}
+
+impl Handover {
+    fn lock(&self) -> MutexGuard<'_, Snapshot> {
+        self.latest.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    pub fn wake_all(&self) {
+        self.fresh.notify_all();
+    }
+}
+
+/// The stepping thread: the estimator and the input buffers.
 pub(crate) struct Simulation {
     est: Estimator,
-    set: usize,
     frame_interval: Duration,
     inputs: Vec<f64>,
     no_measurements: Vec<Option<f64>>,
-    positions: Vec<f64>,
-    std: Vec<f64>,
-    markers: Vec<f64>,
-    bytes: Vec<u8>,
 }
 
 impl Simulation {
-    pub fn new(est: Estimator, set: usize, frame_interval: Duration) -> Self {
+    pub fn new(est: Estimator, frame_interval: Duration) -> Self {
         let model = est.model();
-        let n = model.node_sets[set].node_tags.len();
         let m = model.inputs.len();
         let q = model.measurements.len();
-        let s = model.sensors.len();
         Self {
             est,
-            set,
             frame_interval,
             inputs: vec![0.0; m],
             no_measurements: vec![None; q],
-            positions: vec![0.0; 3 * n],
-            std: vec![0.0; 3 * n],
-            markers: vec![0.0; 3 * s],
-            bytes: Vec::with_capacity(12 * n),
         }
     }
 
@@ -219,20 +239,20 @@ impl Simulation {
         }
     }
 
-    /// Runs until `stop` is set.
-    pub fn run(mut self, shared: &Shared, stop: &AtomicBool) {
+    /// Steps in real time until `stop` is set; hands the state to the frame thread at the
+    /// frame rate.
+    pub fn run(mut self, shared: &Shared, handover: &Handover, stop: &AtomicBool) {
         let dt = Duration::from_secs_f64(self.est.model().dt);
         let mut origin = Instant::now();
         let mut done_since_origin: u64 = 0;
         let mut was_playing = false;
         let mut next_frame = Instant::now();
         let mut step_times = Recent::new(1000);
-        let mut readout_times = Recent::new(60);
         let mut stats = Stats::default();
         let mut window_start = Instant::now();
         let mut window_steps = 0u64;
-        let mut window_frames = 0u64;
         let mut error: Option<String> = None;
+        let mut generation = 0;
         while !stop.load(Ordering::SeqCst) {
             let controls = shared.with_controls(|c| {
                 let snapshot = c.clone();
@@ -275,31 +295,36 @@ impl Simulation {
             }
             let now = Instant::now();
             if now >= next_frame {
-                let t0 = Instant::now();
-                let frame = self.frame(&controls, &stats, error.as_deref());
-                readout_times.push(t0.elapsed().as_secs_f64() * 1e6);
-                window_frames += 1;
-                stats.frames += 1;
                 let window = now.duration_since(window_start).as_secs_f64();
                 if window >= 1.0 {
                     stats.step_rate_hz = window_steps as f64 / window;
-                    stats.frame_rate_hz = window_frames as f64 / window;
                     window_start = now;
                     window_steps = 0;
-                    window_frames = 0;
                 }
                 stats.steps = self.est.step_index();
                 stats.sim_time = self.est.time();
                 stats.step_time_median_us = step_times.median();
-                stats.readout_time_median_us = readout_times.median();
                 stats.playing = controls.playing;
-                shared.publish(frame, stats.clone());
+                generation += 1;
+                {
+                    let mut h = handover.lock();
+                    h.generation = generation;
+                    h.x.clear();
+                    h.x.extend_from_slice(self.est.state());
+                    h.step = self.est.step_index();
+                    h.time = self.est.time();
+                    h.stats.clone_from(&stats);
+                    h.forces.clone_from(&controls.forces);
+                    h.gravity = controls.gravity;
+                    h.error.clone_from(&error);
+                }
+                handover.fresh.notify_all();
                 next_frame += self.frame_interval;
                 if next_frame < now {
                     next_frame = now + self.frame_interval;
                 }
             }
-            // Sleep until the next step or frame is due (at most one step period).
+            // Sleep until the next step or frame is due (at most 5 ms).
             let next_step = if controls.playing {
                 origin + dt.mul_f64((done_since_origin + 1) as f64)
             } else {
@@ -312,23 +337,99 @@ impl Simulation {
             }
         }
     }
+}
+
+/// The frame thread: a copy of the estimator whose state is set from each snapshot, the node
+/// set drawn and the read-out buffers.
+pub(crate) struct Framer {
+    view: Estimator,
+    set: usize,
+    positions: Vec<f64>,
+    std: Vec<f64>,
+    markers: Vec<f64>,
+    bytes: Vec<u8>,
+}
+
+impl Framer {
+    pub fn new(view: Estimator, set: usize) -> Self {
+        let model = view.model();
+        let n = model.node_sets[set].node_tags.len();
+        let s = model.sensors.len();
+        Self {
+            view,
+            set,
+            positions: vec![0.0; 3 * n],
+            std: vec![0.0; 3 * n],
+            markers: vec![0.0; 3 * s],
+            bytes: Vec::with_capacity(12 * n),
+        }
+    }
+
+    /// Turns each new snapshot into a published frame until `stop` is set.
+    pub fn run(mut self, shared: &Shared, handover: &Handover, stop: &AtomicBool) {
+        let mut seen = 0;
+        let mut readout_times = Recent::new(60);
+        let mut frames = 0u64;
+        let mut window_start = Instant::now();
+        let mut window_frames = 0u64;
+        let mut frame_rate_hz = 0.0;
+        while !stop.load(Ordering::SeqCst) {
+            let snapshot = {
+                let guard = handover.lock();
+                let (guard, _) = handover
+                    .fresh
+                    .wait_timeout_while(guard, Duration::from_millis(200), |s| {
+                        s.generation == seen && !stop.load(Ordering::SeqCst)
+                    })
+                    .unwrap_or_else(|p| p.into_inner());
+                if guard.generation == seen {
+                    continue;
+                }
+                guard.clone()
+            };
+            seen = snapshot.generation;
+            let t0 = Instant::now();
+            let mut stats = snapshot.stats.clone();
+            frames += 1;
+            window_frames += 1;
+            let window = t0.duration_since(window_start).as_secs_f64();
+            if window >= 1.0 {
+                frame_rate_hz = window_frames as f64 / window;
+                window_start = t0;
+                window_frames = 0;
+            }
+            stats.frames = frames;
+            stats.frame_rate_hz = frame_rate_hz;
+            stats.readout_time_median_us = readout_times.median();
+            let frame = self.frame(&snapshot, &stats);
+            readout_times.push(t0.elapsed().as_secs_f64() * 1e6);
+            shared.publish(frame, stats);
+        }
+    }
 
     /// One frame as the JSON text of a server-sent event: positions (n×3 float32, base64, m),
-    /// per-node σ magnitude sqrt(σx² + σy² + σz²) (n float32, base64, m), marker positions
-    /// (sensor rest position + world displacement, m), forces and stats.
-    fn frame(&mut self, controls: &Controls, stats: &Stats, error: Option<&str>) -> String {
-        let model = self.est.model();
-        let mut failure = error.map(str::to_string);
-        if let Err(e) = self.est.node_positions(self.set, &mut self.positions) {
+    /// per-node σ magnitude sqrt(σx² + σy² + σz²) (n float32, base64, m; the filter's steady
+    /// state, phase 0 of a periodic one), marker positions (sensor rest position + world
+    /// displacement, m), forces and stats.
+    fn frame(&mut self, snap: &Snapshot, stats: &Stats) -> String {
+        let mut failure = snap.error.clone();
+        if let Err(e) = self.view.set_state(&snap.x) {
             failure.get_or_insert(e.to_string());
         }
-        if let Err(e) = self.est.node_std(self.set, &mut self.std) {
+        if let Err(e) = self.view.node_positions(self.set, &mut self.positions) {
             failure.get_or_insert(e.to_string());
         }
-        if let Err(e) = self.est.sensor_displacements(&mut self.markers) {
+        if let Err(e) = self.view.node_std(self.set, &mut self.std) {
             failure.get_or_insert(e.to_string());
         }
-        for (m, s) in self.markers.chunks_exact_mut(3).zip(&model.sensors) {
+        if let Err(e) = self.view.sensor_displacements(&mut self.markers) {
+            failure.get_or_insert(e.to_string());
+        }
+        for (m, s) in self
+            .markers
+            .chunks_exact_mut(3)
+            .zip(&self.view.model().sensors)
+        {
             for c in 0..3 {
                 m[c] += s.position[c];
             }
@@ -346,13 +447,13 @@ impl Simulation {
         }
         let std = engine.encode(&self.bytes);
         serde_json::json!({
-            "step": self.est.step_index(),
-            "time": self.est.time(),
+            "step": snap.step,
+            "time": snap.time,
             "positions": positions,
             "std": std,
             "markers": self.markers,
-            "forces": controls.forces,
-            "gravity": controls.gravity,
+            "forces": snap.forces,
+            "gravity": snap.gravity,
             "stats": stats,
             "error": failure,
         })
