@@ -14,6 +14,9 @@ use std::path::PathBuf;
 /// Everything `crokf-run` can fail on; messages name the file, line, step and channel.
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
+    /// The command line asks for something impossible.
+    #[error("{0}")]
+    Usage(String),
     /// An input file could not be read.
     #[error("cannot read {path}: {source}")]
     Read {

@@ -1,4 +1,5 @@
 //! `crokf-run MODEL --inputs inputs.csv [--measurements m.csv] --out estimates.csv [--vtu DIR]`
+//! `crokf-run MODEL --serve [--port 8080]`: the live browser viewer (`crokf-viewer`).
 //!
 //! Runs the estimator over an input history (and optional measurements) and writes the
 //! estimated sensor displacements (world frame) and their standard deviations per step.
@@ -21,14 +22,14 @@ struct Args {
     /// Model file written by crokf-compile.
     model: PathBuf,
     /// Inputs CSV: `step` (or `t`), then one column per input label; rows are steps 1, 2, ….
-    #[arg(long)]
-    inputs: PathBuf,
+    #[arg(long, required_unless_present = "serve")]
+    inputs: Option<PathBuf>,
     /// Measurements CSV: `step` (or `t`), then columns `sensor.x|y|z`; empty cell = missing.
     #[arg(long)]
     measurements: Option<PathBuf>,
     /// Output CSV: step, t, estimated sensor displacements, their standard deviations.
-    #[arg(long)]
-    out: PathBuf,
+    #[arg(long, required_unless_present = "serve")]
+    out: Option<PathBuf>,
     /// Also write one .vtu per step and estimates.pvd into this directory.
     #[arg(long)]
     vtu: Option<PathBuf>,
@@ -36,20 +37,37 @@ struct Args {
     /// skipped for that step and counted (summary on stderr); 0 turns the gate off.
     #[arg(long, default_value_t = crokf_runtime::DEFAULT_GATE_SIGMAS)]
     gate: f64,
+    /// Serve the live viewer instead: step the model in real time and draw it in the browser
+    /// (three.js page served from this binary; loopback only unless --address says otherwise).
+    #[arg(long, conflicts_with_all = ["inputs", "measurements", "out", "vtu"])]
+    serve: bool,
+    /// With --serve: TCP port (0: any free port).
+    #[arg(long, default_value_t = 8080, requires = "serve")]
+    port: u16,
+    /// With --serve: listening address. Anything but loopback exposes the viewer.
+    #[arg(long, default_value = "127.0.0.1", requires = "serve")]
+    address: std::net::IpAddr,
+    /// With --serve: slider range of each world force component, ±N.
+    #[arg(long, default_value_t = 1.0, requires = "serve")]
+    force_range: f64,
+    /// With --serve: displayed node set to draw (default "surface", else the first with
+    /// triangles).
+    #[arg(long, requires = "serve")]
+    node_set: Option<String>,
     /// With --vtu: write every N-th step only.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
     vtu_every: u64,
 }
 
 /// Refuses outputs that are inputs or collide, before any work.
-fn check_outputs(args: &Args) -> Result<(), RunError> {
-    let mut inputs: Vec<(&str, &Path)> = vec![("model", &args.model), ("--inputs", &args.inputs)];
+fn check_outputs(args: &Args, inputs_path: &Path, out_path: &Path) -> Result<(), RunError> {
+    let mut inputs: Vec<(&str, &Path)> = vec![("model", &args.model), ("--inputs", inputs_path)];
     if let Some(m) = &args.measurements {
         inputs.push(("--measurements", m));
     }
     let mut outputs = vec![Output {
         role: "--out",
-        path: &args.out,
+        path: out_path,
         kind: OutputKind::File,
     }];
     if let Some(dir) = &args.vtu {
@@ -65,7 +83,7 @@ fn check_outputs(args: &Args) -> Result<(), RunError> {
         for (role, path) in inputs
             .iter()
             .copied()
-            .chain([("--out", args.out.as_path())])
+            .chain([("--out", out_path)])
         {
             let Some(c) = output::canonical(path) else {
                 continue;
@@ -86,10 +104,37 @@ fn check_outputs(args: &Args) -> Result<(), RunError> {
     Ok(())
 }
 
+/// `--serve`: the live viewer until interrupted.
+fn serve(args: &Args) -> Result<(), String> {
+    if !args.address.is_loopback() {
+        eprintln!(
+            "crokf-run: warning: the viewer listens on {}, reachable from the network",
+            args.address
+        );
+    }
+    let options = crokf_viewer::ServeOptions {
+        address: args.address,
+        port: args.port,
+        node_set: args.node_set.clone(),
+        force_range: args.force_range,
+        title: args
+            .model
+            .file_name()
+            .map_or_else(|| "crokf".into(), |f| f.to_string_lossy().into_owned()),
+        ..crokf_viewer::ServeOptions::default()
+    };
+    crokf_viewer::serve_file(&args.model, options).map_err(|e| e.to_string())
+}
+
 fn run(args: &Args) -> Result<(), RunError> {
-    check_outputs(args)?;
+    let (Some(inputs_path), Some(out_path)) = (args.inputs.as_deref(), args.out.as_deref()) else {
+        return Err(RunError::Usage(
+            "--inputs and --out are required (or --serve for the live viewer)".into(),
+        ));
+    };
+    check_outputs(args, inputs_path, out_path)?;
     let model = load_model(&args.model)?;
-    let inputs = table::read_inputs(&args.inputs, &model)?;
+    let inputs = table::read_inputs(inputs_path, &model)?;
     let measurements = match &args.measurements {
         Some(p) => table::read_measurements(p, &model)?,
         None => Default::default(),
@@ -102,10 +147,10 @@ fn run(args: &Args) -> Result<(), RunError> {
     let mut u = vec![0.0; 3 * ns];
     let mut sd = vec![0.0; 3 * ns];
     let write_err = |source| output::OutputError::Io {
-        path: args.out.clone(),
+        path: out_path.to_path_buf(),
         source,
     };
-    let mut out = AtomicFile::create(&args.out)?;
+    let mut out = AtomicFile::create(out_path)?;
     writeln!(out, "{}", table::estimates_header(&model)).map_err(write_err)?;
     let mut staged = match &args.vtu {
         Some(dir) => Some(StagedDir::create(dir)?),
@@ -113,7 +158,7 @@ fn run(args: &Args) -> Result<(), RunError> {
     };
     let mut pvd = Vec::new();
     let mut offered = 0u64;
-    let inputs_name = args.inputs.display().to_string();
+    let inputs_name = inputs_path.display().to_string();
     for (row, &line) in inputs.rows.iter().zip(&inputs.lines) {
         let k = est.step_index() + 1;
         let measured = measurements.get(&k);
@@ -191,6 +236,15 @@ fn gate_summary(est: &Estimator, offered: u64) -> String {
 
 fn main() -> ExitCode {
     let args = Args::parse();
+    if args.serve {
+        return match serve(&args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("crokf-run: {e}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -1,0 +1,30 @@
+"""crokf: co-rotational reduced-order Kalman filter FEM from Python.
+
+``compile`` turns a scene file into a model (in process, through the Rust compiler library),
+``Model.load`` reads and verifies a ``.crokf`` model file, ``Estimator`` runs the runtime's
+steady-state Kalman filter step by step or over whole NumPy histories (``Estimator.run``).
+Units: metres, newtons, seconds, radians. Errors are ``CrokfError`` subclasses carrying the
+compiler's or the runtime's message.
+"""
+
+from ._crokf import (
+    CompileError,
+    CrokfError,
+    Estimator,
+    EstimatorError,
+    Model,
+    ModelFileError,
+    __version__,
+    compile,
+)
+
+__all__ = [
+    "CompileError",
+    "CrokfError",
+    "Estimator",
+    "EstimatorError",
+    "Model",
+    "ModelFileError",
+    "__version__",
+    "compile",
+]

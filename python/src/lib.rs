@@ -1,0 +1,771 @@
+//! `crokf._crokf`: the Python extension behind the `crokf` package.
+//!
+//! Wraps the compiler library (`crokf_compile::compile::compile`), the model file loader
+//! (`crokf_runtime::load_model`, with the runtime's verification) and the runtime's
+//! [`crokf_runtime::Estimator`] (docs/design.md §5, §6: predict x⁻ = F x + G Rᵀ(ω_g) f_world,
+//! update x = x⁻ + K_p (y_lin − H_p x⁻), warped read-outs u_world = R̃(ω) C x).
+//!
+//! Units are the model's: metres, newtons, seconds, radians. Arrays are float64, row-major:
+//! inputs (T, m), measurements (T, q), sensor read-outs (S, 3), node read-outs (n, 3).
+//! Read-outs are written by the runtime into a buffer that becomes the NumPy array's memory
+//! without a further copy.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use crokf_formats::Model as FormatModel;
+use numpy::ndarray::{Array1, Array2, Array3};
+use numpy::{
+    AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayLike1, PyArrayLike2,
+};
+use pyo3::exceptions::{PyException, PyKeyError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict, PyList, PyTuple};
+
+pyo3::create_exception!(
+    crokf,
+    CrokfError,
+    PyException,
+    "Base class of every crokf error."
+);
+pyo3::create_exception!(
+    crokf,
+    CompileError,
+    CrokfError,
+    "The compiler refused a scene (message names the file, group, element or stage)."
+);
+pyo3::create_exception!(
+    crokf,
+    ModelFileError,
+    CrokfError,
+    "A model file could not be read or failed verification (magic, version, hash, shapes)."
+);
+pyo3::create_exception!(
+    crokf,
+    EstimatorError,
+    CrokfError,
+    "The runtime refused a call (wrong length, non-finite value, update without predict, ...)."
+);
+
+fn runtime_err(e: crokf_runtime::RuntimeError) -> PyErr {
+    use crokf_runtime::RuntimeError as E;
+    match e {
+        E::Io { .. } | E::ModelFile { .. } | E::Format(_) => ModelFileError::new_err(e.to_string()),
+        _ => EstimatorError::new_err(e.to_string()),
+    }
+}
+
+/// Parses JSON text into Python objects with the standard library's `json` module.
+fn json_to_py<'py>(py: Python<'py>, text: &str) -> PyResult<Bound<'py, PyAny>> {
+    py.import("json")?.call_method1("loads", (text,))
+}
+
+fn to_array2<'py>(
+    py: Python<'py>,
+    rows: usize,
+    cols: usize,
+    data: Vec<f64>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    Array2::from_shape_vec((rows, cols), data)
+        .map(|a| a.into_pyarray(py))
+        .map_err(|e| PyValueError::new_err(format!("internal shape error: {e}")))
+}
+
+fn to_array3<'py>(
+    py: Python<'py>,
+    shape: (usize, usize, usize),
+    data: Vec<f64>,
+) -> PyResult<Bound<'py, PyArray3<f64>>> {
+    Array3::from_shape_vec(shape, data)
+        .map(|a| a.into_pyarray(py))
+        .map_err(|e| PyValueError::new_err(format!("internal shape error: {e}")))
+}
+
+fn matrix<'py>(py: Python<'py>, m: &crokf_formats::Matrix) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    to_array2(py, m.rows as usize, m.cols as usize, m.data.clone())
+}
+
+/// A compiled model (the contents of a `.crokf` file).
+///
+/// Attributes name what the model has: `inputs` (input channel labels, the columns of the
+/// inputs array, N or a dimensionless gravity scale), `measurement_channels` (labels
+/// `sensor.x|y|z`, the columns of the measurements array, m), `sensors`, `loads`,
+/// `node_sets`.
+#[pyclass(module = "crokf", frozen)]
+struct Model {
+    model: Arc<FormatModel>,
+    /// The encoded model file (what `save` writes).
+    bytes: Arc<Vec<u8>>,
+}
+
+impl Model {
+    fn from_bytes_checked(bytes: Vec<u8>, origin: Option<PathBuf>) -> PyResult<Self> {
+        let decoded = match origin {
+            Some(path) => crokf_formats::decode(&bytes)
+                .map_err(|source| crokf_runtime::RuntimeError::ModelFile { path, source }),
+            None => crokf_runtime::model_from_bytes(&bytes),
+        }
+        .map_err(runtime_err)?;
+        decoded
+            .validate()
+            .map_err(|e| ModelFileError::new_err(format!("invalid model: {e}")))?;
+        Ok(Self {
+            model: Arc::new(decoded),
+            bytes: Arc::new(bytes),
+        })
+    }
+
+    fn node_set_index(&self, set: &Bound<'_, PyAny>) -> PyResult<usize> {
+        node_set_index(&self.model, set)
+    }
+}
+
+fn node_set_index(model: &FormatModel, set: &Bound<'_, PyAny>) -> PyResult<usize> {
+    if let Ok(name) = set.extract::<String>() {
+        return model
+            .node_sets
+            .iter()
+            .position(|s| s.name == name)
+            .ok_or_else(|| {
+                let names: Vec<&str> = model.node_sets.iter().map(|s| s.name.as_str()).collect();
+                PyKeyError::new_err(format!(
+                    "node set '{name}' does not exist; the model has {names:?}"
+                ))
+            });
+    }
+    let index = set.extract::<usize>().map_err(|_| {
+        PyValueError::new_err("a node set is given by its name (str) or its index (int)")
+    })?;
+    if index < model.node_sets.len() {
+        Ok(index)
+    } else {
+        Err(PyKeyError::new_err(format!(
+            "node set {index} does not exist (the model has {})",
+            model.node_sets.len()
+        )))
+    }
+}
+
+#[pymethods]
+impl Model {
+    /// Reads a model file and verifies it like the runtime does (magic, version, length,
+    /// SHA-256, structure, shapes). Raises `ModelFileError` naming the file.
+    #[staticmethod]
+    fn load(path: PathBuf) -> PyResult<Self> {
+        let bytes = std::fs::read(&path).map_err(|source| {
+            runtime_err(crokf_runtime::RuntimeError::Io {
+                path: path.clone(),
+                source,
+            })
+        })?;
+        Self::from_bytes_checked(bytes, Some(path))
+    }
+
+    /// Decodes a model from the bytes of a model file (same verification as `load`).
+    #[staticmethod]
+    fn from_bytes(data: &[u8]) -> PyResult<Self> {
+        Self::from_bytes_checked(data.to_vec(), None)
+    }
+
+    /// Writes the model file (byte-identical to what `crokf-compile` writes).
+    fn save(&self, path: PathBuf) -> PyResult<()> {
+        std::fs::write(&path, self.bytes.as_slice())
+            .map_err(|e| CrokfError::new_err(format!("cannot write {}: {e}", path.display())))
+    }
+
+    /// The encoded model file.
+    fn to_bytes<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        PyBytes::new(py, &self.bytes)
+    }
+
+    /// Time step Δt, s.
+    #[getter]
+    fn dt(&self) -> f64 {
+        self.model.dt
+    }
+
+    /// Wilson θ of the recursion.
+    #[getter]
+    fn theta(&self) -> f64 {
+        self.model.theta
+    }
+
+    /// Reduced state dimension r.
+    #[getter]
+    fn order(&self) -> usize {
+        self.model.r()
+    }
+
+    /// Model tier: "warped_linear" (reduced linear model with co-rotational warping of the
+    /// read-outs, docs/design.md §5). The co-rotational tier (§10) is not in the model format yet.
+    #[getter]
+    fn tier(&self) -> &'static str {
+        "warped_linear"
+    }
+
+    /// Input channel labels, the columns of the inputs array (`"probe.x"`, `"gravity"`, ...).
+    #[getter]
+    fn inputs(&self) -> Vec<String> {
+        self.model.input_labels()
+    }
+
+    /// Measurement channel labels `"sensor.x|y|z"`, the columns of the measurements array.
+    #[getter]
+    fn measurement_channels(&self) -> Vec<String> {
+        self.model.measurement_labels()
+    }
+
+    /// Measurement noise variances, one per measurement channel, m².
+    #[getter]
+    fn measurement_variance<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        Array1::from(self.model.kalman.measurement_variance.clone()).into_pyarray(py)
+    }
+
+    /// Sensor names, in the order of the sensor read-outs.
+    #[getter]
+    fn sensors(&self) -> Vec<String> {
+        self.model.sensors.iter().map(|s| s.name.clone()).collect()
+    }
+
+    /// Rest positions of the sensors, (S, 3), m.
+    #[getter]
+    fn sensor_positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let data = self.model.sensors.iter().flat_map(|s| s.position).collect();
+        to_array2(py, self.model.sensors.len(), 3, data)
+    }
+
+    /// Load group names.
+    #[getter]
+    fn loads(&self) -> Vec<String> {
+        self.model.loads.iter().map(|l| l.name.clone()).collect()
+    }
+
+    /// Displayed node set names.
+    #[getter]
+    fn node_sets(&self) -> Vec<String> {
+        self.model
+            .node_sets
+            .iter()
+            .map(|s| s.name.clone())
+            .collect()
+    }
+
+    /// One displayed node set by name or index, as a dict: `name`, `node_tags` (n,) uint64
+    /// gmsh tags, `rest_positions` (n, 3) m, `triangles` (t, 3) uint32 local node indices.
+    fn node_set<'py>(
+        &self,
+        py: Python<'py>,
+        set: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let ns = &self.model.node_sets[self.node_set_index(set)?];
+        let d = PyDict::new(py);
+        d.set_item("name", &ns.name)?;
+        d.set_item(
+            "node_tags",
+            Array1::from(ns.node_tags.clone()).into_pyarray(py),
+        )?;
+        d.set_item("rest_positions", matrix(py, &ns.rest_positions)?)?;
+        let tri: Vec<u32> = ns.triangles.iter().flatten().copied().collect();
+        let tri = Array2::from_shape_vec((ns.triangles.len(), 3), tri)
+            .map_err(|e| PyValueError::new_err(format!("internal shape error: {e}")))?;
+        d.set_item("triangles", tri.into_pyarray(py))?;
+        Ok(d)
+    }
+
+    /// F, (r, r): x⁺ = F x + G u (docs/design.md §3).
+    #[getter]
+    fn transition<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        matrix(py, &self.model.transition)
+    }
+
+    /// G, (r, m): input matrix, column j belongs to `inputs[j]` (local frame).
+    #[getter]
+    fn input_matrix<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        matrix(py, &self.model.input)
+    }
+
+    /// H, (q, r): local-frame measurement matrix.
+    #[getter]
+    fn measurement_matrix<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        matrix(py, &self.model.measurement_matrix())
+    }
+
+    /// Period of the Kalman schedule (1 with single-rate sensors).
+    #[getter]
+    fn kalman_period(&self) -> u32 {
+        self.model.kalman.period
+    }
+
+    /// Phase p of the periodic Kalman filter as a dict: `measured` (indices of the active
+    /// measurement channels), `gain` K_p (r, len(measured)), `prior_covariance` P⁻_p and
+    /// `posterior_covariance` P_p (r, r). Step k uses phase k mod period (docs/design.md §6).
+    fn kalman_phase<'py>(&self, py: Python<'py>, phase: usize) -> PyResult<Bound<'py, PyDict>> {
+        let p = self.model.kalman.phases.get(phase).ok_or_else(|| {
+            PyKeyError::new_err(format!(
+                "phase {phase} does not exist (the period is {})",
+                self.model.kalman.period
+            ))
+        })?;
+        let d = PyDict::new(py);
+        d.set_item("measured", p.measured.clone())?;
+        d.set_item("gain", matrix(py, &p.gain)?)?;
+        d.set_item("prior_covariance", matrix(py, &p.prior_covariance)?)?;
+        d.set_item("posterior_covariance", matrix(py, &p.posterior_covariance)?)?;
+        Ok(d)
+    }
+
+    /// Sensor `name`'s rows as a dict: `displacement_rows` C_s (3, r) m and `rotation_rows`
+    /// W_s (3, r) rad, local frame (u_lin = C_s x, ω = W_s x).
+    fn sensor_rows<'py>(&self, py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyDict>> {
+        let s = self
+            .model
+            .sensors
+            .iter()
+            .find(|s| s.name == name)
+            .ok_or_else(|| {
+                PyKeyError::new_err(format!(
+                    "sensor '{name}' does not exist; the model has {:?}",
+                    self.sensors()
+                ))
+            })?;
+        let d = PyDict::new(py);
+        d.set_item("displacement_rows", matrix(py, &s.displacement_rows)?)?;
+        d.set_item("rotation_rows", matrix(py, &s.rotation_rows)?)?;
+        Ok(d)
+    }
+
+    /// The compiler's report stored in the model (Hankel singular values, bound, ρ(F),
+    /// Riccati residual, measured errors, ...), as a dict.
+    #[getter]
+    fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let text = serde_json::to_string(&self.model.report)
+            .map_err(|e| CrokfError::new_err(format!("cannot convert the report: {e}")))?;
+        json_to_py(py, &text)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "crokf.Model(order={}, dt={} s, inputs={}, measurement_channels={}, node_sets={:?})",
+            self.model.r(),
+            self.model.dt,
+            self.model.inputs.len(),
+            self.model.measurements.len(),
+            self.node_sets()
+        )
+    }
+}
+
+/// Compiles a scene file (TOML) into a model, in process (the compiler library, not a
+/// subprocess); the GIL is released while it runs.
+///
+/// `order` fixes the balanced truncation order r, `tolerance` the relative Hankel singular value
+/// cut σ_{r+1}/σ₁ (default: the scene's `[reduction]`, then 1e-4), `modes` the number of
+/// vibration modes. `report=False` skips the measured error against the full-order linear
+/// reference (faster; the report then has no `measured_errors`). Returns `(model, report)`, the
+/// report as the dict `crokf-compile --report` writes. Raises `CompileError`.
+#[pyfunction]
+#[pyo3(signature = (scene_path, order=None, tolerance=None, report=true, modes=None))]
+fn compile<'py>(
+    py: Python<'py>,
+    scene_path: PathBuf,
+    order: Option<usize>,
+    tolerance: Option<f64>,
+    report: bool,
+    modes: Option<usize>,
+) -> PyResult<Bound<'py, PyTuple>> {
+    let options = crokf_compile::compile::CompileOptions {
+        order,
+        tolerance,
+        modes,
+        skip_measured_error: !report,
+    };
+    let result = py.detach(|| {
+        crokf_compile::compile::compile(&scene_path, &options)
+            .map(|c| (c.report_json(), c.model, c.bytes))
+            .map_err(|e| e.to_string())
+    });
+    let (report_json, model, bytes) = result.map_err(CompileError::new_err)?;
+    let model = Model {
+        model: Arc::new(model),
+        bytes: Arc::new(bytes),
+    };
+    let report = json_to_py(py, &report_json)?;
+    PyTuple::new(py, [Py::new(py, model)?.into_any(), report.unbind()])
+}
+
+/// The runtime's steady-state (periodic) Kalman filter over one model.
+///
+/// Each step is `predict(inputs)` then at most one `update(measurements)` (or `step`, both).
+/// Inputs are world-frame load forces (N) and gravity scales, by channel (`Model.inputs`):
+/// a sequence of length m, or a dict `{label: value}` (absent labels are 0). Measurements are
+/// world-frame displacements (m) by channel (`Model.measurement_channels`): a sequence of
+/// length q with `None` or NaN where missing, a dict `{label: value}` (absent = missing), or
+/// `None` (all missing).
+#[pyclass(module = "crokf")]
+struct Estimator {
+    inner: crokf_runtime::Estimator,
+    model: Arc<FormatModel>,
+    input_index: HashMap<String, usize>,
+    channel_index: HashMap<String, usize>,
+}
+
+fn input_vector(est: &Estimator, obj: &Bound<'_, PyAny>) -> PyResult<Vec<f64>> {
+    let m = est.model.inputs.len();
+    if obj.is_none() {
+        return Ok(vec![0.0; m]);
+    }
+    if let Ok(d) = obj.cast::<PyDict>() {
+        let mut u = vec![0.0; m];
+        for (k, v) in d.iter() {
+            let label: String = k.extract()?;
+            let j = *est.input_index.get(&label).ok_or_else(|| {
+                PyKeyError::new_err(format!(
+                    "no input channel '{label}'; the model's inputs are {:?}",
+                    est.model.input_labels()
+                ))
+            })?;
+            u[j] = v.extract()?;
+        }
+        return Ok(u);
+    }
+    let a: PyArrayLike1<f64, AllowTypeChange> = obj.extract()?;
+    Ok(a.as_array().to_vec())
+}
+
+fn measurement_vector(est: &Estimator, obj: &Bound<'_, PyAny>) -> PyResult<Vec<Option<f64>>> {
+    let q = est.model.measurements.len();
+    if obj.is_none() {
+        return Ok(vec![None; q]);
+    }
+    let present = |v: f64| if v.is_nan() { None } else { Some(v) };
+    if let Ok(d) = obj.cast::<PyDict>() {
+        let mut y = vec![None; q];
+        for (k, v) in d.iter() {
+            let label: String = k.extract()?;
+            let j = *est.channel_index.get(&label).ok_or_else(|| {
+                PyKeyError::new_err(format!(
+                    "no measurement channel '{label}'; the model's channels are {:?}",
+                    est.model.measurement_labels()
+                ))
+            })?;
+            y[j] = v.extract::<Option<f64>>()?.and_then(present);
+        }
+        return Ok(y);
+    }
+    if let Ok(l) = obj.cast::<PyList>() {
+        return l
+            .iter()
+            .map(|v| Ok(v.extract::<Option<f64>>()?.and_then(present)))
+            .collect();
+    }
+    if let Ok(t) = obj.cast::<PyTuple>() {
+        return t
+            .iter()
+            .map(|v| Ok(v.extract::<Option<f64>>()?.and_then(present)))
+            .collect();
+    }
+    let a: PyArrayLike1<f64, AllowTypeChange> = obj.extract()?;
+    Ok(a.as_array().iter().map(|&v| present(v)).collect())
+}
+
+impl Estimator {
+    fn set_index(&self, set: &Bound<'_, PyAny>) -> PyResult<(usize, usize)> {
+        let i = node_set_index(&self.model, set)?;
+        Ok((i, self.model.node_sets[i].node_tags.len()))
+    }
+}
+
+#[pymethods]
+impl Estimator {
+    /// Validates the model and allocates the filter; the state starts at rest (x₀ = 0).
+    #[new]
+    fn new(model: &Model) -> PyResult<Self> {
+        let inner = crokf_runtime::Estimator::new(&model.model).map_err(runtime_err)?;
+        let input_index = model
+            .model
+            .input_labels()
+            .into_iter()
+            .enumerate()
+            .map(|(i, l)| (l, i))
+            .collect();
+        let channel_index = model
+            .model
+            .measurement_labels()
+            .into_iter()
+            .enumerate()
+            .map(|(i, l)| (l, i))
+            .collect();
+        Ok(Self {
+            inner,
+            model: model.model.clone(),
+            input_index,
+            channel_index,
+        })
+    }
+
+    /// x⁻ = F x + G Rᵀ(ω_g) f_world (docs/design.md §5); inputs as described on the class.
+    #[pyo3(signature = (inputs=None))]
+    fn predict(&mut self, inputs: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+        let u = match inputs {
+            Some(obj) => input_vector(self, obj)?,
+            None => vec![0.0; self.model.inputs.len()],
+        };
+        self.inner.predict(&u).map_err(runtime_err)
+    }
+
+    /// x = x⁻ + K_p (y_lin − H_p x⁻) over the channels active in this step's phase
+    /// (docs/design.md §6). Returns the number of measurement values used.
+    #[pyo3(signature = (measurements=None))]
+    fn update(&mut self, measurements: Option<&Bound<'_, PyAny>>) -> PyResult<usize> {
+        let y = match measurements {
+            Some(obj) => measurement_vector(self, obj)?,
+            None => vec![None; self.model.measurements.len()],
+        };
+        self.inner.update(&y).map_err(runtime_err)
+    }
+
+    /// `predict(inputs)` then `update(measurements)`; returns the number of values used.
+    #[pyo3(signature = (inputs=None, measurements=None))]
+    fn step(
+        &mut self,
+        inputs: Option<&Bound<'_, PyAny>>,
+        measurements: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<usize> {
+        let u = match inputs {
+            Some(obj) => input_vector(self, obj)?,
+            None => vec![0.0; self.model.inputs.len()],
+        };
+        let y = match measurements {
+            Some(obj) => measurement_vector(self, obj)?,
+            None => vec![None; self.model.measurements.len()],
+        };
+        self.inner.step(&u, &y).map_err(runtime_err)
+    }
+
+    /// Runs a whole history in one call (no Python loop; the GIL is released).
+    ///
+    /// `inputs`: (T, m) world-frame inputs per step. `measurements`: (T, q) with NaN where
+    /// missing, or None (open loop). `node_set`: optionally a node set (name or index) whose
+    /// world positions are recorded every step. Returns a dict of arrays: `time` (T,) s,
+    /// `measurements` (T, q) estimated measurement channels, `sensors` (T, S, 3) world
+    /// displacements and `sensor_std` (T, S, 3) their standard deviations (m), and with
+    /// `node_set` also `node_positions` (T, n, 3) m. The estimator keeps its final state.
+    #[pyo3(signature = (inputs, measurements=None, node_set=None))]
+    fn run<'py>(
+        &mut self,
+        py: Python<'py>,
+        inputs: PyArrayLike2<'py, f64, AllowTypeChange>,
+        measurements: Option<PyArrayLike2<'py, f64, AllowTypeChange>>,
+        node_set: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let m = self.model.inputs.len();
+        let q = self.model.measurements.len();
+        let s = self.model.sensors.len();
+        let u = inputs.as_array();
+        let steps = u.nrows();
+        if u.ncols() != m {
+            return Err(PyValueError::new_err(format!(
+                "inputs: expected shape (T, {m}) for the input channels {:?}, got {:?}",
+                self.model.input_labels(),
+                u.shape()
+            )));
+        }
+        let u: Vec<f64> = u.iter().copied().collect();
+        let y: Option<Vec<f64>> = match &measurements {
+            Some(a) => {
+                let a = a.as_array();
+                if a.nrows() != steps || a.ncols() != q {
+                    return Err(PyValueError::new_err(format!(
+                        "measurements: expected shape ({steps}, {q}) for the channels {:?}, got {:?}",
+                        self.model.measurement_labels(),
+                        a.shape()
+                    )));
+                }
+                Some(a.iter().copied().collect())
+            }
+            None => None,
+        };
+        let set = match node_set {
+            Some(obj) => Some(self.set_index(obj)?),
+            None => None,
+        };
+        let dt = self.model.dt;
+        let inner = &mut self.inner;
+        let out = py.detach(move || -> Result<RunOutput, String> {
+            let mut out = RunOutput {
+                time: Vec::with_capacity(steps),
+                meas: vec![0.0; steps * q],
+                sensors: vec![0.0; steps * 3 * s],
+                std: vec![0.0; steps * 3 * s],
+                nodes: vec![0.0; set.map_or(0, |(_, n)| steps * 3 * n)],
+            };
+            let mut yk = vec![None; q];
+            for k in 0..steps {
+                if let Some(y) = &y {
+                    for (o, &v) in yk.iter_mut().zip(&y[k * q..(k + 1) * q]) {
+                        *o = if v.is_nan() { None } else { Some(v) };
+                    }
+                }
+                let at = |e: crokf_runtime::RuntimeError| format!("row {k} (step {}): {e}", k + 1);
+                inner.step(&u[k * m..(k + 1) * m], &yk).map_err(at)?;
+                out.time.push(inner.step_index() as f64 * dt);
+                inner
+                    .measurement_estimates(&mut out.meas[k * q..(k + 1) * q])
+                    .map_err(at)?;
+                inner
+                    .sensor_displacements(&mut out.sensors[k * 3 * s..(k + 1) * 3 * s])
+                    .map_err(at)?;
+                inner
+                    .sensor_std(&mut out.std[k * 3 * s..(k + 1) * 3 * s])
+                    .map_err(at)?;
+                if let Some((i, n)) = set {
+                    inner
+                        .node_positions(i, &mut out.nodes[k * 3 * n..(k + 1) * 3 * n])
+                        .map_err(at)?;
+                }
+            }
+            Ok(out)
+        });
+        let out = out.map_err(EstimatorError::new_err)?;
+        let d = PyDict::new(py);
+        d.set_item("time", Array1::from(out.time).into_pyarray(py))?;
+        d.set_item("measurements", to_array2(py, steps, q, out.meas)?)?;
+        d.set_item("sensors", to_array3(py, (steps, s, 3), out.sensors)?)?;
+        d.set_item("sensor_std", to_array3(py, (steps, s, 3), out.std)?)?;
+        if let Some((_, n)) = set {
+            d.set_item("node_positions", to_array3(py, (steps, n, 3), out.nodes)?)?;
+        }
+        Ok(d)
+    }
+
+    /// Back to rest (x = 0, step 0).
+    fn reset(&mut self) {
+        self.inner.reset();
+    }
+
+    /// Number of predictions since construction or `reset`.
+    #[getter]
+    fn step_index(&self) -> u64 {
+        self.inner.step_index()
+    }
+
+    /// Time of the current state, s (step_index × Δt).
+    #[getter]
+    fn time(&self) -> f64 {
+        self.inner.time()
+    }
+
+    /// The reduced state x, (r,) (a copy).
+    #[getter]
+    fn state<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        Array1::from(self.inner.state().to_vec()).into_pyarray(py)
+    }
+
+    /// Sets the reduced state x (length r).
+    #[setter]
+    fn set_state(&mut self, x: PyArrayLike1<'_, f64, AllowTypeChange>) -> PyResult<()> {
+        let x: Vec<f64> = x.as_array().to_vec();
+        self.inner.set_state(&x).map_err(runtime_err)
+    }
+
+    /// World-frame displacement of every sensor, u = R̃(W_s x) C_s x, (S, 3), m.
+    fn sensor_displacements<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let s = self.model.sensors.len();
+        let mut out = vec![0.0; 3 * s];
+        self.inner
+            .sensor_displacements(&mut out)
+            .map_err(runtime_err)?;
+        to_array2(py, s, 3, out)
+    }
+
+    /// Standard deviation of every sensor displacement, sqrt(diag(C_s P C_sᵀ)), (S, 3), m.
+    fn sensor_std<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let s = self.model.sensors.len();
+        let mut out = vec![0.0; 3 * s];
+        self.inner.sensor_std(&mut out).map_err(runtime_err)?;
+        to_array2(py, s, 3, out)
+    }
+
+    /// Estimated world value of every measurement channel, (q,), m.
+    fn measurement_estimates<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let mut out = vec![0.0; self.model.measurements.len()];
+        self.inner
+            .measurement_estimates(&mut out)
+            .map_err(runtime_err)?;
+        Ok(Array1::from(out).into_pyarray(py))
+    }
+
+    /// World displacement u_i = R̃(ω_i) u_lin,i of every node of a node set, (n, 3), m.
+    fn node_displacements<'py>(
+        &self,
+        py: Python<'py>,
+        set: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let (i, n) = self.set_index(set)?;
+        let mut out = vec![0.0; 3 * n];
+        self.inner
+            .node_displacements(i, &mut out)
+            .map_err(runtime_err)?;
+        to_array2(py, n, 3, out)
+    }
+
+    /// World position X + u of every node of a node set, (n, 3), m.
+    fn node_positions<'py>(
+        &self,
+        py: Python<'py>,
+        set: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let (i, n) = self.set_index(set)?;
+        let mut out = vec![0.0; 3 * n];
+        self.inner
+            .node_positions(i, &mut out)
+            .map_err(runtime_err)?;
+        to_array2(py, n, 3, out)
+    }
+
+    /// Standard deviation of every node displacement of a node set, (n, 3), m.
+    fn node_std<'py>(
+        &self,
+        py: Python<'py>,
+        set: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let (i, n) = self.set_index(set)?;
+        let mut out = vec![0.0; 3 * n];
+        self.inner.node_std(i, &mut out).map_err(runtime_err)?;
+        to_array2(py, n, 3, out)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "crokf.Estimator(step_index={}, time={} s, order={})",
+            self.inner.step_index(),
+            self.inner.time(),
+            self.model.r()
+        )
+    }
+}
+
+/// Buffers filled by `Estimator.run` with the GIL released.
+struct RunOutput {
+    time: Vec<f64>,
+    meas: Vec<f64>,
+    sensors: Vec<f64>,
+    std: Vec<f64>,
+    nodes: Vec<f64>,
+}
+
+/// The extension module `crokf._crokf` (re-exported by the `crokf` package).
+#[pymodule]
+fn _crokf(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add_class::<Model>()?;
+    m.add_class::<Estimator>()?;
+    m.add_function(wrap_pyfunction!(compile, m)?)?;
+    m.add("CrokfError", py.get_type::<CrokfError>())?;
+    m.add("CompileError", py.get_type::<CompileError>())?;
+    m.add("ModelFileError", py.get_type::<ModelFileError>())?;
+    m.add("EstimatorError", py.get_type::<EstimatorError>())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}
