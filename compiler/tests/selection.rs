@@ -438,3 +438,23 @@ fn scene_file_with_bom_reads_and_a_directory_mesh_is_named() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn every_inverted_tetrahedron_is_counted_and_the_first_ten_listed() {
+    let mut mesh = cube_mesh();
+    // Invert 12 tetrahedra (every 32nd): each has volume 1/(6·4³) = 2.604e-3.
+    for i in (0..384).step_by(32) {
+        mesh.tetrahedra[i].nodes.swap(0, 1);
+    }
+    let s = scene(FIX_BOTTOM);
+    let msg = FemModel::assemble(&mesh, &s, 1.0).unwrap_err().to_string();
+    let listed: Vec<String> = (0..10)
+        .map(|k| format!("{}: -2.604e-3", 32 * k + 1))
+        .collect();
+    assert!(
+        msg.contains("12 tetrahedra are inverted or degenerate")
+            && msg.contains(&listed.join(", "))
+            && !msg.contains("321: "),
+        "{msg}"
+    );
+}
