@@ -19,21 +19,21 @@ use crate::scene::{Scene, Target};
 #[derive(Debug, thiserror::Error)]
 pub enum FemError {
     /// The scene names a physical group the mesh does not have.
-    #[error("{context}: the mesh has no physical group named '{name}'; it has: {}{hint}",
-        available.join(", "))]
+    #[error("{context}: the mesh has no physical group named '{name}'; it has: {}{}",
+        available.join(", "), group_hint(available))]
     UnknownGroup {
         /// Where the name appeared (e.g. "material", "fixed", "load 'tip'").
         context: String,
         /// The unknown name.
         name: String,
-        /// Names that exist, each with its dimension and size.
+        /// Names that exist, each quoted, with its dimension and size: `'body' (3-D, 12
+        /// tetrahedra)`.
         available: Vec<String>,
-        /// What to do (name the groups, use "dim:tag", or a selection); may be empty.
-        hint: String,
     },
-    /// A selection (`select = [...]`) that cannot be resolved or takes nothing.
+    /// A selection (`select = [...]`) that cannot be resolved or takes nothing (boxed: it is
+    /// large and rare).
     #[error(transparent)]
-    Selection(#[from] SelectionError),
+    Selection(Box<SelectionError>),
     /// Tetrahedra with negative (inverted) or near-zero volume: all of them are counted, the
     /// first ten listed, and the first described in full.
     #[error(
@@ -46,11 +46,11 @@ pub enum FemError {
         /// Number of inverted or degenerate tetrahedra.
         count: usize,
         /// (gmsh element tag, signed volume in m³) of the first ten.
-        listed: Vec<(u64, f64)>,
+        listed: Box<[(u64, f64)]>,
         /// gmsh element tag.
         tag: u64,
         /// gmsh node tags.
-        nodes: [u64; 4],
+        nodes: Box<[u64; 4]>,
         /// "inverted" or "degenerate (zero volume)".
         kind: &'static str,
         /// Signed volume.
@@ -78,6 +78,12 @@ pub enum FemError {
     /// Any other inconsistency between scene and mesh, described in full.
     #[error("{0}")]
     Scene(String),
+}
+
+impl From<SelectionError> for FemError {
+    fn from(e: SelectionError) -> Self {
+        FemError::Selection(Box::new(e))
+    }
 }
 
 /// Map between (node, component) and the free (unconstrained) DOF index.
@@ -166,31 +172,39 @@ pub fn find_group<'m>(
                 format!("'{}' ({}-D, {size})", g.name, g.dim)
             })
             .collect();
-        let unnamed = mesh
-            .groups
-            .iter()
-            .all(|g| g.name == format!("{}:{}", g.dim, g.tag));
-        let hint = if mesh.groups.is_empty() {
-            "(no groups at all); use a selection instead, e.g. `select = [{ everything = true }]` \
-             for a material or `select = [{ box = { min = [..], max = [..] }, nodes = \"boundary\" }]` \
-             for nodes (schema in compiler/src/scene.rs)"
-                .to_owned()
-        } else if unnamed {
-            "; the mesh has no physical names: refer to a group as \"dim:tag\" as listed \
-             (e.g. group = \"3:1\"), name the groups in gmsh (Physical Volume(\"body\") = {1};), \
-             or select nodes by geometry (`select = [{ box = { min = [..], max = [..] }, \
-             nodes = \"boundary\" }]`, schema in compiler/src/scene.rs)"
-                .to_owned()
-        } else {
-            String::new()
-        };
         FemError::UnknownGroup {
             context: context.to_owned(),
             name: name.to_owned(),
             available,
-            hint,
         }
     })
+}
+
+/// What to do about an unknown group, from the list of groups the mesh has (entries as in
+/// [`FemError::UnknownGroup`]): with no groups, use a selection; with unnamed groups only
+/// (names `"dim:tag"`), use those names, name the groups in gmsh, or select by geometry.
+fn group_hint(available: &[String]) -> String {
+    let unnamed = |entry: &String| {
+        let name = entry.split('\'').nth(1).unwrap_or("");
+        let mut parts = name.splitn(2, ':');
+        let dim = parts.next().unwrap_or("");
+        let tag = parts.next().unwrap_or("");
+        dim.len() == 1 && dim.parse::<u8>().is_ok() && tag.parse::<i64>().is_ok()
+    };
+    if available.is_empty() {
+        "(no groups at all); use a selection instead, e.g. `select = [{ everything = true }]` \
+         for a material or `select = [{ box = { min = [..], max = [..] }, nodes = \"boundary\" }]` \
+         for nodes (schema in compiler/src/scene.rs)"
+            .to_owned()
+    } else if available.iter().all(unnamed) {
+        "; the mesh has no physical names: refer to a group as \"dim:tag\" as listed \
+         (e.g. group = \"3:1\"), name the groups in gmsh (Physical Volume(\"body\") = {1};), \
+         or select nodes by geometry (`select = [{ box = { min = [..], max = [..] }, \
+         nodes = \"boundary\" }]`, schema in compiler/src/scene.rs)"
+            .to_owned()
+    } else {
+        String::new()
+    }
 }
 
 /// Notes about the mesh that need the scene's unit: nodes left out, an extent that looks like
@@ -339,7 +353,7 @@ impl FemModel {
                     .map(|&(i, _, v)| (mesh.tetrahedra[i].tag, v))
                     .collect(),
                 tag: tet.tag,
-                nodes: tet.nodes.map(|n| mesh.node_tags[n]),
+                nodes: Box::new(tet.nodes.map(|n| mesh.node_tags[n])),
                 kind,
                 volume,
             });

@@ -25,9 +25,9 @@
 //! model (the FEM numbers only the nodes of tetrahedra).
 
 pub mod msh1;
-mod msh22;
-mod msh41;
 pub mod procedural;
+mod msh2;
+mod msh41;
 pub mod selection;
 pub mod vtk;
 
@@ -400,7 +400,7 @@ pub fn read_mesh_bytes(bytes: &[u8], path: &Path) -> Result<Mesh, MeshError> {
     let raw = if version == 4.1 {
         msh41::read_msh41(bytes, &header, path)?
     } else if (2.0..3.0).contains(&version) && !header.binary {
-        msh22::read_msh2(bytes, path)?
+        msh2::read_msh2(bytes, path)?
     } else {
         return Err(unsupported());
     };

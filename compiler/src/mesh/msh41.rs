@@ -1,9 +1,15 @@
-//! gmsh MSH 4.1 (ASCII and binary) through mshio, with our own `$PhysicalNames` and node-tag
-//! handling (mshio ignores the former and drops contiguous tags).
+//! gmsh MSH 4.1 (ASCII or binary) through `mshio` 0.4: physical tags come from `$Entities`,
+//! names from `$PhysicalNames` (read here: mshio skips it; it is ASCII even in binary files).
+//! mshio drops node tags when they are contiguous; they are then read back from the `$Nodes`
+//! section here.
 
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
-use super::*;
+use super::{
+    find_section, line_of, parse_physical_names, syntax, Header, Lines, MeshError, RawElement,
+    RawMesh,
+};
 
 /// Reads `$PhysicalNames` wherever it is (it is ASCII in binary files too).
 fn physical_names_41(

@@ -79,11 +79,11 @@ fn gmsh_kind(cell: CellType) -> Option<u32> {
     }
 }
 
+/// A flat connectivity array and each cell's (offset, length) in it.
+type CellRanges = (Vec<u64>, Vec<(usize, usize)>);
+
 /// Cells as (offset, length) into a flat connectivity array.
-fn cell_ranges(
-    cells: VertexNumbers,
-    path: &Path,
-) -> Result<(Vec<u64>, Vec<(usize, usize)>), MeshError> {
+fn cell_ranges(cells: VertexNumbers, path: &Path) -> Result<CellRanges, MeshError> {
     let bad = || {
         vtk_error(
             path,

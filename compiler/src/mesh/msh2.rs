@@ -1,8 +1,15 @@
-//! gmsh MSH 2.2 ASCII (written by meshio and older pipelines; mshio reads 4.1 only).
+//! gmsh MSH 2.0–2.2, ASCII: the first element tag is the physical tag, the second the
+//! elementary entity. gmsh writes an element once per physical group it belongs to (with a new
+//! element number); such copies (same type, entity and nodes) are merged and keep the first
+//! number.
 
+use std::collections::HashMap;
 use std::path::Path;
 
-use super::*;
+use super::{
+    element_type_name, kept_dim, parse_num, parse_physical_names, Lines, MeshError, RawElement,
+    RawMesh,
+};
 
 pub(super) fn read_msh2(bytes: &[u8], path: &Path) -> Result<RawMesh, MeshError> {
     let text = String::from_utf8_lossy(bytes);
