@@ -80,11 +80,7 @@ fn check_outputs(args: &Args, inputs_path: &Path, out_path: &Path) -> Result<(),
     output::check_paths(&inputs, &outputs)?;
     // A file of the VTU series inside --vtu must not be --out or an input either.
     if let Some(dir) = args.vtu.as_deref().and_then(output::canonical) {
-        for (role, path) in inputs
-            .iter()
-            .copied()
-            .chain([("--out", out_path)])
-        {
+        for (role, path) in inputs.iter().copied().chain([("--out", out_path)]) {
             let Some(c) = output::canonical(path) else {
                 continue;
             };
