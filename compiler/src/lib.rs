@@ -22,6 +22,7 @@ pub mod fem;
 pub mod generate;
 pub mod kalman;
 pub mod mesh;
+pub mod nonlinear;
 pub mod reduce;
 pub mod reference;
 pub mod report;
