@@ -310,3 +310,53 @@ fn ecsw_weights_reproduce_the_training_forces_to_the_tolerance() {
     println!("ECSW reduced force at a training state: relative error {e:.2e}");
     assert!(e < 1e-2);
 }
+
+#[test]
+fn fast_polar_matches_the_svd_polar_rotation() {
+    use crokf_compile::nonlinear::reduced::fast_polar;
+    use crokf_compile::reference::polar_rotation;
+    use nalgebra::Matrix3;
+    let mut worst: f64 = 0.0;
+    for k in 0..50 {
+        let t = k as f64;
+        let rot = Rotation3::from_euler_angles(0.3 * t, 1.1 - 0.05 * t, 0.7 * t.sin());
+        // Stretch up to ±40 % with shear, det > 0.
+        let s = Matrix3::new(
+            1.0 + 0.4 * (0.7 * t).sin(),
+            0.2 * (1.3 * t).cos(),
+            0.1,
+            0.2 * (1.3 * t).cos(),
+            1.0 - 0.3 * (0.4 * t).cos(),
+            -0.05 * t.sin(),
+            0.1,
+            -0.05 * t.sin(),
+            0.8 + 0.1 * t.cos(),
+        );
+        let f = rot.matrix() * s;
+        worst = worst.max((fast_polar(&f) - polar_rotation(&f)).norm());
+    }
+    println!("scaled Newton polar vs SVD polar: worst ‖ΔR‖_F {worst:.2e}");
+    assert!(worst < 1e-12);
+    // An inverted element falls back to the SVD rule (det R = +1).
+    let inverted = Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -0.5);
+    assert!((fast_polar(&inverted).determinant() - 1.0).abs() < 1e-12);
+}
+
+#[test]
+fn reduced_static_solve_with_the_full_basis_matches_the_full_order_static_solve() {
+    let (fem, ops, scene) = model([6, 1, 1], true);
+    let v = full_basis(&fem);
+    let all: Vec<(usize, f64)> = (0..fem.elements.len()).map(|e| (e, 1.0)).collect();
+    let reduced = ReducedModel::new(&fem, &v, &all, wilson(&scene)).expect("model");
+    let mut full = CorotationalSimulator::new(&fem, wilson(&scene), NewtonOptions::default())
+        .expect("full-order");
+    let f = tip_load(&fem, &ops, [0.0, 0.0, -40.0]);
+    let u = full.static_solve(&f, 1e-11).expect("full static");
+    let q = reduced
+        .static_solve(&v.tr_mul(&DVector::from_column_slice(&f)), 1e-11)
+        .expect("reduced static");
+    let ur = &v * q;
+    let e = rel(ur.as_slice(), &u);
+    println!("static 40 N: reduced (full basis) vs full-order {e:.2e}");
+    assert!(e < 1e-9);
+}

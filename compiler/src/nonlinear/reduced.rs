@@ -43,6 +43,8 @@ pub struct SampledElement {
     pub rest: [[f64; 3]; 4],
     /// V_e: the 12 rows of V at the element's DOFs (12 × r; zero rows where fixed).
     pub rows: DMatrix<f64>,
+    /// The same rows flattened row-major (12·r), for the allocation-free force loop.
+    pub flat: Vec<f64>,
 }
 
 /// A reduced co-rotational model: what the model file would store (with the basis rows of
@@ -95,7 +97,12 @@ impl ReducedModel {
             }
             let dofs = fem.dofs.element(&el.nodes);
             let rows = DMatrix::from_fn(12, r, |i, j| dofs[i].map_or(0.0, |d| v[(d, j)]));
+            let flat = (0..12)
+                .flat_map(|i| (0..r).map(move |j| (i, j)))
+                .map(|(i, j)| rows[(i, j)])
+                .collect();
             elements.push(SampledElement {
+                flat,
                 element: e,
                 weight,
                 geometry: el.geometry,
@@ -165,6 +172,73 @@ impl ReducedModel {
                 damping.gemv_tr(el.weight, &el.rows, &d, 1.0);
             }
             force.gemv_tr(1.0, &el.rows, &g, 1.0);
+        }
+    }
+
+    /// Allocation-free reduced force for the stepper: `out` = f_r,int(q) + β K_t,r(q) ẏ
+    /// (r; the sum of the internal force and the stiffness-proportional damping force of
+    /// the module docs), per element with the rotation from [`fast_polar`].
+    pub fn force_with_damping(&self, q: &[f64], velocity: &[f64], beta: f64, out: &mut [f64]) {
+        let r = self.order();
+        out.iter_mut().for_each(|v| *v = 0.0);
+        for el in &self.elements {
+            let mut u = [0.0; 12];
+            let mut ve = [0.0; 12];
+            for i in 0..12 {
+                let row = &el.flat[i * r..(i + 1) * r];
+                let (mut a, mut b) = (0.0, 0.0);
+                for j in 0..r {
+                    a += row[j] * q[j];
+                    b += row[j] * velocity[j];
+                }
+                u[i] = a;
+                ve[i] = b;
+            }
+            let x: [[f64; 3]; 4] =
+                std::array::from_fn(|a| std::array::from_fn(|c| el.rest[a][c] + u[3 * a + c]));
+            let mut f = nalgebra::Matrix3::zeros();
+            for (xa, g) in x.iter().zip(&el.geometry.gradients) {
+                for i in 0..3 {
+                    for j in 0..3 {
+                        f[(i, j)] += xa[i] * g[j];
+                    }
+                }
+            }
+            let rot = fast_polar(&f);
+            // y = Rᵀ(x − x₀) − (X − X₀), and Rᵀ v for the damping term.
+            let mut y = [0.0; 12];
+            let mut local = [0.0; 12];
+            for a in 0..4 {
+                let d =
+                    nalgebra::Vector3::new(x[a][0] - x[0][0], x[a][1] - x[0][1], x[a][2] - x[0][2]);
+                let p = rot.tr_mul(&d);
+                let lv = rot.tr_mul(&nalgebra::Vector3::new(
+                    ve[3 * a],
+                    ve[3 * a + 1],
+                    ve[3 * a + 2],
+                ));
+                for c in 0..3 {
+                    y[3 * a + c] = p[c] - (el.rest[a][c] - el.rest[0][c]);
+                    local[3 * a + c] = y[3 * a + c] + beta * lv[c];
+                }
+            }
+            let z = crate::fem::element::mul12(&el.stiffness, &local);
+            let mut g = [0.0; 12];
+            for a in 0..4 {
+                let ga = rot * nalgebra::Vector3::new(z[3 * a], z[3 * a + 1], z[3 * a + 2]);
+                for c in 0..3 {
+                    g[3 * a + c] = el.weight * ga[c];
+                }
+            }
+            for i in 0..12 {
+                if g[i] == 0.0 {
+                    continue;
+                }
+                let row = &el.flat[i * r..(i + 1) * r];
+                for j in 0..r {
+                    out[j] += row[j] * g[i];
+                }
+            }
         }
     }
 
@@ -256,6 +330,32 @@ impl ReducedModel {
     }
 }
 
+/// The rotation of the polar decomposition F = R S by Higham's scaled Newton iteration
+/// X ← ½(γX + (γX)⁻ᵀ), γ = (‖X⁻¹‖_F/‖X‖_F)^½, to ‖ΔX‖_F ≤ 1e-14 (quadratic convergence:
+/// 3–7 iterations for elements near a rotation); where det F ≤ 1e-12·‖F‖³ (inverted or
+/// degenerate elements) or the iteration does not converge in 30 steps, the SVD-based
+/// [`polar_rotation`](crate::reference::polar_rotation) of the full-order reference.
+pub fn fast_polar(f: &nalgebra::Matrix3<f64>) -> nalgebra::Matrix3<f64> {
+    let norm = f.norm();
+    if f.determinant() <= 1e-12 * norm * norm * norm {
+        return crate::reference::polar_rotation(f);
+    }
+    let mut x = *f;
+    for _ in 0..30 {
+        let Some(inv) = x.try_inverse() else {
+            break;
+        };
+        let gamma = (inv.norm() / x.norm()).sqrt();
+        let next = (x * gamma + inv.transpose() / gamma) * 0.5;
+        let change = (next - x).norm();
+        x = next;
+        if change <= 1e-14 {
+            return x;
+        }
+    }
+    crate::reference::polar_rotation(f)
+}
+
 /// xₑ = Xₑ + uₑ (uₑ: 12, node-major).
 fn current_positions(rest: &[[f64; 3]; 4], u: &DVector<f64>) -> [[f64; 3]; 4] {
     std::array::from_fn(|a| std::array::from_fn(|c| rest[a][c] + u[3 * a + c]))
@@ -325,7 +425,6 @@ pub struct ReducedStepper {
     factor: Option<nalgebra::Cholesky<f64, nalgebra::Dyn>>,
     slow: bool,
     force: DVector<f64>,
-    damping: DVector<f64>,
 }
 
 impl ReducedStepper {
@@ -349,7 +448,6 @@ impl ReducedStepper {
             factor: None,
             slow: true,
             force: DVector::zeros(r),
-            damping: DVector::zeros(r),
         })
     }
 
@@ -420,14 +518,17 @@ impl ReducedStepper {
         let mut iterations = 0;
         let mut converged = false;
         let mut force = std::mem::replace(&mut self.force, DVector::zeros(0));
-        let mut damping = std::mem::replace(&mut self.damping, DVector::zeros(0));
         while iterations < self.newton.max_iterations {
             let du = &q_hat - &self.q;
             let acc = &du * a0 - &self.v * (6.0 / tau) - &self.a * 2.0;
             let vel = &du * a2 - &self.v * 2.0 - &self.a * (0.5 * tau);
-            self.model
-                .internal_force(&q_hat, Some(&vel), &mut force, &mut damping);
-            let mut res = load - &force - &damping * beta;
+            self.model.force_with_damping(
+                q_hat.as_slice(),
+                vel.as_slice(),
+                beta,
+                force.as_mut_slice(),
+            );
+            let mut res = load - &force;
             res -= &self.model.mass * (&acc + &vel * alpha);
             let refresh_now = self.newton.refresh == Refresh::EveryIteration
                 || (iterations == 0 && refresh_step)
@@ -459,7 +560,6 @@ impl ReducedStepper {
             }
         }
         self.force = force;
-        self.damping = damping;
         self.stats.steps += 1;
         self.stats.iterations += iterations;
         if !converged {

@@ -118,15 +118,16 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// Runs `scenario` (fixed horizon) on the full-order co-rotational model and on the tier's
-/// reduced stepper side by side, step k → k+1 holding f(t_k); the reduced load is Vᵀf.
+/// Runs `scenario` (fixed horizon) on the full-order co-rotational model, then on the tier's
+/// reduced stepper once per entry of `newtons`, step k → k+1 holding f(t_k); the reduced load
+/// is Vᵀf (computed outside the timed step, as the runtime would apply a stored VᵀB).
 pub fn open_loop(
     full: &FullOrder,
     tier: &Tier,
-    newton: ReducedNewton,
+    newtons: &[ReducedNewton],
     scenario: &Scenario,
     path: &Path,
-) -> Result<OpenLoop, NonlinearError> {
+) -> Result<Vec<OpenLoop>, NonlinearError> {
     let dt = full.scene.scene.time.dt;
     let steps = match scenario.horizon(dt) {
         Horizon::Steps(k) => k,
@@ -155,20 +156,26 @@ pub fn open_loop(
                 .collect()
         })
         .unwrap_or_default();
+    let tip_of = |value: &dyn Fn(usize) -> f64| {
+        let mut a = [0.0; 3];
+        for &(c, d, w) in &tip_dofs {
+            a[c] += w * value(d);
+        }
+        a
+    };
+    // Reference: displayed DOFs and tip per step, and the reduced loads.
     let mut reference = CorotationalSimulator::new(fem, full.wilson(), NewtonOptions::default())?;
-    let mut reduced = ReducedStepper::new(tier.model.clone(), newton)?;
-    let (mut full_times, mut reduced_times) = (Vec::new(), Vec::new());
-    let (mut err2, mut ref2, mut tip_err2, mut tip_ref2) = (0.0, 0.0, 0.0, 0.0);
+    let mut full_times = Vec::with_capacity(steps);
+    let mut shown_ref = Vec::with_capacity(steps);
+    let mut tip_ref = Vec::with_capacity(steps);
+    let mut loads = Vec::with_capacity(steps);
     let mut max_displacement: f64 = 0.0;
     for k in 0..steps {
         let f = scenario.load_vector(&full.operators, n, k as f64 * dt);
         let clock = Instant::now();
         reference.step(&f)?;
         full_times.push(clock.elapsed().as_secs_f64());
-        let fr = v.tr_mul(&DVector::from_column_slice(&f));
-        let clock = Instant::now();
-        reduced.step(&fr)?;
-        reduced_times.push(clock.elapsed().as_secs_f64());
+        loads.push(v.tr_mul(&DVector::from_column_slice(&f)));
         let u = reference.displacement();
         if u.iter().any(|x| !x.is_finite()) {
             return Err(ReferenceError::NonFinite {
@@ -178,33 +185,68 @@ pub fn open_loop(
             .into());
         }
         max_displacement = max_displacement.max(training::max_nodal(fem, u));
-        let shown = &display_rows * reduced.coordinates();
-        for (i, d) in dofs.iter().enumerate() {
-            let exact = d.map_or(0.0, |d| u[d]);
-            err2 += (shown[i] - exact).powi(2);
-            ref2 += exact * exact;
-        }
-        let q = reduced.coordinates();
-        let (mut a, mut b) = ([0.0; 3], [0.0; 3]);
-        for &(c, d, w) in &tip_dofs {
-            a[c] += w * (v.row(d) * q)[0];
-            b[c] += w * u[d];
-        }
-        for c in 0..3 {
-            tip_err2 += (a[c] - b[c]).powi(2);
-            tip_ref2 += b[c] * b[c];
-        }
+        shown_ref.push(
+            dofs.iter()
+                .map(|d| d.map_or(0.0, |d| u[d]))
+                .collect::<Vec<f64>>(),
+        );
+        tip_ref.push(tip_of(&|d| u[d]));
     }
+    let full_step = median(full_times);
     let ratio = |e: f64, r: f64| if r > 0.0 { (e / r).sqrt() } else { 0.0 };
-    Ok(OpenLoop {
-        steps,
-        error: ratio(err2, ref2),
-        tip_error: tip.map(|_| ratio(tip_err2, tip_ref2)),
-        full_step: median(full_times),
-        reduced_step: median(reduced_times),
-        stats: reduced.stats(),
-        max_displacement,
-    })
+    let mut out = Vec::new();
+    for &newton in newtons {
+        let mut reduced = ReducedStepper::new(tier.model.clone(), newton)?;
+        let mut reduced_times = Vec::with_capacity(steps);
+        let (mut err2, mut ref2, mut tip_err2, mut tip_ref2) = (0.0, 0.0, 0.0, 0.0);
+        for k in 0..steps {
+            let clock = Instant::now();
+            reduced.step(&loads[k])?;
+            reduced_times.push(clock.elapsed().as_secs_f64());
+            let q = reduced.coordinates();
+            let shown = &display_rows * q;
+            for (i, exact) in shown_ref[k].iter().enumerate() {
+                err2 += (shown[i] - exact).powi(2);
+                ref2 += exact * exact;
+            }
+            let a = tip_of(&|d| (v.row(d) * q)[0]);
+            for c in 0..3 {
+                tip_err2 += (a[c] - tip_ref[k][c]).powi(2);
+                tip_ref2 += tip_ref[k][c] * tip_ref[k][c];
+            }
+        }
+        out.push(OpenLoop {
+            steps,
+            error: ratio(err2, ref2),
+            tip_error: tip.map(|_| ratio(tip_err2, tip_ref2)),
+            full_step,
+            reduced_step: median(reduced_times),
+            stats: reduced.stats(),
+            max_displacement,
+        });
+    }
+    Ok(out)
+}
+
+/// Median wall times (s) of one reduced force evaluation (with damping) and of one reduced
+/// tangent assembly at the reduced state `q`, over `repeats` calls each.
+pub fn component_times(model: &ReducedModel, q: &DVector<f64>, repeats: usize) -> [f64; 2] {
+    let r = model.order();
+    let velocity = vec![0.0; r];
+    let mut out = vec![0.0; r];
+    let mut force = Vec::with_capacity(repeats);
+    let mut tangent = Vec::with_capacity(repeats);
+    for _ in 0..repeats.max(1) {
+        let clock = Instant::now();
+        model.force_with_damping(q.as_slice(), &velocity, model.beta, &mut out);
+        force.push(clock.elapsed().as_secs_f64());
+        std::hint::black_box(&out);
+        let clock = Instant::now();
+        let t = model.tangent(q, 1.0, true);
+        tangent.push(clock.elapsed().as_secs_f64());
+        std::hint::black_box(&t);
+    }
+    [median(force), median(tangent)]
 }
 
 /// One row of the static cantilever table.
