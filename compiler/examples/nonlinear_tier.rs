@@ -169,6 +169,14 @@ fn report(
             },
         ),
         (
+            "Newton to 1e-6 from the Taylor predictor, tangent refreshed after a step of > 4 iterations",
+            ReducedNewton {
+                tolerance: 1e-6,
+                predictor: true,
+                ..ReducedNewton::default()
+            },
+        ),
+        (
             "Newton to 1e-4, tangent refreshed after a step of > 6 iterations",
             ReducedNewton {
                 tolerance: 1e-4,

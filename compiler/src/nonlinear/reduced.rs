@@ -387,6 +387,9 @@ pub struct ReducedNewton {
     pub refresh: Refresh,
     /// Consistent element tangent (true) or warped R K Rᵀ.
     pub consistent: bool,
+    /// Start Newton from the Taylor predictor q̂₀ = q + τq̇ + (τ²/2)q̈ instead of q̂₀ = q
+    /// (the full-order reference starts from Û = U).
+    pub predictor: bool,
 }
 
 impl Default for ReducedNewton {
@@ -396,6 +399,7 @@ impl Default for ReducedNewton {
             tolerance: 1e-8,
             refresh: Refresh::WhenSlow { iterations: 4 },
             consistent: true,
+            predictor: false,
         }
     }
 }
@@ -511,6 +515,9 @@ impl ReducedStepper {
         let (a0, a2) = (w.mass_coefficient(), w.damping_coefficient());
         let (alpha, beta) = (self.model.alpha, self.model.beta);
         let mut q_hat = self.q.clone();
+        if self.newton.predictor {
+            q_hat += &self.v * tau + &self.a * (0.5 * tau * tau);
+        }
         let refresh_step = match self.newton.refresh {
             Refresh::EveryIteration | Refresh::EveryStep => true,
             Refresh::WhenSlow { .. } => self.slow || self.factor.is_none(),
