@@ -369,7 +369,8 @@ pub enum Refresh {
     /// At the first iteration of every step.
     EveryStep,
     /// Only when the previous step needed more than `iterations` Newton iterations (and at
-    /// the first step): modified Newton.
+    /// the first step), and once within a step that reaches `iterations` unconverged:
+    /// modified Newton.
     WhenSlow {
         /// Iteration count that triggers a refresh.
         iterations: usize,
@@ -537,8 +538,15 @@ impl ReducedStepper {
             );
             let mut res = load - &force;
             res -= &self.model.mass * (&acc + &vel * alpha);
+            // With a frozen J, a step still unconverged after the policy's iteration count
+            // refreshes J once within the step.
+            let stalled = matches!(
+                self.newton.refresh,
+                Refresh::WhenSlow { iterations: limit } if iterations == limit.max(1)
+            );
             let refresh_now = self.newton.refresh == Refresh::EveryIteration
                 || (iterations == 0 && refresh_step)
+                || stalled
                 || self.factor.is_none();
             if refresh_now {
                 self.refresh(&q_hat)?;
