@@ -31,6 +31,8 @@ pub mod kalman;
 
 pub mod model_file;
 
+pub mod nonlinear;
+
 pub mod stepping;
 
 pub mod accuracy;

@@ -25,9 +25,9 @@
 //! model (the FEM numbers only the nodes of tetrahedra).
 
 pub mod msh1;
-pub mod procedural;
 mod msh2;
 mod msh41;
+pub mod procedural;
 pub mod selection;
 pub mod vtk;
 

@@ -11,6 +11,7 @@
 
 pub mod bench;
 pub mod comparison;
+pub mod nonlinear;
 pub mod scenario;
 pub mod simulate;
 pub mod vtu;

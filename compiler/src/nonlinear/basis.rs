@@ -1,0 +1,230 @@
+//! Candidate displacement bases of the co-rotational tier and their projection errors
+//! (docs/design.md §10, item 1).
+//!
+//! Every basis is M-orthonormal, VᵀMV = I (V: n × r over the free DOFs, M the consistent mass,
+//! kg), so the best fit of a displacement u (n, m) in the M-norm is q = VᵀMu and
+//! min_q ‖Vq − u‖²_M = ‖u‖²_M − ‖VᵀMu‖² (nested in r: the error of the first k columns needs
+//! only the first k coefficients).
+
+use faer::sparse::SparseColMat;
+use nalgebra::{DMatrix, DVector};
+
+use crate::fem::{sparse_mul, FemModel};
+use crate::stepping::{static_solve, CorotationalSimulator};
+
+use super::NonlinearError;
+
+/// An M-orthonormal basis (n × r, columns in the order they were accepted) with a label per
+/// column saying where it came from.
+#[derive(Clone, Debug)]
+pub struct Basis {
+    /// V, n × r, VᵀMV = I.
+    pub vectors: DMatrix<f64>,
+    /// M V, n × r (kept for projections q = (MV)ᵀu).
+    pub mass_vectors: DMatrix<f64>,
+    /// Per column: its source ("static", "mode 3", "derivative 1,2", "pod 4").
+    pub labels: Vec<String>,
+}
+
+impl Basis {
+    /// Number of columns r.
+    pub fn len(&self) -> usize {
+        self.vectors.ncols()
+    }
+
+    /// True with no column.
+    pub fn is_empty(&self) -> bool {
+        self.vectors.ncols() == 0
+    }
+
+    /// Coefficients q = VᵀMu (r) of the M-orthogonal projection of u (n, m).
+    pub fn project(&self, u: &[f64]) -> DVector<f64> {
+        self.mass_vectors.tr_mul(&DVector::from_column_slice(u))
+    }
+
+    /// The first `r` columns.
+    pub fn truncated(&self, r: usize) -> Basis {
+        let r = r.min(self.len());
+        Basis {
+            vectors: self.vectors.columns(0, r).into_owned(),
+            mass_vectors: self.mass_vectors.columns(0, r).into_owned(),
+            labels: self.labels[..r].to_vec(),
+        }
+    }
+}
+
+/// M-orthonormalises `candidates` (each n) in order by modified Gram–Schmidt, twice per vector
+/// (re-orthogonalisation), dropping a candidate whose M-norm after orthogonalisation is below
+/// `drop_tolerance` × its M-norm before (linearly dependent). Stops at `max_columns`.
+pub fn m_orthonormalise(
+    mass: &SparseColMat<usize, f64>,
+    candidates: &[(String, Vec<f64>)],
+    drop_tolerance: f64,
+    max_columns: usize,
+) -> Basis {
+    let mut columns: Vec<Vec<f64>> = Vec::new();
+    let mut mass_columns: Vec<Vec<f64>> = Vec::new();
+    let mut labels = Vec::new();
+    let n = mass.nrows();
+    for (label, v) in candidates {
+        if columns.len() >= max_columns {
+            break;
+        }
+        if v.len() != n {
+            continue;
+        }
+        let mut x = v.clone();
+        let mx = sparse_mul(mass, &x);
+        let before = dot(&x, &mx).max(0.0).sqrt();
+        if before == 0.0 || !before.is_finite() {
+            continue;
+        }
+        for _ in 0..2 {
+            for (c, mc) in columns.iter().zip(&mass_columns) {
+                let h = dot(&x, mc);
+                x.iter_mut().zip(c).for_each(|(xi, ci)| *xi -= h * ci);
+            }
+        }
+        let mx = sparse_mul(mass, &x);
+        let after = dot(&x, &mx).max(0.0).sqrt();
+        if after <= drop_tolerance * before {
+            continue;
+        }
+        columns.push(x.iter().map(|v| v / after).collect());
+        mass_columns.push(mx.iter().map(|v| v / after).collect());
+        labels.push(label.clone());
+    }
+    let r = columns.len();
+    Basis {
+        vectors: DMatrix::from_fn(n, r, |i, j| columns[j][i]),
+        mass_vectors: DMatrix::from_fn(n, r, |i, j| mass_columns[j][i]),
+        labels,
+    }
+}
+
+/// Euclidean dot product.
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Static modal derivatives θᵢⱼ = −K⁻¹ (∂²f_int/∂qᵢ∂qⱼ at rest) of the co-rotational internal
+/// force for every pair i ≤ j of `generators` (each n, m per unit q), by the central second
+/// difference
+/// `[f(h(φᵢ+φⱼ)) − f(h(φᵢ−φⱼ)) − f(h(−φᵢ+φⱼ)) + f(−h(φᵢ+φⱼ))] / (4h²)`
+/// with h chosen per pair so that the largest nodal displacement of hφ is `amplitude` (m).
+/// Truncation error O((amplitude/L)²), round-off O(ε L/amplitude) relative; amplitude =
+/// 1e-3 × the body's size balances both far below the 1e-3 accuracy a basis vector needs.
+pub fn modal_derivatives(
+    fem: &FemModel,
+    simulator: &mut CorotationalSimulator,
+    generators: &[(String, Vec<f64>)],
+    amplitude: f64,
+) -> Result<Vec<(String, Vec<f64>)>, NonlinearError> {
+    let n = fem.dof_count();
+    let mut out = Vec::new();
+    let largest = |v: &[f64]| v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    for i in 0..generators.len() {
+        for j in i..generators.len() {
+            let (li, gi) = (&generators[i].0, &generators[i].1);
+            let (lj, gj) = (&generators[j].0, &generators[j].1);
+            let (si, sj) = (largest(gi), largest(gj));
+            if si == 0.0 || sj == 0.0 {
+                continue;
+            }
+            // Scale each generator to unit largest entry so h means metres.
+            let a: Vec<f64> = gi.iter().map(|v| v / si).collect();
+            let b: Vec<f64> = gj.iter().map(|v| v / sj).collect();
+            let h = amplitude;
+            let mut d = vec![0.0; n];
+            for (sa, sb, sign) in [
+                (1.0, 1.0, 1.0),
+                (1.0, -1.0, -1.0),
+                (-1.0, 1.0, -1.0),
+                (-1.0, -1.0, 1.0),
+            ] {
+                let u: Vec<f64> = a
+                    .iter()
+                    .zip(&b)
+                    .map(|(x, y)| h * (sa * x + sb * y))
+                    .collect();
+                let f = simulator.internal_force(&u)?;
+                d.iter_mut()
+                    .zip(&f)
+                    .for_each(|(di, fi)| *di += sign * fi / (4.0 * h * h));
+            }
+            let theta = static_solve(fem, &d)?;
+            out.push((
+                format!("derivative {li} × {lj}"),
+                theta.iter().map(|v| -v).collect(),
+            ));
+        }
+    }
+    Ok(out)
+}
+
+/// POD of `snapshots` (each n, m) in the M inner product by the method of snapshots: the
+/// eigenpairs (λₖ, ψₖ) of the Gram matrix G = SᵀMS (s × s) give the modes Sψₖ/√λₖ, in
+/// decreasing λₖ, up to `max_modes` and down to λₖ ≥ `relative_floor`·λ₁. Returns the modes
+/// (n each, M-orthonormal up to round-off) and all eigenvalues λ (m²·kg), descending.
+pub fn pod(
+    mass: &SparseColMat<usize, f64>,
+    snapshots: &[Vec<f64>],
+    max_modes: usize,
+    relative_floor: f64,
+) -> (Vec<(String, Vec<f64>)>, Vec<f64>) {
+    let s = snapshots.len();
+    if s == 0 {
+        return (Vec::new(), Vec::new());
+    }
+    let n = snapshots[0].len();
+    let ms: Vec<Vec<f64>> = snapshots.iter().map(|u| sparse_mul(mass, u)).collect();
+    let gram = DMatrix::from_fn(s, s, |i, j| dot(&snapshots[i], &ms[j]));
+    let gram = (&gram + gram.transpose()) * 0.5;
+    let eig = gram.symmetric_eigen();
+    let mut order: Vec<usize> = (0..s).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+    let values: Vec<f64> = order.iter().map(|&k| eig.eigenvalues[k]).collect();
+    let top = values.first().copied().unwrap_or(0.0);
+    let mut modes = Vec::new();
+    for (rank, &k) in order.iter().enumerate() {
+        let lambda = eig.eigenvalues[k];
+        if modes.len() >= max_modes || lambda <= 0.0 || lambda < relative_floor * top {
+            break;
+        }
+        let mut v = vec![0.0; n];
+        for (c, u) in snapshots.iter().enumerate() {
+            let w = eig.eigenvectors[(c, k)] / lambda.sqrt();
+            v.iter_mut().zip(u).for_each(|(vi, ui)| *vi += w * ui);
+        }
+        modes.push((format!("pod {}", rank + 1), v));
+    }
+    (modes, values)
+}
+
+/// Relative projection error of a trajectory on the first k columns of `basis`, for every
+/// k = 0..=r: e_k = sqrt(Σ_t min_q ‖V_k q − u_t‖²_M / Σ_t ‖u_t‖²_M) (entry k of the result);
+/// `mass` is M (n × n, kg), `trajectory` the displacements u_t (n each, m).
+pub fn projection_errors(
+    mass: &SparseColMat<usize, f64>,
+    basis: &Basis,
+    trajectory: &[Vec<f64>],
+) -> Vec<f64> {
+    let r = basis.len();
+    let mut residual = vec![0.0; r + 1];
+    let mut total = 0.0;
+    for u in trajectory {
+        let q = basis.project(u);
+        let norm2 = dot(u, &sparse_mul(mass, u));
+        total += norm2;
+        let mut left = norm2;
+        residual[0] += left;
+        for k in 0..r {
+            left -= q[k] * q[k];
+            residual[k + 1] += left.max(0.0);
+        }
+    }
+    residual
+        .iter()
+        .map(|e| if total > 0.0 { (e / total).sqrt() } else { 0.0 })
+        .collect()
+}

@@ -1,0 +1,67 @@
+//! The co-rotational tier (docs/design.md §10): a small nonlinear reduced model that evaluates
+//! the same co-rotational element forces as the full-order reference
+//! ([`crate::stepping::corotational`]) in a displacement basis V, on a few weighted elements.
+//!
+//! - [`basis`]: candidate bases (modes + static correction, static modal derivatives, POD of
+//!   co-rotational snapshots), M-orthonormalisation and projection errors min_q ‖Vq − u‖_M;
+//! - [`ecsw`]: element sampling and non-negative weights (ECSW, Lawson–Hanson NNLS);
+//! - [`reduced`]: the reduced co-rotational Wilson-θ stepper on q with Newton on the reduced
+//!   tangent.
+//!
+//! The training runs, the floors of candidate bases and the open-loop comparison are driven by
+//! scenario files and live in `crokf-verify` (`crokf_verify::nonlinear`) until the tier is
+//! wired into `compile` with its own training driver.
+
+pub mod basis;
+pub mod ecsw;
+pub mod reduced;
+
+use crate::error::CompileError;
+use crate::reduce::ReduceError;
+use crate::stepping::SteppingError;
+
+/// Errors of the co-rotational tier.
+#[derive(Debug, thiserror::Error)]
+pub enum NonlinearError {
+    /// Full-order stepping (training or reference run).
+    #[error(transparent)]
+    Stepping(#[from] SteppingError),
+    /// Reading the scene or assembling the full-order model.
+    #[error(transparent)]
+    Compile(#[from] Box<CompileError>),
+    /// Modal basis.
+    #[error(transparent)]
+    Reduce(#[from] ReduceError),
+    /// Inconsistent arguments (what is wrong, naming the offending item).
+    #[error("{0}")]
+    Invalid(String),
+    /// The reduced Newton matrix is not positive definite.
+    #[error(
+        "reduced co-rotational step {step} (t = {time:.6e} s): the reduced Newton matrix \
+         ({order}×{order}) is not positive definite at pivot {pivot}"
+    )]
+    NotPositiveDefinite {
+        /// Step index (1-based).
+        step: usize,
+        /// Time at the start of the step, s.
+        time: f64,
+        /// r.
+        order: usize,
+        /// Failing pivot.
+        pivot: usize,
+    },
+    /// The reduced state became non-finite.
+    #[error("reduced co-rotational step {step} (t = {time:.6e} s): non-finite reduced state")]
+    NonFinite {
+        /// Step index (1-based).
+        step: usize,
+        /// Time at the start of the step, s.
+        time: f64,
+    },
+}
+
+impl From<CompileError> for NonlinearError {
+    fn from(e: CompileError) -> Self {
+        NonlinearError::Compile(Box::new(e))
+    }
+}
