@@ -86,13 +86,16 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-/// Errors in reading or checking a scene file.
+/// Errors in reading or checking a TOML input file: a scene (here) or a verification scenario
+/// (`crokf-verify`, which uses this type as its `ScenarioError`). Each names the file.
 #[derive(Debug, thiserror::Error)]
-pub enum SceneError {
-    /// The scene file could not be read.
-    #[error("cannot read scene file {path}: {source}")]
+pub enum InputFileError {
+    /// The file could not be read.
+    #[error("cannot read {kind} file {path}: {source}")]
     Io {
-        /// Scene path.
+        /// What the file is: "scene" or "scenario".
+        kind: &'static str,
+        /// The file.
         path: PathBuf,
         /// Underlying error.
         source: std::io::Error,
@@ -100,20 +103,23 @@ pub enum SceneError {
     /// TOML syntax or schema error (unknown key, wrong type); the message names the line.
     #[error("{path}: {message}")]
     Parse {
-        /// Scene path.
+        /// The file.
         path: PathBuf,
         /// toml's message, with line and column.
         message: String,
     },
-    /// A value is out of its physical range.
+    /// A value is out of its physical range or inconsistent, naming the entry.
     #[error("{path}: {what}")]
     Invalid {
-        /// Scene path.
+        /// The file.
         path: PathBuf,
         /// What is wrong, naming the entry.
         what: String,
     },
 }
+
+/// Errors in reading or checking a scene file.
+pub type SceneError = InputFileError;
 
 /// Length unit of the mesh coordinates and scene positions.
 #[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -600,6 +606,7 @@ impl SceneFile {
     /// a directory is refused here, naming the field.
     pub fn read(path: &Path) -> Result<Self, SceneError> {
         let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+            kind: "scene",
             path: path.to_owned(),
             source,
         })?;

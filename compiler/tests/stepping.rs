@@ -7,7 +7,7 @@ use std::path::Path;
 use crokf_compile::dynamics::WilsonTheta;
 use crokf_compile::fem::operators::Operators;
 use crokf_compile::fem::{FemModel, TetGeometry};
-use crokf_compile::mesh::procedural::box_mesh;
+use crokf_compile::mesh::procedural::{box_mesh, BeamScene};
 use crokf_compile::mesh::Mesh;
 use crokf_compile::scene::Scene;
 use crokf_compile::stepping::{
@@ -18,31 +18,20 @@ use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 
 /// Beam scene on a generated box mesh: clamp `xmin`, load group `tip` on `xmax`.
 fn scene(young: f64, poisson: f64, alpha: f64, beta: f64, dt: f64) -> Scene {
-    let text = format!(
-        r#"
-        [mesh]
-        file = "generated.msh"
-        [[material]]
-        group = "body"
-        young_modulus = {young:e}
-        poisson_ratio = {poisson}
-        density = 1000.0
-        [damping]
-        alpha = {alpha:e}
-        beta = {beta:e}
-        [[fixed]]
-        group = "xmin"
-        [[load]]
-        name = "tip"
-        group = "xmax"
-        [[sensor]]
-        name = "tip_centre"
-        position = [1.0, 0.05, 0.05]
-        noise_std = 1e-4
-        [time]
-        dt = {dt:e}
-        "#
-    );
+    let text = BeamScene {
+        mesh_file: "generated.msh".into(),
+        young_modulus: young,
+        poisson_ratio: poisson,
+        alpha,
+        beta,
+        force_noise_std: None,
+        sensors: vec![("tip_centre".into(), [1.0, 0.05, 0.05])],
+        sensor_noise_std: 1e-4,
+        displays: Vec::new(),
+        dt,
+        ..BeamScene::default()
+    }
+    .toml();
     Scene::parse(&text, Path::new("test-scene.toml")).expect("test scene parses")
 }
 

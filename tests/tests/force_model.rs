@@ -2,43 +2,23 @@
 //! persistent force the runtime is not told about is estimated without the lag (bias) of the
 //! white-noise model.
 
-use crokf_compile::mesh::procedural::{box_mesh, write_msh22};
+use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
 use crokf_compile::report::StageTimer;
 use crokf_compile::stepping::{LinearSimulator, Simulator};
 use crokf_compile::{compile, CompileOptions, FullOrder};
 use crokf_runtime::Estimator;
 
 fn scene(force_model: &str) -> String {
-    format!(
-        r#"
-        [mesh]
-        file = "beam.msh"
-        [[material]]
-        group = "body"
-        young_modulus = 1.0e6
-        poisson_ratio = 0.3
-        density = 1000.0
-        [damping]
-        alpha = 2.0
-        beta = 1.0e-3
-        [[fixed]]
-        group = "xmin"
-        [[load]]
-        name = "tip"
-        group = "xmax"
-        force_noise_std = 0.01
-        force_model = "{force_model}"
-        [[sensor]]
-        name = "tip"
-        position = [0.99, 0.05, 0.05]
-        noise_std = 1.0e-5
-        [[display]]
-        name = "end"
-        group = "xmax"
-        [time]
-        dt = 0.005
-        "#
-    )
+    BeamScene {
+        alpha: 2.0,
+        force_model: Some(force_model.into()),
+        sensors: vec![("tip".into(), [0.99, 0.05, 0.05])],
+        sensor_noise_std: 1.0e-5,
+        displays: vec![("end".into(), "xmax".into())],
+        dt: 0.005,
+        ..BeamScene::default()
+    }
+    .toml()
 }
 
 /// Final relative tip error of the filter, and the model's state dimension, when the runtime is

@@ -19,7 +19,7 @@ use crokf_compile::mesh::Mesh;
 use crokf_compile::scene::Scene;
 use crokf_compile::stepping::{CorotationalSimulator, LinearSimulator, NewtonOptions, Simulator};
 
-use crokf_compile::mesh::procedural::box_mesh;
+use crokf_compile::mesh::procedural::{box_mesh, BeamScene};
 
 /// Median of `samples` timings of `f`, s.
 pub fn median_seconds(samples: usize, mut f: impl FnMut()) -> f64 {
@@ -43,45 +43,29 @@ pub fn beam_of_size(tetrahedra: usize) -> Mesh {
 
 /// The benchmark scene text (mesh file "generated"): soft beam clamped at `xmin`, tip load on
 /// `xmax` with force noise, three sensors along the top, the boundary displayed, Δt = 1 ms.
-pub const BEAM_SCENE: &str = r#"
-        [mesh]
-        file = "generated"
-        [[material]]
-        group = "body"
-        young_modulus = 1.0e6
-        poisson_ratio = 0.3
-        density = 1000.0
-        [damping]
-        alpha = 0.5
-        beta = 1.0e-3
-        [[fixed]]
-        group = "xmin"
-        [[load]]
-        name = "tip"
-        group = "xmax"
-        force_noise_std = 0.01
-        [[sensor]]
-        name = "tip"
-        position = [0.99, 0.05, 0.1]
-        noise_std = 1.0e-3
-        [[sensor]]
-        name = "three_quarter"
-        position = [0.75, 0.05, 0.1]
-        noise_std = 1.0e-3
-        [[sensor]]
-        name = "mid_span"
-        position = [0.5, 0.05, 0.1]
-        noise_std = 1.0e-3
-        [[display]]
-        name = "surface"
-        group = "surface"
-        [time]
-        dt = 0.001
-    "#;
+/// The benchmark beam scene (the shared fixture): 1 MPa, a tip load with 0.01 N force noise,
+/// three sensors along the top, the surface displayed, Δt = 1 ms; `mesh_file` is the generated
+/// mesh's name.
+pub fn beam_scene_text(mesh_file: &str) -> String {
+    BeamScene {
+        mesh_file: mesh_file.into(),
+        sensors: vec![
+            ("tip".into(), [0.99, 0.05, 0.1]),
+            ("three_quarter".into(), [0.75, 0.05, 0.1]),
+            ("mid_span".into(), [0.5, 0.05, 0.1]),
+        ],
+        ..BeamScene::default()
+    }
+    .toml()
+}
 
-/// [`BEAM_SCENE`], parsed.
+/// [`beam_scene_text`], parsed.
 pub fn beam_scene() -> Scene {
-    Scene::parse(BEAM_SCENE, Path::new("<benchmark scene>")).expect("the benchmark scene is valid")
+    Scene::parse(
+        &beam_scene_text("generated"),
+        Path::new("<benchmark scene>"),
+    )
+    .expect("the benchmark scene is valid")
 }
 
 /// Full-order figures at one mesh size.

@@ -20,41 +20,15 @@
 //! The step from t_k to t_{k+1} holds f(t_k) (the input f_k of s_{k+1} = Φ s_k + Γ f_k).
 //! Loads the scenario does not name are zero.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use serde::Deserialize;
 
 use crokf_compile::fem::operators::{InputKind, Operators};
 use crokf_compile::scene::Scene;
 
-/// Errors in reading or checking a scenario file; each names the file.
-#[derive(Debug, thiserror::Error)]
-pub enum ScenarioError {
-    /// The file could not be read.
-    #[error("cannot read scenario file {path}: {source}")]
-    Io {
-        /// Scenario path.
-        path: PathBuf,
-        /// Underlying error.
-        source: std::io::Error,
-    },
-    /// TOML syntax or schema error (unknown key, wrong type), with line and column.
-    #[error("{path}: {message}")]
-    Parse {
-        /// Scenario path.
-        path: PathBuf,
-        /// toml's message.
-        message: String,
-    },
-    /// An inconsistent or out-of-range value, naming the entry.
-    #[error("{path}: {what}")]
-    Invalid {
-        /// Scenario path.
-        path: PathBuf,
-        /// What is wrong.
-        what: String,
-    },
-}
+/// Errors in reading or checking a scenario file: the same type as a scene file's.
+pub type ScenarioError = crokf_compile::scene::InputFileError;
 
 /// Run until the state settles.
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -139,6 +113,7 @@ impl Scenario {
     /// Reads and checks a scenario file.
     pub fn read(path: &Path) -> Result<Self, ScenarioError> {
         let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Io {
+            kind: "scenario",
             path: path.to_owned(),
             source,
         })?;

@@ -9,7 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crokf_compile::mesh::procedural::{box_mesh, write_msh22};
+use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
 use crokf_verify::comparison::{
     self, breakdown_rotation, rotation_sweep, Comparison, ComparisonError, ComparisonOptions,
     Gaussian, Progress, SweepPoint,
@@ -26,56 +26,20 @@ fn case_dir(name: &str) -> PathBuf {
 /// The beam scene with process noise `force_noise_std` (N per component) on the tip load and
 /// the end sensor named `tip_name`.
 fn scene_text(force_noise_std: f64, tip_name: &str) -> String {
-    format!(
-        r#"
-[mesh]
-file = "beam.msh"
-units = "m"
-
-[[material]]
-group = "body"
-young_modulus = 1.0e6
-poisson_ratio = 0.3
-density = 1000.0
-
-[damping]
-alpha = 0.5
-beta = 1.0e-3
-
-[[fixed]]
-group = "xmin"
-
-[[load]]
-name = "tip"
-group = "xmax"
-distribution = "area"
-force_noise_std = {force_noise_std:e}
-
-[[sensor]]
-name = "mid"
-position = [0.5, 0.05, 0.09]
-components = ["x", "y", "z"]
-noise_std = 1.0e-3
-
-[[sensor]]
-name = "{tip_name}"
-position = [0.95, 0.05, 0.09]
-components = ["x", "y", "z"]
-noise_std = 1.0e-3
-
-[[display]]
-name = "surface"
-group = "surface"
-
-[[display]]
-name = "end"
-group = "xmax"
-
-[time]
-dt = 0.005
-theta = 1.4
-"#
-    )
+    BeamScene {
+        force_noise_std: Some(force_noise_std),
+        sensors: vec![
+            ("mid".into(), [0.5, 0.05, 0.09]),
+            (tip_name.into(), [0.95, 0.05, 0.09]),
+        ],
+        displays: vec![
+            ("surface".into(), "surface".into()),
+            ("end".into(), "xmax".into()),
+        ],
+        dt: 0.005,
+        ..BeamScene::default()
+    }
+    .toml()
 }
 
 /// Writes the beam scene and a scenario with a downward tip force `force` (N) ramped in over

@@ -148,3 +148,91 @@ pub fn write_msh22(mesh: &Mesh, path: &std::path::Path) -> std::io::Result<()> {
     writeln!(w, "$EndElements")?;
     w.flush()
 }
+
+/// The beam scene shared by tests and benchmarks (one fixture instead of copies): a box of
+/// [`box_mesh`] (groups `body`, `xmin`, `xmax`) clamped at `xmin`, a load group `tip` on `xmax`
+/// spread by area. Values in SI units; [`BeamScene::toml`] gives the scene file's text.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BeamScene {
+    /// `mesh.file`, relative to the scene file.
+    pub mesh_file: String,
+    /// E, Pa.
+    pub young_modulus: f64,
+    /// ν.
+    pub poisson_ratio: f64,
+    /// ρ, kg/m³.
+    pub density: f64,
+    /// Rayleigh α, 1/s.
+    pub alpha: f64,
+    /// Rayleigh β, s.
+    pub beta: f64,
+    /// Force-noise σ of the tip load, N (none: no process noise).
+    pub force_noise_std: Option<f64>,
+    /// `force_model` of the tip load (`"white"` or `"random_walk"`; none: the default).
+    pub force_model: Option<String>,
+    /// Sensors: name and position, m (all three components).
+    pub sensors: Vec<(String, [f64; 3])>,
+    /// Sensor noise σ, m.
+    pub sensor_noise_std: f64,
+    /// Displayed node sets: name and group (or the keyword `surface`).
+    pub displays: Vec<(String, String)>,
+    /// Δt, s.
+    pub dt: f64,
+}
+
+impl Default for BeamScene {
+    /// The benchmark beam: E = 1 MPa, ν = 0.3, ρ = 1000 kg/m³, α = 0.5 1/s, β = 1e-3 s, 0.01 N
+    /// force noise, a `tip` sensor, the surface displayed, Δt = 1 ms.
+    fn default() -> Self {
+        BeamScene {
+            mesh_file: "beam.msh".into(),
+            young_modulus: 1.0e6,
+            poisson_ratio: 0.3,
+            density: 1000.0,
+            alpha: 0.5,
+            beta: 1.0e-3,
+            force_noise_std: Some(0.01),
+            force_model: None,
+            sensors: vec![("tip".into(), [0.99, 0.05, 0.1])],
+            sensor_noise_std: 1.0e-3,
+            displays: vec![("surface".into(), "surface".into())],
+            dt: 1.0e-3,
+        }
+    }
+}
+
+impl BeamScene {
+    /// The scene file's text (TOML).
+    pub fn toml(&self) -> String {
+        use std::fmt::Write as _;
+        let mut s = format!(
+            "[mesh]\nfile = \"{}\"\n[[material]]\ngroup = \"body\"\nyoung_modulus = {:e}\n\
+             poisson_ratio = {:e}\ndensity = {:e}\n[damping]\nalpha = {:e}\nbeta = {:e}\n\
+             [[fixed]]\ngroup = \"xmin\"\n[[load]]\nname = \"tip\"\ngroup = \"xmax\"\n",
+            self.mesh_file,
+            self.young_modulus,
+            self.poisson_ratio,
+            self.density,
+            self.alpha,
+            self.beta
+        );
+        if let Some(sigma) = self.force_noise_std {
+            let _ = writeln!(s, "force_noise_std = {sigma:e}");
+        }
+        if let Some(model) = &self.force_model {
+            let _ = writeln!(s, "force_model = \"{model}\"");
+        }
+        for (name, p) in &self.sensors {
+            let _ = writeln!(
+                s,
+                "[[sensor]]\nname = \"{name}\"\nposition = [{:e}, {:e}, {:e}]\nnoise_std = {:e}",
+                p[0], p[1], p[2], self.sensor_noise_std
+            );
+        }
+        for (name, group) in &self.displays {
+            let _ = writeln!(s, "[[display]]\nname = \"{name}\"\ngroup = \"{group}\"");
+        }
+        let _ = writeln!(s, "[time]\ndt = {:e}", self.dt);
+        s
+    }
+}

@@ -202,13 +202,16 @@ struct BenchArgs {
 }
 
 fn beam(args: &BeamArgs) -> Result<(), String> {
+    if args.tetrahedra == 0 {
+        return Err("--tetrahedra must be ≥ 1".into());
+    }
     let mesh = bench::beam_of_size(args.tetrahedra);
     std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
     let msh = args.out.join("beam.msh");
     procedural::write_msh22(&mesh, &msh).map_err(|e| format!("{}: {e}", msh.display()))?;
     let scene = args.out.join("scene.toml");
-    std::fs::write(&scene, bench::BEAM_SCENE.replace("generated", "beam.msh"))
-        .map_err(|e| format!("{}: {e}", scene.display()))?;
+    write_atomically(&scene, bench::beam_scene_text("beam.msh").as_bytes())
+        .map_err(|e| e.to_string())?;
     println!(
         "wrote {} ({} nodes, {} tetrahedra) and {}",
         msh.display(),
