@@ -111,19 +111,11 @@ impl Mesh {
 
     /// Axis-aligned bounding box `(min, max)` of the nodes of the tetrahedra, mesh units.
     pub fn extent(&self) -> ([f64; 3], [f64; 3]) {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for t in &self.tetrahedra {
-            for &n in &t.nodes {
-                if let Some(p) = self.nodes.get(n) {
-                    for c in 0..3 {
-                        lo[c] = lo[c].min(p[c]);
-                        hi[c] = hi[c].max(p[c]);
-                    }
-                }
-            }
-        }
-        (lo, hi)
+        bounding_box(
+            self.tetrahedra
+                .iter()
+                .flat_map(|t| t.nodes.iter().filter_map(|&n| self.nodes.get(n))),
+        )
     }
 
     /// Signed volume of tetrahedron `i` (mesh units³):
@@ -836,4 +828,28 @@ fn line_of(bytes: &[u8], offset: usize) -> usize {
         .iter()
         .filter(|&&b| b == b'\n')
         .count()
+}
+
+/// Axis-aligned bounding box `(min, max)` of `points` (infinite bounds for no points).
+pub fn bounding_box<'a>(points: impl IntoIterator<Item = &'a [f64; 3]>) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points {
+        for c in 0..3 {
+            lo[c] = lo[c].min(p[c]);
+            hi[c] = hi[c].max(p[c]);
+        }
+    }
+    (lo, hi)
+}
+
+/// Length of the diagonal of the axis-aligned bounding box of `points` (same unit as the points;
+/// 0 for no points). The one place the model's characteristic length is computed: the balancing
+/// weight of rotation rows, the co-rotational Newton floor, the floors of the tier.
+pub fn bounding_diagonal<'a>(points: impl IntoIterator<Item = &'a [f64; 3]>) -> f64 {
+    let (lo, hi) = bounding_box(points);
+    (0..3)
+        .map(|c| (hi[c] - lo[c]).max(0.0).powi(2))
+        .sum::<f64>()
+        .sqrt()
 }

@@ -51,16 +51,12 @@ impl OutputRows {
                     .collect()
             })
             .collect();
-        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-        for e in &fem.elements {
-            for &n in &e.nodes {
-                for c in 0..3 {
-                    lo[c] = lo[c].min(fem.positions[n][c]);
-                    hi[c] = hi[c].max(fem.positions[n][c]);
-                }
-            }
-        }
-        let length_scale = (0..3).map(|c| (hi[c] - lo[c]).powi(2)).sum::<f64>().sqrt();
+        // Over the nodes of the tetrahedra (orphan nodes do not count).
+        let length_scale = crate::mesh::bounding_diagonal(
+            fem.elements
+                .iter()
+                .flat_map(|e| e.nodes.iter().map(|&n| &fem.positions[n])),
+        );
         OutputRows {
             sensors,
             loads,

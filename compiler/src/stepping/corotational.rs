@@ -172,22 +172,6 @@ pub fn element_tangent(
     t
 }
 
-/// Length of the diagonal of the bounding box of `points`, m.
-fn bounding_diagonal(points: &[[f64; 3]]) -> f64 {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in points {
-        for c in 0..3 {
-            lo[c] = lo[c].min(p[c]);
-            hi[c] = hi[c].max(p[c]);
-        }
-    }
-    (0..3)
-        .map(|c| (hi[c] - lo[c]).max(0.0).powi(2))
-        .sum::<f64>()
-        .sqrt()
-}
-
 /// Newton settings of the co-rotational solvers.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NewtonOptions {
@@ -342,7 +326,7 @@ impl CorotationalSimulator {
             a: vec![0.0; n],
             time: 0.0,
             stats: NewtonStats::default(),
-            floor: 16.0 * f64::EPSILON * bounding_diagonal(&fem.positions),
+            floor: 16.0 * f64::EPSILON * crate::mesh::bounding_diagonal(&fem.positions),
         })
     }
 

@@ -331,7 +331,7 @@ pub fn floors(
         .collect();
     let mut simulator =
         CorotationalSimulator::new(&full.fem, full.wilson, NewtonOptions::default())?;
-    let size = bounding_diagonal(&full.fem.positions);
+    let size = crokf_compile::mesh::bounding_diagonal(&full.fem.positions);
     let derivatives =
         basis::modal_derivatives(&full.fem, &mut simulator, &generators, 1e-3 * size)?;
     let largest = options.sizes.iter().copied().max().unwrap_or(0);
@@ -422,22 +422,6 @@ pub fn floors(
         training,
         seconds: [t_reference, t_training, t_bases, t_warped],
     })
-}
-
-/// Length of the diagonal of the bounding box of `points`, m.
-pub fn bounding_diagonal(points: &[[f64; 3]]) -> f64 {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in points {
-        for c in 0..3 {
-            lo[c] = lo[c].min(p[c]);
-            hi[c] = hi[c].max(p[c]);
-        }
-    }
-    (0..3)
-        .map(|c| (hi[c] - lo[c]).max(0.0).powi(2))
-        .sum::<f64>()
-        .sqrt()
 }
 
 /// R̃(ω) v of docs/design.md §5 (the runtime's warp).
