@@ -1,0 +1,62 @@
+//! A few thousand mutated scenes, meshes and CSV files per reader (the long run is the
+//! `crokf-fuzz` binary): no panic, no accepted input that breaks its invariants, and enough
+//! of both outcomes that the mutations reach past the first check.
+
+use crokf_fuzz::{run, Fixtures, Target};
+
+fn check(target: Target, cases: u64, min_accepted: u64, min_refused: u64) {
+    let fixtures = Fixtures::load().expect("fixtures");
+    let t = run(target, cases, 7, &fixtures);
+    println!(
+        "{}: {} cases in {:.2} s: {} accepted, {} refused, {} failures",
+        target.name(),
+        t.cases,
+        t.seconds,
+        t.accepted,
+        t.refused,
+        t.failures.len()
+    );
+    for (case, what, data) in t.failures.iter().take(5) {
+        println!("case {case}: {what}\n{}", String::from_utf8_lossy(data));
+    }
+    assert!(t.failures.is_empty(), "{} failures", t.failures.len());
+    assert!(t.accepted >= min_accepted, "only {} accepted", t.accepted);
+    assert!(t.refused >= min_refused, "only {} refused", t.refused);
+}
+
+#[test]
+fn mutated_scenes() {
+    check(Target::Scene, 5000, 150, 200);
+}
+
+#[test]
+fn mutated_meshes() {
+    check(Target::Mesh, 3000, 200, 200);
+}
+
+#[test]
+fn mutated_csv() {
+    check(Target::Csv, 3000, 200, 200);
+}
+
+/// The seeds themselves are valid, so that mutations start from inputs that get past every check.
+#[test]
+fn seeds_are_accepted() {
+    let fixtures = Fixtures::load().expect("fixtures");
+    for (i, seed) in crokf_fuzz::scene_seeds().iter().enumerate() {
+        let text = String::from_utf8_lossy(seed);
+        let outcome = crokf_fuzz::scene(seed, &fixtures.mesh).expect("invariants");
+        assert_eq!(
+            outcome,
+            crokf_fuzz::Outcome::Accepted,
+            "scene seed {i}:\n{text}"
+        );
+    }
+    for (name, bytes) in crokf_fuzz::mesh_seeds() {
+        let outcome = crokf_fuzz::mesh(&bytes, &name).expect("invariants");
+        assert_eq!(outcome, crokf_fuzz::Outcome::Accepted, "mesh seed {name}");
+    }
+    let (inputs, measurements) = crokf_fuzz::csv_seeds(&fixtures.model);
+    let outcome = crokf_fuzz::csv(&inputs, &measurements, &fixtures.model).expect("invariants");
+    assert_eq!(outcome, crokf_fuzz::Outcome::Accepted);
+}
