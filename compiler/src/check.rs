@@ -46,7 +46,20 @@ pub fn check(model_path: &Path, scene_path: &Path) -> Result<CheckOutcome, Compi
     let fresh_digest = full.digest();
     let mut why = Vec::new();
     if d.scene_sha256 != fresh_digest.scene_sha256 {
-        why.push(format!("{} changed", scene_path.display()));
+        let lists: Vec<String> = full
+            .node_lists
+            .iter()
+            .map(|(p, _)| p.display().to_string())
+            .collect();
+        why.push(if lists.is_empty() {
+            format!("{} changed", scene_path.display())
+        } else {
+            format!(
+                "{} or its node lists ({}) changed",
+                scene_path.display(),
+                lists.join(", ")
+            )
+        });
     }
     if d.mesh_sha256 != fresh_digest.mesh_sha256 {
         why.push(format!("{} changed", full.scene.mesh_path().display()));

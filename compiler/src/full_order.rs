@@ -25,6 +25,8 @@ pub struct FullOrder {
     pub mesh: Mesh,
     /// Raw mesh bytes (for the digest).
     pub mesh_bytes: Vec<u8>,
+    /// The scene's `node_list` files and their bytes, in scene order (for the digest).
+    pub node_lists: Vec<(std::path::PathBuf, Vec<u8>)>,
     /// Assembled K, M, DOF map.
     pub fem: FemModel,
     /// Loads, sensors, node sets.
@@ -60,21 +62,44 @@ impl FullOrder {
             })
             .map_err(fem_err)?;
         let wilson = WilsonTheta::from_time(&scene.scene.time);
+        let node_lists = scene
+            .scene
+            .node_list_files()
+            .into_iter()
+            .map(|path| {
+                std::fs::read(path)
+                    .map(|bytes| (path.to_owned(), bytes))
+                    .map_err(|source| CompileError::Io {
+                        path: path.to_owned(),
+                        source,
+                    })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
         Ok(FullOrder {
             scene,
             mesh,
             mesh_bytes,
+            node_lists,
             fem,
             operators,
             wilson,
         })
     }
 
-    /// Digest of the inputs: mesh bytes, scene bytes, compiler version.
+    /// Digest of the inputs: mesh bytes, scene bytes, compiler version. The scene's digest
+    /// covers the `node_list` files it names: SHA-256 of the scene text alone when it names
+    /// none, else of the scene text followed, per file in scene order, by a NUL and the file's
+    /// bytes (the names are in the scene text; the resolved paths would depend on the folder
+    /// the compiler ran in), so `--check` sees a node list change.
     pub fn digest(&self) -> fmt::InputsDigest {
+        let mut scene = self.scene.text.as_bytes().to_vec();
+        for (_, bytes) in &self.node_lists {
+            scene.push(0);
+            scene.extend_from_slice(bytes);
+        }
         fmt::InputsDigest {
             mesh_sha256: fmt::sha256_hex(&self.mesh_bytes),
-            scene_sha256: fmt::sha256_hex(self.scene.text.as_bytes()),
+            scene_sha256: fmt::sha256_hex(&scene),
             compiler_version: COMPILER_VERSION.to_owned(),
         }
     }

@@ -99,6 +99,10 @@ impl<'a> Reductor<'a> {
                 )
             })
             .map_err(reduce_err)?;
+        let mut basis = basis;
+        if let Some(note) = unresolved_modes_note(&basis, full.wilson.dt) {
+            basis.warnings.push(note);
+        }
         let system = timer
             .stage("modal_system", || {
                 ModalSystem::new(
@@ -226,4 +230,20 @@ impl<'a> Reductor<'a> {
             .map(|(&f, _)| f)
             .fold(0.0, f64::max)
     }
+}
+
+/// A warning when Δt resolves none of the kept vibration modes: the lowest kept mode's period
+/// spans fewer than 4 steps (f > 1/(4Δt), the default cut-off of the modal basis), so
+/// Wilson-θ damps every kept mode numerically and the model is quasi-static at best.
+fn unresolved_modes_note(basis: &reduce::ModalBasis, dt: f64) -> Option<String> {
+    let lowest = *basis.frequencies_hz[..basis.n_eigenmodes].first()?;
+    let resolved = 0.25 / dt;
+    (lowest > resolved).then(|| {
+        format!(
+            "time.dt = {dt:e} s resolves none of the kept vibration modes: the lowest is \
+             {lowest:.4} Hz, above 1/(4Δt) = {resolved:.4e} Hz, so Wilson-θ damps every kept mode \
+             numerically; for dynamics choose dt ≤ {:.3e} s",
+            0.25 / lowest
+        )
+    })
 }

@@ -822,6 +822,25 @@ impl Scene {
         Ok(scene)
     }
 
+    /// The `node_list` files the scene's selections name (resolved against the scene's folder),
+    /// in scene order, each once.
+    pub fn node_list_files(&self) -> Vec<&Path> {
+        let m = self.materials.iter().map(|x| &x.select);
+        let f = self.fixed.iter().map(|x| &x.select);
+        let l = self.loads.iter().map(|x| &x.select);
+        let n = self.force_noise.iter().map(|x| &x.select);
+        let d = self.display.iter().map(|x| &x.select);
+        let mut files: Vec<&Path> = Vec::new();
+        for sel in m.chain(f).chain(l).chain(n).chain(d).flatten().flatten() {
+            if let Some(file) = sel.node_list.as_deref() {
+                if !files.contains(&file) {
+                    files.push(file);
+                }
+            }
+        }
+        files
+    }
+
     fn selectors_mut(&mut self) -> impl Iterator<Item = &mut Selector> {
         let m = self.materials.iter_mut().map(|x| &mut x.select);
         let f = self.fixed.iter_mut().map(|x| &mut x.select);

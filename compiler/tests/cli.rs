@@ -78,3 +78,33 @@ fn outputs_that_are_inputs_or_collide_are_refused_before_any_work() {
         .collect();
     assert!(strays.is_empty(), "stray temporary files: {strays:?}");
 }
+
+/// A node-list file is part of the model's input digest: `--check` reports the model stale
+/// when the list changes, and up to date when it is restored.
+#[test]
+fn check_sees_a_changed_node_list() {
+    let dir = case_dir("node_list_digest");
+    let scene = scene_in(&dir);
+    let mut text = std::fs::read_to_string(&scene).expect("scene");
+    text.push_str(
+        "[[load]]\nname = \"push\"\ngroup = \"body\"\ndistribution = \"uniform\"\n\
+         [[display]]\nname = \"few\"\nselect = [{ node_list = \"few.txt\" }]\n",
+    );
+    std::fs::write(&scene, text).expect("write scene");
+    let list = dir.join("few.txt");
+    std::fs::write(&list, "1 2 3\n").expect("write list");
+    let model = dir.join("model.crokf");
+    let (ok, err) = compile(&[&scene, Path::new("-o"), &model]);
+    assert!(ok, "{err}");
+    let check = |expect_ok: bool| {
+        let (ok, err) = compile(&[Path::new("--check"), &model, &scene]);
+        assert_eq!(ok, expect_ok, "{err}");
+        err
+    };
+    check(true);
+    std::fs::write(&list, "1 2 3 4\n").expect("change list");
+    let err = check(false);
+    assert!(err.contains("STALE") && err.contains("few.txt"), "{err}");
+    std::fs::write(&list, "1 2 3\n").expect("restore list");
+    check(true);
+}

@@ -122,8 +122,7 @@ fn run(args: &Args) -> Result<ExitCode, String> {
     if let Some(dir) = &args.export_matrices {
         let mut timer = StageTimer::default();
         let full = FullOrder::build(&args.scene, &mut timer).map_err(|e| e.to_string())?;
-        export_matrices(&full.fem, &full.operators, dir)
-            .map_err(|e| format!("{}: {e}", dir.display()))?;
+        export_matrices(&full.fem, &full.operators, dir).map_err(|e| e.to_string())?;
         eprintln!(
             "wrote K, M, C ({n}×{n}), B ({n}×{m}), H and dofs.csv to {}",
             dir.display(),

@@ -371,6 +371,17 @@ pub fn modal_basis(
     let limit = options.modes.unwrap_or(cap).min(cap);
     let lambda_cut = options.max_frequency_hz.map(|f| (2.0 * PI * f).powi(2));
     let mut warnings = Vec::new();
+    if let Some(asked) = options.modes.filter(|&m| m > n) {
+        warnings.push(format!(
+            "modes = {asked} asks for more vibration modes than the mesh has free DOFs ({n}): \
+             capped at {limit}{}",
+            if limit == n {
+                " (every mode: a dense eigensolve of the whole model)"
+            } else {
+                ""
+            }
+        ));
+    }
     let mut timings = ModalTimings::default();
 
     let dense = n <= options.dense_threshold || 2 * limit + 4 * options.block_size >= n;
