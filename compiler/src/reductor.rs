@@ -19,8 +19,20 @@ use crate::reduced::ReducedModel;
 use crate::report::StageTimer;
 use crate::scene::ForceModel;
 
-/// Default tolerance σ_{r+1}/σ₁ when neither order nor tolerance is given.
-pub const DEFAULT_TOLERANCE: f64 = 1e-4;
+/// Default tolerance σ_{r+1}/σ₁ when neither order nor tolerance is given. Chosen from the
+/// error it costs (`cargo run --release -p crokf-verify --example mode_budget -- SCENE` on the
+/// three example scenes): 1e-3 gives r = 22 / 16 / 24 (cantilever / meniscus / tentacle) with
+/// a measured error of at most 4.9e-4 / 3.2e-3 / 1.2e-3 against the full-order linear model,
+/// an order of magnitude below the runtime's 2–5 % accuracy targets; 1e-4 bought r = 38 / 25 /
+/// 36 for 1.5e-4 / 4.7e-4 / 3.6e-4, and 1e-2 costs up to 1.7e-2 (meniscus).
+pub const DEFAULT_TOLERANCE: f64 = 1e-3;
+
+/// `[reduction] max_frequency = f`: the modal basis keeps every mode up to this multiple of f.
+pub const MAX_FREQUENCY_MODE_FACTOR: f64 = 2.0;
+
+/// Cap on the number of modes under `max_frequency` (a guard against a mesh with thousands of
+/// modes below the scene's frequency; the report says when it bites).
+pub const MAX_FREQUENCY_MODE_CAP: usize = 400;
 
 /// Cap on the number of vibration modes when the scene gives no count. On the 50k-tetrahedron
 /// beam, 60 modes instead of 200 cut the modal stage from 61 s to 5 s and left the measured
@@ -49,8 +61,9 @@ pub struct Reductor<'a> {
 }
 
 impl<'a> Reductor<'a> {
-    /// Builds the output layout, the modal basis (`modes` vibration modes, or every mode up to a
-    /// quarter of the sampling frequency capped at [`DEFAULT_MAX_MODES`]) and the modal system.
+    /// Builds the output layout, the modal basis (`modes` vibration modes; else every mode up to
+    /// twice the scene's `max_frequency`; else every mode up to a quarter of the sampling
+    /// frequency capped at [`DEFAULT_MAX_MODES`]) and the modal system.
     /// Stage costs go to `timer` ("outputs", "modes", "modal_system").
     pub fn new(
         full: &'a FullOrder,
@@ -75,18 +88,25 @@ impl<'a> Reductor<'a> {
             .map(|c| c.column.as_slice())
             .collect();
         let b: Mat<f64> = columns(&input_columns, n);
-        let modes = modes.or(full.scene.scene.reduction.modes);
+        let spec = full.scene.scene.reduction;
+        let modes = modes.or(spec.modes);
+        let resolved = 0.25 / full.wilson.dt;
+        let (max_frequency_hz, max_modes) = match (modes, spec.max_frequency) {
+            // An explicit count: exactly that many.
+            (Some(m), _) => (None, m.max(1)),
+            // The scene's load spectrum: every mode up to twice its highest frequency.
+            (None, Some(f)) => (
+                Some((MAX_FREQUENCY_MODE_FACTOR * f).min(resolved)),
+                MAX_FREQUENCY_MODE_CAP,
+            ),
+            // Otherwise every mode up to half the Nyquist frequency (Wilson-θ damps the rest
+            // numerically), capped; static correction covers the quasi-static rest.
+            (None, None) => (Some(resolved), DEFAULT_MAX_MODES),
+        };
         let modal_options = reduce::ModalOptions {
             modes,
-            // Without an explicit count: every mode up to half the Nyquist frequency (Wilson-θ
-            // damps the rest numerically), capped; static correction covers the quasi-static
-            // rest.
-            max_frequency_hz: if modes.is_some() {
-                None
-            } else {
-                Some(0.25 / full.wilson.dt)
-            },
-            max_modes: modes.unwrap_or(DEFAULT_MAX_MODES).max(1),
+            max_frequency_hz,
+            max_modes,
             ..reduce::ModalOptions::default()
         };
         let basis = timer
@@ -201,7 +221,10 @@ impl<'a> Reductor<'a> {
                 .max(1e-9);
             let dt = self.full.wilson.dt;
             let steps = ((2.0 / (f1 * dt)).ceil() as usize).clamp(100, MEASURE_MAX_STEPS);
-            let f_high = (5.0 * f1).min(0.2 / dt);
+            let f_high = match self.full.scene.scene.reduction.max_frequency {
+                Some(f) => f,
+                None => (5.0 * f1).min(0.2 / dt),
+            };
             let tests = accuracy::standard_tests(self.full, steps, f_high);
             let responses =
                 ReferenceResponses::simulate(self.full, &self.rows, tests).map_err(|source| {

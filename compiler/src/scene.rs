@@ -547,6 +547,11 @@ pub struct ReductionSpec {
     pub tolerance: Option<f64>,
     /// Number of vibration modes m kept before balancing.
     pub modes: Option<usize>,
+    /// Highest frequency of the loads (and of the response the model must follow), Hz: the
+    /// modal basis keeps every vibration mode up to twice this frequency, without the default
+    /// cap of 60 modes, and the measured error's chirp sweeps up to it (docs/design.md §4).
+    /// In (0, 1/(4Δt)]; exclusive with `modes`.
+    pub max_frequency: Option<f64>,
 }
 
 /// A scene, as written in the file.
@@ -1019,6 +1024,20 @@ impl Scene {
         }
         if self.reduction.order == Some(0) {
             return Err("reduction.order must be ≥ 1".into());
+        }
+        if let Some(f) = self.reduction.max_frequency {
+            let highest = 0.25 / self.time.dt;
+            if !(f > 0.0 && f <= highest) {
+                return Err(format!(
+                    "reduction.max_frequency = {f} Hz is out of range: it must be > 0 and at most \
+                     1/(4 time.dt) = {highest:.6e} Hz (Wilson-θ damps faster modes numerically)"
+                ));
+            }
+            if self.reduction.modes.is_some() {
+                return Err(
+                    "reduction: give either modes (a count) or max_frequency (Hz), not both".into(),
+                );
+            }
         }
         Ok(())
     }
