@@ -67,8 +67,17 @@ pub fn compile_reduced(
 ) -> Result<Compiled, CompileError> {
     let full = reductor.full;
     let ops = &full.operators;
-    let order = reductor.order(options.order, options.tolerance);
-    let reduced = timer.stage("balanced_truncation", || reductor.reduce(order))?;
+    if !options.skip_measured_error {
+        // The full-order reference first: the default order rule measures candidate orders.
+        timer.stage("full_order_reference", || reductor.reference().map(|_| ()))?;
+    }
+    let (reduced, order_note) = timer.stage("balanced_truncation", || {
+        reductor.reduce_by_rule(
+            options.order,
+            options.tolerance,
+            !options.skip_measured_error,
+        )
+    })?;
     let schedule = timer.stage("kalman", || reductor.kalman(&reduced))?;
 
     // Scene warnings, mesh notes and what each selection took (fem, operators) come first.
@@ -76,6 +85,7 @@ pub fn compile_reduced(
     notes.extend(full.operators.notes.iter().cloned());
     notes.extend(reductor.basis.warnings.iter().cloned());
     notes.extend(reduced.warnings.iter().cloned());
+    notes.extend(order_note);
     if ops.noise.is_empty() {
         notes.push("no process noise declared (force_noise_std / force_noise): Q = 0, so the steady-state gain is zero and measurements are ignored".to_owned());
     }

@@ -13,7 +13,11 @@ fn beam_dir(name: &str, extra: &str) -> PathBuf {
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("mode_budget_{name}"));
     std::fs::remove_dir_all(&dir).ok();
     std::fs::create_dir_all(&dir).expect("create test directory");
-    write_msh22(&box_mesh([12, 1, 1], [1.0, 0.1, 0.1]), &dir.join("beam.msh")).expect("mesh");
+    write_msh22(
+        &box_mesh([12, 1, 1], [1.0, 0.1, 0.1]),
+        &dir.join("beam.msh"),
+    )
+    .expect("mesh");
     let text = BeamScene {
         dt: 1e-5,
         ..BeamScene::default()
@@ -34,7 +38,10 @@ fn max_frequency_keeps_every_mode_up_to_twice_it_beyond_the_default_cap() {
     assert_eq!(f.len(), 90);
     // Halfway between modes 70 and 71 (1-based) at 2f: 70 modes expected, above the cap of 60.
     let max_frequency = 0.25 * (f[69] + f[70]);
-    let scene = beam_dir("budget", &format!("[reduction]\nmax_frequency = {max_frequency:e}\n"));
+    let scene = beam_dir(
+        "budget",
+        &format!("[reduction]\nmax_frequency = {max_frequency:e}\n"),
+    );
     let full = FullOrder::build(&scene, &mut timer).expect("front end");
     let reductor = Reductor::new(&full, None, &mut timer).expect("modes");
     let kept = &reductor.basis.frequencies_hz[..reductor.basis.n_eigenmodes];
