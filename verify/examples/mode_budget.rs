@@ -82,7 +82,11 @@ fn main() -> ExitCode {
             let get = |k: &str| errors.get(k).copied().unwrap_or(f64::NAN);
             println!(
                 "| {} | {:.1} | {tol:.0e} | {r} | {next:.1e} | {:.1e} | {:.1e} | {modes_s:.1} |",
-                if m == 0 { "default".to_string() } else { m.to_string() },
+                if m == 0 {
+                    "default".to_string()
+                } else {
+                    m.to_string()
+                },
                 reductor.highest_kept_frequency_hz(),
                 get("step"),
                 get("chirp"),
