@@ -27,6 +27,7 @@
 pub mod msh1;
 mod msh2;
 mod msh41;
+mod msh_text;
 pub mod procedural;
 pub mod selection;
 pub mod vtk;
