@@ -84,7 +84,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .collect::<Vec<_>>()
     );
     println!(
-        "| r | DC error {} (per load channel x,y,z) | σ_min/σ_max of σ-scaled marker DC gain | σ(f) posterior (N) | ρ closed loop | slowest pole τ (steps) | meas. err step |",
+        "| r | DC error {} (per load channel x,y,z) | σ_min/σ_max of σ-scaled marker DC gain | singular values of σ-scaled one-step H G (1/N) | σ(f) posterior (N) | ρ closed loop | slowest pole τ (steps) | meas. err step |",
         groups.join(" / ")
     );
     for &r in &orders {
@@ -121,6 +121,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 h_dc[(m, c)] = y[(reductor.rows.sensor_row(s) + comp, 0)] / sigma[m];
             }
         }
+        // One-step input gain H G (σ-scaled): Gillijns–De Moor's unbiased input estimator needs
+        // rank(H G) = inputs and amplifies the noise by its inverse.
+        let mut hg = Mat::<f64>::zeros(reductor.measurements.len(), load_channels.len());
+        for (c, &j) in load_channels.iter().enumerate() {
+            for (m, &(s, comp)) in reductor.measurements.channels.iter().enumerate() {
+                let row = reductor.rows.sensor_row(s) + comp;
+                hg[(m, c)] = (0..r0)
+                    .map(|i| reduced.outputs[(row, i)] * reduced.input[(i, j)])
+                    .sum::<f64>()
+                    / sigma[m];
+            }
+        }
+        let hg_sv = hg.singular_values().map_err(|e| format!("{e:?}"))?;
         let sv = h_dc.singular_values().map_err(|e| format!("{e:?}"))?;
         let cond = sv.last().copied().unwrap_or(0.0) / sv.first().copied().unwrap_or(1.0);
         let dc: Vec<String> = groups
@@ -149,10 +162,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         };
         let measured = reductor.measured_errors(&reduced)?;
         println!(
-            "| {r0} | {} | {:.2e} (σ {}) | {force_std} | {rho} | {tau} | {:.1e} |",
+            "| {r0} | {} | {:.2e} (σ {}) | {} | {force_std} | {rho} | {tau} | {:.1e} |",
             dc.join(" / "),
             cond,
             sv.iter()
+                .map(|v| format!("{v:.1e}"))
+                .collect::<Vec<_>>()
+                .join(","),
+            hg_sv
+                .iter()
                 .map(|v| format!("{v:.1e}"))
                 .collect::<Vec<_>>()
                 .join(","),
