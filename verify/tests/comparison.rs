@@ -161,9 +161,23 @@ fn check_svg(svg: &str) -> usize {
     markers
 }
 
-/// Table rows of the markdown (lines starting with `|`, minus header and separator).
+/// Rows of the markdown's first table (lines starting with `|`, minus header and separator,
+/// up to the first line that does not).
 fn markdown_rows(md: &str) -> Vec<&str> {
-    md.lines().filter(|l| l.starts_with('|')).skip(2).collect()
+    md.lines()
+        .skip_while(|l| !l.starts_with('|'))
+        .take_while(|l| l.starts_with('|'))
+        .skip(2)
+        .collect()
+}
+
+/// Rows of the markdown's consistency table (the second table).
+fn consistency_rows(md: &str) -> Vec<&str> {
+    md.lines()
+        .skip_while(|l| !l.starts_with("| r | loads"))
+        .take_while(|l| l.starts_with('|'))
+        .skip(2)
+        .collect()
 }
 
 #[test]
@@ -228,6 +242,12 @@ fn tiny_load_runtime_error_matches_compile_report_and_linear_reference() {
     assert!(rows[2].starts_with("| runtime | 4 |") && rows[3].starts_with("| runtime | 8 |"));
     for row in &rows {
         assert_eq!(row.matches('|').count(), 9, "8 columns: {row}");
+    }
+    // Consistency: one row with the loads given and one withheld per order, 7 columns.
+    let rows = consistency_rows(&md);
+    assert_eq!(rows.len(), 2 * 2, "{md}");
+    for row in &rows {
+        assert_eq!(row.matches('|').count(), 8, "7 columns: {row}");
     }
     let csv = c.csv();
     let lines: Vec<&str> = csv.lines().collect();
