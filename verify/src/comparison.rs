@@ -156,8 +156,11 @@ pub struct FullOrderRow {
 pub struct ReducedRow {
     /// Order asked for.
     pub requested_order: usize,
-    /// Order of the compiled model (capped at the numerical rank by the compiler).
+    /// State dimension of the compiled model: balanced order (capped at the numerical rank by
+    /// the compiler) plus `force_states`.
     pub order: usize,
+    /// Random-walk force states appended to the balanced ones (3 per such load group).
+    pub force_states: usize,
     /// Median runtime step, predict + update with the measurements, s (batched).
     pub step_s: f64,
     /// Median runtime step without measurements (predict + empty update), s (batched).
@@ -923,6 +926,7 @@ pub fn run(
             Ok(ReducedRow {
                 requested_order: order,
                 order: r,
+                force_states: r.saturating_sub(model.report.order as usize),
                 step_s,
                 open_loop_step_s,
                 error: open.display.relative(),

@@ -142,7 +142,7 @@ fn report(args: &ReportArgs) -> Result<(), String> {
     let mut tip_plots = Vec::new();
     for (i, row) in result.reduced.iter().enumerate() {
         if let Some(svg) = result.tip_svg(i) {
-            let name = format!("tip_sigma_r{}.svg", row.order);
+            let name = format!("tip_sigma_r{}.svg", row.order - row.force_states);
             staged
                 .write(&name, svg.as_bytes())
                 .map_err(|e| e.to_string())?;
