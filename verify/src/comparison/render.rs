@@ -734,10 +734,9 @@ impl Comparison {
             let axis = ["x", "y", "z"][c];
             let _ = writeln!(
                 s,
-                r#"<text x="{}" y="{:.1}" text-anchor="end">{axis}: ±{} m</text>"#,
+                r#"<text x="{}" y="{:.1}" text-anchor="end">{axis}: ±{ymax:.2e} m</text>"#,
                 LEFT - 6.0,
                 top + 14.0,
-                format!("{ymax:.2e}")
             );
         }
         let bottom = TOP + 3.0 * PANEL + 2.0 * GAP;
