@@ -74,7 +74,9 @@ pub fn check(model_path: &Path, scene_path: &Path) -> Result<CheckOutcome, Compi
         return Ok(CheckOutcome::Stale(why.join("; ")));
     }
     let options = CompileOptions {
-        order: Some(model.r()),
+        // The balanced order: r() also counts the random-walk force states appended after
+        // the truncation (docs/design.md §11).
+        order: Some(model.report.order as usize),
         skip_measured_error: model.report.measured_errors.is_empty(),
         ..CompileOptions::default()
     };

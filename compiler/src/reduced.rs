@@ -2,6 +2,7 @@
 //! output layout of [`OutputRows`](crate::outputs::OutputRows), unweighted, with its input
 //! channels split into deterministic inputs and process noise, and what the truncation measured.
 
+use faer::linalg::solvers::Solve;
 use faer::Mat;
 
 use crate::fem::operators::{InputKind, Operators};
@@ -103,9 +104,24 @@ impl ReducedModel {
 
     /// Augments the state with the (local-frame) force of each random-walk load group
     /// (3 states each): x_aug = [x; f], F_aug = [[F, G_g], [0, I]], G_aug = [G; 0], the group's
-    /// white-noise channels replaced by N(0, σ²I) increments of f, outputs padded with zeros.
+    /// white-noise channels replaced by N(0, σ²I) increments of f (docs/design.md §6, §11).
     /// `loads` lists (load group index, σ in N per step).
-    pub fn with_force_states(self, ops: &Operators, loads: &[(usize, f64)]) -> Self {
+    ///
+    /// Output columns of the force states: with `static_outputs` (p × deterministic inputs,
+    /// the full-order static response K⁻¹b_j of each input channel on every output row,
+    /// unweighted, in [`OutputRows::weighted`](crate::outputs::OutputRows::weighted) order)
+    /// they hold the static residual D_j = y_static,j − C (I − F)⁻¹ G_j, so that the augmented
+    /// model's steady response to a constant force, C (I − F)⁻¹ G_j + D_j, is the full-order
+    /// one on every output (the mode-acceleration / residual-flexibility correction applied to
+    /// the balanced truncation). Without it (`None`) the columns are zero: a load direction the
+    /// truncation does not keep (the axial tip force of the cantilever at r ≤ 16: 100 % static
+    /// error) is then unobservable through the markers and its random walk drifts.
+    pub fn with_force_states(
+        self,
+        ops: &Operators,
+        loads: &[(usize, f64)],
+        static_outputs: Option<&Mat<f64>>,
+    ) -> Self {
         let r = self.transition.nrows();
         let extra = 3 * loads.len();
         let r2 = r + extra;
@@ -119,11 +135,7 @@ impl ReducedModel {
             .copy_from(&self.input);
         for (k, &(load, _)) in loads.iter().enumerate() {
             for c in 0..3 {
-                let channel = ops
-                    .inputs
-                    .iter()
-                    .position(|ch| ch.kind == InputKind::Load { load, component: c })
-                    .expect("every load group has three input channels");
+                let channel = load_channel(ops, load, c);
                 let state = r + 3 * k + c;
                 for i in 0..r {
                     transition[(i, state)] = self.input[(i, channel)];
@@ -149,10 +161,25 @@ impl ReducedModel {
                 noise_input[(r + 3 * k + c, kept.len() + 3 * k + c)] = sigma;
             }
         }
-        let mut outputs = Mat::<f64>::zeros(self.outputs.nrows(), r2);
-        outputs
-            .submatrix_mut(0, 0, self.outputs.nrows(), r)
-            .copy_from(&self.outputs);
+        let p = self.outputs.nrows();
+        let mut outputs = Mat::<f64>::zeros(p, r2);
+        outputs.submatrix_mut(0, 0, p, r).copy_from(&self.outputs);
+        if let Some(exact) = static_outputs {
+            // Steady state of the balanced part per input channel: (I − F)⁻¹ G (r × m). ρ(F) < 1
+            // (refused otherwise by the truncation), so I − F is invertible.
+            let lu = (Mat::<f64>::identity(r, r) - &self.transition).partial_piv_lu();
+            let steady = lu.solve(&self.input);
+            let reduced_static = &self.outputs * &steady;
+            for (k, &(load, _)) in loads.iter().enumerate() {
+                for c in 0..3 {
+                    let channel = load_channel(ops, load, c);
+                    for i in 0..p {
+                        outputs[(i, r + 3 * k + c)] =
+                            exact[(i, channel)] - reduced_static[(i, channel)];
+                    }
+                }
+            }
+        }
         ReducedModel {
             transition,
             input,
@@ -161,4 +188,15 @@ impl ReducedModel {
             ..self
         }
     }
+}
+
+/// The deterministic input channel of component `c` of load group `load`.
+///
+/// # Panics
+/// If the operators have no such channel (every load group has three by construction).
+fn load_channel(ops: &Operators, load: usize, c: usize) -> usize {
+    ops.inputs
+        .iter()
+        .position(|ch| ch.kind == InputKind::Load { load, component: c })
+        .expect("every load group has three input channels")
 }

@@ -6,6 +6,7 @@
 use std::cell::OnceCell;
 use std::collections::BTreeMap;
 
+use faer::linalg::solvers::Solve as _;
 use faer::sparse::SparseColMat;
 use faer::Mat;
 
@@ -67,6 +68,7 @@ pub struct Reductor<'a> {
     /// The modal Wilson-θ system with weighted outputs.
     pub system: ModalSystem,
     reference: OnceCell<ReferenceResponses>,
+    static_outputs: OnceCell<Mat<f64>>,
 }
 
 impl<'a> Reductor<'a> {
@@ -152,6 +154,7 @@ impl<'a> Reductor<'a> {
             basis,
             system,
             reference: OnceCell::new(),
+            static_outputs: OnceCell::new(),
         })
     }
 
@@ -191,7 +194,8 @@ impl<'a> Reductor<'a> {
         Ok(if random_walk.is_empty() {
             reduced
         } else {
-            reduced.with_force_states(ops, &random_walk)
+            let exact = self.static_outputs()?;
+            reduced.with_force_states(ops, &random_walk, Some(exact))
         })
     }
 
@@ -258,6 +262,40 @@ impl<'a> Reductor<'a> {
                 tried.join("; ")
             )),
         ))
+    }
+
+    /// The full-order static response K⁻¹ b_j of every deterministic input channel j on every
+    /// output row (p × m, unweighted, [`OutputRows::weighted`] order; m per channel, or per N
+    /// for load channels), computed once (one sparse Cholesky of K) on first use. The force
+    /// states' static residual is built from it (docs/design.md §11).
+    pub fn static_outputs(&self) -> Result<&Mat<f64>, CompileError> {
+        if let Some(s) = self.static_outputs.get() {
+            return Ok(s);
+        }
+        let fem = &self.full.fem;
+        let inputs = &self.full.operators.inputs;
+        let weighted = self.rows.weighted();
+        let n = fem.dof_count();
+        let llt =
+            fem.stiffness
+                .sp_cholesky(faer::Side::Lower)
+                .map_err(|e| CompileError::Stepping {
+                    path: self.full.scene_path().to_owned(),
+                    source: crate::stepping::SteppingError::NotPositiveDefinite {
+                        what: "stiffness K (static response of the force states)".into(),
+                        n,
+                        detail: format!("{e:?}"),
+                    },
+                })?;
+        let mut u = Mat::from_fn(n, inputs.len(), |i, j| inputs[j].column[i]);
+        llt.solve_in_place(u.as_mut());
+        let mut out = Mat::<f64>::zeros(weighted.len(), inputs.len());
+        for j in 0..inputs.len() {
+            for (i, (row, _)) in weighted.iter().enumerate() {
+                out[(i, j)] = row.iter().map(|&(d, w)| w * u[(d, j)]).sum();
+            }
+        }
+        Ok(self.static_outputs.get_or_init(|| out))
     }
 
     /// The steady-state (periodic) Kalman schedule of a reduced model (docs/design.md §6).

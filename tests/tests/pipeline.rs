@@ -24,7 +24,9 @@ fn compiling_twice_gives_byte_identical_files_that_decode() {
     assert_eq!(a.bytes, b.bytes);
     let model = crokf_formats::decode(&a.bytes).unwrap();
     assert_eq!(model, a.model);
-    assert_eq!(model.state_dim, 12);
+    // 12 balanced states + 3 random-walk force states of the tip load (scene.toml).
+    assert_eq!(model.state_dim, 12 + 3);
+    assert_eq!(model.report.order, 12);
 }
 
 #[test]

@@ -45,10 +45,13 @@ use crokf_compile::{CompileError, CompileOptions, FullOrder, Reductor};
 
 use crate::bench::median_seconds;
 
+mod consistency;
 mod metrics;
 mod render;
 
 use crate::scenario::{Horizon, Scenario, ScenarioError};
+pub use consistency::{chi_square_quantile, ChiSquare, Consistency, TipSample};
+use consistency::{Accumulator, Blocks};
 use metrics::ErrorSum;
 pub use metrics::{breakdown_rotation, relative_l2, rotation_angle, Gaussian};
 pub use render::{format_seconds, sweep_markdown};
@@ -153,8 +156,11 @@ pub struct FullOrderRow {
 pub struct ReducedRow {
     /// Order asked for.
     pub requested_order: usize,
-    /// Order of the compiled model (capped at the numerical rank by the compiler).
+    /// State dimension of the compiled model: balanced order (capped at the numerical rank by
+    /// the compiler) plus `force_states`.
     pub order: usize,
+    /// Random-walk force states appended to the balanced ones (3 per such load group).
+    pub force_states: usize,
     /// Median runtime step, predict + update with the measurements, s (batched).
     pub step_s: f64,
     /// Median runtime step without measurements (predict + empty update), s (batched).
@@ -167,6 +173,16 @@ pub struct ReducedRow {
     pub filtered_error: f64,
     /// Filtered: relative L2 error at the tip vs the co-rotational reference.
     pub filtered_tip_error: f64,
+    /// Filtered with the loads withheld from the runtime (only the markers carry the force):
+    /// relative L2 error over displayed nodes vs the co-rotational reference. Equal to
+    /// `filtered_error` when the whole comparison withholds the loads.
+    pub withheld_filtered_error: f64,
+    /// Same at the tip.
+    pub withheld_filtered_tip_error: f64,
+    /// NIS, NEES, 2σ coverage and the tip trace of the filtered run (docs/design.md §11).
+    pub consistency: Consistency,
+    /// The same for the run with the loads withheld.
+    pub withheld_consistency: Consistency,
     /// Open loop: relative L2 error over displayed nodes vs the LINEAR full-order reference.
     pub error_vs_linear: f64,
     /// The compiler's measured errors (empty unless `measure_compile_error`).
@@ -523,6 +539,7 @@ fn run_runtime(
     measurements: &[Vec<Option<f64>>],
     corot: &ReferenceRun,
     linear: Option<&ReferenceRun>,
+    mut consistency: Option<&mut Accumulator>,
     phase: &str,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<RunErrors, ComparisonError> {
@@ -535,6 +552,9 @@ fn run_runtime(
         sets.iter().map(|s| vec![0.0; 3 * s.nodes.len()]).collect();
     let mut display = vec![0.0; nd];
     let mut sensors = vec![0.0; ns];
+    let mut std_buffers = set_buffers.clone();
+    let mut std_display = vec![0.0; nd];
+    let mut predicted = vec![0.0; est.model().measurements.len()];
     let mut errors = RunErrors::default();
     let steps = setup.steps;
     let report_every = (steps / 20).max(1);
@@ -545,8 +565,23 @@ fn run_runtime(
         source,
     };
     for k in 0..steps {
-        est.step(&inputs[k], &measurements[k])
-            .map_err(|e| runtime_err(k + 1, e))?;
+        if let Some(acc) = consistency.as_deref_mut() {
+            est.predict(&inputs[k]).map_err(|e| runtime_err(k + 1, e))?;
+            est.measurement_estimates(&mut predicted)
+                .map_err(|e| runtime_err(k + 1, e))?;
+            acc.innovation(
+                est.phase(),
+                est.active_measurements(),
+                &predicted,
+                &measurements[k],
+                est.state(),
+            );
+            est.update(&measurements[k])
+                .map_err(|e| runtime_err(k + 1, e))?;
+        } else {
+            est.step(&inputs[k], &measurements[k])
+                .map_err(|e| runtime_err(k + 1, e))?;
+        }
         for (s, buf) in set_buffers.iter_mut().enumerate() {
             est.node_displacements(s, buf)
                 .map_err(|e| runtime_err(k + 1, e))?;
@@ -568,6 +603,33 @@ fn run_runtime(
             errors.tip.add(
                 &sensors[3 * t..3 * t + 3],
                 &corot.sensors[k * ns + 3 * t..k * ns + 3 * t + 3],
+            );
+        }
+        if let Some(acc) = consistency.as_deref_mut() {
+            for (s, buf) in std_buffers.iter_mut().enumerate() {
+                est.node_std(s, buf).map_err(|e| runtime_err(k + 1, e))?;
+            }
+            for (j, &(s, i, _)) in setup.display.iter().enumerate() {
+                std_display[3 * j..3 * j + 3].copy_from_slice(&std_buffers[s][3 * i..3 * i + 3]);
+            }
+            let t = setup.tip.unwrap_or(0);
+            let (tip_est, tip_ref) = if setup.tip.is_some() {
+                (
+                    &sensors[3 * t..3 * t + 3],
+                    &corot.sensors[k * ns + 3 * t..k * ns + 3 * t + 3],
+                )
+            } else {
+                (&[][..], &[][..])
+            };
+            acc.posterior(
+                est.phase(),
+                (k + 1) as f64 * setup.dt(),
+                est.state(),
+                tip_est,
+                tip_ref,
+                &display,
+                &corot.display[k * nd..(k + 1) * nd],
+                &std_display,
             );
         }
         if (k + 1) % report_every == 0 || k + 1 == steps {
@@ -808,10 +870,15 @@ pub fn run(
                 &none,
                 &corot,
                 Some(&linear),
+                None,
                 &format!("open loop r = {order}"),
                 progress,
             )?;
             let measurements = synthetic_measurements(&model, &corot, setup.steps, options.seed);
+            let display: Vec<(usize, usize)> =
+                setup.display.iter().map(|&(s, i, _)| (s, i)).collect();
+            let blocks = Blocks::new(&model, &display);
+            let mut acc = Accumulator::new(&blocks, &model, setup.tip);
             let filtered = run_runtime(
                 &setup,
                 &mut est,
@@ -819,9 +886,30 @@ pub fn run(
                 &measurements,
                 &corot,
                 None,
+                Some(&mut acc),
                 &format!("filtered r = {order}"),
                 progress,
             )?;
+            let consistency = acc.finish();
+            // The headline case: the runtime gets no load input, only the markers.
+            let (withheld, withheld_consistency) = if options.withhold_loads {
+                (filtered, consistency.clone())
+            } else {
+                let blind = runtime_inputs(&setup, &setup.scenario, &model, true)?;
+                let mut acc = Accumulator::new(&blocks, &model, setup.tip);
+                let errors = run_runtime(
+                    &setup,
+                    &mut est,
+                    &blind,
+                    &measurements,
+                    &corot,
+                    None,
+                    Some(&mut acc),
+                    &format!("withheld r = {order}"),
+                    progress,
+                )?;
+                (errors, acc.finish())
+            };
             let phase = format!("timing r = {order}");
             progress(Progress {
                 phase: &phase,
@@ -838,12 +926,17 @@ pub fn run(
             Ok(ReducedRow {
                 requested_order: order,
                 order: r,
+                force_states: r.saturating_sub(model.report.order as usize),
                 step_s,
                 open_loop_step_s,
                 error: open.display.relative(),
                 tip_error: open.tip.relative(),
                 filtered_error: filtered.display.relative(),
                 filtered_tip_error: filtered.tip.relative(),
+                withheld_filtered_error: withheld.display.relative(),
+                withheld_filtered_tip_error: withheld.tip.relative(),
+                consistency,
+                withheld_consistency,
                 error_vs_linear: open.display_vs_linear.relative(),
                 compile_measured_errors: model.report.measured_errors.clone(),
                 compile_s,
@@ -943,6 +1036,7 @@ pub fn rotation_sweep(
             &inputs,
             &none,
             &corot,
+            None,
             None,
             &format!("open loop ×{scale}"),
             progress,

@@ -138,10 +138,25 @@ fn report(args: &ReportArgs) -> Result<(), String> {
         .and_then(|()| staged.write("report.csv", result.csv().as_bytes()))
         .and_then(|()| staged.write("report.svg", result.svg().as_bytes()))
         .map_err(|e| e.to_string())?;
+    // Error and ±2σ at the tip marker along the trajectory, one plot per order.
+    let mut tip_plots = Vec::new();
+    for (i, row) in result.reduced.iter().enumerate() {
+        if let Some(svg) = result.tip_svg(i) {
+            let name = format!("tip_sigma_r{}.svg", row.order - row.force_states);
+            staged
+                .write(&name, svg.as_bytes())
+                .map_err(|e| e.to_string())?;
+            tip_plots.push(name);
+        }
+    }
     staged.commit().map_err(|e| e.to_string())?;
     println!("{markdown}");
     println!(
-        "wrote report.md, report.csv, report.svg in {}",
+        "wrote report.md, report.csv, report.svg{} in {}",
+        tip_plots
+            .iter()
+            .map(|n| format!(", {n}"))
+            .collect::<String>(),
         args.out.display()
     );
     if !result.failures.is_empty() {

@@ -2,7 +2,7 @@
 
 use std::fmt::Write as _;
 
-use super::{breakdown_rotation, Comparison, ReducedRow, SweepPoint};
+use super::{breakdown_rotation, ChiSquare, Comparison, Consistency, ReducedRow, SweepPoint};
 
 /// The sweep as a markdown table, with the 5 % and 10 % breakdown rotations.
 pub fn sweep_markdown(points: &[SweepPoint], order: usize) -> String {
@@ -223,10 +223,16 @@ impl Comparison {
             sci(self.linear.tip_error)
         );
         for row in &self.reduced {
-            let r = if row.order == row.requested_order {
-                row.order.to_string()
+            let balanced = row.order - row.force_states;
+            let r = if balanced == row.requested_order {
+                balanced.to_string()
             } else {
-                format!("{} (asked {})", row.order, row.requested_order)
+                format!("{balanced} (asked {})", row.requested_order)
+            };
+            let r = if row.force_states > 0 {
+                format!("{r} + {} force", row.force_states)
+            } else {
+                r
             };
             // A reduced row that is worse than the full-order linear FEM is flagged: the
             // reduction or the warping costs more than the co-rotation gains there.
@@ -253,6 +259,60 @@ impl Comparison {
                 failure.order
             );
         }
+        if !self.reduced.is_empty() {
+            let _ = writeln!(
+                out,
+                "\nFilter with the loads given and withheld (the runtime gets only the markers), \
+                 and its consistency (docs/design.md §11): ANIS = Σ NIS / Σ m over the run, \
+                 ANEES = Σ NEES / 3N at the tip marker, each with its two-sided 95 % χ² bounds; \
+                 2σ coverage = fraction of displayed-node error components inside ±2σ, σ from \
+                 the runtime's read-out (local frame) / rotated to the world frame.\n"
+            );
+            let _ = writeln!(
+                out,
+                "| r | loads | filtered error | tip error | ANIS [95 % bounds] | ANEES tip [95 % bounds] | 2σ coverage runtime σ / world σ |"
+            );
+            let _ = writeln!(out, "|---:|---|---:|---:|---:|---:|---:|");
+            for row in &self.reduced {
+                let known = !self.withheld_loads;
+                let runs: Vec<(&str, f64, f64, &Consistency)> = if known {
+                    vec![
+                        (
+                            "given",
+                            row.filtered_error,
+                            row.filtered_tip_error,
+                            &row.consistency,
+                        ),
+                        (
+                            "withheld",
+                            row.withheld_filtered_error,
+                            row.withheld_filtered_tip_error,
+                            &row.withheld_consistency,
+                        ),
+                    ]
+                } else {
+                    vec![(
+                        "withheld",
+                        row.filtered_error,
+                        row.filtered_tip_error,
+                        &row.consistency,
+                    )]
+                };
+                for (label, e, tip, c) in runs {
+                    let _ = writeln!(
+                        out,
+                        "| {} | {label} | {} | {} | {} | {} | {:.1} % / {:.1} % |",
+                        row.order - row.force_states,
+                        sci(e),
+                        sci(tip),
+                        chi(&c.nis),
+                        chi(&c.nees_tip),
+                        100.0 * c.coverage_runtime,
+                        100.0 * c.coverage_world
+                    );
+                }
+            }
+        }
         for failure in &self.failures {
             let _ = writeln!(
                 out,
@@ -275,21 +335,24 @@ impl Comparison {
     pub fn csv(&self) -> String {
         let mut out = String::from(
             "model,r,step_s,speedup_vs_corotational,speedup_vs_linear,error,tip_error,\
-             filtered_error,filtered_tip_error,error_vs_linear,open_loop_step_s,max_rotation_deg\n",
+             filtered_error,filtered_tip_error,error_vs_linear,open_loop_step_s,max_rotation_deg,\
+             withheld_filtered_error,withheld_filtered_tip_error,anis,anis_low,anis_high,\
+             anees_tip,anees_low,anees_high,coverage_runtime,coverage_world,withheld_anis,\
+             withheld_anees_tip,withheld_coverage_runtime,withheld_coverage_world\n",
         );
         let c = self.corotational.step_s;
         let l = self.linear.step_s;
         let rot = csv_number(self.max_rotation_deg);
         let _ = writeln!(
             out,
-            "corotational_fem,{},{},1,{},0,0,,,,,{rot}",
+            "corotational_fem,{},{},1,{},0,0,,,,,{rot},,,,,,,,,,,,,,",
             self.dofs,
             csv_number(c),
             csv_number(l / c)
         );
         let _ = writeln!(
             out,
-            "linear_fem,{},{},{},1,{},{},,,0,,{rot}",
+            "linear_fem,{},{},{},1,{},{},,,0,,{rot},,,,,,,,,,,,,,",
             self.dofs,
             csv_number(l),
             csv_number(c / l),
@@ -297,9 +360,30 @@ impl Comparison {
             csv_number(self.linear.tip_error)
         );
         for row in &self.reduced {
+            let (cs, w) = (&row.consistency, &row.withheld_consistency);
+            let (nis_lo, nis_hi) = cs.nis.bounds();
+            let (nees_lo, nees_hi) = cs.nees_tip.bounds();
+            let extra = [
+                row.withheld_filtered_error,
+                row.withheld_filtered_tip_error,
+                cs.nis.mean(),
+                nis_lo,
+                nis_hi,
+                cs.nees_tip.mean(),
+                nees_lo,
+                nees_hi,
+                cs.coverage_runtime,
+                cs.coverage_world,
+                w.nis.mean(),
+                w.nees_tip.mean(),
+                w.coverage_runtime,
+                w.coverage_world,
+            ]
+            .map(csv_number)
+            .join(",");
             let _ = writeln!(
                 out,
-                "runtime,{},{},{},{},{},{},{},{},{},{},{rot}",
+                "runtime,{},{},{},{},{},{},{},{},{},{},{rot},{extra}",
                 row.order,
                 csv_number(row.step_s),
                 csv_number(c / row.step_s),
@@ -537,4 +621,159 @@ impl Comparison {
         let _ = writeln!(s, "</svg>");
         s
     }
+}
+
+/// `mean [low, high]` of a χ² statistic, with a mark when outside its bounds.
+fn chi(c: &ChiSquare) -> String {
+    if c.dof == 0 {
+        return "—".into();
+    }
+    let (lo, hi) = c.bounds();
+    let flag = if c.inside() { "" } else { " ✗" };
+    format!("{:.3} [{:.3}, {:.3}]{flag}", c.mean(), lo, hi)
+}
+
+impl Comparison {
+    /// A self-contained SVG of the tip marker's world error and ±2σ along the trajectory for
+    /// the runtime row `index` (three panels x, y, z; the filter with the loads given and with
+    /// the loads withheld, the ±2σ band of the given-load run), or `None` without a tip trace.
+    pub fn tip_svg(&self, index: usize) -> Option<String> {
+        let row = self.reduced.get(index)?;
+        let given = &row.consistency.tip[..];
+        if given.is_empty() {
+            return None;
+        }
+        let withheld = if self.withheld_loads {
+            &[][..]
+        } else {
+            &row.withheld_consistency.tip[..]
+        };
+        const W: f64 = 760.0;
+        const PANEL: f64 = 180.0;
+        const LEFT: f64 = 90.0;
+        const RIGHT: f64 = 20.0;
+        const TOP: f64 = 50.0;
+        const GAP: f64 = 30.0;
+        let h = TOP + 3.0 * PANEL + 2.0 * GAP + 70.0;
+        let pw = W - LEFT - RIGHT;
+        let t0 = given.first().map_or(0.0, |s| s.time);
+        let t1 = given.last().map_or(1.0, |s| s.time).max(t0 + 1e-12);
+        let sx = |t: f64| LEFT + (t - t0) / (t1 - t0) * pw;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            r#"<?xml version="1.0" encoding="UTF-8"?>
+<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{h}" viewBox="0 0 {W} {h}" font-family="sans-serif" font-size="12">
+<rect x="0" y="0" width="{W}" height="{h}" fill="white"/>"#
+        );
+        let title = format!(
+            "tip marker `{}`: error and ±2σ, r = {} + {} force states; inside ±2σ: {:.1} % (loads given) / {:.1} % (withheld)",
+            self.tip.as_deref().unwrap_or("—"),
+            row.order - row.force_states,
+            row.force_states,
+            100.0 * inside_fraction(given),
+            100.0 * inside_fraction(withheld),
+        );
+        let _ = writeln!(
+            s,
+            r#"<text x="{}" y="24" text-anchor="middle" font-size="13">{}</text>"#,
+            W / 2.0,
+            xml_escape(&title)
+        );
+        for c in 0..3 {
+            let top = TOP + c as f64 * (PANEL + GAP);
+            let mut ymax = 0.0f64;
+            for p in given.iter().chain(withheld) {
+                ymax = ymax.max(p.error[c].abs()).max(2.0 * p.sigma[c]);
+            }
+            let ymax = if ymax > 0.0 { 1.1 * ymax } else { 1.0 };
+            let sy = |v: f64| top + PANEL / 2.0 - v / ymax * (PANEL / 2.0);
+            let _ = writeln!(
+                s,
+                r#"<rect x="{LEFT}" y="{top}" width="{pw}" height="{PANEL}" fill="none" stroke="black"/>"#
+            );
+            let mut band: Vec<String> = given
+                .iter()
+                .map(|p| format!("{:.1},{:.1}", sx(p.time), sy(2.0 * p.sigma[c])))
+                .collect();
+            band.extend(
+                given
+                    .iter()
+                    .rev()
+                    .map(|p| format!("{:.1},{:.1}", sx(p.time), sy(-2.0 * p.sigma[c]))),
+            );
+            let _ = writeln!(
+                s,
+                r##"<polygon class="band" points="{}" fill="#cccccc" stroke="none"/>"##,
+                band.join(" ")
+            );
+            let _ = writeln!(
+                s,
+                r##"<line x1="{LEFT}" y1="{:.1}" x2="{}" y2="{:.1}" stroke="#888888"/>"##,
+                sy(0.0),
+                LEFT + pw,
+                sy(0.0)
+            );
+            for (trace, colour, class) in [
+                (given, "#1f77b4", "error-given"),
+                (withheld, "#d62728", "error-withheld"),
+            ] {
+                if trace.is_empty() {
+                    continue;
+                }
+                let pts: Vec<String> = trace
+                    .iter()
+                    .map(|p| format!("{:.1},{:.1}", sx(p.time), sy(p.error[c])))
+                    .collect();
+                let _ = writeln!(
+                    s,
+                    r#"<polyline class="{class}" points="{}" fill="none" stroke="{colour}" stroke-width="1.2"/>"#,
+                    pts.join(" ")
+                );
+            }
+            let axis = ["x", "y", "z"][c];
+            let _ = writeln!(
+                s,
+                r#"<text x="{}" y="{:.1}" text-anchor="end">{axis}: ±{ymax:.2e} m</text>"#,
+                LEFT - 6.0,
+                top + 14.0,
+            );
+        }
+        let bottom = TOP + 3.0 * PANEL + 2.0 * GAP;
+        let _ = writeln!(
+            s,
+            r#"<text x="{}" y="{:.1}" text-anchor="middle">t (s), {:.3} … {:.3}</text>"#,
+            LEFT + pw / 2.0,
+            bottom + 20.0,
+            t0,
+            t1
+        );
+        let _ = writeln!(
+            s,
+            r##"<text x="{LEFT}" y="{:.1}" fill="#1f77b4">— error, loads given</text><text x="{}" y="{:.1}" fill="#d62728">— error, loads withheld</text><text x="{}" y="{:.1}" fill="#777777">■ ±2σ (posterior, world frame)</text>"##,
+            bottom + 45.0,
+            LEFT + 200.0,
+            bottom + 45.0,
+            LEFT + 420.0,
+            bottom + 45.0
+        );
+        let _ = writeln!(s, "</svg>");
+        Some(s)
+    }
+}
+
+/// Fraction of (sample, component) pairs of a tip trace with |error| ≤ 2σ; NaN when empty.
+fn inside_fraction(trace: &[super::TipSample]) -> f64 {
+    if trace.is_empty() {
+        return f64::NAN;
+    }
+    let inside: usize = trace
+        .iter()
+        .map(|p| {
+            (0..3)
+                .filter(|&c| p.error[c].abs() <= 2.0 * p.sigma[c])
+                .count()
+        })
+        .sum();
+    inside as f64 / (3 * trace.len()) as f64
 }
