@@ -125,7 +125,7 @@ impl<'a> Reductor<'a> {
     /// The order rule: an explicit order, else a tolerance, from the arguments, then the scene's
     /// `[reduction]` table, then [`DEFAULT_TOLERANCE`].
     pub fn order(&self, order: Option<usize>, tolerance: Option<f64>) -> Order {
-        let spec = self.full.scene.scene.reduction;
+        let spec = &self.full.scene.scene.reduction;
         match (order.or(spec.order), tolerance.or(spec.tolerance)) {
             (Some(r), _) => Order::Fixed(r),
             (None, Some(t)) => Order::Tolerance(t),
