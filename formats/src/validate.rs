@@ -233,7 +233,7 @@ impl Model {
 /// measurement channels.
 fn check_kalman(prefix: &str, k: &crate::KalmanGains, r: u64, q: usize) -> Result<(), FormatError> {
     if k.period == 0 {
-        return Err(invalid(&format!("{prefix}.period"), "must be ≥ 1"));
+        return Err(invalid(format!("{prefix}.period"), "must be ≥ 1"));
     }
     if k.phases.len() != k.period as usize {
         return Err(invalid(
