@@ -18,34 +18,44 @@ pub type Mat3 = [[f64; 3]; 3];
 /// Identity.
 pub const IDENTITY: Mat3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 
+#[inline(always)]
 fn det(m: &Mat3) -> f64 {
     m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
         - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
         + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
 }
 
+#[inline(always)]
 fn norm(m: &Mat3) -> f64 {
     m.iter().flatten().map(|v| v * v).sum::<f64>().sqrt()
 }
 
 /// X⁻ᵀ of an invertible 3×3 matrix (cofactor matrix / det), or `None` if det = 0.
+#[inline(always)]
 fn inverse_transpose(m: &Mat3) -> Option<Mat3> {
     let d = det(m);
     if d == 0.0 || !d.is_finite() {
         return None;
     }
-    let c = |i: usize, j: usize| {
-        let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
-        let (j1, j2) = ((j + 1) % 3, (j + 2) % 3);
-        m[i1][j1] * m[i2][j2] - m[i1][j2] * m[i2][j1]
-    };
-    let mut out = [[0.0; 3]; 3];
-    for (i, row) in out.iter_mut().enumerate() {
-        for (j, v) in row.iter_mut().enumerate() {
-            *v = c(i, j) / d;
-        }
-    }
-    Some(out)
+    let inv = 1.0 / d;
+    // Cofactor matrix / det = (M⁻¹)ᵀ.
+    Some([
+        [
+            (m[1][1] * m[2][2] - m[1][2] * m[2][1]) * inv,
+            (m[1][2] * m[2][0] - m[1][0] * m[2][2]) * inv,
+            (m[1][0] * m[2][1] - m[1][1] * m[2][0]) * inv,
+        ],
+        [
+            (m[0][2] * m[2][1] - m[0][1] * m[2][2]) * inv,
+            (m[0][0] * m[2][2] - m[0][2] * m[2][0]) * inv,
+            (m[0][1] * m[2][0] - m[0][0] * m[2][1]) * inv,
+        ],
+        [
+            (m[0][1] * m[1][2] - m[0][2] * m[1][1]) * inv,
+            (m[0][2] * m[1][0] - m[0][0] * m[1][2]) * inv,
+            (m[0][0] * m[1][1] - m[0][1] * m[1][0]) * inv,
+        ],
+    ])
 }
 
 /// Why an element has no rotation.
@@ -57,9 +67,13 @@ pub enum PolarError {
     NoConvergence,
 }
 
-/// The rotation R of the polar decomposition F = R S by Higham's scaled Newton iteration
-/// X ← ½(γX + (γX)⁻ᵀ), γ = (‖X⁻¹‖_F/‖X‖_F)^½, to ‖ΔX‖_F ≤ 1e-14 (3–7 iterations near a
-/// rotation). Refuses inverted or degenerate elements (det F ≤ 1e-12‖F‖³_F).
+/// The rotation R of the polar decomposition F = R S by Newton's iteration
+/// X ← ½(γX + (γX)⁻ᵀ): scaled by γ = (‖X⁻¹‖_F/‖X‖_F)^½ (Higham) while X is far from
+/// orthogonal (‖ΔX‖_F > 1e-2), unscaled (γ = 1) near it, where the iteration converges
+/// quadratically; stops when ‖ΔX‖_F ≤ 1e-8, when the next change would be ~1e-16 (3–4
+/// iterations for an element strained by a few %). Refuses inverted or degenerate elements
+/// (det F ≤ 1e-12‖F‖³_F).
+#[inline(always)]
 pub fn polar_rotation(f: &Mat3) -> Result<Mat3, PolarError> {
     let n = norm(f);
     let d = det(f);
@@ -70,22 +84,29 @@ pub fn polar_rotation(f: &Mat3) -> Result<Mat3, PolarError> {
         return Err(PolarError::Inverted(d));
     }
     let mut x = *f;
+    let mut scaled = true;
     for _ in 0..30 {
         let Some(inv_t) = inverse_transpose(&x) else {
             return Err(PolarError::NoConvergence);
         };
-        let gamma = (norm(&inv_t) / norm(&x)).sqrt();
+        let gamma = if scaled {
+            (norm(&inv_t) / norm(&x)).sqrt()
+        } else {
+            1.0
+        };
+        let (a, b) = (0.5 * gamma, 0.5 / gamma);
         let mut change = 0.0;
         for i in 0..3 {
             for j in 0..3 {
-                let next = 0.5 * (gamma * x[i][j] + inv_t[i][j] / gamma);
+                let next = a * x[i][j] + b * inv_t[i][j];
                 change += (next - x[i][j]) * (next - x[i][j]);
                 x[i][j] = next;
             }
         }
-        if change.sqrt() <= 1e-14 {
+        if change <= 1e-16 {
             return Ok(x);
         }
+        scaled = change > 1e-4;
     }
     Err(PolarError::NoConvergence)
 }
@@ -99,49 +120,51 @@ pub struct Element<'a> {
     pub rest: &'a [[f64; 3]; 4],
     /// ∇Nₐ, 1/m.
     pub gradients: &'a [[f64; 3]; 4],
-    /// Kₑ, 144 values row-major, N/m.
+    /// Kₑ, 144 values row-major, N/m; symmetric (the linear-elastic element stiffness).
     pub stiffness: &'a [f64],
     /// V_e, 12·r values row-major.
     pub rows: &'a [f64],
+    /// V_eᵀ, r·12 values row-major (the same numbers transposed: `cols[12 j + i]` =
+    /// `rows[r i + j]`), so that the gather V_e q runs 12 lanes wide.
+    pub cols: &'a [f64],
 }
 
-/// Adds wₑ V_eᵀ R Kₑ (yₑ + β Rᵀ V_e q̇) to `out` (r) at the reduced state `q` (r) and velocity
-/// `velocity` (r) (module docs) and returns the element's rotation R.
-///
-/// Slices: `q`, `velocity`, `out` of length r = `rows.len() / 12`. The rotation is
-/// [`polar_rotation`] (inverted elements refused).
-pub fn add_reduced_force(
-    e: &Element,
-    q: &[f64],
-    velocity: &[f64],
-    beta: f64,
-    out: &mut [f64],
-) -> Result<Mat3, PolarError> {
-    add_reduced_force_with(e, q, velocity, beta, out, polar_rotation)
+/// V_eᵀ (r × 12, row-major) of V_e (12 × r, row-major).
+pub fn transpose_rows(rows: &[f64]) -> Vec<f64> {
+    let r = rows.len() / 12;
+    let mut cols = vec![0.0; rows.len()];
+    for i in 0..12 {
+        for j in 0..r {
+            cols[12 * j + i] = rows[r * i + j];
+        }
+    }
+    cols
 }
 
-/// [`add_reduced_force`] with the caller's polar decomposition `polar` (e.g. one with an
-/// SVD fallback for inverted elements).
-pub fn add_reduced_force_with(
-    e: &Element,
-    q: &[f64],
-    velocity: &[f64],
-    beta: f64,
-    out: &mut [f64],
-    polar: impl Fn(&Mat3) -> Result<Mat3, PolarError>,
-) -> Result<Mat3, PolarError> {
+/// The element's state at q: current vertex positions xₑ = Xₑ + V_e q (m), V_e q̇ (12, m/s)
+/// and the deformation gradient F = Σₐ xₐ ⊗ ∇Nₐ.
+#[derive(Clone, Copy, Debug)]
+pub struct Gathered {
+    /// xₑ, m.
+    pub x: [[f64; 3]; 4],
+    /// V_e q̇, node-major.
+    pub velocity: [f64; 12],
+    /// F.
+    pub f: Mat3,
+}
+
+/// Gathers the element's state at `q`, `velocity` (r each; r = `cols.len() / 12`).
+#[inline(always)]
+pub fn gather(e: &Element, q: &[f64], velocity: &[f64]) -> Gathered {
     let r = q.len();
     let mut u = [0.0; 12];
     let mut ve = [0.0; 12];
-    for i in 0..12 {
-        let row = &e.rows[i * r..(i + 1) * r];
-        let (mut a, mut b) = (0.0, 0.0);
-        for j in 0..r {
-            a += row[j] * q[j];
-            b += row[j] * velocity[j];
+    for (j, col) in e.cols.chunks_exact(12).enumerate().take(r) {
+        let (qj, vj) = (q[j], velocity[j]);
+        for i in 0..12 {
+            u[i] += col[i] * qj;
+            ve[i] += col[i] * vj;
         }
-        u[i] = a;
-        ve[i] = b;
     }
     let mut x = [[0.0; 3]; 4];
     for a in 0..4 {
@@ -157,7 +180,14 @@ pub fn add_reduced_force_with(
             }
         }
     }
-    let rot = polar(&f)?;
+    Gathered { x, velocity: ve, f }
+}
+
+/// Adds wₑ V_eᵀ R Kₑ (yₑ + β Rᵀ V_e q̇) to `out` (r) for the gathered state and its rotation.
+#[inline(always)]
+pub fn scatter(e: &Element, g: &Gathered, rot: &Mat3, beta: f64, out: &mut [f64]) {
+    let r = out.len();
+    let (x, ve) = (&g.x, &g.velocity);
     // local = Rᵀ(xₐ − x₀) − (Xₐ − X₀) + β Rᵀ vₐ
     let mut local = [0.0; 12];
     for a in 0..4 {
@@ -169,31 +199,46 @@ pub fn add_reduced_force_with(
             local[3 * a + c] = (p - (e.rest[a][c] - e.rest[0][c])) + beta * lv;
         }
     }
+    // z = Kₑ local as Σ_j local_j Kₑ[j, ·] (Kₑ symmetric): 12-wide updates, no reduction.
     let mut z = [0.0; 12];
-    for i in 0..12 {
-        let row = &e.stiffness[12 * i..12 * i + 12];
-        let mut s = 0.0;
-        for j in 0..12 {
-            s += row[j] * local[j];
+    for (j, row) in e.stiffness.chunks_exact(12).enumerate() {
+        let lj = local[j];
+        for i in 0..12 {
+            z[i] += row[i] * lj;
         }
-        z[i] = s;
     }
-    let mut g = [0.0; 12];
+    let mut force = [0.0; 12];
     for a in 0..4 {
         for c in 0..3 {
-            g[3 * a + c] = e.weight
+            force[3 * a + c] = e.weight
                 * (rot[c][0] * z[3 * a] + rot[c][1] * z[3 * a + 1] + rot[c][2] * z[3 * a + 2]);
         }
     }
     for i in 0..12 {
-        if g[i] == 0.0 {
+        if force[i] == 0.0 {
             continue;
         }
         let row = &e.rows[i * r..(i + 1) * r];
         for j in 0..r {
-            out[j] += row[j] * g[i];
+            out[j] += row[j] * force[i];
         }
     }
+}
+
+/// Adds wₑ V_eᵀ R Kₑ (yₑ + β Rᵀ V_e q̇) to `out` (r) at the reduced state `q` (r) and velocity
+/// `velocity` (r) (module docs) and returns the element's rotation R ([`gather`],
+/// [`polar_rotation`] (inverted elements refused), [`scatter`]).
+#[inline(always)]
+pub fn add_reduced_force(
+    e: &Element,
+    q: &[f64],
+    velocity: &[f64],
+    beta: f64,
+    out: &mut [f64],
+) -> Result<Mat3, PolarError> {
+    let g = gather(e, q, velocity);
+    let rot = polar_rotation(&g.f)?;
+    scatter(e, &g, &rot, beta, out);
     Ok(rot)
 }
 
@@ -365,12 +410,14 @@ mod tests {
         let rows: Vec<f64> = (0..144)
             .map(|k| if k % 13 == 0 { 1.0 } else { 0.0 })
             .collect();
+        let cols = transpose_rows(&rows);
         let e = Element {
             weight: 1.0,
             rest: &rest,
             gradients: &gradients,
             stiffness: &stiffness,
             rows: &rows,
+            cols: &cols,
         };
         let axis = [0.3f64, -0.5, 0.8];
         let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();

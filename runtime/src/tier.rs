@@ -5,7 +5,7 @@
 //! Per step (τ = θΔt, a₀ = 6/τ², a₂ = 3/τ, f_r = VᵀB u held over the step; the equations of
 //! `crokf_formats::CorotationalTier`):
 //! ```text
-//! q̂ ← q;  repeat ≤ newton_iterations:
+//! q̂ ← q + τq̇ + (τ²/2)q̈;  repeat ≤ newton_iterations:
 //!   Δ = q̂ − q,  q̈_θ = a₀Δ − (6/τ)q̇ − 2q̈,  q̇_θ = a₂Δ − 2q̇ − (τ/2)q̈
 //!   res = f_r − M_r(q̈_θ + α q̇_θ) − Σ_e wₑ V_eᵀ Rₑ Kₑ(yₑ + β Rₑᵀ V_e q̇_θ)
 //!   J = (1 + a₂β) K_t,r(q̂) + (a₀ + a₂α) M_r   (refreshed as below; dense Cholesky)
@@ -108,6 +108,7 @@ struct Element {
     gradients: [[f64; 3]; 4],
     stiffness: Vec<f64>,
     rows: Vec<f64>,
+    cols: Vec<f64>,
 }
 
 /// The prepared tier model (read-only, from the model file).
@@ -174,6 +175,7 @@ impl TierModel {
                 gradients: e.gradients,
                 stiffness: e.stiffness.data.clone(),
                 rows: e.rows.data.clone(),
+                cols: kernel::transpose_rows(&e.rows.data),
             })
             .collect();
         let max_force = model
@@ -260,6 +262,19 @@ impl TierModel {
         self.elements.len()
     }
 
+    /// Reduced force f_r,int(q) + β K_t,r(q) q̇ (r) into `out` (module docs); `q`, `velocity`
+    /// and `out` of length r. Refuses an inverted sampled element (its index).
+    /// `rotations` receives each element's R (length: the number of sampled elements).
+    pub fn reduced_force(
+        &self,
+        q: &[f64],
+        velocity: &[f64],
+        out: &mut [f64],
+        rotations: &mut [Mat3],
+    ) -> Result<(), usize> {
+        force_loop(self, q, velocity, out, rotations).map_err(|(e, _)| e)
+    }
+
     /// The kernel view of element e.
     fn element(&self, e: usize) -> kernel::Element<'_> {
         let el = &self.elements[e];
@@ -269,6 +284,7 @@ impl TierModel {
             gradients: &el.gradients,
             stiffness: &el.stiffness,
             rows: &el.rows,
+            cols: &el.cols,
         }
     }
 }
@@ -344,26 +360,22 @@ impl TierState {
             self.acc[i] = w.a0 * du - (6.0 / w.tau) * v[i] - 2.0 * a[i];
             self.vel[i] = w.a2 * du - 2.0 * v[i] - 0.5 * w.tau * a[i];
         }
-        self.force.iter_mut().for_each(|f| *f = 0.0);
-        for e in 0..model.elements.len() {
-            let el = model.element(e);
-            match kernel::add_reduced_force(
-                &el,
-                &self.q_hat,
-                &self.vel,
-                model.beta,
-                &mut self.force,
-            ) {
-                Ok(rot) => self.rotations[e] = rot,
-                Err(PolarError::Inverted(det)) => {
-                    return Err(TierError::InvertedElement {
-                        step,
-                        element: e,
-                        det,
-                    })
-                }
-                Err(PolarError::NoConvergence) => return Err(TierError::NonFinite { step }),
+        match force_loop(
+            model,
+            &self.q_hat,
+            &self.vel,
+            &mut self.force,
+            &mut self.rotations,
+        ) {
+            Ok(()) => {}
+            Err((e, PolarError::Inverted(det))) => {
+                return Err(TierError::InvertedElement {
+                    step,
+                    element: e,
+                    det,
+                })
             }
+            Err((_, PolarError::NoConvergence)) => return Err(TierError::NonFinite { step }),
         }
         for i in 0..r {
             let mut m = 0.0;
@@ -438,7 +450,11 @@ impl TierState {
                 });
             }
         }
-        self.q_hat.copy_from_slice(&self.s[..r]);
+        // Taylor predictor q̂₀ = q + τq̇ + (τ²/2)q̈ (the compiler's `ReducedNewton::predictor`).
+        let tau = wilson(model).tau;
+        for i in 0..r {
+            self.q_hat[i] = self.s[i] + tau * self.s[r + i] + 0.5 * tau * tau * self.s[2 * r + i];
+        }
         let mut refreshed = false;
         let mut iterations = 0;
         let mut increment = f64::INFINITY;
@@ -543,6 +559,51 @@ impl TierState {
         }
         used
     }
+}
+
+#[inline(always)]
+fn force_body(
+    model: &TierModel,
+    q: &[f64],
+    velocity: &[f64],
+    out: &mut [f64],
+    rotations: &mut [Mat3],
+) -> Result<(), (usize, PolarError)> {
+    out.iter_mut().for_each(|v| *v = 0.0);
+    for (e, rot) in rotations.iter_mut().enumerate().take(model.elements.len()) {
+        *rot = kernel::add_reduced_force(&model.element(e), q, velocity, model.beta, out)
+            .map_err(|p| (e, p))?;
+    }
+    Ok(())
+}
+
+/// [`force_body`] compiled with AVX2 + FMA (chosen at run time, as `simd.rs` does).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn force_avx2(
+    model: &TierModel,
+    q: &[f64],
+    velocity: &[f64],
+    out: &mut [f64],
+    rotations: &mut [Mat3],
+) -> Result<(), (usize, PolarError)> {
+    force_body(model, q, velocity, out, rotations)
+}
+
+/// f_r,int(q) + β K_t,r(q) q̇ over the sampled elements into `out`, rotations per element.
+fn force_loop(
+    model: &TierModel,
+    q: &[f64],
+    velocity: &[f64],
+    out: &mut [f64],
+    rotations: &mut [Mat3],
+) -> Result<(), (usize, PolarError)> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+        return unsafe { force_avx2(model, q, velocity, out, rotations) };
+    }
+    force_body(model, q, velocity, out, rotations)
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {

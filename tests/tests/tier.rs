@@ -160,7 +160,7 @@ fn runtime_step_equals_the_compilers_reduced_stepper() {
             tolerance: 1e-12,
             refresh: Refresh::WhenSlow { iterations: 4 },
             consistent: false,
-            predictor: false,
+            predictor: true,
         },
     )
     .unwrap();

@@ -45,6 +45,8 @@ pub struct SampledElement {
     pub rows: DMatrix<f64>,
     /// The same rows flattened row-major (12·r), for the allocation-free force loop.
     pub flat: Vec<f64>,
+    /// V_eᵀ flattened row-major (r·12) ([`crokf_kernel::Element::cols`]).
+    pub flat_t: Vec<f64>,
 }
 
 /// A reduced co-rotational model: what the model file would store (with the basis rows of
@@ -97,12 +99,14 @@ impl ReducedModel {
             }
             let dofs = fem.dofs.element(&el.nodes);
             let rows = DMatrix::from_fn(12, r, |i, j| dofs[i].map_or(0.0, |d| v[(d, j)]));
-            let flat = (0..12)
+            let flat: Vec<f64> = (0..12)
                 .flat_map(|i| (0..r).map(move |j| (i, j)))
                 .map(|(i, j)| rows[(i, j)])
                 .collect();
+            let flat_t = crokf_kernel::transpose_rows(&flat);
             elements.push(SampledElement {
                 flat,
+                flat_t,
                 element: e,
                 weight,
                 geometry: el.geometry,
@@ -177,15 +181,12 @@ impl ReducedModel {
 
     /// Allocation-free reduced force for the stepper: `out` = f_r,int(q) + β K_t,r(q) ẏ
     /// (r; the sum of the internal force and the stiffness-proportional damping force of
-    /// the module docs), per element by the shared kernel [`crokf_kernel::add_reduced_force`]
-    /// (the runtime's), with the rotation from [`fast_polar`] (SVD fallback for inverted
-    /// elements, where the runtime refuses the step).
+    /// the module docs), per element by the shared kernel ([`crokf_kernel::gather`],
+    /// [`crokf_kernel::scatter`], [`crokf_kernel::polar_rotation`]: the runtime's), with the
+    /// SVD polar decomposition of the full-order reference as the fallback for inverted
+    /// elements (where the runtime refuses the step).
     pub fn force_with_damping(&self, q: &[f64], velocity: &[f64], beta: f64, out: &mut [f64]) {
         out.iter_mut().for_each(|v| *v = 0.0);
-        let polar = |f: &crokf_kernel::Mat3| {
-            let m = fast_polar(&nalgebra::Matrix3::from_fn(|i, j| f[i][j]));
-            Ok(std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)])))
-        };
         for el in &self.elements {
             let e = crokf_kernel::Element {
                 weight: el.weight,
@@ -193,9 +194,15 @@ impl ReducedModel {
                 gradients: &el.geometry.gradients,
                 stiffness: el.stiffness.as_flattened(),
                 rows: &el.flat,
+                cols: &el.flat_t,
             };
-            // `polar` never fails (SVD fallback), so neither does the kernel here.
-            let _ = crokf_kernel::add_reduced_force_with(&e, q, velocity, beta, out, polar);
+            let g = crokf_kernel::gather(&e, q, velocity);
+            let rot = crokf_kernel::polar_rotation(&g.f).unwrap_or_else(|_| {
+                let m =
+                    crate::stepping::polar_rotation(&nalgebra::Matrix3::from_fn(|i, j| g.f[i][j]));
+                std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)]))
+            });
+            crokf_kernel::scatter(&e, &g, &rot, beta, out);
         }
     }
 
