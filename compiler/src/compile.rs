@@ -9,8 +9,115 @@ use crokf_formats as fmt;
 use crate::error::CompileError;
 use crate::full_order::FullOrder;
 use crate::model_file::assemble_model;
+use crate::nonlinear::ecsw::EcswOptions;
+use crate::nonlinear::tier::{self, RuntimeNewton};
+use crate::nonlinear::training::TrainingPlan;
+use crate::outputs::Measurements;
 use crate::reductor::Reductor;
 use crate::report::{self, Sizes, StageTimer};
+use crate::scene::ModelTier;
+
+/// Factor on the largest training ‖q‖ beyond which the runtime reports the state outside the
+/// tier's training envelope.
+pub const TIER_STATE_MARGIN: f64 = 1.5;
+
+/// The co-rotational tier of `[reduction] model = "corotational"` (docs/design.md §10):
+/// training runs generated from `[reduction.corotational]` (progress on stderr), POD basis,
+/// ECSW, the linearised filter and the model file's tier section; figures go into `report`.
+fn corotational_tier(
+    full: &FullOrder,
+    measurements: &Measurements,
+    timer: &mut StageTimer,
+    report: &mut fmt::CompileReport,
+) -> Result<fmt::CorotationalTier, CompileError> {
+    let path = full.scene_path().to_path_buf();
+    let fail = |e: &dyn std::fmt::Display| CompileError::Tier {
+        path: path.clone(),
+        message: e.to_string(),
+    };
+    let Some(spec) = full.scene.scene.reduction.corotational.as_ref() else {
+        return Err(fail(
+            &"reduction.model = \"corotational\" needs [reduction.corotational]",
+        ));
+    };
+    let names: Vec<String> = full
+        .operators
+        .loads
+        .iter()
+        .map(|l| l.name.clone())
+        .collect();
+    let plan = TrainingPlan::from_scene(spec, &names);
+    let mut progress = |k: usize, of: usize, label: &str| {
+        eprintln!(
+            "crokf-compile: co-rotational training run {}/{of}: {label}",
+            k + 1
+        );
+    };
+    let training = timer
+        .stage("tier_training", || {
+            crate::nonlinear::training::train(full, &plan, &mut progress)
+        })
+        .map_err(|e| fail(&e))?;
+    for (label, failed) in &training.runs {
+        if let Some(why) = failed {
+            report.notes.push(format!(
+                "co-rotational training run '{label}' failed and was skipped: {why}"
+            ));
+        }
+    }
+    let ecsw = EcswOptions {
+        tolerance: spec.ecsw_tolerance,
+        ..EcswOptions::default()
+    };
+    let built = timer
+        .stage("tier_reduction", || {
+            tier::from_training(full, training, spec.order, &ecsw)
+        })
+        .map_err(|e| fail(&e))?;
+    let filter = timer
+        .stage("tier_kalman", || {
+            tier::linearised_filter(full, &built, measurements)
+        })
+        .map_err(|e| fail(&e))?;
+    let env = &built.training.envelope;
+    let r = built.model.order();
+    report.notes.push(format!(
+        "co-rotational tier: r = {r} POD vectors of {} training snapshots ({} of {} runs), {} \
+         sampled elements of {} (ECSW residual {:.2e}, tolerance {:.0e}); envelope: {}",
+        env.snapshots,
+        env.runs.0,
+        env.runs.1,
+        built.model.elements.len(),
+        full.fem.elements.len(),
+        built.sampling.relative_residual,
+        spec.ecsw_tolerance,
+        plan.ranges
+            .iter()
+            .map(|(n, f)| format!("{n} ≤ {:.4} N", f * plan.max_multiple()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    ));
+    report.notes.push(format!(
+        "co-rotational tier filter (linearised at rest, state (q, q̇, q̈) = {}): closed-loop \
+         spectral radius {:.6}, Riccati residual {:.1e}",
+        3 * r,
+        filter.schedule.closed_loop_spectral_radius,
+        filter.schedule.worst_relative_residual
+    ));
+    let section = tier::tier_section(
+        full,
+        &built,
+        &plan,
+        &filter,
+        measurements,
+        RuntimeNewton {
+            tolerance: spec.newton_tolerance,
+            iterations: spec.newton_iterations,
+            state_margin: TIER_STATE_MARGIN,
+        },
+    );
+    Ok(section)
+}
 
 /// Options of a compile run; `None` falls back to the scene's `[reduction]` table, then defaults.
 #[derive(Clone, Debug, Default)]
@@ -119,6 +226,19 @@ pub fn compile_reduced(
             report,
         )
     });
+    let mut model = model;
+    if full.scene.scene.reduction.model == ModelTier::Corotational {
+        model.tier = Some(corotational_tier(
+            full,
+            &reductor.measurements,
+            &mut timer,
+            &mut model.report,
+        )?);
+        model.validate().map_err(|e| CompileError::Tier {
+            path: full.scene_path().to_path_buf(),
+            message: format!("model file section: {e}"),
+        })?;
+    }
     let bytes = fmt::encode(&model);
     let fem = &full.fem;
     let sizes = Sizes {

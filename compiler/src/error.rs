@@ -51,6 +51,14 @@ pub enum CompileError {
         /// What went wrong.
         source: SteppingError,
     },
+    /// The co-rotational tier (training, hyper-reduction, its filter; docs/design.md §10).
+    #[error("{path}: co-rotational tier: {message}")]
+    Tier {
+        /// Scene path.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
     /// Reading or writing files.
     #[error("{path}: {source}")]
     Io {

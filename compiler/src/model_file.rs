@@ -129,5 +129,6 @@ pub fn assemble_model(
         node_sets,
         report,
         inputs_digest: full.digest(),
+        tier: None,
     }
 }

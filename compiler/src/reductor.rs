@@ -99,7 +99,7 @@ impl<'a> Reductor<'a> {
             .map(|c| c.column.as_slice())
             .collect();
         let b: Mat<f64> = columns(&input_columns, n);
-        let spec = full.scene.scene.reduction;
+        let spec = &full.scene.scene.reduction;
         let modes = modes.or(spec.modes);
         let resolved = 0.25 / full.wilson.dt;
         let (max_frequency_hz, max_modes) = match (modes, spec.max_frequency) {
@@ -161,7 +161,7 @@ impl<'a> Reductor<'a> {
     /// The order rule without measurement: an explicit order, else a tolerance, from the
     /// arguments, then the scene's `[reduction]` table, then [`DEFAULT_TOLERANCE`].
     pub fn order(&self, order: Option<usize>, tolerance: Option<f64>) -> Order {
-        let spec = self.full.scene.scene.reduction;
+        let spec = &self.full.scene.scene.reduction;
         match (order.or(spec.order), tolerance.or(spec.tolerance)) {
             (Some(r), _) => Order::Fixed(r),
             (None, Some(t)) => Order::Tolerance(t),
@@ -211,7 +211,7 @@ impl<'a> Reductor<'a> {
         tolerance: Option<f64>,
         measure: bool,
     ) -> Result<(ReducedModel, Option<String>), CompileError> {
-        let spec = self.full.scene.scene.reduction;
+        let spec = &self.full.scene.scene.reduction;
         if order.or(spec.order).is_some() || tolerance.or(spec.tolerance).is_some() || !measure {
             return Ok((self.reduce(self.order(order, tolerance))?, None));
         }

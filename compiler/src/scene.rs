@@ -538,7 +538,7 @@ fn default_theta() -> f64 {
 }
 
 /// Reduction settings (all optional; command-line flags override).
-#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ReductionSpec {
     /// Balanced truncation order r.
@@ -552,6 +552,153 @@ pub struct ReductionSpec {
     /// cap of 60 modes, and the measured error's chirp sweeps up to it (docs/design.md §4).
     /// In (0, 1/(4Δt)]; exclusive with `modes`.
     pub max_frequency: Option<f64>,
+    // --- The co-rotational tier (docs/design.md §10; compiler/src/nonlinear) ---
+    /// Runtime model tier: `"warped"` (default, the warped linear model of §5) or
+    /// `"corotational"` (the hyper-reduced co-rotational model of §10, trained by the compiler
+    /// on `[reduction.corotational]`).
+    #[serde(default)]
+    pub model: ModelTier,
+    /// Training envelope and sizes of the co-rotational tier (required with
+    /// `model = "corotational"`, refused otherwise).
+    pub corotational: Option<CorotationalSpec>,
+}
+
+/// Which runtime model the compiler writes.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum ModelTier {
+    /// The warped linear model (docs/design.md §5): the cheapest tier.
+    #[default]
+    Warped,
+    /// The hyper-reduced co-rotational model (docs/design.md §10).
+    Corotational,
+}
+
+/// `[reduction.corotational]`: what the compiler trains the co-rotational tier on and how big
+/// the tier is. Training (docs/design.md §10 item 2): per load group named in `ranges`, the six
+/// axis directions ±x, ±y, ±z × {a ramp to `ramp_multiple`·F over `ramp_time`, a step to
+/// `step_multiple`·F}, F the group's range; full-order co-rotational runs of `duration` s,
+/// a snapshot every `every` steps.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CorotationalSpec {
+    /// Load range per load group (scene load name → largest total force magnitude, N). Groups
+    /// not named are not trained on (and refused by the runtime's envelope check if loaded).
+    pub ranges: std::collections::BTreeMap<String, f64>,
+    /// Length of each training run, s.
+    pub duration: f64,
+    /// Snapshot every k steps (≥ 1).
+    #[serde(default = "default_training_every")]
+    pub every: usize,
+    /// Final multiple of the range of the ramp runs (0 = no ramp runs).
+    #[serde(default = "default_ramp_multiple")]
+    pub ramp_multiple: f64,
+    /// Ramp time, s (default duration/3).
+    pub ramp_time: Option<f64>,
+    /// Multiple of the range of the step runs (0 = no step runs).
+    #[serde(default = "default_step_multiple")]
+    pub step_multiple: f64,
+    /// Basis size r (POD vectors of the training snapshots).
+    #[serde(default = "default_tier_order")]
+    pub order: usize,
+    /// ECSW relative tolerance on the training forces.
+    #[serde(default = "default_ecsw_tolerance")]
+    pub ecsw_tolerance: f64,
+    /// Runtime Newton: converged when ‖δq‖ ≤ tolerance ‖q‖.
+    #[serde(default = "default_newton_tolerance")]
+    pub newton_tolerance: f64,
+    /// Runtime Newton: most iterations per step.
+    #[serde(default = "default_newton_iterations")]
+    pub newton_iterations: usize,
+}
+
+fn default_training_every() -> usize {
+    5
+}
+fn default_ramp_multiple() -> f64 {
+    1.25
+}
+fn default_step_multiple() -> f64 {
+    0.6
+}
+fn default_tier_order() -> usize {
+    20
+}
+fn default_ecsw_tolerance() -> f64 {
+    5e-3
+}
+fn default_newton_tolerance() -> f64 {
+    1e-6
+}
+fn default_newton_iterations() -> usize {
+    20
+}
+
+impl CorotationalSpec {
+    /// Range checks; `loads` are the scene's load names. Messages name the field.
+    fn check(&self, loads: &[&str]) -> Result<(), String> {
+        let f = |name: &str| format!("reduction.corotational.{name}");
+        if self.ranges.is_empty() {
+            return Err(format!(
+                "{}: name at least one load group and its force range in N",
+                f("ranges")
+            ));
+        }
+        for (name, &range) in &self.ranges {
+            if !loads.contains(&name.as_str()) {
+                return Err(format!(
+                    "{}: '{name}' is not a load of the scene (loads: {})",
+                    f("ranges"),
+                    loads.join(", ")
+                ));
+            }
+            in_range(&format!("{}.{name}", f("ranges")), range, (1e-9, 1e9), "N")?;
+            if range <= 0.0 {
+                return Err(format!("{}.{name} must be > 0 N", f("ranges")));
+            }
+        }
+        in_range(&f("duration"), self.duration, (1e-6, 1e4), "s")?;
+        if self.every == 0 {
+            return Err(format!("{} must be ≥ 1", f("every")));
+        }
+        in_range(&f("ramp_multiple"), self.ramp_multiple, (0.0, 100.0), "")?;
+        in_range(&f("step_multiple"), self.step_multiple, (0.0, 100.0), "")?;
+        if self.ramp_multiple == 0.0 && self.step_multiple == 0.0 {
+            return Err(format!(
+                "{} and {} are both 0: no training run",
+                f("ramp_multiple"),
+                f("step_multiple")
+            ));
+        }
+        if let Some(t) = self.ramp_time {
+            in_range(&f("ramp_time"), t, (0.0, self.duration), "s")?;
+        }
+        if !(1..=200).contains(&self.order) {
+            return Err(format!(
+                "{} = {} is out of range: it must be within [1, 200]",
+                f("order"),
+                self.order
+            ));
+        }
+        in_range(&f("ecsw_tolerance"), self.ecsw_tolerance, (1e-8, 0.5), "")?;
+        if self.ecsw_tolerance <= 0.0 {
+            return Err(format!("{} must be > 0", f("ecsw_tolerance")));
+        }
+        in_range(
+            &f("newton_tolerance"),
+            self.newton_tolerance,
+            (1e-14, 1e-1),
+            "",
+        )?;
+        if !(1..=100).contains(&self.newton_iterations) {
+            return Err(format!(
+                "{} = {} is out of range: it must be within [1, 100]",
+                f("newton_iterations"),
+                self.newton_iterations
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// A scene, as written in the file.
@@ -1038,6 +1185,27 @@ impl Scene {
                     "reduction: give either modes (a count) or max_frequency (Hz), not both".into(),
                 );
             }
+        }
+        match (self.reduction.model, &self.reduction.corotational) {
+            (ModelTier::Corotational, Some(spec)) => {
+                let loads: Vec<&str> = self.loads.iter().map(|l| l.name.as_str()).collect();
+                spec.check(&loads)?;
+            }
+            (ModelTier::Corotational, None) => {
+                return Err(
+                    "reduction.model = \"corotational\" needs a [reduction.corotational] \
+                            table (ranges, duration: the training envelope)"
+                        .into(),
+                )
+            }
+            (ModelTier::Warped, Some(_)) => {
+                return Err(
+                    "[reduction.corotational] is only read with reduction.model = \
+                            \"corotational\""
+                        .into(),
+                )
+            }
+            (ModelTier::Warped, None) => {}
         }
         Ok(())
     }

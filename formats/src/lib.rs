@@ -15,6 +15,7 @@
 mod matrix;
 mod model;
 pub mod output;
+mod tier;
 mod validate;
 
 pub use matrix::Matrix;
@@ -22,6 +23,7 @@ pub use model::{
     component_label, CompileReport, InputChannel, InputKind, InputsDigest, KalmanGains,
     KalmanPhase, LoadGroup, MeasurementChannel, Model, NodeSet, SensorInfo,
 };
+pub use tier::{CorotationalTier, EnvelopeLoad, TierElement, TrainingEnvelope, TrainingHistory};
 
 use sha2::{Digest, Sha256};
 
@@ -29,9 +31,10 @@ use sha2::{Digest, Sha256};
 pub const MAGIC: [u8; 8] = *b"CROKF\0\r\n";
 /// The format version this crate writes and the only one it reads.
 ///
+/// Version 3 adds the optional co-rotational tier section (`Model::tier`, docs/design.md §10).
 /// Version 2 stores the measurement noise once per channel (`kalman.measurement_variance`);
 /// version 1 also had a lossy per-sensor `noise_std` (the largest σ over its components).
-pub const FORMAT_VERSION: u32 = 2;
+pub const FORMAT_VERSION: u32 = 3;
 /// Header length in bytes (magic + version + payload length + SHA-256).
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 32;
 
@@ -133,7 +136,7 @@ pub enum FormatError {
     },
 }
 
-/// "model format v1, this runtime reads v2: recompile with crokf-compile" (or, for a newer
+/// "model format v2, this runtime reads v3: recompile the model with crokf-compile" (or, for a newer
 /// file, "…: update the runtime").
 fn version_message(found: u32, supported: u32) -> String {
     let remedy = if found < supported {

@@ -38,6 +38,8 @@ pub struct Model {
     pub report: CompileReport,
     /// Hashes of the compiler's inputs.
     pub inputs_digest: InputsDigest,
+    /// The co-rotational tier (format v3; `None` for the warped linear tier).
+    pub tier: Option<crate::CorotationalTier>,
 }
 
 /// One deterministic input channel (one column of G).

@@ -195,57 +195,7 @@ impl Model {
             }
         }
 
-        let k = &self.kalman;
-        if k.period == 0 {
-            return Err(invalid("kalman.period", "must be ≥ 1"));
-        }
-        if k.phases.len() != k.period as usize {
-            return Err(invalid(
-                "kalman.phases",
-                format!("{} phases for period {}", k.phases.len(), k.period),
-            ));
-        }
-        for (p, phase) in k.phases.iter().enumerate() {
-            let path = format!("kalman.phases[{p}]");
-            if let Some(&bad) = phase.measured.iter().find(|&&j| j as usize >= q) {
-                return Err(invalid(
-                    format!("{path}.measured"),
-                    format!("measurement index {bad} out of range ({q} measurements)"),
-                ));
-            }
-            check_increasing(&format!("{path}.measured"), &phase.measured)?;
-            check_matrix(
-                &format!("{path}.gain"),
-                &phase.gain,
-                r,
-                phase.measured.len() as u64,
-            )?;
-            check_matrix(
-                &format!("{path}.prior_covariance"),
-                &phase.prior_covariance,
-                r,
-                r,
-            )?;
-            check_matrix(
-                &format!("{path}.posterior_covariance"),
-                &phase.posterior_covariance,
-                r,
-                r,
-            )?;
-        }
-        check_matrix("kalman.process_noise", &k.process_noise, r, r)?;
-        if k.measurement_variance.len() != q {
-            return Err(invalid(
-                "kalman.measurement_variance",
-                format!(
-                    "{} values for {q} measurements",
-                    k.measurement_variance.len()
-                ),
-            ));
-        }
-        for (i, &v) in k.measurement_variance.iter().enumerate() {
-            check_positive(&format!("kalman.measurement_variance[{i}]"), v)?;
-        }
+        check_kalman("kalman", &self.kalman, r, q)?;
 
         for (s, set) in self.node_sets.iter().enumerate() {
             let path = format!("node_sets[{s}] '{}'", set.name);
@@ -272,6 +222,159 @@ impl Model {
                 }
             }
         }
+        if let Some(tier) = &self.tier {
+            check_tier(self, tier)?;
+        }
         Ok(())
     }
+}
+
+/// The Kalman section `prefix` (`kalman` or `tier.kalman`) for state dimension r and q
+/// measurement channels.
+fn check_kalman(prefix: &str, k: &crate::KalmanGains, r: u64, q: usize) -> Result<(), FormatError> {
+    if k.period == 0 {
+        return Err(invalid(format!("{prefix}.period"), "must be ≥ 1"));
+    }
+    if k.phases.len() != k.period as usize {
+        return Err(invalid(
+            format!("{prefix}.phases"),
+            format!("{} phases for period {}", k.phases.len(), k.period),
+        ));
+    }
+    for (p, phase) in k.phases.iter().enumerate() {
+        let path = format!("{prefix}.phases[{p}]");
+        if let Some(&bad) = phase.measured.iter().find(|&&j| j as usize >= q) {
+            return Err(invalid(
+                format!("{path}.measured"),
+                format!("measurement index {bad} out of range ({q} measurements)"),
+            ));
+        }
+        check_increasing(&format!("{path}.measured"), &phase.measured)?;
+        check_matrix(
+            &format!("{path}.gain"),
+            &phase.gain,
+            r,
+            phase.measured.len() as u64,
+        )?;
+        check_matrix(
+            &format!("{path}.prior_covariance"),
+            &phase.prior_covariance,
+            r,
+            r,
+        )?;
+        check_matrix(
+            &format!("{path}.posterior_covariance"),
+            &phase.posterior_covariance,
+            r,
+            r,
+        )?;
+    }
+    check_matrix(&format!("{prefix}.process_noise"), &k.process_noise, r, r)?;
+    if k.measurement_variance.len() != q {
+        return Err(invalid(
+            format!("{prefix}.measurement_variance"),
+            format!(
+                "{} values for {q} measurements",
+                k.measurement_variance.len()
+            ),
+        ));
+    }
+    for (i, &v) in k.measurement_variance.iter().enumerate() {
+        check_positive(&format!("{prefix}.measurement_variance[{i}]"), v)?;
+    }
+    Ok(())
+}
+
+/// The co-rotational tier section (format v3): shapes against r = `tier.order`, m inputs,
+/// the model's sensors and node sets, q measurements; finite values; weights ≥ 0.
+fn check_tier(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatError> {
+    let r = t.order as u64;
+    if t.order == 0 {
+        return Err(invalid("tier.order", "must be ≥ 1"));
+    }
+    check_matrix("tier.mass", &t.mass, r, r)?;
+    check_finite("tier.alpha", &[t.alpha], 0)?;
+    check_finite("tier.beta", &[t.beta], 0)?;
+    if t.alpha < 0.0 || t.beta < 0.0 {
+        return Err(invalid(
+            "tier.alpha/beta",
+            "Rayleigh coefficients must be ≥ 0",
+        ));
+    }
+    check_positive("tier.newton_tolerance", t.newton_tolerance)?;
+    if t.newton_iterations == 0 {
+        return Err(invalid("tier.newton_iterations", "must be ≥ 1"));
+    }
+    check_matrix("tier.input", &t.input, r, model.inputs.len() as u64)?;
+    if t.sensor_rows.len() != model.sensors.len() {
+        return Err(invalid(
+            "tier.sensor_rows",
+            format!(
+                "{} blocks for {} sensors",
+                t.sensor_rows.len(),
+                model.sensors.len()
+            ),
+        ));
+    }
+    for (s, m) in t.sensor_rows.iter().enumerate() {
+        check_matrix(&format!("tier.sensor_rows[{s}]"), m, 3, r)?;
+    }
+    if t.node_set_rows.len() != model.node_sets.len() {
+        return Err(invalid(
+            "tier.node_set_rows",
+            format!(
+                "{} blocks for {} node sets",
+                t.node_set_rows.len(),
+                model.node_sets.len()
+            ),
+        ));
+    }
+    for (s, m) in t.node_set_rows.iter().enumerate() {
+        let n = model.node_sets[s].node_tags.len() as u64;
+        check_matrix(&format!("tier.node_set_rows[{s}]"), m, 3 * n, r)?;
+    }
+    if t.elements.is_empty() {
+        return Err(invalid("tier.elements", "no sampled element"));
+    }
+    for (e, el) in t.elements.iter().enumerate() {
+        let path = format!("tier.elements[{e}]");
+        check_finite(&format!("{path}.weight"), &[el.weight], 0)?;
+        if el.weight < 0.0 {
+            return Err(invalid(
+                format!("{path}.weight"),
+                format!("must be ≥ 0, got {}", el.weight),
+            ));
+        }
+        check_finite(&format!("{path}.rest"), el.rest.as_flattened(), 3)?;
+        check_finite(&format!("{path}.gradients"), el.gradients.as_flattened(), 3)?;
+        check_matrix(&format!("{path}.stiffness"), &el.stiffness, 12, 12)?;
+        check_matrix(&format!("{path}.rows"), &el.rows, 12, r)?;
+    }
+    let env = &t.envelope;
+    for (g, l) in env.loads.iter().enumerate() {
+        let path = format!("tier.envelope.loads[{g}] '{}'", l.name);
+        if !model.loads.iter().any(|m| m.name == l.name) {
+            return Err(invalid(path, "not a load group of the model"));
+        }
+        check_positive(&format!("{path}.range"), l.range)?;
+        check_positive(&format!("{path}.max_force"), l.max_force)?;
+    }
+    for (d, dir) in env.directions.iter().enumerate() {
+        check_finite(&format!("tier.envelope.directions[{d}]"), dir, 0)?;
+    }
+    for (h, hist) in env.histories.iter().enumerate() {
+        let path = format!("tier.envelope.histories[{h}]");
+        check_finite(&path, &[hist.multiple, hist.time], 0)?;
+    }
+    check_positive("tier.envelope.max_coordinate_norm", env.max_coordinate_norm)?;
+    check_finite("tier.envelope.max_displacement", &[env.max_displacement], 0)?;
+    check_finite("tier.envelope.duration", &[env.duration], 0)?;
+    check_finite("tier.envelope.state_margin", &[env.state_margin], 0)?;
+    if env.state_margin < 1.0 {
+        return Err(invalid(
+            "tier.envelope.state_margin",
+            format!("must be ≥ 1, got {}", env.state_margin),
+        ));
+    }
+    check_kalman("tier.kalman", &t.kalman, 3 * r, model.measurements.len())
 }

@@ -148,6 +148,7 @@ fn small_model() -> Model {
             scene_sha256: sha256_hex(b"scene"),
             compiler_version: "test".into(),
         },
+        tier: None,
     }
 }
 
@@ -158,7 +159,7 @@ fn round_trip_and_determinism() {
     let bytes = encode(&model);
     assert_eq!(bytes, encode(&model), "encoding must be deterministic");
     assert_eq!(&bytes[..8], b"CROKF\0\r\n");
-    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 2);
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 3);
     let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
     assert_eq!(len as usize, bytes.len() - HEADER_LEN);
     assert_eq!(hex(&bytes[20..52]), sha256_hex(&bytes[HEADER_LEN..]));
@@ -227,28 +228,31 @@ fn every_truncation_is_an_error() {
 
 #[test]
 fn other_versions_and_wrong_magic() {
-    assert_eq!(FORMAT_VERSION, 2);
-    // A version-1 file (per-sensor noise_std, since removed) is refused before its payload is
-    // read, with both versions and the remedy in the message.
+    assert_eq!(FORMAT_VERSION, 3);
+    // Version-1 and version-2 files (before the co-rotational tier section) are refused before
+    // their payload is read, with both versions and the remedy in the message.
+    for old in [1u32, 2] {
+        let mut bytes = encode(&small_model());
+        bytes[8..12].copy_from_slice(&old.to_le_bytes());
+        let err = decode(&bytes).unwrap_err();
+        assert_eq!(
+            err,
+            FormatError::UnsupportedVersion {
+                found: old,
+                supported: 3
+            }
+        );
+        assert_eq!(
+            err.to_string(),
+            format!("model format v{old}, this runtime reads v3: recompile the model with crokf-compile")
+        );
+    }
     let mut bytes = encode(&small_model());
-    bytes[8..12].copy_from_slice(&1u32.to_le_bytes());
-    let err = decode(&bytes).unwrap_err();
-    assert_eq!(
-        err,
-        FormatError::UnsupportedVersion {
-            found: 1,
-            supported: 2
-        }
-    );
-    assert_eq!(
-        err.to_string(),
-        "model format v1, this runtime reads v2: recompile the model with crokf-compile"
-    );
-    bytes[8..12].copy_from_slice(&3u32.to_le_bytes());
+    bytes[8..12].copy_from_slice(&4u32.to_le_bytes());
     let err = decode(&bytes).unwrap_err();
     assert!(
         err.to_string()
-            .starts_with("model format v3, this runtime reads v2: "),
+            .starts_with("model format v4, this runtime reads v3: "),
         "{err}"
     );
     let mut bytes = encode(&small_model());
@@ -422,4 +426,111 @@ fn matrix_bytes_not_multiple_of_eight() {
             data: vec![0.0]
         }
     );
+}
+
+/// A small synthetic co-rotational tier (r = 2) for `small_model()`.
+fn small_tier(model: &Model) -> CorotationalTier {
+    let r = 2u32;
+    let q = model.measurements.len() as u32;
+    let mut g = Rng(7);
+    let phase = |measured: Vec<u32>, g: &mut Rng| KalmanPhase {
+        gain: g.matrix(3 * r, measured.len() as u32),
+        measured,
+        prior_covariance: Matrix::identity(3 * r),
+        posterior_covariance: Matrix::identity(3 * r),
+    };
+    let phases = vec![
+        phase((0..q).collect(), &mut g),
+        phase(vec![0, 1, 2], &mut g),
+    ];
+    CorotationalTier {
+        order: r,
+        mass: Matrix::identity(r),
+        alpha: 0.5,
+        beta: 1e-3,
+        newton_tolerance: 1e-6,
+        newton_iterations: 20,
+        input: g.matrix(r, model.inputs.len() as u32),
+        sensor_rows: model.sensors.iter().map(|_| g.matrix(3, r)).collect(),
+        node_set_rows: model
+            .node_sets
+            .iter()
+            .map(|s| g.matrix(3 * s.node_tags.len() as u32, r))
+            .collect(),
+        elements: vec![TierElement {
+            element: 3,
+            weight: 2.5,
+            rest: [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            gradients: [[-1.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            stiffness: Matrix::identity(12),
+            rows: g.matrix(12, r),
+        }],
+        envelope: TrainingEnvelope {
+            loads: vec![EnvelopeLoad {
+                name: "push".into(),
+                range: 20.0,
+                max_force: 25.0,
+            }],
+            directions: vec![[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]],
+            histories: vec![TrainingHistory {
+                kind: "ramp".into(),
+                multiple: 1.25,
+                time: 0.3,
+            }],
+            duration: 1.0,
+            every: 5,
+            runs_completed: 2,
+            runs_attempted: 2,
+            snapshots: 80,
+            max_displacement: 0.6,
+            max_coordinate_norm: 3.0,
+            state_margin: 1.5,
+        },
+        kalman: KalmanGains {
+            period: 2,
+            phases,
+            process_noise: Matrix::identity(3 * r),
+            measurement_variance: model.kalman.measurement_variance.clone(),
+        },
+    }
+}
+
+#[test]
+fn tier_section_round_trip_and_validation() {
+    let mut model = small_model();
+    model.tier = Some(small_tier(&model));
+    model.validate().unwrap();
+    let bytes = encode(&model);
+    assert_eq!(bytes, encode(&model));
+    let back = decode(&bytes).unwrap();
+    assert_eq!(back, model);
+    // Shapes, finiteness and weights of the section are checked, naming the field.
+    let bad = |edit: &dyn Fn(&mut CorotationalTier)| {
+        let mut m = model.clone();
+        edit(m.tier.as_mut().unwrap());
+        m.validate().unwrap_err().to_string()
+    };
+    let e = bad(&|t| t.elements[0].rows = Matrix::zeros(12, 3));
+    assert!(
+        e.contains("tier.elements[0].rows") && e.contains("12×2"),
+        "{e}"
+    );
+    let e = bad(&|t| t.elements[0].weight = -1.0);
+    assert!(e.contains("tier.elements[0].weight"), "{e}");
+    let e = bad(&|t| t.elements[0].rest[2][1] = f64::NAN);
+    assert!(
+        e.contains("tier.elements[0].rest") && e.contains("(2, 1)"),
+        "{e}"
+    );
+    let e = bad(&|t| t.sensor_rows.truncate(1));
+    assert!(e.contains("tier.sensor_rows"), "{e}");
+    let e = bad(&|t| t.kalman.phases[0].gain = Matrix::zeros(2, 4));
+    assert!(
+        e.contains("tier.kalman.phases[0].gain") && e.contains("6×4"),
+        "{e}"
+    );
+    let e = bad(&|t| t.envelope.loads[0].name = "nowhere".into());
+    assert!(e.contains("tier.envelope.loads[0] 'nowhere'"), "{e}");
+    let e = bad(&|t| t.newton_iterations = 0);
+    assert!(e.contains("tier.newton_iterations"), "{e}");
 }

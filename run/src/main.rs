@@ -154,6 +154,9 @@ fn run(args: &Args) -> Result<(), RunError> {
     };
     let mut pvd = Vec::new();
     let mut offered = 0u64;
+    // Co-rotational tier (docs/design.md §10): steps outside the training envelope, the
+    // largest load and state ratios, Newton iterations.
+    let (mut outside, mut worst_load, mut worst_state, mut newton) = (0u64, 0.0f64, 0.0f64, 0u64);
     let inputs_name = inputs_path.display().to_string();
     for (row, &line) in inputs.rows.iter().zip(&inputs.lines) {
         let k = est.step_index() + 1;
@@ -177,6 +180,13 @@ fn run(args: &Args) -> Result<(), RunError> {
             .count();
         est.step(row, y).map_err(step_err)?;
         offered += active as u64;
+        let status = est.tier_status();
+        if status.envelope.outside() {
+            outside += 1;
+        }
+        worst_load = worst_load.max(status.envelope.load_ratio);
+        worst_state = worst_state.max(status.envelope.state_ratio);
+        newton += status.iterations as u64;
         est.sensor_displacements(&mut u).map_err(step_err)?;
         est.sensor_std(&mut sd).map_err(step_err)?;
         let mut text = format!("{},{}", k, est.time());
@@ -196,6 +206,16 @@ fn run(args: &Args) -> Result<(), RunError> {
     }
     out.commit()?;
     eprintln!("{}", gate_summary(&est, offered));
+    if est.is_corotational() {
+        let steps = inputs.rows.len().max(1);
+        eprintln!(
+            "co-rotational tier: {outside} of {} steps outside the training envelope (largest \
+             load / trained load {worst_load:.3}, largest |q| / trained |q| {worst_state:.3}); \
+             {:.2} Newton iterations per step",
+            inputs.rows.len(),
+            newton as f64 / steps as f64
+        );
+    }
     if let Some(&last) = measurements.keys().next_back() {
         if last > inputs.rows.len() as u64 {
             eprintln!(

@@ -114,6 +114,7 @@ fn synthetic_model(r: usize, inputs: usize, measured: usize, nodes: usize) -> Mo
         }],
         report: CompileReport::default(),
         inputs_digest: InputsDigest::default(),
+        tier: None,
     }
 }
 

@@ -84,6 +84,7 @@ fn model(r: usize, n: usize) -> Model {
         }],
         report: CompileReport::default(),
         inputs_digest: InputsDigest::default(),
+        tier: None,
     }
 }
 

@@ -32,7 +32,8 @@ void crokf_model_free(CrokfModel *model); /* NULL is a no-op */
 size_t crokf_model_num_inputs(const CrokfModel *model);       /* m */
 size_t crokf_model_num_measurements(const CrokfModel *model); /* q */
 size_t crokf_model_num_sensors(const CrokfModel *model);
-size_t crokf_model_state_dim(const CrokfModel *model);        /* r */
+size_t crokf_model_state_dim(const CrokfModel *model);        /* r, or 3 r_tier (q, q', q'') */
+size_t crokf_model_is_corotational(const CrokfModel *model);  /* 1: co-rotational tier */
 size_t crokf_model_num_node_sets(const CrokfModel *model);
 size_t crokf_model_node_set_len(const CrokfModel *model, size_t set); /* nodes */
 double crokf_model_dt(const CrokfModel *model);               /* s */
@@ -64,6 +65,12 @@ int crokf_set_innovation_gate(CrokfEstimator *est, double sigmas);
 uint64_t crokf_gated_count(const CrokfEstimator *est); /* skipped since creation/reset */
 int crokf_reset(CrokfEstimator *est);
 uint64_t crokf_step_index(const CrokfEstimator *est);
+/* Co-rotational tier: last step's Newton iterations, load ratio |f_g|/max_force_g and state
+ * ratio |q|/max training |q| (NULL pointers skipped). 1: outside the training envelope,
+ * 0: inside (always 0 for the warped tier), -1: NULL handle. A step the tier cannot take
+ * (Newton not converged, inverted element) fails with -1 and leaves the estimator unchanged. */
+int crokf_tier_status(const CrokfEstimator *est, size_t *iterations, double *load_ratio,
+                      double *state_ratio);
 
 /* Read-outs into caller buffers; len must be exact. A read-out never succeeds with a
  * non-finite value. */
@@ -73,7 +80,7 @@ int crokf_measurement_estimates(const CrokfEstimator *est, double *out, size_t l
 int crokf_node_displacements(const CrokfEstimator *est, size_t set, double *out, size_t len);
 int crokf_node_positions(const CrokfEstimator *est, size_t set, double *out, size_t len);
 int crokf_node_std(const CrokfEstimator *est, size_t set, double *out, size_t len);
-int crokf_state(const CrokfEstimator *est, double *out, size_t len); /* r */
+int crokf_state(const CrokfEstimator *est, double *out, size_t len); /* crokf_model_state_dim */
 
 #ifdef __cplusplus
 }

@@ -172,8 +172,12 @@ model_count!(
     /// Number of sensors (sensor read-outs have 3 values per sensor).
     crokf_model_num_sensors, |m| m.sensors.len());
 model_count!(
-    /// Reduced state dimension r.
-    crokf_model_state_dim, |m| m.r());
+    /// State length (of `crokf_state`): r for the warped tier, 3·r_tier (q, q̇, q̈) for the
+    /// co-rotational tier (docs/design.md §10).
+    crokf_model_state_dim, |m| m.tier.as_ref().map_or(m.r(), |t| 3 * t.order as usize));
+model_count!(
+    /// 1 when the model carries the co-rotational tier (docs/design.md §10), else 0.
+    crokf_model_is_corotational, |m| m.tier.is_some() as usize);
 model_count!(
     /// Number of displayed node sets.
     crokf_model_num_node_sets, |m| m.node_sets.len());
@@ -404,6 +408,38 @@ pub unsafe extern "C" fn crokf_step_index(e: *const CrokfEstimator) -> u64 {
     guard(0, || Ok(est_ref(e)?.est.step_index()))
 }
 
+/// Status of the co-rotational tier's last completed step (docs/design.md §10): Newton
+/// iterations, the largest load ratio |f_g|/max_force_g and the state ratio ‖q‖/max training
+/// ‖q‖ are written where the pointers are not NULL. Returns 1 when that step left the
+/// training envelope, 0 when inside (and for the warped tier, with zeros), -1 on a NULL handle.
+///
+/// # Safety
+/// `e` live estimator; each pointer NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_tier_status(
+    e: *const CrokfEstimator,
+    iterations: *mut usize,
+    load_ratio: *mut f64,
+    state_ratio: *mut f64,
+) -> c_int {
+    guard(-1, || {
+        let status = est_ref(e)?.est.tier_status();
+        // SAFETY: the caller passes NULL or writable pointers.
+        unsafe {
+            if !iterations.is_null() {
+                *iterations = status.iterations;
+            }
+            if !load_ratio.is_null() {
+                *load_ratio = status.envelope.load_ratio;
+            }
+            if !state_ratio.is_null() {
+                *state_ratio = status.envelope.state_ratio;
+            }
+        }
+        Ok(status.envelope.outside() as c_int)
+    })
+}
+
 macro_rules! readout {
     ($(#[$doc:meta])* $name:ident, $method:ident) => {
         $(#[$doc])*
@@ -464,7 +500,8 @@ node_readout!(
     /// Standard deviations of node set `set`'s displacements, 3 per node (m).
     crokf_node_std, node_std);
 
-/// Copies the reduced state (length r). Returns 0 or -1.
+/// Copies the state (length `crokf_model_state_dim`: x for the warped tier, (q, q̇, q̈) for
+/// the co-rotational tier). Returns 0 or -1.
 ///
 /// # Safety
 /// `e` live estimator; `out` points to `len` writable doubles.

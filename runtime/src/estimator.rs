@@ -91,6 +91,11 @@ pub struct Estimator {
     gated: Vec<u64>,
     gated_total: u64,
     gated_last: usize,
+    /// The co-rotational tier's state (docs/design.md §10), when the model has a tier: then
+    /// prediction, update and read-outs use it instead of x.
+    tier: Option<Box<crate::tier::TierState>>,
+    /// Status of the tier's last completed step.
+    tier_status: crate::tier::TierStatus,
 }
 
 impl Estimator {
@@ -132,6 +137,11 @@ impl Estimator {
             gated: vec![0; q],
             gated_total: 0,
             gated_last: 0,
+            tier: prepared
+                .tier
+                .as_ref()
+                .map(|t| Box::new(crate::tier::TierState::new(t, prepared.model.loads.len()))),
+            tier_status: Default::default(),
             shared: prepared,
         }
     }
@@ -186,15 +196,46 @@ impl Estimator {
         self.phase = 0;
         self.cov = CovarianceKind::Posterior;
         self.awaiting_update = false;
+        if let Some(t) = &mut self.tier {
+            t.reset();
+        }
+        self.tier_status = Default::default();
     }
 
-    /// The reduced state x (length r).
+    /// True when the model carries the co-rotational tier (docs/design.md §10): the state is
+    /// then s = (q, q̇, q̈) (3r, r the tier's basis size) and steps are nonlinear.
+    pub fn is_corotational(&self) -> bool {
+        self.tier.is_some()
+    }
+
+    /// Status of the co-rotational tier's last completed step (Newton iterations, envelope);
+    /// the default for the warped tier.
+    pub fn tier_status(&self) -> crate::tier::TierStatus {
+        self.tier_status
+    }
+
+    /// The state: x (length r) for the warped tier, s = (q, q̇, q̈) (3r) for the tier.
     pub fn state(&self) -> &[f64] {
-        &self.x
+        match &self.tier {
+            Some(t) => &t.s,
+            None => &self.x,
+        }
     }
 
-    /// Overwrites the reduced state (length r, finite).
+    /// Overwrites the state (length of [`Estimator::state`], finite).
     pub fn set_state(&mut self, x: &[f64]) -> Result<(), RuntimeError> {
+        if let Some(t) = &mut self.tier {
+            check_len("state", t.s.len(), x.len())?;
+            if let Some(i) = x.iter().position(|v| !v.is_finite()) {
+                return Err(RuntimeError::NonFinite {
+                    what: "state",
+                    index: i,
+                    value: x[i],
+                });
+            }
+            t.s.copy_from_slice(x);
+            return Ok(());
+        }
         check_len("state", self.r, x.len())?;
         if let Some(i) = x.iter().position(|v| !v.is_finite()) {
             return Err(RuntimeError::NonFinite {
@@ -237,7 +278,10 @@ impl Estimator {
 
     /// Measurement channels active in the current phase (indices into `model().measurements`).
     pub fn active_measurements(&self) -> &[u32] {
-        &self.shared.model.kalman.phases[self.phase].measured
+        match &self.shared.model.tier {
+            Some(t) => &t.kalman.phases[self.phase].measured,
+            None => &self.shared.model.kalman.phases[self.phase].measured,
+        }
     }
 
     /// x⁻ = F x + G u_lin, then k += 1 and the phase becomes k mod period.
@@ -280,6 +324,21 @@ impl Estimator {
 
     /// The prediction after the inputs were checked; keeps the previous state in `x_next`.
     fn predict_checked(&mut self, inputs: &[f64]) -> Result<(), RuntimeError> {
+        if let (Some(t), Some(tm)) = (&mut self.tier, &self.shared.tier) {
+            // The tier's step leaves s unchanged on error and its previous value in s_prev.
+            self.tier_status = t.step(tm, inputs, self.k + 1)?;
+            let period = self
+                .shared
+                .model
+                .tier
+                .as_ref()
+                .map_or(1, |t| t.kalman.period) as u64;
+            self.k += 1;
+            self.phase = (self.k % period) as usize;
+            self.cov = CovarianceKind::Prior;
+            self.awaiting_update = true;
+            return Ok(());
+        }
         let sh: &PreparedModel = &self.shared;
         let model = &sh.model;
         self.u_lin.copy_from_slice(inputs);
@@ -384,6 +443,22 @@ impl Estimator {
         &mut self,
         get: &impl Fn(usize) -> Option<f64>,
     ) -> Result<usize, RuntimeError> {
+        if let (Some(t), Some(tm)) = (&mut self.tier, &self.shared.tier) {
+            // Constant-gain extended filter: ν = y − V_s q (world frame, linear), s += K_p ν.
+            // No innovation gate on this tier yet.
+            let used = t.update(tm, self.phase, get);
+            if let Some(index) = t.s_upd.iter().position(|v| !v.is_finite()) {
+                return Err(RuntimeError::NonFiniteState {
+                    step: self.k,
+                    stage: "update",
+                    index,
+                });
+            }
+            std::mem::swap(&mut t.s, &mut t.s_upd);
+            self.cov = CovarianceKind::Posterior;
+            self.awaiting_update = false;
+            return Ok(used);
+        }
         let sh: &PreparedModel = &self.shared;
         let model = &sh.model;
         let p = self.phase;
@@ -521,7 +596,10 @@ impl Estimator {
         match self.update_checked(&get) {
             Ok(used) => Ok(used),
             Err(e) => {
-                // predict_checked left the previous state in x_next.
+                // predict_checked left the previous state in x_next (s_prev for the tier).
+                if let Some(t) = &mut self.tier {
+                    std::mem::swap(&mut t.s, &mut t.s_prev);
+                }
                 std::mem::swap(&mut self.x, &mut self.x_next);
                 (self.k, self.phase, self.cov, self.awaiting_update) = saved;
                 self.sync_x32();
@@ -537,6 +615,19 @@ impl Estimator {
             self.shared.model.sensors[s].name,
             crokf_formats::component_label(c as u8)
         )
+    }
+
+    /// The tier's precomputed std of the current phase: (sensors, node sets).
+    fn tier_std(&self) -> Option<(&[f64], &[Vec<f64>])> {
+        let tm = self.shared.tier.as_ref()?;
+        let kind = match self.cov {
+            CovarianceKind::Prior => 0,
+            CovarianceKind::Posterior => 1,
+        };
+        Some((
+            &tm.sensor_std[kind][self.phase],
+            &tm.node_std[kind][self.phase],
+        ))
     }
 
     fn current_std(&self) -> &crate::prepared::PhaseStd {
@@ -562,6 +653,9 @@ impl Estimator {
 
     /// World-frame displacement of sensor `s`, R̃(W_s x) C_s x (m).
     fn sensor_world(&self, s: usize) -> Vec3 {
+        if let (Some(t), Some(tm)) = (&self.tier, &self.shared.tier) {
+            return t.sensor(tm, s);
+        }
         let sensor = &self.shared.model.sensors[s];
         let u = rows3(&sensor.displacement_rows, 0, &self.x);
         Warp::new(&rows3(&sensor.rotation_rows, 0, &self.x)).warp(&u)
@@ -571,7 +665,10 @@ impl Estimator {
     /// (m), from the stored covariance of the current phase (local frame; P⁻ after `predict`,
     /// P after `update`).
     pub fn sensor_std(&self, out: &mut [f64]) -> Result<(), RuntimeError> {
-        let std = &self.current_std().sensors;
+        let std = match self.tier_std() {
+            Some((s, _)) => s,
+            None => &self.current_std().sensors,
+        };
         check_len("sensor std buffer", std.len(), out.len())?;
         out.copy_from_slice(std);
         Ok(())
@@ -614,6 +711,10 @@ impl Estimator {
     pub fn node_displacements(&self, set: usize, out: &mut [f64]) -> Result<(), RuntimeError> {
         let ns = self.node_set(set)?;
         check_len("node read-out buffer", 3 * ns.node_tags.len(), out.len())?;
+        if let (Some(t), Some(tm)) = (&self.tier, &self.shared.tier) {
+            t.nodes(tm, set, out);
+            return check_finite_readout("node displacements", out);
+        }
         let rows = &self.shared.display[set];
         crate::simd::display(
             &rows.rows,
@@ -635,6 +736,10 @@ impl Estimator {
     ) -> Result<(), RuntimeError> {
         let ns = self.node_set(set)?;
         check_len("node read-out buffer", 3 * ns.node_tags.len(), out.len())?;
+        if let (Some(t), Some(tm)) = (&self.tier, &self.shared.tier) {
+            t.nodes(tm, set, out);
+            return check_finite_readout("node displacements", out);
+        }
         for (i, o) in out.chunks_exact_mut(3).enumerate() {
             let u = rows3(&ns.displacement_rows, i, &self.x);
             let omega = rows3(&ns.rotation_rows, i, &self.x);
@@ -658,7 +763,10 @@ impl Estimator {
     /// [`Estimator::sensor_std`]), 3 per node (m).
     pub fn node_std(&self, set: usize, out: &mut [f64]) -> Result<(), RuntimeError> {
         self.node_set(set)?;
-        let std = &self.current_std().nodes[set];
+        let std = match self.tier_std() {
+            Some((_, nodes)) => &nodes[set],
+            None => &self.current_std().nodes[set],
+        };
         check_len("node std buffer", std.len(), out.len())?;
         out.copy_from_slice(std);
         Ok(())

@@ -18,11 +18,13 @@ pub mod capi;
 mod estimator;
 mod prepared;
 mod simd;
+pub mod tier;
 pub mod warp;
 
 pub use crokf_formats::{FormatError, Model};
 pub use estimator::{CovarianceKind, Estimator, DEFAULT_GATE_SIGMAS};
 pub use prepared::PreparedModel;
+pub use tier::{EnvelopeStatus, TierError, TierStatus};
 
 use std::path::{Path, PathBuf};
 
@@ -145,6 +147,9 @@ pub enum RuntimeError {
         /// |ω̄|, rad.
         angle: f64,
     },
+    /// A co-rotational tier step was refused (estimator untouched).
+    #[error(transparent)]
+    Tier(#[from] crate::tier::TierError),
     /// Node set index out of range.
     #[error("node set {index} does not exist (the model has {count})")]
     NoSuchNodeSet {

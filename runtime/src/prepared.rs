@@ -76,6 +76,8 @@ pub struct PreparedModel {
     /// The largest plausible |y|, m.
     pub(crate) measurement_bound: f64,
     pub(crate) display: Vec<DisplayRows>,
+    /// The co-rotational tier (docs/design.md §10), when the model has one.
+    pub(crate) tier: Option<crate::tier::TierModel>,
 }
 
 /// sqrt(cᵀ P c) for every row c of `rows` (k×r), P r×r row-major.
@@ -344,7 +346,12 @@ impl PreparedModel {
             })
             .collect();
 
+        let tier = model
+            .tier
+            .as_ref()
+            .map(|t| crate::tier::TierModel::new(&model, t));
         Ok(PreparedModel {
+            tier,
             r,
             load_channels,
             channel,
@@ -366,6 +373,11 @@ impl PreparedModel {
             display,
             model,
         })
+    }
+
+    /// The co-rotational tier, when the model has one (docs/design.md §10).
+    pub fn tier(&self) -> Option<&crate::tier::TierModel> {
+        self.tier.as_ref()
     }
 
     /// The model.

@@ -224,6 +224,7 @@ pub fn synthetic_model(r: usize, inputs: usize, measured: usize, nodes: usize) -
         }],
         report: fmt::CompileReport::default(),
         inputs_digest: fmt::InputsDigest::default(),
+        tier: None,
     };
     model
 }

@@ -6,15 +6,20 @@
 //!   co-rotational snapshots), M-orthonormalisation and projection errors min_q ‖Vq − u‖_M;
 //! - [`ecsw`]: element sampling and non-negative weights (ECSW, Lawson–Hanson NNLS);
 //! - [`reduced`]: the reduced co-rotational Wilson-θ stepper on q with Newton on the reduced
-//!   tangent.
+//!   tangent;
+//! - [`training`]: the compiler's training runs (full-order co-rotational, generated from the
+//!   scene's `[reduction.corotational]` envelope);
+//! - [`tier`]: training → POD → ECSW → reduced model, its linearised filter and the model
+//!   file's tier section (wired into `compile` by `[reduction] model = "corotational"`).
 //!
-//! The training runs, the floors of candidate bases and the open-loop comparison are driven by
-//! scenario files and live in `crokf-verify` (`crokf_verify::nonlinear`) until the tier is
-//! wired into `compile` with its own training driver.
+//! The floors of candidate bases and the scenario-driven open-loop comparisons live in
+//! `crokf-verify` (`crokf_verify::nonlinear`), which reuses [`training`] and [`tier`].
 
 pub mod basis;
 pub mod ecsw;
 pub mod reduced;
+pub mod tier;
+pub mod training;
 
 use crate::error::CompileError;
 use crate::reduce::ReduceError;

@@ -45,6 +45,8 @@ pub struct SampledElement {
     pub rows: DMatrix<f64>,
     /// The same rows flattened row-major (12·r), for the allocation-free force loop.
     pub flat: Vec<f64>,
+    /// V_eᵀ flattened row-major (r·12) ([`crokf_kernel::Element::cols`]).
+    pub flat_t: Vec<f64>,
 }
 
 /// A reduced co-rotational model: what the model file would store (with the basis rows of
@@ -97,12 +99,14 @@ impl ReducedModel {
             }
             let dofs = fem.dofs.element(&el.nodes);
             let rows = DMatrix::from_fn(12, r, |i, j| dofs[i].map_or(0.0, |d| v[(d, j)]));
-            let flat = (0..12)
+            let flat: Vec<f64> = (0..12)
                 .flat_map(|i| (0..r).map(move |j| (i, j)))
                 .map(|(i, j)| rows[(i, j)])
                 .collect();
+            let flat_t = crokf_kernel::transpose_rows(&flat);
             elements.push(SampledElement {
                 flat,
+                flat_t,
                 element: e,
                 weight,
                 geometry: el.geometry,
@@ -177,68 +181,28 @@ impl ReducedModel {
 
     /// Allocation-free reduced force for the stepper: `out` = f_r,int(q) + β K_t,r(q) ẏ
     /// (r; the sum of the internal force and the stiffness-proportional damping force of
-    /// the module docs), per element with the rotation from [`fast_polar`].
+    /// the module docs), per element by the shared kernel ([`crokf_kernel::gather`],
+    /// [`crokf_kernel::scatter`], [`crokf_kernel::polar_rotation`]: the runtime's), with the
+    /// SVD polar decomposition of the full-order reference as the fallback for inverted
+    /// elements (where the runtime refuses the step).
     pub fn force_with_damping(&self, q: &[f64], velocity: &[f64], beta: f64, out: &mut [f64]) {
-        let r = self.order();
         out.iter_mut().for_each(|v| *v = 0.0);
         for el in &self.elements {
-            let mut u = [0.0; 12];
-            let mut ve = [0.0; 12];
-            for i in 0..12 {
-                let row = &el.flat[i * r..(i + 1) * r];
-                let (mut a, mut b) = (0.0, 0.0);
-                for j in 0..r {
-                    a += row[j] * q[j];
-                    b += row[j] * velocity[j];
-                }
-                u[i] = a;
-                ve[i] = b;
-            }
-            let x: [[f64; 3]; 4] =
-                std::array::from_fn(|a| std::array::from_fn(|c| el.rest[a][c] + u[3 * a + c]));
-            let mut f = nalgebra::Matrix3::zeros();
-            for (xa, g) in x.iter().zip(&el.geometry.gradients) {
-                for i in 0..3 {
-                    for j in 0..3 {
-                        f[(i, j)] += xa[i] * g[j];
-                    }
-                }
-            }
-            let rot = fast_polar(&f);
-            // y = Rᵀ(x − x₀) − (X − X₀), and Rᵀ v for the damping term.
-            let mut y = [0.0; 12];
-            let mut local = [0.0; 12];
-            for a in 0..4 {
-                let d =
-                    nalgebra::Vector3::new(x[a][0] - x[0][0], x[a][1] - x[0][1], x[a][2] - x[0][2]);
-                let p = rot.tr_mul(&d);
-                let lv = rot.tr_mul(&nalgebra::Vector3::new(
-                    ve[3 * a],
-                    ve[3 * a + 1],
-                    ve[3 * a + 2],
-                ));
-                for c in 0..3 {
-                    y[3 * a + c] = p[c] - (el.rest[a][c] - el.rest[0][c]);
-                    local[3 * a + c] = y[3 * a + c] + beta * lv[c];
-                }
-            }
-            let z = crate::fem::element::mul12(&el.stiffness, &local);
-            let mut g = [0.0; 12];
-            for a in 0..4 {
-                let ga = rot * nalgebra::Vector3::new(z[3 * a], z[3 * a + 1], z[3 * a + 2]);
-                for c in 0..3 {
-                    g[3 * a + c] = el.weight * ga[c];
-                }
-            }
-            for i in 0..12 {
-                if g[i] == 0.0 {
-                    continue;
-                }
-                let row = &el.flat[i * r..(i + 1) * r];
-                for j in 0..r {
-                    out[j] += row[j] * g[i];
-                }
-            }
+            let e = crokf_kernel::Element {
+                weight: el.weight,
+                rest: &el.rest,
+                gradients: &el.geometry.gradients,
+                stiffness: el.stiffness.as_flattened(),
+                rows: &el.flat,
+                cols: &el.flat_t,
+            };
+            let g = crokf_kernel::gather(&e, q, velocity);
+            let rot = crokf_kernel::polar_rotation(&g.f).unwrap_or_else(|_| {
+                let m =
+                    crate::stepping::polar_rotation(&nalgebra::Matrix3::from_fn(|i, j| g.f[i][j]));
+                std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)]))
+            });
+            crokf_kernel::scatter(&e, &g, &rot, beta, out);
         }
     }
 

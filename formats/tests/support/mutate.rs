@@ -99,6 +99,7 @@ pub fn seed_model() -> Model {
             ..Default::default()
         },
         inputs_digest: InputsDigest::default(),
+        tier: None,
     }
 }
 

@@ -356,6 +356,7 @@ pub fn synthetic_model(spec: &Spec) -> Model {
             ..Default::default()
         },
         inputs_digest: InputsDigest::default(),
+        tier: None,
     }
 }
 

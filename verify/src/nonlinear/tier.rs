@@ -20,79 +20,14 @@ use crokf_compile::FullOrder;
 use crate::scenario::{Horizon, Scenario};
 
 use super::floors::displayed_dofs;
-use super::training::{self, Training, TrainingPlan};
+use super::training;
 use super::TierError;
-use crokf_compile::nonlinear::basis::{self, Basis};
-use crokf_compile::nonlinear::ecsw::{self, EcswOptions, NnlsSolution};
 use crokf_compile::nonlinear::reduced::{
     ReducedModel, ReducedNewton, ReducedStats, ReducedStepper,
 };
 
-/// A built co-rotational tier.
-#[derive(Clone, Debug)]
-pub struct Tier {
-    /// The basis V (n × r, M-orthonormal): POD of the training snapshots.
-    pub basis: Basis,
-    /// POD eigenvalues of the training snapshots (m²·kg), descending.
-    pub pod_values: Vec<f64>,
-    /// ECSW sampling.
-    pub sampling: NnlsSolution,
-    /// The reduced model.
-    pub model: ReducedModel,
-    /// Training runs and envelope (snapshots kept).
-    pub training: Training,
-    /// Wall time of the POD and of the ECSW, s.
-    pub seconds: [f64; 2],
-}
-
-/// Builds the tier from training snapshots: the first `order` POD vectors of the snapshots in
-/// the M inner product, ECSW on the snapshots with `ecsw`.
-pub fn from_training(
-    full: &FullOrder,
-    training: Training,
-    order: usize,
-    ecsw_options: &EcswOptions,
-) -> Result<Tier, TierError> {
-    if training.snapshots.is_empty() {
-        return Err(TierError::Invalid(
-            "no training snapshot: every training run failed".into(),
-        ));
-    }
-    let clock = Instant::now();
-    let (modes, pod_values) = basis::pod(&full.fem.mass, &training.snapshots, order, 1e-14);
-    let basis = basis::m_orthonormalise(&full.fem.mass, &modes, 1e-8, order);
-    let t_pod = clock.elapsed().as_secs_f64();
-    let clock = Instant::now();
-    let sampling = ecsw::sample_elements(
-        &full.fem,
-        &basis.vectors,
-        &basis.mass_vectors,
-        &training.snapshots,
-        ecsw_options,
-    )?;
-    let t_ecsw = clock.elapsed().as_secs_f64();
-    let model = ReducedModel::new(&full.fem, &basis.vectors, &sampling.weights, full.wilson)?;
-    Ok(Tier {
-        basis,
-        pod_values,
-        sampling,
-        model,
-        training,
-        seconds: [t_pod, t_ecsw],
-    })
-}
-
-/// Trains on `plan` (full-order co-rotational runs) and builds the tier.
-pub fn build(
-    full: &FullOrder,
-    plan: &TrainingPlan,
-    order: usize,
-    ecsw_options: &EcswOptions,
-    progress: &mut dyn FnMut(usize, usize, &str),
-) -> Result<Tier, TierError> {
-    let training = training::train(full, plan, progress)?;
-    from_training(full, training, order, ecsw_options)
-}
+/// The tier built from training: the compiler's (`crokf_compile::nonlinear::tier`).
+pub use crokf_compile::nonlinear::tier::{build, from_training, Tier};
 
 /// Open-loop comparison of one scenario.
 #[derive(Clone, Debug, PartialEq)]

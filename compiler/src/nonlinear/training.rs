@@ -1,0 +1,332 @@
+//! Training runs of the co-rotational tier (docs/design.md §10, item 2): full-order
+//! co-rotational Wilson-θ runs over the scene's load groups, generated deterministically from a
+//! [`TrainingPlan`], recorded as displacement snapshots. The compiler runs them itself when the
+//! scene selects `[reduction] model = "corotational"` (its `[corotational]` table is the plan,
+//! [`TrainingPlan::from_scene`]); `crokf-verify` reuses the same driver.
+//!
+//! Run list, in this order: for each load group g, each direction d of `directions` and each
+//! history h of `histories`, one run with only group g loaded by the world-frame dead load
+//! f(t) = h(t)·F_g·d, F_g the group's load range (N). Histories: a ramp from 0 to a·F_g over
+//! t_r then held, or a step to a·F_g at t = 0 (a the history's multiple of the range). Step k
+//! (k = 0 … N−1, N = round(duration/Δt)) holds f(kΔt); a snapshot is kept after every
+//! `every`-th step and after the last.
+
+use crate::fem::operators::InputKind;
+use crate::fem::FemModel;
+use crate::full_order::FullOrder;
+use crate::scene::CorotationalSpec;
+use crate::stepping::{CorotationalSimulator, NewtonOptions, Simulator, SteppingError};
+
+use super::NonlinearError;
+
+/// The time history of one training run's load, as a multiple of the group's range.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum History {
+    /// 0 at t = 0, `multiple` at t = `time` (s), then held.
+    Ramp {
+        /// Final multiple of the range.
+        multiple: f64,
+        /// Ramp time, s.
+        time: f64,
+    },
+    /// `multiple` from t = 0 on (a suddenly applied load: dynamic overshoot).
+    Step {
+        /// Multiple of the range.
+        multiple: f64,
+    },
+}
+
+impl History {
+    /// Largest multiple of the range this history reaches.
+    pub fn multiple(&self) -> f64 {
+        match *self {
+            History::Ramp { multiple, .. } | History::Step { multiple } => multiple,
+        }
+    }
+
+    /// Multiple of the range at time t (s): linear ramp then held, or the step.
+    pub fn at(&self, t: f64) -> f64 {
+        match *self {
+            History::Ramp { multiple, time } => {
+                if time <= 0.0 || t >= time {
+                    multiple
+                } else {
+                    multiple * (t / time).max(0.0)
+                }
+            }
+            History::Step { multiple } => multiple,
+        }
+    }
+
+    /// Short label, e.g. `ramp 1.25×`.
+    pub fn label(&self) -> String {
+        match *self {
+            History::Ramp { multiple, .. } => format!("ramp {multiple}×"),
+            History::Step { multiple } => format!("step {multiple}×"),
+        }
+    }
+}
+
+/// What the compiler trains on.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainingPlan {
+    /// Per load group (scene load name): its load range, the largest total force magnitude the
+    /// model is meant for, N.
+    pub ranges: Vec<(String, f64)>,
+    /// Unit world directions of the training loads.
+    pub directions: Vec<[f64; 3]>,
+    /// Load histories.
+    pub histories: Vec<History>,
+    /// Length of each run, s.
+    pub duration: f64,
+    /// Keep every k-th step as a snapshot (k ≥ 1; the last step always).
+    pub every: usize,
+    /// Newton settings of the full-order runs.
+    pub newton: NewtonOptions,
+}
+
+/// The six axis directions ±x, ±y, ±z, in that order.
+pub fn axis_directions() -> Vec<[f64; 3]> {
+    let mut directions = Vec::new();
+    for c in 0..3 {
+        for s in [1.0, -1.0] {
+            let mut d = [0.0; 3];
+            d[c] = s;
+            directions.push(d);
+        }
+    }
+    directions
+}
+
+impl TrainingPlan {
+    /// The default plan: the six axis directions ±x, ±y, ±z; a ramp to 1.25× the range over
+    /// `duration`/3 and a step to 0.6× the range; snapshots every `every` steps.
+    pub fn axes(ranges: Vec<(String, f64)>, duration: f64, every: usize) -> Self {
+        TrainingPlan {
+            ranges,
+            directions: axis_directions(),
+            histories: vec![
+                History::Ramp {
+                    multiple: 1.25,
+                    time: duration / 3.0,
+                },
+                History::Step { multiple: 0.6 },
+            ],
+            duration,
+            every,
+            newton: NewtonOptions::default(),
+        }
+    }
+
+    /// The plan of a scene's `[corotational]` table: its `ranges` (in the scene's load order),
+    /// the six axis directions, a ramp to `ramp_multiple` × range over `ramp_time` (default
+    /// duration/3) and a step to `step_multiple` × range.
+    pub fn from_scene(spec: &CorotationalSpec, load_names: &[String]) -> Self {
+        let ranges = load_names
+            .iter()
+            .filter_map(|n| spec.ranges.get(n).map(|&r| (n.clone(), r)))
+            .collect();
+        let mut histories = Vec::new();
+        if spec.ramp_multiple > 0.0 {
+            histories.push(History::Ramp {
+                multiple: spec.ramp_multiple,
+                time: spec.ramp_time.unwrap_or(spec.duration / 3.0),
+            });
+        }
+        if spec.step_multiple > 0.0 {
+            histories.push(History::Step {
+                multiple: spec.step_multiple,
+            });
+        }
+        TrainingPlan {
+            ranges,
+            directions: axis_directions(),
+            histories,
+            duration: spec.duration,
+            every: spec.every,
+            newton: NewtonOptions::default(),
+        }
+    }
+
+    /// Every run: (label, load group index into `ranges`, direction, history), in run order.
+    pub fn runs(&self) -> Vec<(String, usize, [f64; 3], History)> {
+        let mut out = Vec::new();
+        for (g, (name, _)) in self.ranges.iter().enumerate() {
+            for d in &self.directions {
+                for h in &self.histories {
+                    out.push((
+                        format!(
+                            "{name} ({:+.0}, {:+.0}, {:+.0}) {}",
+                            d[0],
+                            d[1],
+                            d[2],
+                            h.label()
+                        ),
+                        g,
+                        *d,
+                        *h,
+                    ));
+                }
+            }
+        }
+        out
+    }
+
+    /// Largest multiple of a range any history reaches.
+    pub fn max_multiple(&self) -> f64 {
+        self.histories
+            .iter()
+            .map(History::multiple)
+            .fold(0.0f64, f64::max)
+    }
+}
+
+/// The region of load space and state space the training covered (stored with the model so the
+/// runtime can say when it leaves it).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TrainingEnvelope {
+    /// Per load group: the largest training force magnitude, N.
+    pub max_force: Vec<(String, f64)>,
+    /// Largest multiple of a group's range trained on.
+    pub max_multiple: f64,
+    /// Largest nodal displacement magnitude in any snapshot, m.
+    pub max_displacement: f64,
+    /// Runs completed / attempted.
+    pub runs: (usize, usize),
+    /// Snapshots kept.
+    pub snapshots: usize,
+}
+
+/// Snapshots of the training runs and what they cover.
+#[derive(Clone, Debug, Default)]
+pub struct Training {
+    /// Displacement snapshots (n each, m).
+    pub snapshots: Vec<Vec<f64>>,
+    /// Per snapshot: its run index.
+    pub run_of: Vec<usize>,
+    /// Run labels and, for a run that failed, why (the run is then skipped).
+    pub runs: Vec<(String, Option<String>)>,
+    /// The envelope.
+    pub envelope: TrainingEnvelope,
+    /// Wall time of all runs, s.
+    pub seconds: f64,
+}
+
+/// The load vector (n, N) of a unit world force `direction` (N) on load group `group` (index
+/// into the scene's loads): Σ_c d_c b_{g,c}.
+pub fn group_load(full: &FullOrder, group: usize, direction: [f64; 3], scale: f64) -> Vec<f64> {
+    let mut f = vec![0.0; full.fem.dof_count()];
+    for ch in &full.operators.inputs {
+        if let InputKind::Load { load, component } = ch.kind {
+            let value = scale * direction[component];
+            if load == group && value != 0.0 {
+                f.iter_mut()
+                    .zip(&ch.column)
+                    .for_each(|(fi, b)| *fi += value * b);
+            }
+        }
+    }
+    f
+}
+
+/// Runs every training run of `plan` on the full-order co-rotational model, keeping a
+/// snapshot every `plan.every` steps (step 0 excluded). A run that fails (non-finite state,
+/// Newton failure) is reported in [`Training::runs`] and skipped. `progress` receives
+/// (run index, run count, label) before each run.
+pub fn train(
+    full: &FullOrder,
+    plan: &TrainingPlan,
+    progress: &mut dyn FnMut(usize, usize, &str),
+) -> Result<Training, NonlinearError> {
+    if plan.every == 0 || plan.duration.is_nan() || plan.duration <= 0.0 {
+        return Err(NonlinearError::Invalid(format!(
+            "training plan: every must be ≥ 1 and duration > 0 s, got {} and {}",
+            plan.every, plan.duration
+        )));
+    }
+    let mut groups = Vec::new();
+    for (name, range) in &plan.ranges {
+        let Some(g) = full.operators.loads.iter().position(|l| &l.name == name) else {
+            return Err(NonlinearError::Invalid(format!(
+                "training plan: '{name}' is not a load group of the scene"
+            )));
+        };
+        if !(range.is_finite() && *range > 0.0) {
+            return Err(NonlinearError::Invalid(format!(
+                "training plan: load range of '{name}' must be > 0 N, got {range}"
+            )));
+        }
+        groups.push(g);
+    }
+    let started = std::time::Instant::now();
+    let runs = plan.runs();
+    let mut out = Training::default();
+    let fem = &full.fem;
+    let dt = full.wilson.dt;
+    let steps = ((plan.duration / dt).round() as usize).max(1);
+    for (k, (label, g, direction, history)) in runs.iter().enumerate() {
+        progress(k, runs.len(), label);
+        let unit = group_load(full, groups[*g], *direction, plan.ranges[*g].1);
+        let result = (|| -> Result<Vec<Vec<f64>>, SteppingError> {
+            let mut sim = CorotationalSimulator::new(fem, full.wilson, plan.newton)?;
+            let mut frames = Vec::new();
+            let mut f = vec![0.0; unit.len()];
+            for step in 0..steps {
+                let m = history.at(step as f64 * dt);
+                f.iter_mut().zip(&unit).for_each(|(fi, u)| *fi = m * u);
+                sim.step(&f)?;
+                let u = sim.displacement();
+                if u.iter().any(|v| !v.is_finite()) {
+                    return Err(SteppingError::NonFinite {
+                        step: step + 1,
+                        time: (step + 1) as f64 * dt,
+                    });
+                }
+                if (step + 1) % plan.every == 0 || step + 1 == steps {
+                    frames.push(u.to_vec());
+                }
+            }
+            Ok(frames)
+        })();
+        match result {
+            Ok(frames) => {
+                for u in frames {
+                    out.envelope.max_displacement =
+                        out.envelope.max_displacement.max(max_nodal(fem, &u));
+                    out.snapshots.push(u);
+                    out.run_of.push(k);
+                }
+                out.runs.push((label.clone(), None));
+            }
+            Err(e) => out.runs.push((label.clone(), Some(e.to_string()))),
+        }
+    }
+    let top = plan.max_multiple();
+    out.envelope.max_multiple = top;
+    out.envelope.max_force = plan
+        .ranges
+        .iter()
+        .map(|(n, r)| (n.clone(), r * top))
+        .collect();
+    out.envelope.runs = (
+        out.runs.iter().filter(|r| r.1.is_none()).count(),
+        out.runs.len(),
+    );
+    out.envelope.snapshots = out.snapshots.len();
+    out.seconds = started.elapsed().as_secs_f64();
+    Ok(out)
+}
+
+/// Largest nodal displacement magnitude of u (free DOFs, m).
+pub fn max_nodal(fem: &FemModel, u: &[f64]) -> f64 {
+    fem.dofs
+        .index
+        .iter()
+        .map(|d| {
+            d.iter()
+                .map(|i| i.map_or(0.0, |i| u[i] * u[i]))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .fold(0.0, f64::max)
+}

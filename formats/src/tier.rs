@@ -1,0 +1,126 @@
+//! The co-rotational tier section of a model file (format v3; docs/model-format.md,
+//! docs/design.md §10): a hyper-reduced co-rotational model on the reduced coordinates q (r)
+//! with u ≈ V q (world-frame displacements of the free DOFs, m per unit q).
+//!
+//! Per step (Wilson-θ, τ = θΔt, a₀ = 6/τ², a₂ = 3/τ, load f_r = Vᵀ B u held over the step):
+//! ```text
+//! f_r,int(q) = Σ_e wₑ V_eᵀ Rₑ Kₑ (Rₑᵀ xₑ − Xₑ),  xₑ = Xₑ + V_e q   (R from F = R S)
+//! q̈_θ = a₀Δq̂ − (6/τ)q̇ − 2q̈,   q̇_θ = a₂Δq̂ − 2q̇ − (τ/2)q̈
+//! res(q̂) = f_r − M_r(q̈_θ + α q̇_θ) − f_r,int(q̂) − β Σ_e wₑ V_eᵀ Rₑ Kₑ Rₑᵀ V_e q̇_θ
+//! J = K_t,r(q̂)(1 + a₂β) + (a₀ + a₂α) M_r,   q̂ ← q̂ + J⁻¹ res
+//! ```
+//! then the Wilson-θ update of (q, q̇, q̈). The filter (constant-gain extended Kalman filter
+//! from the DARE of the model linearised at rest) has the state s = (q, q̇, q̈) (3r) and the
+//! linear measurement map y = H V q.
+
+use crate::{KalmanGains, Matrix};
+use serde::{Deserialize, Serialize};
+
+/// The co-rotational tier of a model (present when the scene selected
+/// `[reduction] model = "corotational"`; the runtime then steps this model, not F, G).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CorotationalTier {
+    /// Basis size r.
+    pub order: u32,
+    /// M_r = VᵀMV, r×r (kg per q²; the identity up to round-off for an M-orthonormal V).
+    pub mass: Matrix,
+    /// Rayleigh α, 1/s (C = αM + βK_t).
+    pub alpha: f64,
+    /// Rayleigh β, s.
+    pub beta: f64,
+    /// Runtime Newton: converged when ‖δq‖ ≤ `newton_tolerance` ‖q̂‖.
+    pub newton_tolerance: f64,
+    /// Runtime Newton: most iterations per step (≥ 1); a step that does not converge in as
+    /// many is refused (estimator unchanged).
+    pub newton_iterations: u32,
+    /// VᵀB, r×m: reduced load per input channel (columns in the order of `Model::inputs`; a
+    /// load channel is a world-frame dead force, N; gravity a scale factor).
+    pub input: Matrix,
+    /// Per sensor (order of `Model::sensors`): 3×r rows of V at the sensor, world-frame
+    /// displacement u_s = V_s q, m.
+    pub sensor_rows: Vec<Matrix>,
+    /// Per displayed node set (order of `Model::node_sets`): 3n×r rows of V, world-frame
+    /// displacement of node i in rows 3i..3i+3, m.
+    pub node_set_rows: Vec<Matrix>,
+    /// The sampled elements of the hyper-reduction (ECSW).
+    pub elements: Vec<TierElement>,
+    /// What the compiler trained on.
+    pub envelope: TrainingEnvelope,
+    /// Constant-gain filter on s = (q, q̇, q̈) (state dimension 3r): gains (3r × measured),
+    /// prior/posterior covariances (3r × 3r), process noise (3r × 3r) of the model linearised
+    /// at rest; `measurement_variance` as `Model::kalman`.
+    pub kalman: KalmanGains,
+}
+
+/// One sampled element: f contributes wₑ V_eᵀ fₑ(Xₑ + V_e q).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TierElement {
+    /// Index of the element in the compiler's mesh (informative).
+    pub element: u32,
+    /// ECSW weight wₑ ≥ 0.
+    pub weight: f64,
+    /// Rest vertex positions Xₑ, m (4 vertices).
+    pub rest: [[f64; 3]; 4],
+    /// Shape-function gradients ∇Nₐ at rest, 1/m (F = Σₐ xₐ ⊗ ∇Nₐ).
+    pub gradients: [[f64; 3]; 4],
+    /// Rest stiffness Kₑ, 12×12, N/m, node-major (row 3a + c: node a, component c).
+    pub stiffness: Matrix,
+    /// V_e, 12×r: the rows of V at the element's DOFs (zero rows at fixed DOFs).
+    pub rows: Matrix,
+}
+
+/// One training history (docs/design.md §10 item 2).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainingHistory {
+    /// `"ramp"` (0 → multiple over `time` s, then held) or `"step"` (multiple from t = 0).
+    pub kind: String,
+    /// Multiple of the group's range.
+    pub multiple: f64,
+    /// Ramp time, s (0 for a step).
+    pub time: f64,
+}
+
+/// Per trained load group.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnvelopeLoad {
+    /// Load group name (`Model::loads`).
+    pub name: String,
+    /// The scene's load range F, N.
+    pub range: f64,
+    /// Largest trained force magnitude (range × largest multiple), N; the runtime reports a
+    /// step whose force on this group exceeds it.
+    pub max_force: f64,
+}
+
+/// The training envelope: what the tier was trained on and the state it covered.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainingEnvelope {
+    /// Trained load groups (a group not listed was never loaded in training).
+    pub loads: Vec<EnvelopeLoad>,
+    /// Unit world directions of the training loads.
+    pub directions: Vec<[f64; 3]>,
+    /// Load histories of the runs.
+    pub histories: Vec<TrainingHistory>,
+    /// Length of each run, s.
+    pub duration: f64,
+    /// Snapshot every k steps.
+    pub every: u32,
+    /// Runs that completed.
+    pub runs_completed: u32,
+    /// Runs attempted.
+    pub runs_attempted: u32,
+    /// Snapshots kept.
+    pub snapshots: u32,
+    /// Largest nodal displacement magnitude in any snapshot, m.
+    pub max_displacement: f64,
+    /// Largest ‖q‖ (= ‖u‖_M for an M-orthonormal V) of a snapshot's projection; the runtime
+    /// reports a state with ‖q‖ above `state_margin` × this.
+    pub max_coordinate_norm: f64,
+    /// Factor on `max_coordinate_norm` beyond which the state is outside the envelope (≥ 1).
+    pub state_margin: f64,
+}

@@ -1,0 +1,148 @@
+//! Cost per step of the co-rotational tier (docs/design.md §10) on a compiled model file (not a
+//! test; numbers for docs/corotational-tier.md):
+//!
+//! `cargo run --release -p crokf-runtime --example tier_step -- MODEL.crokf INPUT PEAK RAMP STEPS`
+//!
+//! Drives input channel INPUT (label, e.g. `tip.z`) with a ramp to PEAK (N) over RAMP steps,
+//! then held, for STEPS steps; times every `predict` (the tier's nonlinear step: Newton on q)
+//! and every `step` (predict + constant-gain update, measurements = the open-loop estimates,
+//! i.e. zero innovation) separately, and prints medians, Newton iterations per step and the
+//! envelope status. Times are this thread's CPU time (the machine is shared).
+
+use crokf_runtime::{load_model, Estimator};
+
+/// This thread's CPU time, s (Linux `clock_gettime(CLOCK_THREAD_CPUTIME_ID)`): on a shared
+/// machine, wall time counts the time other jobs hold the core, CPU time does not.
+#[repr(C)]
+struct Timespec {
+    sec: i64,
+    nsec: i64,
+}
+extern "C" {
+    fn clock_gettime(clock: i32, ts: *mut Timespec) -> i32;
+}
+const CLOCK_THREAD_CPUTIME_ID: i32 = 3;
+
+#[derive(Clone, Copy)]
+struct Instant(f64);
+impl Instant {
+    fn now() -> Self {
+        let mut ts = Timespec { sec: 0, nsec: 0 };
+        // SAFETY: a valid out-pointer; the call only writes it.
+        unsafe { clock_gettime(CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+        Instant(ts.sec as f64 + ts.nsec as f64 * 1e-9)
+    }
+    fn elapsed(&self) -> Elapsed {
+        Elapsed(Instant::now().0 - self.0)
+    }
+}
+struct Elapsed(f64);
+impl Elapsed {
+    fn as_secs_f64(&self) -> f64 {
+        self.0
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().collect();
+    if args.len() != 6 {
+        return Err("usage: tier_step MODEL.crokf INPUT PEAK RAMP STEPS".into());
+    }
+    let model = load_model(&args[1])?;
+    let Some(tier) = model.tier.as_ref() else {
+        return Err(format!("{}: no co-rotational tier in this model", args[1]).into());
+    };
+    let input = model
+        .inputs
+        .iter()
+        .position(|c| c.label == args[2])
+        .ok_or_else(|| format!("no input channel '{}'", args[2]))?;
+    let peak: f64 = args[3].parse()?;
+    let ramp: usize = args[4].parse()?;
+    let steps: usize = args[5].parse()?;
+    println!(
+        "model {}: r = {}, {} sampled elements, {} measurement channels",
+        args[1],
+        tier.order,
+        tier.elements.len(),
+        model.measurements.len()
+    );
+    let load = |k: usize| peak * ((k + 1) as f64 / ramp.max(1) as f64).min(1.0);
+    let mut u = vec![0.0; model.inputs.len()];
+    // Open loop: predict only.
+    let mut est = Estimator::new(&model)?;
+    let mut times = Vec::with_capacity(steps);
+    let (mut iterations, mut refreshes, mut outside) = (0usize, 0usize, 0usize);
+    for k in 0..steps {
+        u[input] = load(k);
+        let clock = Instant::now();
+        est.predict(&u)?;
+        times.push(clock.elapsed().as_secs_f64());
+        let s = est.tier_status();
+        iterations += s.iterations;
+        refreshes += s.refreshed as usize;
+        outside += s.envelope.outside() as usize;
+    }
+    let predict = median(times);
+    let mut tip = vec![0.0; 3 * model.sensors.len()];
+    est.sensor_displacements(&mut tip)?;
+    // Filter: predict + update with the open-loop estimates as measurements.
+    let mut est2 = Estimator::new(&model)?;
+    let mut y = vec![None; model.measurements.len()];
+    let mut estimates = vec![0.0; model.measurements.len()];
+    let mut times = Vec::with_capacity(steps);
+    let mut reference = Estimator::new(&model)?;
+    for k in 0..steps {
+        u[input] = load(k);
+        reference.predict(&u)?;
+        reference.measurement_estimates(&mut estimates)?;
+        for (yi, e) in y.iter_mut().zip(&estimates) {
+            *yi = Some(*e);
+        }
+        let clock = Instant::now();
+        est2.step(&u, &y)?;
+        times.push(clock.elapsed().as_secs_f64());
+    }
+    let step = median(times);
+    println!(
+        "predict (nonlinear step) median {:.1} µs; predict + update median {:.1} µs; \
+         {:.2} Newton iterations per step, {refreshes} tangent refreshes in {steps} steps, \
+         {outside} steps outside the envelope",
+        predict * 1e6,
+        step * 1e6,
+        iterations as f64 / steps as f64
+    );
+    println!("first sensor at the end: {:?} m", &tip[..3]);
+    // One reduced force evaluation at the final state: median of 200 batches of 20 calls.
+    let tm = est.prepared().tier().ok_or("no tier")?;
+    let r = tm.order();
+    let s = est.state();
+    let mut out = vec![0.0; r];
+    let mut rotations = vec![[[0.0; 3]; 3]; tm.element_count()];
+    let mut batches = Vec::with_capacity(200);
+    for _ in 0..200 {
+        let clock = Instant::now();
+        for _ in 0..20 {
+            tm.reduced_force(
+                &s[..r],
+                &s[r..2 * r],
+                std::hint::black_box(&mut out),
+                &mut rotations,
+            )
+            .map_err(|e| format!("inverted element {e}"))?;
+        }
+        batches.push(clock.elapsed().as_secs_f64() / 20.0);
+    }
+    let force = median(batches);
+    println!(
+        "one reduced force evaluation: median {:.1} µs ({:.3} µs per sampled element)",
+        force * 1e6,
+        force * 1e6 / tm.element_count() as f64
+    );
+    Ok(())
+}

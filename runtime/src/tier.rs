@@ -1,0 +1,643 @@
+//! The co-rotational tier at run time (docs/design.md §10, docs/model-format.md "tier"): the
+//! reduced co-rotational Wilson-θ step on q with a bounded Newton iteration, and the
+//! constant-gain filter on s = (q, q̇, q̈).
+//!
+//! Per step (τ = θΔt, a₀ = 6/τ², a₂ = 3/τ, f_r = VᵀB u held over the step; the equations of
+//! `crokf_formats::CorotationalTier`):
+//! ```text
+//! q̂ ← q + τq̇ + (τ²/2)q̈;  repeat ≤ newton_iterations:
+//!   Δ = q̂ − q,  q̈_θ = a₀Δ − (6/τ)q̇ − 2q̈,  q̇_θ = a₂Δ − 2q̇ − (τ/2)q̈
+//!   res = f_r − M_r(q̈_θ + α q̇_θ) − Σ_e wₑ V_eᵀ Rₑ Kₑ(yₑ + β Rₑᵀ V_e q̇_θ)
+//!   J = (1 + a₂β) K_t,r(q̂) + (a₀ + a₂α) M_r   (refreshed as below; dense Cholesky)
+//!   q̂ ← q̂ + J⁻¹ res;  converged when ‖J⁻¹res‖ ≤ tol ‖q̂‖
+//! (q, q̇, q̈) ← Wilson-θ advance with q̂
+//! ```
+//! J (warped tangent K_t,r = Σ wₑ V_eᵀ Rₑ Kₑ Rₑᵀ V_e) is refreshed at the first step, at the
+//! first iteration of a step after a step that needed more than [`SLOW_ITERATIONS`]
+//! iterations, and once within a step at iteration [`SLOW_ITERATIONS`]: a modified Newton
+//! iteration converging to the same root. Nothing allocates per step.
+
+use crokf_formats::{CorotationalTier, InputKind, Model};
+use crokf_kernel::{self as kernel, Mat3, PolarError};
+
+/// Iterations after which J is refreshed (within a step, and at the next step).
+pub const SLOW_ITERATIONS: usize = 4;
+
+/// Why a tier step was refused (the estimator is unchanged).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum TierError {
+    /// Newton did not converge within the model's iteration bound.
+    #[error(
+        "co-rotational step {step}: Newton did not converge in {iterations} iterations \
+         (last relative increment {increment:.3e}, tolerance {tolerance:.1e}); step refused"
+    )]
+    NotConverged {
+        /// Step k being computed.
+        step: u64,
+        /// Iterations done.
+        iterations: usize,
+        /// ‖δq‖/‖q̂‖ of the last iteration.
+        increment: f64,
+        /// The model's tolerance.
+        tolerance: f64,
+    },
+    /// A sampled element is inverted or degenerate at the Newton iterate.
+    #[error(
+        "co-rotational step {step}: sampled element {element} is inverted (det F = {det:.3e}); \
+         step refused"
+    )]
+    InvertedElement {
+        /// Step k being computed.
+        step: u64,
+        /// Index into the model's sampled elements.
+        element: usize,
+        /// det F.
+        det: f64,
+    },
+    /// The Newton matrix is not positive definite.
+    #[error("co-rotational step {step}: the Newton matrix is not positive definite at pivot {pivot}; step refused")]
+    NotPositiveDefinite {
+        /// Step k being computed.
+        step: u64,
+        /// Failing pivot.
+        pivot: usize,
+    },
+    /// The iterate became non-finite.
+    #[error("co-rotational step {step}: non-finite reduced state; step refused")]
+    NonFinite {
+        /// Step k being computed.
+        step: u64,
+    },
+}
+
+/// Where a completed step left the training envelope (reported, the step is kept).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EnvelopeStatus {
+    /// Largest ratio |f_g| / max_force_g over the load groups this step (> 1: a load beyond
+    /// training; +∞ for a load on a group never trained).
+    pub load_ratio: f64,
+    /// ‖q‖ / max training ‖q‖ after the step (> `state_margin`: outside).
+    pub state_ratio: f64,
+    /// The model's state margin.
+    pub state_margin: f64,
+}
+
+impl EnvelopeStatus {
+    /// True when a load or the state is outside the training envelope.
+    pub fn outside(&self) -> bool {
+        self.load_ratio > 1.0 + 1e-9 || self.state_ratio > self.state_margin
+    }
+}
+
+/// What a completed tier step did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TierStatus {
+    /// Newton iterations (force evaluations).
+    pub iterations: usize,
+    /// Whether J was refreshed (reduced tangent + Cholesky).
+    pub refreshed: bool,
+    /// The envelope check.
+    pub envelope: EnvelopeStatus,
+}
+
+/// One sampled element, flat.
+#[derive(Clone, Debug)]
+struct Element {
+    weight: f64,
+    rest: [[f64; 3]; 4],
+    gradients: [[f64; 3]; 4],
+    stiffness: Vec<f64>,
+    rows: Vec<f64>,
+    cols: Vec<f64>,
+}
+
+/// The prepared tier model (read-only, from the model file).
+#[derive(Clone, Debug)]
+pub struct TierModel {
+    r: usize,
+    elements: Vec<Element>,
+    mass: Vec<f64>,
+    alpha: f64,
+    beta: f64,
+    dt: f64,
+    theta: f64,
+    tolerance: f64,
+    max_iterations: usize,
+    /// VᵀB, r×m row-major.
+    input: Vec<f64>,
+    m: usize,
+    /// Per model load group: max trained force (None: never trained).
+    max_force: Vec<Option<f64>>,
+    /// Per input channel: its load group (None for gravity).
+    channel_load: Vec<Option<(usize, usize)>>,
+    max_q: f64,
+    margin: f64,
+    /// Per sensor 3×r rows.
+    pub(crate) sensor_rows: Vec<Vec<f64>>,
+    /// Per node set 3n×r rows.
+    pub(crate) node_rows: Vec<Vec<f64>>,
+    /// Per measurement channel: (sensor, component).
+    channel: Vec<(usize, usize)>,
+    /// Per phase: gain (3r × measured, row-major), measured channel indices.
+    gains: Vec<Vec<f64>>,
+    measured: Vec<Vec<u32>>,
+    /// Per phase and kind (prior, posterior): sensor std (3 per sensor), node std per set.
+    pub(crate) sensor_std: [Vec<Vec<f64>>; 2],
+    pub(crate) node_std: [Vec<Vec<Vec<f64>>>; 2],
+}
+
+fn std_rows(rows: &[f64], r: usize, p: &crokf_formats::Matrix) -> Vec<f64> {
+    // sqrt(diag(C P_qq Cᵀ)), P_qq the q-block (first r rows/cols of the 3r×3r P).
+    let n3 = 3 * r;
+    rows.chunks_exact(r)
+        .map(|c| {
+            let mut s = 0.0;
+            for i in 0..r {
+                for j in 0..r {
+                    s += c[i] * p.data[i * n3 + j] * c[j];
+                }
+            }
+            s.max(0.0).sqrt()
+        })
+        .collect()
+}
+
+impl TierModel {
+    /// Prepares the tier of a validated model.
+    pub fn new(model: &Model, tier: &CorotationalTier) -> Self {
+        let r = tier.order as usize;
+        let elements = tier
+            .elements
+            .iter()
+            .map(|e| Element {
+                weight: e.weight,
+                rest: e.rest,
+                gradients: e.gradients,
+                stiffness: e.stiffness.data.clone(),
+                rows: e.rows.data.clone(),
+                cols: kernel::transpose_rows(&e.rows.data),
+            })
+            .collect();
+        let max_force = model
+            .loads
+            .iter()
+            .map(|l| {
+                tier.envelope
+                    .loads
+                    .iter()
+                    .find(|e| e.name == l.name)
+                    .map(|e| e.max_force)
+            })
+            .collect();
+        let channel_load = model
+            .inputs
+            .iter()
+            .map(|c| match c.kind {
+                InputKind::Load { load, component } => Some((load as usize, component as usize)),
+                InputKind::Gravity { .. } => None,
+            })
+            .collect();
+        let channel = model
+            .measurements
+            .iter()
+            .map(|m| (m.sensor as usize, m.component as usize))
+            .collect();
+        let sensor_rows: Vec<Vec<f64>> = tier.sensor_rows.iter().map(|m| m.data.clone()).collect();
+        let node_rows: Vec<Vec<f64>> = tier.node_set_rows.iter().map(|m| m.data.clone()).collect();
+        let k = &tier.kalman;
+        let cov = |post: bool| -> (Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>) {
+            let mut s_out = Vec::new();
+            let mut n_out = Vec::new();
+            for ph in &k.phases {
+                let p = if post {
+                    &ph.posterior_covariance
+                } else {
+                    &ph.prior_covariance
+                };
+                s_out.push(
+                    sensor_rows
+                        .iter()
+                        .flat_map(|rows| std_rows(rows, r, p))
+                        .collect(),
+                );
+                n_out.push(node_rows.iter().map(|rows| std_rows(rows, r, p)).collect());
+            }
+            (s_out, n_out)
+        };
+        let (s_prior, n_prior) = cov(false);
+        let (s_post, n_post) = cov(true);
+        TierModel {
+            r,
+            elements,
+            mass: tier.mass.data.clone(),
+            alpha: tier.alpha,
+            beta: tier.beta,
+            dt: model.dt,
+            theta: model.theta,
+            tolerance: tier.newton_tolerance,
+            max_iterations: tier.newton_iterations as usize,
+            input: tier.input.data.clone(),
+            m: model.inputs.len(),
+            max_force,
+            channel_load,
+            max_q: tier.envelope.max_coordinate_norm,
+            margin: tier.envelope.state_margin,
+            sensor_rows,
+            node_rows,
+            channel,
+            gains: k.phases.iter().map(|p| p.gain.data.clone()).collect(),
+            measured: k.phases.iter().map(|p| p.measured.clone()).collect(),
+            sensor_std: [s_prior, s_post],
+            node_std: [n_prior, n_post],
+        }
+    }
+
+    /// Basis size r.
+    pub fn order(&self) -> usize {
+        self.r
+    }
+
+    /// Number of sampled elements.
+    pub fn element_count(&self) -> usize {
+        self.elements.len()
+    }
+
+    /// Reduced force f_r,int(q) + β K_t,r(q) q̇ (r) into `out` (module docs); `q`, `velocity`
+    /// and `out` of length r. Refuses an inverted sampled element (its index).
+    /// `rotations` receives each element's R (length: the number of sampled elements).
+    pub fn reduced_force(
+        &self,
+        q: &[f64],
+        velocity: &[f64],
+        out: &mut [f64],
+        rotations: &mut [Mat3],
+    ) -> Result<(), usize> {
+        force_loop(self, q, velocity, out, rotations).map_err(|(e, _)| e)
+    }
+
+    /// The kernel view of element e.
+    fn element(&self, e: usize) -> kernel::Element<'_> {
+        let el = &self.elements[e];
+        kernel::Element {
+            weight: el.weight,
+            rest: &el.rest,
+            gradients: &el.gradients,
+            stiffness: &el.stiffness,
+            rows: &el.rows,
+            cols: &el.cols,
+        }
+    }
+}
+
+/// The tier's stepper and filter state with all scratch (allocated once).
+#[derive(Clone, Debug)]
+pub struct TierState {
+    /// s = (q, q̇, q̈), 3r.
+    pub(crate) s: Vec<f64>,
+    /// Previous s (rollback of a step) and the update's scratch.
+    pub(crate) s_prev: Vec<f64>,
+    q_hat: Vec<f64>,
+    acc: Vec<f64>,
+    vel: Vec<f64>,
+    force: Vec<f64>,
+    res: Vec<f64>,
+    load: Vec<f64>,
+    jac: Vec<f64>,
+    has_factor: bool,
+    slow: bool,
+    rotations: Vec<Mat3>,
+    scratch: Vec<f64>,
+    group_force: Vec<[f64; 3]>,
+    /// Innovation scratch.
+    pub(crate) innovation: Vec<f64>,
+    /// The update's result before it is committed.
+    pub(crate) s_upd: Vec<f64>,
+}
+
+impl TierState {
+    /// At rest.
+    pub fn new(model: &TierModel, loads: usize) -> Self {
+        let r = model.r;
+        let q = model.channel.len();
+        TierState {
+            s: vec![0.0; 3 * r],
+            s_prev: vec![0.0; 3 * r],
+            q_hat: vec![0.0; r],
+            acc: vec![0.0; r],
+            vel: vec![0.0; r],
+            force: vec![0.0; r],
+            res: vec![0.0; r],
+            load: vec![0.0; r],
+            jac: vec![0.0; r * r],
+            has_factor: false,
+            slow: true,
+            rotations: vec![kernel::IDENTITY; model.elements.len()],
+            scratch: vec![0.0; 24 * r],
+            group_force: vec![[0.0; 3]; loads],
+            innovation: vec![0.0; q],
+            s_upd: vec![0.0; 3 * r],
+        }
+    }
+
+    /// Back to rest (the cached Newton matrix is kept).
+    pub fn reset(&mut self) {
+        self.s.iter_mut().for_each(|v| *v = 0.0);
+        self.slow = true;
+    }
+
+    /// q (r).
+    pub fn coordinates<'a>(&'a self, model: &TierModel) -> &'a [f64] {
+        &self.s[..model.r]
+    }
+
+    /// Residual and rotations at q̂ (`self.force` ← f_int + β K_t q̇_θ, then `self.res`).
+    fn residual(&mut self, model: &TierModel, step: u64) -> Result<(), TierError> {
+        let r = model.r;
+        let w = wilson(model);
+        let (q, v, a) = (&self.s[..r], &self.s[r..2 * r], &self.s[2 * r..]);
+        for i in 0..r {
+            let du = self.q_hat[i] - q[i];
+            self.acc[i] = w.a0 * du - (6.0 / w.tau) * v[i] - 2.0 * a[i];
+            self.vel[i] = w.a2 * du - 2.0 * v[i] - 0.5 * w.tau * a[i];
+        }
+        match force_loop(
+            model,
+            &self.q_hat,
+            &self.vel,
+            &mut self.force,
+            &mut self.rotations,
+        ) {
+            Ok(()) => {}
+            Err((e, PolarError::Inverted(det))) => {
+                return Err(TierError::InvertedElement {
+                    step,
+                    element: e,
+                    det,
+                })
+            }
+            Err((_, PolarError::NoConvergence)) => return Err(TierError::NonFinite { step }),
+        }
+        for i in 0..r {
+            let mut m = 0.0;
+            for j in 0..r {
+                m += model.mass[i * r + j] * (self.acc[j] + model.alpha * self.vel[j]);
+            }
+            self.res[i] = self.load[i] - self.force[i] - m;
+        }
+        Ok(())
+    }
+
+    /// J at the rotations of the last residual, factored in `self.jac`.
+    fn refresh(&mut self, model: &TierModel, step: u64) -> Result<(), TierError> {
+        let r = model.r;
+        let w = wilson(model);
+        self.has_factor = false;
+        let c_m = w.a0 + w.a2 * model.alpha;
+        for i in 0..r * r {
+            self.jac[i] = c_m * model.mass[i];
+        }
+        let scale = 1.0 + w.a2 * model.beta;
+        for e in 0..model.elements.len() {
+            let el = model.element(e);
+            kernel::add_warped_tangent(
+                &el,
+                &self.rotations[e],
+                scale,
+                &mut self.scratch,
+                &mut self.jac,
+            );
+        }
+        // Symmetrise (lower triangle is what the factor reads).
+        for i in 0..r {
+            for j in 0..i {
+                let m = 0.5 * (self.jac[i * r + j] + self.jac[j * r + i]);
+                self.jac[i * r + j] = m;
+            }
+        }
+        kernel::cholesky(&mut self.jac, r)
+            .map_err(|pivot| TierError::NotPositiveDefinite { step, pivot })?;
+        self.has_factor = true;
+        Ok(())
+    }
+
+    /// One step with inputs `u` (m, `Model::inputs` order); `step` is the step index being
+    /// computed (for messages). On error s is unchanged.
+    pub fn step(
+        &mut self,
+        model: &TierModel,
+        u: &[f64],
+        step: u64,
+    ) -> Result<TierStatus, TierError> {
+        let r = model.r;
+        // f_r = VᵀB u and the per-group world force.
+        for i in 0..r {
+            let row = &model.input[i * model.m..(i + 1) * model.m];
+            self.load[i] = row.iter().zip(u).map(|(a, b)| a * b).sum();
+        }
+        self.group_force.iter_mut().for_each(|g| *g = [0.0; 3]);
+        for (j, ch) in model.channel_load.iter().enumerate() {
+            if let Some((g, c)) = *ch {
+                self.group_force[g][c] += u[j];
+            }
+        }
+        let mut load_ratio: f64 = 0.0;
+        for (g, f) in self.group_force.iter().enumerate() {
+            let size = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+            if size > 0.0 {
+                load_ratio = load_ratio.max(match model.max_force[g] {
+                    Some(max) => size / max,
+                    None => f64::INFINITY,
+                });
+            }
+        }
+        // Taylor predictor q̂₀ = q + τq̇ + (τ²/2)q̈ (the compiler's `ReducedNewton::predictor`).
+        let tau = wilson(model).tau;
+        for i in 0..r {
+            self.q_hat[i] = self.s[i] + tau * self.s[r + i] + 0.5 * tau * tau * self.s[2 * r + i];
+        }
+        let mut refreshed = false;
+        let mut iterations = 0;
+        let mut increment = f64::INFINITY;
+        let mut converged = false;
+        while iterations < model.max_iterations {
+            self.residual(model, step)?;
+            let refresh_now =
+                !self.has_factor || (iterations == 0 && self.slow) || iterations == SLOW_ITERATIONS;
+            if refresh_now {
+                self.refresh(model, step)?;
+                refreshed = true;
+            }
+            kernel::cholesky_solve(&self.jac, r, &mut self.res);
+            let (mut dn, mut qn) = (0.0, 0.0);
+            for i in 0..r {
+                self.q_hat[i] += self.res[i];
+                dn += self.res[i] * self.res[i];
+                qn += self.q_hat[i] * self.q_hat[i];
+            }
+            iterations += 1;
+            if !qn.is_finite() {
+                return Err(TierError::NonFinite { step });
+            }
+            let (dn, qn) = (dn.sqrt(), qn.sqrt());
+            increment = if qn > 0.0 { dn / qn } else { 0.0 };
+            if dn <= model.tolerance * qn || qn == 0.0 {
+                converged = true;
+                break;
+            }
+        }
+        self.slow = iterations > SLOW_ITERATIONS || !converged;
+        if !converged {
+            return Err(TierError::NotConverged {
+                step,
+                iterations,
+                increment,
+                tolerance: model.tolerance,
+            });
+        }
+        // Commit: Wilson-θ advance.
+        self.s_prev.copy_from_slice(&self.s);
+        let w = wilson(model);
+        let mut qn = 0.0;
+        for i in 0..r {
+            let (q, v, a) = (self.s[i], self.s[r + i], self.s[2 * r + i]);
+            let (q1, v1, a1) = w.advance(q, v, a, self.q_hat[i]);
+            self.s[i] = q1;
+            self.s[r + i] = v1;
+            self.s[2 * r + i] = a1;
+            qn += q1 * q1;
+        }
+        Ok(TierStatus {
+            iterations,
+            refreshed,
+            envelope: EnvelopeStatus {
+                load_ratio,
+                state_ratio: qn.sqrt() / model.max_q,
+                state_margin: model.margin,
+            },
+        })
+    }
+
+    /// World displacement of sensor s: V_s q (3, m).
+    pub fn sensor(&self, model: &TierModel, s: usize) -> [f64; 3] {
+        let r = model.r;
+        let rows = &model.sensor_rows[s];
+        std::array::from_fn(|c| dot(&rows[c * r..(c + 1) * r], &self.s[..r]))
+    }
+
+    /// World displacements of node set `set` (3n, m) into `out`.
+    pub fn nodes(&self, model: &TierModel, set: usize, out: &mut [f64]) {
+        let r = model.r;
+        for (o, row) in out.iter_mut().zip(model.node_rows[set].chunks_exact(r)) {
+            *o = dot(row, &self.s[..r]);
+        }
+    }
+
+    /// Innovations of phase p's channels (measurement `get(j)`, missing → 0 innovation) and
+    /// `s_upd` ← s + K_p ν (not committed); returns the number of values used.
+    pub fn update(
+        &mut self,
+        model: &TierModel,
+        phase: usize,
+        get: &impl Fn(usize) -> Option<f64>,
+    ) -> usize {
+        let measured = &model.measured[phase];
+        let nm = measured.len();
+        let mut used = 0;
+        for (a, &j) in measured.iter().enumerate() {
+            let (s, c) = model.channel[j as usize];
+            self.innovation[a] = match get(j as usize) {
+                Some(y) => {
+                    used += 1;
+                    y - self.sensor(model, s)[c]
+                }
+                None => 0.0,
+            };
+        }
+        let gain = &model.gains[phase];
+        for (i, si) in self.s_upd.iter_mut().enumerate() {
+            *si = self.s[i] + dot(&gain[i * nm..(i + 1) * nm], &self.innovation[..nm]);
+        }
+        used
+    }
+}
+
+#[inline(always)]
+fn force_body(
+    model: &TierModel,
+    q: &[f64],
+    velocity: &[f64],
+    out: &mut [f64],
+    rotations: &mut [Mat3],
+) -> Result<(), (usize, PolarError)> {
+    out.iter_mut().for_each(|v| *v = 0.0);
+    for (e, rot) in rotations.iter_mut().enumerate().take(model.elements.len()) {
+        *rot = kernel::add_reduced_force(&model.element(e), q, velocity, model.beta, out)
+            .map_err(|p| (e, p))?;
+    }
+    Ok(())
+}
+
+/// [`force_body`] compiled with AVX2 + FMA (chosen at run time, as `simd.rs` does).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn force_avx2(
+    model: &TierModel,
+    q: &[f64],
+    velocity: &[f64],
+    out: &mut [f64],
+    rotations: &mut [Mat3],
+) -> Result<(), (usize, PolarError)> {
+    force_body(model, q, velocity, out, rotations)
+}
+
+/// f_r,int(q) + β K_t,r(q) q̇ over the sampled elements into `out`, rotations per element.
+fn force_loop(
+    model: &TierModel,
+    q: &[f64],
+    velocity: &[f64],
+    out: &mut [f64],
+    rotations: &mut [Mat3],
+) -> Result<(), (usize, PolarError)> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+        return unsafe { force_avx2(model, q, velocity, out, rotations) };
+    }
+    force_body(model, q, velocity, out, rotations)
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+#[derive(Clone, Copy)]
+struct Wilson {
+    dt: f64,
+    theta: f64,
+    tau: f64,
+    a0: f64,
+    a2: f64,
+}
+
+impl Wilson {
+    /// (U, U̇, Ü) at t + Δt from Û = U(t + θΔt) (the compiler's `WilsonTheta::advance`).
+    fn advance(&self, u: f64, v: f64, a: f64, u_hat: f64) -> (f64, f64, f64) {
+        let (dt, th) = (self.dt, self.theta);
+        let a_new = 6.0 / (th * th * th * dt * dt) * (u_hat - u) - 6.0 / (th * th * dt) * v
+            + (1.0 - 3.0 / th) * a;
+        let v_new = v + 0.5 * dt * (a_new + a);
+        let u_new = u + dt * v + dt * dt / 6.0 * (a_new + 2.0 * a);
+        (u_new, v_new, a_new)
+    }
+}
+
+fn wilson(model: &TierModel) -> Wilson {
+    let tau = model.theta * model.dt;
+    Wilson {
+        dt: model.dt,
+        theta: model.theta,
+        tau,
+        a0: 6.0 / (tau * tau),
+        a2: 3.0 / tau,
+    }
+}

@@ -1,0 +1,324 @@
+//! The co-rotational tier end to end (docs/design.md §10): scene switch → compiler training →
+//! model file v3 → runtime step, on a small generated beam (12×2×2 cells, 288 tetrahedra).
+//!
+//! `cargo test -p crokf-tests --test tier -- --nocapture` prints the figures.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::path::PathBuf;
+use std::sync::OnceLock;
+
+use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
+use crokf_compile::nonlinear::ecsw::EcswOptions;
+use crokf_compile::nonlinear::reduced::{ReducedNewton, ReducedStepper, Refresh};
+use crokf_compile::nonlinear::tier;
+use crokf_compile::nonlinear::training::TrainingPlan;
+use crokf_compile::report::StageTimer;
+use crokf_compile::{compile, CompileOptions, FullOrder};
+use crokf_runtime::{Estimator, RuntimeError, TierError};
+use nalgebra::DVector;
+
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        System.alloc(layout)
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        System.dealloc(ptr, layout)
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        System.realloc(ptr, layout, new_size)
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn count(f: impl FnOnce()) -> usize {
+    let before = ALLOCATIONS.with(Cell::get);
+    f();
+    ALLOCATIONS.with(Cell::get) - before
+}
+
+/// Training range of the tip load, N (37.5 N bends this stiff, coarse beam by about 30°).
+const RANGE: f64 = 30.0;
+
+const TIER: &str = "[reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
+    ranges = { tip = 30.0 }\nduration = 0.15\nevery = 2\norder = 10\necsw_tolerance = 1e-2\n\
+    newton_tolerance = 1e-12\nnewton_iterations = 60\n";
+
+/// The scene directory (mesh + tier scene), written once per test process.
+fn scene() -> &'static PathBuf {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = std::env::temp_dir().join(format!("crokf-tier-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        write_msh22(
+            &box_mesh([12, 2, 2], [1.0, 0.1, 0.1]),
+            &dir.join("beam.msh"),
+        )
+        .unwrap();
+        let text = BeamScene {
+            sensors: vec![("tip".into(), [0.99, 0.05, 0.1])],
+            displays: vec![("end".into(), "xmax".into())],
+            dt: 0.005,
+            ..BeamScene::default()
+        }
+        .toml()
+            + TIER;
+        let path = dir.join("scene.toml");
+        std::fs::write(&path, text).unwrap();
+        path
+    })
+}
+
+fn options() -> CompileOptions {
+    CompileOptions {
+        order: Some(8),
+        skip_measured_error: true,
+        ..CompileOptions::default()
+    }
+}
+
+/// The compiled tier model (bytes), once per process.
+fn compiled() -> &'static (Vec<u8>, crokf_formats::Model) {
+    static C: OnceLock<(Vec<u8>, crokf_formats::Model)> = OnceLock::new();
+    C.get_or_init(|| {
+        let c = compile(scene(), &options()).unwrap();
+        (c.bytes, c.model)
+    })
+}
+
+/// Tip load history: a ramp to `peak` N along −z over 0.1 s, then held.
+fn tip_load(k: usize, peak: f64) -> f64 {
+    let t = k as f64 * 0.005;
+    -peak * (t / 0.1).min(1.0)
+}
+
+#[test]
+fn compile_is_deterministic_and_the_file_has_the_tier() {
+    let (bytes, model) = compiled();
+    let again = compile(scene(), &options()).unwrap();
+    assert!(again.bytes == *bytes, "two compiles differ");
+    let back = crokf_formats::decode(bytes).unwrap();
+    assert_eq!(&back, model);
+    let t = model.tier.as_ref().expect("tier section");
+    assert_eq!(t.order, 10);
+    assert!(
+        !t.elements.is_empty() && t.elements.len() < 288,
+        "{}",
+        t.elements.len()
+    );
+    assert_eq!(t.envelope.loads[0].name, "tip");
+    assert!((t.envelope.loads[0].max_force - 1.25 * RANGE).abs() < 1e-12);
+    assert_eq!(t.envelope.runs_completed, 12);
+    // The linearised filter is stable.
+    assert!(model
+        .report
+        .notes
+        .iter()
+        .any(|n| n.contains("co-rotational tier filter")));
+    eprintln!(
+        "tier: r = {}, {} sampled elements, {} snapshots, file {} bytes",
+        t.order,
+        t.elements.len(),
+        t.envelope.snapshots,
+        bytes.len()
+    );
+}
+
+#[test]
+fn runtime_step_equals_the_compilers_reduced_stepper() {
+    let (_, model) = compiled();
+    // The compiler's reduced model from the same training (deterministic).
+    let full = FullOrder::build(scene(), &mut StageTimer::default()).unwrap();
+    let spec = full.scene.scene.reduction.corotational.clone().unwrap();
+    let plan = TrainingPlan::from_scene(&spec, &["tip".to_string()]);
+    let built = tier::build(
+        &full,
+        &plan,
+        spec.order,
+        &EcswOptions {
+            tolerance: spec.ecsw_tolerance,
+            ..EcswOptions::default()
+        },
+        &mut |_, _, _| {},
+    )
+    .unwrap();
+    let r = built.model.order();
+    let mut stepper = ReducedStepper::new(
+        built.model.clone(),
+        ReducedNewton {
+            max_iterations: 60,
+            tolerance: 1e-12,
+            refresh: Refresh::WhenSlow { iterations: 4 },
+            consistent: false,
+            predictor: true,
+        },
+    )
+    .unwrap();
+    let v = &built.basis.vectors;
+    let z = full
+        .operators
+        .inputs
+        .iter()
+        .position(|c| c.label == "tip.z")
+        .unwrap();
+    let column = DVector::from_column_slice(&full.operators.inputs[z].column);
+    let mut est = Estimator::new(model).unwrap();
+    assert!(est.is_corotational());
+    let zi = model
+        .inputs
+        .iter()
+        .position(|c| c.label == "tip.z")
+        .unwrap();
+    let mut u = vec![0.0; model.inputs.len()];
+    let mut worst: f64 = 0.0;
+    let mut tip = [0.0; 3];
+    for k in 0..60 {
+        let f = tip_load(k, 1.25 * RANGE);
+        u[zi] = f;
+        est.predict(&u).unwrap();
+        stepper.step(&(v.tr_mul(&column) * f)).unwrap();
+        let q = stepper.coordinates();
+        let size = q.norm();
+        let diff = (0..r)
+            .map(|i| (est.state()[i] - q[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        worst = worst.max(diff / size);
+        est.sensor_displacements(&mut tip).unwrap();
+    }
+    eprintln!(
+        "runtime vs compiler reduced stepper: worst relative difference of q {worst:.2e} over 60 \
+         steps; tip ({:.4}, {:.4}, {:.4}) m",
+        tip[0], tip[1], tip[2]
+    );
+    assert!(worst < 1e-9, "{worst:e}");
+    assert!(
+        tip[2] < -0.2 && tip[0] < -0.02,
+        "large rotation expected: {tip:?}"
+    );
+    // The training runs last 0.15 s, a fraction of this beam's first period (~2 s), so the
+    // held load carries the state beyond the trained ‖q‖: reported, not refused.
+    let status = est.tier_status();
+    let max_q = model.tier.as_ref().unwrap().envelope.max_coordinate_norm;
+    let norm = est.state()[..r].iter().map(|x| x * x).sum::<f64>().sqrt();
+    assert!((status.envelope.state_ratio - norm / max_q).abs() < 1e-12);
+    assert_eq!(status.envelope.state_ratio > 1.5, status.envelope.outside());
+    eprintln!("envelope after 60 steps: {status:?}");
+}
+
+#[test]
+fn non_convergence_and_envelope_are_reported_and_leave_the_estimator_unchanged() {
+    let (_, model) = compiled();
+    let mut m = model.clone();
+    m.tier.as_mut().unwrap().newton_iterations = 1;
+    m.tier.as_mut().unwrap().newton_tolerance = 1e-15;
+    let mut est = Estimator::new(&m).unwrap();
+    let zi = m.inputs.iter().position(|c| c.label == "tip.z").unwrap();
+    let mut u = vec![0.0; m.inputs.len()];
+    u[zi] = -5.0;
+    let before = est.state().to_vec();
+    match est.predict(&u) {
+        Err(RuntimeError::Tier(TierError::NotConverged { iterations, .. })) => {
+            assert_eq!(iterations, 1)
+        }
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(est.state(), &before[..]);
+    assert_eq!(est.step_index(), 0);
+    // step() (predict + update) refuses the same way, all or nothing.
+    let y = vec![Some(0.0); m.measurements.len()];
+    assert!(est.step(&u, &y).is_err());
+    assert_eq!(est.state(), &before[..]);
+    // A load beyond the training envelope is reported, the step kept.
+    let mut est = Estimator::new(model).unwrap();
+    u[zi] = -3.0 * RANGE;
+    est.predict(&u).unwrap();
+    let status = est.tier_status();
+    assert!(status.envelope.outside(), "{status:?}");
+    assert!((status.envelope.load_ratio - 3.0 / 1.25).abs() < 1e-12);
+}
+
+#[test]
+fn tier_steps_and_read_outs_do_not_allocate() {
+    let (_, model) = compiled();
+    let mut est = Estimator::new(model).unwrap();
+    let zi = model
+        .inputs
+        .iter()
+        .position(|c| c.label == "tip.z")
+        .unwrap();
+    let mut u = vec![0.0; model.inputs.len()];
+    let y = vec![Some(-0.01); model.measurements.len()];
+    let mut sensors = vec![0.0; 3 * model.sensors.len()];
+    let mut sigma = vec![0.0; 3 * model.sensors.len()];
+    let mut nodes = vec![0.0; 3 * model.node_sets[0].node_tags.len()];
+    let mut estimates = vec![0.0; model.measurements.len()];
+    est.step(&u, &y).unwrap(); // first step: J factored
+    let n = count(|| {
+        for k in 0..40 {
+            u[zi] = tip_load(k, RANGE);
+            est.step(&u, &y).unwrap();
+            est.sensor_displacements(&mut sensors).unwrap();
+            est.sensor_std(&mut sigma).unwrap();
+            est.node_displacements(0, &mut nodes).unwrap();
+            est.measurement_estimates(&mut estimates).unwrap();
+        }
+    });
+    assert_eq!(n, 0, "allocations in 40 tier steps");
+    assert!(sigma.iter().all(|s| s.is_finite() && *s > 0.0), "{sigma:?}");
+}
+
+#[test]
+fn scene_fields_are_range_checked_naming_the_field() {
+    let dir = scene().parent().unwrap().to_path_buf();
+    let base = std::fs::read_to_string(scene()).unwrap();
+    for (from, to, field) in [
+        (
+            "ranges = { tip = 30.0 }",
+            "ranges = { nope = 8.0 }",
+            "reduction.corotational.ranges",
+        ),
+        (
+            "ranges = { tip = 30.0 }",
+            "ranges = { tip = -1.0 }",
+            "reduction.corotational.ranges.tip",
+        ),
+        (
+            "duration = 0.15",
+            "duration = 0.0",
+            "reduction.corotational.duration",
+        ),
+        ("every = 2", "every = 0", "reduction.corotational.every"),
+        ("order = 10", "order = 0", "reduction.corotational.order"),
+        (
+            "newton_iterations = 60",
+            "newton_iterations = 0",
+            "reduction.corotational.newton_iterations",
+        ),
+    ] {
+        let path = dir.join("bad.toml");
+        std::fs::write(&path, base.replace(from, to)).unwrap();
+        let err = match compile(&path, &options()) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("{to} accepted"),
+        };
+        assert!(err.contains(field), "{to}: {err}");
+    }
+    let path = dir.join("bad.toml");
+    std::fs::write(
+        &path,
+        base.replace("[reduction.corotational]", "[reduction.other]"),
+    )
+    .unwrap();
+    assert!(compile(&path, &options()).is_err());
+}
