@@ -2,7 +2,8 @@
 //! structure-aware mutation run of crokf's readers (issue 14 item 4). Prints, per target, the
 //! cases, how many were accepted and refused, the time and the rate; every panic or invariant
 //! violation is written to DIR (default: the current folder) as `crash-<target>-<case>.bin` and
-//! makes the exit status non-zero. The model-file decoder's run is
+//! makes the exit status non-zero (written through a temporary file and a rename, like every
+//! output of the tools). The model-file decoder's run is
 //! `cargo run --release -p crokf-formats --example mutate`.
 
 use clap::Parser;
@@ -68,7 +69,7 @@ fn main() -> ExitCode {
             let path = args
                 .crashes
                 .join(format!("crash-{}-{case}.bin", target.name()));
-            match std::fs::write(&path, data) {
+            match crokf_formats::output::write_atomically(&path, data) {
                 Ok(()) => println!("  case {case}: {what} (input: {})", path.display()),
                 Err(e) => println!("  case {case}: {what} (input not written: {e})"),
             }
