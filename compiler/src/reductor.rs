@@ -225,6 +225,21 @@ impl<'a> Reductor<'a> {
         &self,
         reduced: &ReducedModel,
     ) -> Result<BTreeMap<String, f64>, CompileError> {
+        Ok(self.reference()?.errors(reduced))
+    }
+
+    /// Per test, the RMS error of each sensor displacement row against the full-order linear
+    /// reference (m per unit load; [`ReferenceResponses::sensor_rms_errors`], docs/design.md
+    /// §11.3).
+    pub fn sensor_rms_errors(
+        &self,
+        reduced: &ReducedModel,
+    ) -> Result<BTreeMap<String, Vec<f64>>, CompileError> {
+        Ok(self.reference()?.sensor_rms_errors(reduced))
+    }
+
+    /// The full-order linear responses of the standard tests, simulated on first use.
+    fn reference(&self) -> Result<&ReferenceResponses, CompileError> {
         if self.reference.get().is_none() {
             let f1 = self
                 .basis
@@ -247,11 +262,12 @@ impl<'a> Reductor<'a> {
             // Set once: `get` was empty above and nothing else writes the cell.
             let _ = self.reference.set(responses);
         }
-        Ok(self
-            .reference
-            .get()
-            .map(|r| r.errors(reduced))
-            .unwrap_or_default())
+        self.reference.get().ok_or_else(|| CompileError::Stepping {
+            path: self.full.scene_path().to_owned(),
+            source: crate::stepping::SteppingError::Solver(
+                "internal: reference responses not stored".into(),
+            ),
+        })
     }
 
     /// Highest kept vibration frequency (static-correction vectors excluded), Hz.
