@@ -167,4 +167,36 @@ impl ReferenceResponses {
         }
         errors
     }
+
+    /// Per test: the RMS over the run of the reduced model's error at each sensor displacement
+    /// row (3 per sensor, x, y, z, sensor order) against the full-order linear reference, m per
+    /// unit input (the tests drive each load group with a unit-magnitude force). A check of the
+    /// process noise from the model (docs/design.md §11.3): the truncation's own error per
+    /// marker channel, to compare with the markers' σ and the filter's innovation σ.
+    pub fn sensor_rms_errors(&self, reduced: &ReducedModel) -> BTreeMap<String, Vec<f64>> {
+        let r = reduced.state_dim();
+        let p = self.rows.len();
+        let mut out = BTreeMap::new();
+        for (test, exact_values) in self.tests.iter().zip(&self.values) {
+            let mut x = Mat::<f64>::zeros(r, 1);
+            let mut sum = vec![0.0; self.sensor_rows];
+            for (k, u) in test.inputs.iter().enumerate() {
+                let u_in = Mat::from_fn(u.len(), 1, |i, _| u[i]);
+                x = &reduced.transition * &x + &reduced.input * &u_in;
+                for (i, s) in sum.iter_mut().enumerate() {
+                    let row_index = self.rows[i];
+                    let approx: f64 = (0..r)
+                        .map(|j| reduced.outputs[(row_index, j)] * x[(j, 0)])
+                        .sum();
+                    *s += (approx - exact_values[k * p + i]).powi(2);
+                }
+            }
+            let n = test.inputs.len().max(1) as f64;
+            out.insert(
+                test.name.clone(),
+                sum.into_iter().map(|s| (s / n).sqrt()).collect(),
+            );
+        }
+        out
+    }
 }

@@ -326,6 +326,16 @@ impl<'a> Reductor<'a> {
         Ok(self.reference()?.errors(reduced))
     }
 
+    /// Per test, the RMS error of each sensor displacement row against the full-order linear
+    /// reference (m per unit load; [`ReferenceResponses::sensor_rms_errors`], docs/design.md
+    /// §11.3).
+    pub fn sensor_rms_errors(
+        &self,
+        reduced: &ReducedModel,
+    ) -> Result<BTreeMap<String, Vec<f64>>, CompileError> {
+        Ok(self.reference()?.sensor_rms_errors(reduced))
+    }
+
     /// The full-order linear responses the measured error compares against (docs/design.md §7),
     /// simulated on first use and kept.
     pub fn reference(&self) -> Result<&ReferenceResponses, CompileError> {

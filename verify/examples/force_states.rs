@@ -161,6 +161,25 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             Err(e) => (format!("DARE failed: {e}"), "—".into(), "—".into()),
         };
         let measured = reductor.measured_errors(&reduced)?;
+        // Process-noise check (docs/design.md §11.3): the truncation's own error per marker
+        // channel (RMS over the unit step / chirp, m per N) against the marker σ.
+        let rms = reductor.sensor_rms_errors(&reduced)?;
+        let worst = |name: &str| {
+            rms.get(name).map_or(f64::NAN, |v| {
+                reductor
+                    .measurements
+                    .channels
+                    .iter()
+                    .zip(&sigma)
+                    .map(|(&(s, c), sg)| v[3 * s + c] / sg)
+                    .fold(0.0, f64::max)
+            })
+        };
+        println!(
+            "  r = {r0}: largest truncation error per marker channel / marker σ, per N of load: step {:.1e}, chirp {:.1e}",
+            worst("step"),
+            worst("chirp")
+        );
         println!(
             "| {r0} | {} | {:.2e} (σ {}) | {} | {force_std} | {rho} | {tau} | {:.1e} |",
             dc.join(" / "),
