@@ -6,6 +6,8 @@
 //!   The training runs must span the dynamics: with 0.3 s runs (a sixth of this 1.5 s run) the
 //!   same reversal was 22 % off while the envelope status said "inside" (‖q‖ at 0.32 of the
 //!   trained maximum); with 1.5 s runs it is 3.0 %;
+//! - a twist: opposite y forces on the upper and lower halves of the end face (two load groups,
+//!   trained separately), an end torque (ignored: a known miss, see the test);
 //! - a load far outside the training envelope: the runtime reports it (status), and either
 //!   steps or refuses with a typed error leaving the estimator as it was; never a panic or a
 //!   non-finite read-out.
@@ -173,4 +175,119 @@ fn a_load_far_outside_the_envelope_is_reported_and_never_garbage() {
     eprintln!("10× the training range: {stepped} steps taken, {refused} refused; {status:?}");
     assert!(status.envelope.outside(), "{status:?}");
     assert!(status.envelope.load_ratio > 5.0, "{status:?}");
+}
+
+/// Torque group force, N per group (each half of the end face).
+const TWIST_RANGE: f64 = 600.0;
+
+fn twist_scene() -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("crokf-tier-twist-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("scene folder");
+    write_msh22(
+        &box_mesh([12, 2, 2], [1.0, 0.1, 0.1]),
+        &dir.join("beam.msh"),
+    )
+    .expect("mesh");
+    let text = format!(
+        "[mesh]\nfile = \"beam.msh\"\n[[material]]\ngroup = \"body\"\nyoung_modulus = 1e6\n\
+         poisson_ratio = 0.3\ndensity = 1000.0\n[damping]\nalpha = 0.5\nbeta = 1e-3\n\
+         [[fixed]]\ngroup = \"xmin\"\n\
+         [[load]]\nname = \"upper\"\nselect = [{{ box = {{ min = [0.99, -1, 0.05], max = [1.01, 1, 1] }}, nodes = \"boundary\" }}]\nforce_noise_std = 0.01\n\
+         [[load]]\nname = \"lower\"\nselect = [{{ box = {{ min = [0.99, -1, -1], max = [1.01, 1, 0.05] }}, nodes = \"boundary\" }}]\nforce_noise_std = 0.01\n\
+         [[sensor]]\nname = \"corner\"\nposition = [1.0, 0.1, 0.1]\nnoise_std = 1e-3\n\
+         [[display]]\nname = \"end\"\ngroup = \"xmax\"\n[time]\ndt = {DT:e}\n\
+         [reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
+         ranges = {{ upper = {TWIST_RANGE:e}, lower = {TWIST_RANGE:e} }}\nduration = 1.0\nevery = 3\n\
+         order = 16\necsw_tolerance = 5e-3\nnewton_tolerance = 1e-10\nnewton_iterations = 60\n"
+    );
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, text).expect("scene");
+    path
+}
+
+/// Known miss, kept as the target (`cargo test -p crokf-tests --test tier_hard_cases -- --ignored
+/// --nocapture`): with the two groups trained one at a time (the training plan's axis
+/// directions per group), the combined torque is 2.6 relative L2 off (263 %) at a 31.5° twist
+/// while the envelope status says inside (‖q‖ at 0.04 of the trained maximum); the upper group
+/// alone, a trained case, is 5.2 % off at 55°. The training plan needs load combinations.
+#[test]
+#[ignore = "known miss: combined loads of separately trained groups (263 %); see the doc comment"]
+fn twist_by_an_end_torque_follows_the_full_order_corotational_fem() {
+    let scene = twist_scene();
+    let options = CompileOptions {
+        order: Some(8),
+        skip_measured_error: true,
+        ..CompileOptions::default()
+    };
+    let model = compile(&scene, &options).expect("tier compiles").model;
+    let full = FullOrder::build(&scene, &mut StageTimer::default()).expect("front end");
+    let column = |label: &str| {
+        let i = full
+            .operators
+            .inputs
+            .iter()
+            .position(|c| c.label == label)
+            .expect("load channel");
+        full.operators.inputs[i].column.clone()
+    };
+    let (up, down) = (column("upper.y"), column("lower.y"));
+    let index = |label: &str| {
+        model
+            .inputs
+            .iter()
+            .position(|c| c.label == label)
+            .expect("input")
+    };
+    let (ui, li) = (index("upper.y"), index("lower.y"));
+    let mut reference = simulator(
+        &full.fem,
+        full.wilson,
+        Formulation::Corotational,
+        NewtonOptions::default(),
+    )
+    .expect("co-rotational simulator");
+    let rows = Operators::sensor_rows(&full.fem, &full.operators.sensors[0]);
+    let mut est = Estimator::new(&model).expect("tier model loads");
+    let mut u = vec![0.0; model.inputs.len()];
+    let mut corner = [0.0; 3];
+    let mut f = vec![0.0; up.len()];
+    let (mut err2, mut ref2, mut turn) = (0.0, 0.0, 0.0f64);
+    for k in 1..=200 {
+        // Ramp over 0.5 s, then held: +F on the upper half, −F on the lower half.
+        let force = 0.8 * TWIST_RANGE * (k as f64 * DT / 0.5).min(1.0);
+        for ((fi, a), b) in f.iter_mut().zip(&up).zip(&down) {
+            *fi = force * (a - b);
+        }
+        reference.step(&f).expect("reference step");
+        u[ui] = force;
+        u[li] = -force;
+        est.predict(&u).expect("tier step");
+        est.sensor_displacements(&mut corner).expect("read-out");
+        let d = reference.displacement();
+        let exact: Vec<f64> = rows
+            .iter()
+            .map(|row| row.iter().map(|&(j, w)| w * d[j]).sum())
+            .collect();
+        for c in 0..3 {
+            err2 += (corner[c] - exact[c]).powi(2);
+            ref2 += exact[c].powi(2);
+        }
+        // The corner (y, z) = (0.1, 0.1) relative to the axis (0.05, 0.05): its angle about x.
+        let (y, z) = (0.05 + exact[1], 0.05 + exact[2]);
+        turn = turn.max(
+            (z.atan2(y) - std::f64::consts::FRAC_PI_4)
+                .abs()
+                .to_degrees(),
+        );
+    }
+    let error = (err2 / ref2).sqrt();
+    eprintln!(
+        "twist (±{:.0} N on the end-face halves): the end turns by up to {turn:.1}°; runtime \
+         tier vs full-order co-rotational FEM, relative L2 of the corner marker over 200 steps: \
+         {error:.2e}; {:?}",
+        0.8 * TWIST_RANGE,
+        est.tier_status().envelope
+    );
+    assert!(turn > 30.0, "a large twist expected, got {turn:.1}°");
+    assert!(error < 0.05, "twist error {error:.3e}");
 }
