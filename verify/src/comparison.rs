@@ -228,6 +228,9 @@ pub struct Comparison {
     pub seed: u64,
     /// Whether the runtime got the loads.
     pub withheld_loads: bool,
+    /// What the compiler said about the scene, once for all orders: scene warnings, mesh
+    /// notes, what each selection took, the modal basis' warnings.
+    pub notes: Vec<String>,
 }
 
 /// An order the comparison could not complete.
@@ -969,6 +972,15 @@ pub fn run(
         failures,
         seed: options.seed,
         withheld_loads: options.withhold_loads,
+        notes: setup
+            .full
+            .fem
+            .notes
+            .iter()
+            .chain(&setup.full.operators.notes)
+            .chain(&reductor.basis.warnings)
+            .cloned()
+            .collect(),
     })
 }
 

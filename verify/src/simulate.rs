@@ -343,6 +343,9 @@ pub struct RunSummary {
     pub elements: usize,
     /// Files written.
     pub files: Vec<PathBuf>,
+    /// What the compiler's front end said about the scene (scene warnings, mesh notes, what
+    /// each selection took).
+    pub notes: Vec<String>,
 }
 
 /// `crokf-verify simulate`: reads the scene, its mesh and the scenario, runs [`simulate`] and
@@ -427,6 +430,7 @@ pub fn run(
         dofs: fem.dof_count(),
         elements: fem.elements.len(),
         files,
+        notes: fem.notes.iter().chain(&ops.notes).cloned().collect(),
     })
 }
 

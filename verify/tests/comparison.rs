@@ -89,6 +89,13 @@ fn run(scene: &Path, scenario: &Path, options: &ComparisonOptions) -> Comparison
     let c = comparison::run(scene, scenario, options, &mut progress)
         .unwrap_or_else(|e| panic!("comparison failed: {e}"));
     eprintln!("{}", c.markdown());
+    // The compiler's notes on the scene reach the report (the beam's static correction note).
+    assert!(
+        c.notes.iter().any(|n| n.contains("static correction")),
+        "{:?}",
+        c.notes
+    );
+    assert!(c.markdown().contains("Compiler notes on the scene"));
     let mut expected = vec![
         "linear FEM".to_owned(),
         "co-rotational FEM".to_owned(),

@@ -159,6 +159,9 @@ fn report(args: &ReportArgs) -> Result<(), String> {
             .collect::<String>(),
         args.out.display()
     );
+    for note in &result.notes {
+        eprintln!("note: {note}");
+    }
     if !result.failures.is_empty() {
         eprintln!(
             "crokf-verify: {} of {} orders failed (reasons in report.md)",
@@ -363,6 +366,9 @@ fn simulate(args: &SimulateArgs) -> Result<(), simulate::SimulateError> {
                 u[0], u[1], u[2]
             );
         }
+    }
+    for note in &summary.notes {
+        eprintln!("note: {note}");
     }
     let shown = summary.files.len().min(3);
     for f in &summary.files[..shown] {

@@ -328,6 +328,12 @@ impl Comparison {
                 n.solves, n.steps, n.unconverged, n.worst_increment
             );
         }
+        if !self.notes.is_empty() {
+            let _ = writeln!(out, "\nCompiler notes on the scene:\n");
+            for note in &self.notes {
+                let _ = writeln!(out, "- {note}");
+            }
+        }
         out
     }
 
