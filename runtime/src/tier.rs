@@ -9,7 +9,7 @@
 //!   Δ = q̂ − q,  q̈_θ = a₀Δ − (6/τ)q̇ − 2q̈,  q̇_θ = a₂Δ − 2q̇ − (τ/2)q̈
 //!   res = f_r − M_r(q̈_θ + α q̇_θ) − Σ_e wₑ V_eᵀ Rₑ Kₑ(yₑ + β Rₑᵀ V_e q̇_θ)
 //!   J = (1 + a₂β) K_t,r(q̂) + (a₀ + a₂α) M_r   (refreshed as below; dense Cholesky)
-//!   q̂ ← q̂ + J⁻¹ res;  converged when ‖J⁻¹res‖ ≤ tol ‖q̂‖
+//!   q̂ ← q̂ + J⁻¹ res;  converged when ‖J⁻¹res‖ ≤ tol max(‖q̂‖, 1e-3 max‖q‖_training)
 //! (q, q̇, q̈) ← Wilson-θ advance with q̂
 //! ```
 //! J (warped tangent K_t,r = Σ wₑ V_eᵀ Rₑ Kₑ Rₑᵀ V_e) is refreshed at the first step, at the
@@ -22,6 +22,10 @@ use crokf_kernel::{self as kernel, Mat3, PolarError};
 
 /// Iterations after which J is refreshed (within a step, and at the next step).
 pub const SLOW_ITERATIONS: usize = 4;
+
+/// Floor of the Newton test's scale, as a fraction of the largest training ‖q‖: converged
+/// when ‖δq‖ ≤ tol · max(‖q̂‖, QUIET · max‖q‖_training).
+pub const QUIET: f64 = 1e-3;
 
 /// Why a tier step was refused (the estimator is unchanged).
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -478,9 +482,11 @@ impl TierState {
             if !qn.is_finite() {
                 return Err(TierError::NonFinite { step });
             }
-            let (dn, qn) = (dn.sqrt(), qn.sqrt());
+            // Relative to ‖q̂‖, floored at 1e-3 of the largest training ‖q‖: near rest the
+            // increments of a round-off residual are not measured against a vanishing q̂.
+            let (dn, qn) = (dn.sqrt(), qn.sqrt().max(QUIET * model.max_q));
             increment = if qn > 0.0 { dn / qn } else { 0.0 };
-            if dn <= model.tolerance * qn || qn == 0.0 {
+            if dn <= model.tolerance * qn {
                 converged = true;
                 break;
             }

@@ -322,3 +322,19 @@ fn scene_fields_are_range_checked_naming_the_field() {
     .unwrap();
     assert!(compile(&path, &options()).is_err());
 }
+
+/// At rest with no load the round-off residual converges at once (the Newton test's scale is
+/// floored at 1e-3 of the training ‖q‖) and the state stays at rest.
+#[test]
+fn rest_stays_at_rest() {
+    let (_, model) = compiled();
+    let mut est = Estimator::new(model).unwrap();
+    let u = vec![0.0; model.inputs.len()];
+    for _ in 0..5 {
+        est.predict(&u).unwrap();
+        assert!(est.tier_status().iterations <= 2, "{:?}", est.tier_status());
+    }
+    let max_q = model.tier.as_ref().unwrap().envelope.max_coordinate_norm;
+    let worst = est.state().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(worst < 1e-9 * max_q, "{worst:e}");
+}
