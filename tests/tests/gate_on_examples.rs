@@ -1,0 +1,74 @@
+//! The runtime's guards on the committed example models (issue 14 item 2): the plausibility
+//! bounds derived at load time, and the default innovation gate (5σ) on the models' own
+//! measurement noise — at rest, markers = N(0, σ²) of the scene's σ per channel for 1,000
+//! steps — which must gate nothing.
+//!
+//! `cargo test -p crokf-tests --test gate_on_examples -- --nocapture` prints the figures.
+
+use std::path::Path;
+
+use crokf_runtime::{load_model, Estimator, DEFAULT_GATE_SIGMAS};
+
+/// splitmix64 + Box–Muller: a reproducible standard normal stream.
+struct Normal(u64);
+
+impl Normal {
+    fn uniform(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    fn sample(&mut self) -> f64 {
+        let u1 = self.uniform().max(1e-300);
+        let u2 = self.uniform();
+        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    }
+}
+
+#[test]
+fn own_noise_is_never_gated_on_the_example_models() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    for name in ["cantilever", "meniscus", "tentacle"] {
+        let path = root.join("models").join(name).join("model.crokf");
+        let model = load_model(&path).expect("committed model loads");
+        let mut est = Estimator::new(&model).expect("estimator");
+        assert_eq!(est.innovation_gate(), Some(DEFAULT_GATE_SIGMAS));
+        let bounds = est.prepared().input_bounds().to_vec();
+        let labels = model.input_labels();
+        let per_input: Vec<String> = labels
+            .iter()
+            .zip(&bounds)
+            .map(|(l, b)| format!("|{l}| ≤ {b:.3e}"))
+            .collect();
+        eprintln!(
+            "{name}: plausibility bounds {} N, |y| ≤ {:.3e} m",
+            per_input.join(", "),
+            est.prepared().measurement_bound()
+        );
+        assert!(bounds.iter().all(|b| *b > 0.0));
+        let sigma: Vec<f64> = model
+            .kalman
+            .measurement_variance
+            .iter()
+            .map(|v| v.sqrt())
+            .collect();
+        let u = vec![0.0; model.inputs.len()];
+        let mut noise = Normal(0x5eed);
+        let mut y = vec![None; model.measurements.len()];
+        for _ in 0..1000 {
+            for (yj, s) in y.iter_mut().zip(&sigma) {
+                *yj = Some(s * noise.sample());
+            }
+            est.step(&u, &y).expect("step");
+        }
+        eprintln!(
+            "{name}: {} channels × 1,000 steps of its own noise: {} gated",
+            y.len(),
+            est.gated_total()
+        );
+        assert_eq!(est.gated_total(), 0, "{name}");
+    }
+}
