@@ -15,6 +15,8 @@
 mod matrix;
 mod model;
 pub mod output;
+#[cfg(feature = "synthetic")]
+pub mod synthetic;
 mod tier;
 mod validate;
 

@@ -28,103 +28,13 @@ fn median_seconds(samples: usize, mut f: impl FnMut()) -> f64 {
     t[t.len() / 2]
 }
 
-/// Deterministic numbers in [-1, 1) (xorshift64*).
-struct Noise(u64);
-
-impl Noise {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        let v = self.0.wrapping_mul(0x2545_f491_4f6c_dd1d);
-        (v >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-    }
-    fn matrix(&mut self, rows: usize, cols: usize, scale: f64) -> Matrix {
-        Matrix::from_fn(rows as u32, cols as u32, |_, _| scale * self.next())
-    }
-}
-
-/// r states, `inputs` load channels (groups of 3), `measured` components (sensors of 3), one
-/// node set of `nodes` nodes; F = 0.6 I + noise, P = I.
-fn synthetic_model(r: usize, inputs: usize, measured: usize, nodes: usize) -> Model {
-    let mut rng = Noise(0x9e37_79b9_7f4a_7c15);
-    let mut transition = rng.matrix(r, r, 0.3 / (r as f64).sqrt());
-    for i in 0..r {
-        transition.data[i * r + i] += 0.6;
-    }
-    let loads = (inputs / 3).max(1);
-    let sensors = measured.div_ceil(3);
-    Model {
-        dt: 1e-3,
-        theta: 1.4,
-        state_dim: r as u32,
-        transition,
-        input: rng.matrix(r, inputs, 1.0),
-        inputs: (0..inputs)
-            .map(|j| InputChannel {
-                label: format!("load{}.{}", j / 3, component_label((j % 3) as u8)),
-                kind: InputKind::Load {
-                    load: (j / 3) as u32,
-                    component: (j % 3) as u8,
-                },
-            })
-            .collect(),
-        loads: (0..loads)
-            .map(|g| LoadGroup {
-                name: format!("load{g}"),
-                rotation_rows: rng.matrix(3, r, 1e-2),
-            })
-            .collect(),
-        sensors: (0..sensors)
-            .map(|s| SensorInfo {
-                name: format!("s{s}"),
-                position: [s as f64, 0.0, 0.0],
-                displacement_rows: rng.matrix(3, r, 1e-2),
-                rotation_rows: rng.matrix(3, r, 1e-2),
-                components: (0..3u8)
-                    .filter(|c| 3 * s + (*c as usize) < measured)
-                    .collect(),
-                every: 1,
-            })
-            .collect(),
-        measurements: (0..measured)
-            .map(|i| MeasurementChannel {
-                sensor: (i / 3) as u32,
-                component: (i % 3) as u8,
-            })
-            .collect(),
-        kalman: KalmanGains {
-            period: 1,
-            phases: vec![KalmanPhase {
-                measured: (0..measured as u32).collect(),
-                gain: rng.matrix(r, measured, 1e-2),
-                prior_covariance: Matrix::identity(r as u32),
-                posterior_covariance: Matrix::identity(r as u32),
-            }],
-            process_noise: Matrix::identity(r as u32),
-            measurement_variance: vec![1e-6; measured],
-        },
-        node_sets: vec![NodeSet {
-            name: "display".into(),
-            node_tags: (1..=nodes as u64).collect(),
-            rest_positions: rng.matrix(nodes, 3, 1.0),
-            triangles: Vec::new(),
-            displacement_rows: rng.matrix(3 * nodes, r, 1e-2),
-            rotation_rows: rng.matrix(3 * nodes, r, 1e-2),
-        }],
-        report: CompileReport::default(),
-        inputs_digest: InputsDigest::default(),
-        tier: None,
-    }
-}
-
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (inputs, measured, nodes) = (6, 30, 5000);
     // `bench steps R N`: only N steps at order R (for `perf stat` cycle and instruction counts).
     let args: Vec<String> = std::env::args().collect();
     if args.len() == 4 && args[1] == "steps" {
         let (r, n): (usize, usize) = (args[2].parse()?, args[3].parse()?);
-        let model = synthetic_model(r, inputs, measured, 8);
+        let model = crokf_formats::synthetic::benchmark_model(r, inputs, measured, 8);
         let mut est = Estimator::new(&model)?;
         let u = vec![0.5; inputs];
         let y: Vec<Option<f64>> = (0..measured).map(|i| Some(1e-4 * i as f64)).collect();
@@ -140,11 +50,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "r", "step µs", "read-out 5,000 nodes µs"
     );
     for r in [10, 20, 40, 80] {
-        let model = synthetic_model(r, inputs, measured, nodes);
+        let model = crokf_formats::synthetic::benchmark_model(r, inputs, measured, nodes);
         let mut est = Estimator::new(&model)?;
         let u = vec![0.5; inputs];
-        let mut rng = Noise(7);
-        let y: Vec<Option<f64>> = (0..measured).map(|_| Some(1e-3 * rng.next())).collect();
+        let mut rng = crokf_formats::synthetic::Noise(7);
+        let y: Vec<Option<f64>> = (0..measured).map(|_| Some(1e-3 * rng.next_value())).collect();
         let batch = 100;
         let mut failed = None;
         let step_s = median_seconds(301, || {
@@ -176,7 +86,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 /// 1,000 estimators at r = 20 over one model, stepped round-robin.
 fn many_instances() -> Result<(), Box<dyn std::error::Error>> {
     let (n, r) = (1000, 20);
-    let model = synthetic_model(r, 6, 30, 5000);
+    let model = crokf_formats::synthetic::benchmark_model(r, 6, 30, 5000);
     let mut ests = instances(&model, n)?;
     let u = vec![0.5; 6];
     let y: Vec<Option<f64>> = (0..30).map(|i| Some(1e-4 * i as f64)).collect();

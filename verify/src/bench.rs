@@ -136,107 +136,14 @@ pub struct RuntimeBench {
     pub nodes: usize,
 }
 
-/// A deterministic pseudo-random sequence in [-1, 1) (xorshift64*).
-struct Noise(u64);
-
-impl Noise {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        let v = self.0.wrapping_mul(0x2545_f491_4f6c_dd1d);
-        (v >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-    }
-
-    fn matrix(&mut self, rows: usize, cols: usize, scale: f64) -> fmt::Matrix {
-        fmt::Matrix::from_fn(rows as u32, cols as u32, |_, _| scale * self.next())
-    }
-}
-
-/// A synthetic model with the runtime benchmark's shapes: r states, `inputs` input channels on
-/// two load groups, `measured` measured components (sensors of 3), one node set of `nodes`.
-pub fn synthetic_model(r: usize, inputs: usize, measured: usize, nodes: usize) -> fmt::Model {
-    let mut rng = Noise(0x9e37_79b9_7f4a_7c15);
-    let mut transition = rng.matrix(r, r, 0.3 / (r as f64).sqrt());
-    for i in 0..r {
-        transition.data[i * r + i] += 0.6;
-    }
-    let loads = (inputs / 3).max(1);
-    let sensors = measured.div_ceil(3);
-    let measurements: Vec<fmt::MeasurementChannel> = (0..measured)
-        .map(|i| fmt::MeasurementChannel {
-            sensor: (i / 3) as u32,
-            component: (i % 3) as u8,
-        })
-        .collect();
-    let model = fmt::Model {
-        dt: 1e-3,
-        theta: 1.4,
-        state_dim: r as u32,
-        transition,
-        input: rng.matrix(r, inputs, 1.0),
-        inputs: (0..inputs)
-            .map(|j| fmt::InputChannel {
-                label: format!("load{}.{}", j / 3, fmt::component_label((j % 3) as u8)),
-                kind: fmt::InputKind::Load {
-                    load: (j / 3) as u32,
-                    component: (j % 3) as u8,
-                },
-            })
-            .collect(),
-        loads: (0..loads)
-            .map(|g| fmt::LoadGroup {
-                name: format!("load{g}"),
-                rotation_rows: rng.matrix(3, r, 1e-2),
-            })
-            .collect(),
-        sensors: (0..sensors)
-            .map(|s| fmt::SensorInfo {
-                name: format!("s{s}"),
-                position: [s as f64, 0.0, 0.0],
-                displacement_rows: rng.matrix(3, r, 1e-2),
-                rotation_rows: rng.matrix(3, r, 1e-2),
-                components: (0..3u8)
-                    .filter(|c| 3 * s + (*c as usize) < measured)
-                    .collect(),
-                every: 1,
-            })
-            .collect(),
-        measurements,
-        kalman: fmt::KalmanGains {
-            period: 1,
-            phases: vec![fmt::KalmanPhase {
-                measured: (0..measured as u32).collect(),
-                gain: rng.matrix(r, measured, 1e-2),
-                prior_covariance: fmt::Matrix::identity(r as u32),
-                posterior_covariance: fmt::Matrix::identity(r as u32),
-            }],
-            process_noise: fmt::Matrix::identity(r as u32),
-            measurement_variance: vec![1e-6; measured],
-        },
-        node_sets: vec![fmt::NodeSet {
-            name: "display".into(),
-            node_tags: (1..=nodes as u64).collect(),
-            rest_positions: rng.matrix(nodes, 3, 1.0),
-            triangles: Vec::new(),
-            displacement_rows: rng.matrix(3 * nodes, r, 1e-2),
-            rotation_rows: rng.matrix(3 * nodes, r, 1e-2),
-        }],
-        report: fmt::CompileReport::default(),
-        inputs_digest: fmt::InputsDigest::default(),
-        tier: None,
-    };
-    model
-}
-
 /// Times the runtime step and read-out at order r (30 measured components, 6 inputs, 5,000
 /// displayed nodes unless told otherwise).
 pub fn runtime(r: usize, measured: usize, inputs: usize, nodes: usize) -> RuntimeBench {
-    let model = synthetic_model(r, inputs, measured, nodes);
+    let model = fmt::synthetic::benchmark_model(r, inputs, measured, nodes);
     let mut est = Estimator::new(&model).expect("synthetic model is valid");
     let u = vec![0.5; inputs];
-    let mut rng = Noise(7);
-    let y: Vec<Option<f64>> = (0..measured).map(|_| Some(1e-3 * rng.next())).collect();
+    let mut rng = fmt::synthetic::Noise(7);
+    let y: Vec<Option<f64>> = (0..measured).map(|_| Some(1e-3 * rng.next_value())).collect();
     let batch = 1000;
     let step_s = median_seconds(21, || {
         for _ in 0..batch {
