@@ -54,7 +54,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut est = Estimator::new(&model)?;
         let u = vec![0.5; inputs];
         let mut rng = crokf_formats::synthetic::Noise(7);
-        let y: Vec<Option<f64>> = (0..measured).map(|_| Some(1e-3 * rng.next_value())).collect();
+        let y: Vec<Option<f64>> = (0..measured)
+            .map(|_| Some(1e-3 * rng.next_value()))
+            .collect();
         let batch = 100;
         let mut failed = None;
         let step_s = median_seconds(301, || {

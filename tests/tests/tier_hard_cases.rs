@@ -20,7 +20,7 @@ use std::sync::OnceLock;
 use crokf_compile::fem::operators::Operators;
 use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
 use crokf_compile::report::StageTimer;
-use crokf_compile::stepping::{simulator, Formulation, NewtonOptions};
+use crokf_compile::stepping::{simulator, Formulation, NewtonOptions, Simulator};
 use crokf_compile::{compile, CompileOptions, FullOrder};
 use crokf_runtime::Estimator;
 
@@ -68,6 +68,44 @@ fn model() -> &'static crokf_formats::Model {
     })
 }
 
+/// The full-order load column of input channel `label` (N per unit input on the free DOFs).
+fn load_column(full: &FullOrder, label: &str) -> Vec<f64> {
+    let i = full
+        .operators
+        .inputs
+        .iter()
+        .position(|c| c.label == label)
+        .expect("load channel");
+    full.operators.inputs[i].column.clone()
+}
+
+/// The index of input channel `label` in a model file.
+fn input_index(model: &crokf_formats::Model, label: &str) -> usize {
+    model
+        .inputs
+        .iter()
+        .position(|c| c.label == label)
+        .expect("input channel")
+}
+
+/// The full-order co-rotational reference simulator and the rows of sensor 0.
+fn reference_of(
+    full: &FullOrder,
+) -> (
+    Box<dyn Simulator + '_>,
+    [crokf_compile::fem::operators::SparseRow; 3],
+) {
+    let reference = simulator(
+        &full.fem,
+        full.wilson,
+        Formulation::Corotational,
+        NewtonOptions::default(),
+    )
+    .expect("co-rotational simulator");
+    let rows = Operators::sensor_rows(&full.fem, &full.operators.sensors[0]);
+    (reference, rows)
+}
+
 /// Tip force along z, N: ramp to −P over 0.1 s, hold to 0.2 s, ramp to +P by 0.4 s, hold.
 fn reversal(k: usize, peak: f64) -> f64 {
     let t = k as f64 * DT;
@@ -79,28 +117,11 @@ fn reversal(k: usize, peak: f64) -> f64 {
 fn reversed_load_follows_the_full_order_corotational_fem() {
     let model = model();
     let full = FullOrder::build(scene(), &mut StageTimer::default()).expect("front end");
-    let z = full
-        .operators
-        .inputs
-        .iter()
-        .position(|c| c.label == "tip.z")
-        .expect("tip.z");
-    let column = &full.operators.inputs[z].column;
-    let mut reference = simulator(
-        &full.fem,
-        full.wilson,
-        Formulation::Corotational,
-        NewtonOptions::default(),
-    )
-    .expect("co-rotational simulator");
-    let rows = Operators::sensor_rows(&full.fem, &full.operators.sensors[0]);
+    let column = load_column(&full, "tip.z");
+    let (mut reference, rows) = reference_of(&full);
     let mut est = Estimator::new(model).expect("tier model loads");
     assert!(est.is_corotational());
-    let zi = model
-        .inputs
-        .iter()
-        .position(|c| c.label == "tip.z")
-        .expect("tip.z input");
+    let zi = input_index(model, "tip.z");
     let mut u = vec![0.0; model.inputs.len()];
     let peak = 0.8 * RANGE;
     let (mut err2, mut ref2, mut lowest, mut highest) = (0.0, 0.0, 0.0f64, 0.0f64);
@@ -108,7 +129,7 @@ fn reversed_load_follows_the_full_order_corotational_fem() {
     let mut f = vec![0.0; column.len()];
     for k in 1..=STEPS {
         let force = reversal(k, peak);
-        for (fi, b) in f.iter_mut().zip(column) {
+        for (fi, b) in f.iter_mut().zip(&column) {
             *fi = force * b;
         }
         reference.step(&f).expect("reference step");
@@ -140,11 +161,7 @@ fn reversed_load_follows_the_full_order_corotational_fem() {
 #[test]
 fn a_load_far_outside_the_envelope_is_reported_and_never_garbage() {
     let model = model();
-    let zi = model
-        .inputs
-        .iter()
-        .position(|c| c.label == "tip.z")
-        .expect("tip.z input");
+    let zi = input_index(model, "tip.z");
     let mut est = Estimator::new(model).expect("tier model loads");
     let mut u = vec![0.0; model.inputs.len()];
     let mut tip = [0.0; 3];
@@ -221,32 +238,12 @@ fn twist_by_an_end_torque_follows_the_full_order_corotational_fem() {
     };
     let model = compile(&scene, &options).expect("tier compiles").model;
     let full = FullOrder::build(&scene, &mut StageTimer::default()).expect("front end");
-    let column = |label: &str| {
-        let i = full
-            .operators
-            .inputs
-            .iter()
-            .position(|c| c.label == label)
-            .expect("load channel");
-        full.operators.inputs[i].column.clone()
-    };
-    let (up, down) = (column("upper.y"), column("lower.y"));
-    let index = |label: &str| {
-        model
-            .inputs
-            .iter()
-            .position(|c| c.label == label)
-            .expect("input")
-    };
-    let (ui, li) = (index("upper.y"), index("lower.y"));
-    let mut reference = simulator(
-        &full.fem,
-        full.wilson,
-        Formulation::Corotational,
-        NewtonOptions::default(),
-    )
-    .expect("co-rotational simulator");
-    let rows = Operators::sensor_rows(&full.fem, &full.operators.sensors[0]);
+    let (up, down) = (load_column(&full, "upper.y"), load_column(&full, "lower.y"));
+    let (ui, li) = (
+        input_index(&model, "upper.y"),
+        input_index(&model, "lower.y"),
+    );
+    let (mut reference, rows) = reference_of(&full);
     let mut est = Estimator::new(&model).expect("tier model loads");
     let mut u = vec![0.0; model.inputs.len()];
     let mut corner = [0.0; 3];

@@ -143,7 +143,9 @@ pub fn runtime(r: usize, measured: usize, inputs: usize, nodes: usize) -> Runtim
     let mut est = Estimator::new(&model).expect("synthetic model is valid");
     let u = vec![0.5; inputs];
     let mut rng = fmt::synthetic::Noise(7);
-    let y: Vec<Option<f64>> = (0..measured).map(|_| Some(1e-3 * rng.next_value())).collect();
+    let y: Vec<Option<f64>> = (0..measured)
+        .map(|_| Some(1e-3 * rng.next_value()))
+        .collect();
     let batch = 1000;
     let step_s = median_seconds(21, || {
         for _ in 0..batch {
