@@ -120,7 +120,7 @@ impl<'a> Reductor<'a> {
             max_modes,
             ..reduce::ModalOptions::default()
         };
-        let basis = timer
+        let mut basis = timer
             .stage("modes", || {
                 reduce::modal_basis(
                     fem.stiffness.as_ref(),
@@ -130,7 +130,6 @@ impl<'a> Reductor<'a> {
                 )
             })
             .map_err(reduce_err)?;
-        let mut basis = basis;
         if let Some(note) = unresolved_modes_note(&basis, full.wilson.dt) {
             basis.warnings.push(note);
         }

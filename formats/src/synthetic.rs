@@ -1,8 +1,22 @@
-//! Synthetic models for benchmarks (feature `synthetic`): random matrices of the shapes a
-//! compiled model has, no physics. One source for `crokf-verify bench` and the runtime's
-//! `bench` example, so that both time the same model.
+//! Benchmark support (feature `synthetic`): synthetic models (random matrices of the shapes a
+//! compiled model has, no physics) and the median timer. One source for `crokf-verify bench`
+//! and the runtime's `bench` example, so that both time the same model the same way.
 
 use crate as fmt;
+use std::time::Instant;
+
+/// Median wall time of `samples` runs of `f`, s.
+pub fn median_seconds(samples: usize, mut f: impl FnMut()) -> f64 {
+    let mut t: Vec<f64> = (0..samples.max(1))
+        .map(|_| {
+            let start = Instant::now();
+            f();
+            start.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
 
 /// A deterministic pseudo-random sequence in [-1, 1) (xorshift64*).
 pub struct Noise(pub u64);

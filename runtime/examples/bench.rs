@@ -13,20 +13,8 @@
 use crokf_formats::*;
 use crokf_runtime::Estimator;
 use std::hint::black_box;
-use std::time::Instant;
 
-/// Median wall time of `samples` runs of `f`, s.
-fn median_seconds(samples: usize, mut f: impl FnMut()) -> f64 {
-    let mut t: Vec<f64> = (0..samples.max(1))
-        .map(|_| {
-            let start = Instant::now();
-            f();
-            start.elapsed().as_secs_f64()
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    t[t.len() / 2]
-}
+use crokf_formats::synthetic::median_seconds;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (inputs, measured, nodes) = (6, 30, 5000);

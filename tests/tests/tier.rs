@@ -3,8 +3,6 @@
 //!
 //! `cargo test -p crokf-tests --test tier -- --nocapture` prints the figures.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
@@ -18,34 +16,9 @@ use crokf_compile::{compile, CompileOptions, FullOrder};
 use crokf_runtime::{Estimator, RuntimeError, TierError};
 use nalgebra::DVector;
 
-struct Counting;
-
-thread_local! {
-    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        System.alloc(layout)
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        System.dealloc(ptr, layout)
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.with(|c| c.set(c.get() + 1));
-        System.realloc(ptr, layout, new_size)
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
-
-fn count(f: impl FnOnce()) -> usize {
-    let before = ALLOCATIONS.with(Cell::get);
-    f();
-    ALLOCATIONS.with(Cell::get) - before
-}
+#[path = "../../runtime/tests/support/counting_alloc.rs"]
+mod counting_alloc;
+use counting_alloc::count;
 
 /// Training range of the tip load, N (37.5 N bends this stiff, coarse beam by about 30°).
 const RANGE: f64 = 30.0;

@@ -7,7 +7,6 @@
 
 use std::hint::black_box;
 use std::path::Path;
-use std::time::Instant;
 
 use crokf_formats as fmt;
 use crokf_runtime::Estimator;
@@ -21,18 +20,7 @@ use crokf_compile::stepping::{CorotationalSimulator, LinearSimulator, NewtonOpti
 
 use crokf_compile::mesh::procedural::{box_mesh, BeamScene};
 
-/// Median of `samples` timings of `f`, s.
-pub fn median_seconds(samples: usize, mut f: impl FnMut()) -> f64 {
-    let mut t: Vec<f64> = (0..samples.max(1))
-        .map(|_| {
-            let start = Instant::now();
-            f();
-            start.elapsed().as_secs_f64()
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    t[t.len() / 2]
-}
+pub use crokf_formats::synthetic::median_seconds;
 
 /// A beam mesh of about `tetrahedra` elements (1 m × 0.1 m × 0.1 m, cells k × k in section).
 pub fn beam_of_size(tetrahedra: usize) -> Mesh {
