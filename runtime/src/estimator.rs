@@ -62,16 +62,17 @@ pub struct Estimator {
     x_upd: Vec<f64>,
     /// Inputs after rotating load channels into the local frame (m).
     u_lin: Vec<f64>,
-    /// Per sensor scratch: y_world as measured, its prediction R̃(ω̄) C_s x⁻, y_lin (local
-    /// frame) and u_lin predicted.
+    /// Per sensor slot of the current phase (`PreparedModel::phase_sensors`): y_world (the
+    /// accepted measurements, other components from the prediction), its prediction
+    /// R̃(ω̄) C_s x⁻, y_lin (local frame) and u_lin predicted.
     y_world: Vec<Vec3>,
     pred_world: Vec<Vec3>,
     y_lin: Vec<Vec3>,
     u_pred: Vec<Vec3>,
-    /// Per sensor scratch: which components were filled from accepted measurements.
+    /// Per sensor slot: which components were filled from accepted measurements.
     filled: Vec<[bool; 3]>,
-    /// Per sensor scratch: the warp at the predicted state.
-    warps: Vec<Option<Warp>>,
+    /// Per sensor slot: the warp at the predicted state.
+    warps: Vec<Warp>,
     /// [C_s x; W_s x] of the current phase's sensors (6 each), and W_g x of the load groups.
     sensor_vals: Vec<f64>,
     load_vals: Vec<f64>,
@@ -123,7 +124,7 @@ impl Estimator {
             y_lin: vec![[0.0; 3]; ns],
             u_pred: vec![[0.0; 3]; ns],
             filled: vec![[false; 3]; ns],
-            warps: vec![None; ns],
+            warps: vec![Warp::new(&[0.0; 3]); ns],
             sensor_vals: vec![0.0; 6 * ns],
             load_vals: vec![0.0; 3 * prepared.model.loads.len()],
             innovation: vec![0.0; prepared.max_measured],
@@ -358,7 +359,7 @@ impl Estimator {
         }
         matvec_t(&sh.transition_t, &self.x, &mut self.x_next, false);
         matvec_t(&sh.input_t, &self.u_lin, &mut self.x_next, true);
-        if let Some(index) = self.x_next.iter().position(|v| !v.is_finite()) {
+        if let Some(index) = first_non_finite(&self.x_next) {
             return Err(RuntimeError::NonFiniteState {
                 step: self.k + 1,
                 stage: "prediction",
@@ -460,85 +461,89 @@ impl Estimator {
             return Ok(used);
         }
         let sh: &PreparedModel = &self.shared;
-        let model = &sh.model;
         let p = self.phase;
         let step = self.k;
-        let phase = &model.kalman.phases[p];
-        let sensors = &sh.phase_sensors[p];
-        let vals = &mut self.sensor_vals[..6 * sensors.len()];
+        let active = &sh.active[p];
+        let slots = sh.phase_sensors[p].len();
+        // Per sensor slot of the phase: [C_s x⁻; W_s x⁻], the warp at ω̄ = W_s x⁻ and the
+        // predicted world displacement R̃(ω̄) C_s x⁻, which y_world starts from.
+        let vals = &mut self.sensor_vals[..6 * slots];
         matvec_t(&sh.phase_rows_t[p], &self.x, vals, false);
-        for (v, &s) in vals.chunks_exact(6).zip(sensors) {
-            self.u_pred[s] = [v[0], v[1], v[2]];
-            self.warps[s] = Some(Warp::new(&[v[3], v[4], v[5]]));
-            self.filled[s] = [false; 3];
+        for ((((v, warp), pred), u), filled) in vals
+            .chunks_exact(6)
+            .zip(&mut self.warps)
+            .zip(&mut self.pred_world)
+            .zip(&mut self.u_pred)
+            .zip(&mut self.filled)
+        {
+            *u = [v[0], v[1], v[2]];
+            *warp = Warp::new(&[v[3], v[4], v[5]]);
+            *pred = warp.warp(u);
+            *filled = [false; 3];
         }
-        for &j in &phase.measured {
-            let (s, c) = sh.channel[j as usize];
-            if let Some(v) = get(j as usize) {
-                self.y_world[s][c] = v;
-                self.filled[s][c] = true;
-            }
-        }
+        self.y_world[..slots].copy_from_slice(&self.pred_world[..slots]);
         // Gate in the world frame, channel by channel: ν_j = y_world − (R̃(ω̄) C_s x⁻)_c, so an
         // outlier cannot leak into its sensor's other components through the un-warp.
-        for &s in sensors {
-            if let Some(maps) = self.warps[s] {
-                self.pred_world[s] = maps.warp(&self.u_pred[s]);
+        let gate2 = self.gate.map(|g| g * g);
+        for ((ch, &variance0), gated_now) in active
+            .iter()
+            .zip(&sh.innovation_variance[p])
+            .zip(&mut self.gated_now)
+        {
+            *gated_now = false;
+            let Some(v) = get(ch.channel) else { continue };
+            let (s, c, j) = (ch.slot, ch.component, ch.channel);
+            if let Some(g2) = gate2 {
+                let nu = v - self.pred_world[s][c];
+                let missed = step
+                    .saturating_sub(self.last_accepted[j])
+                    .saturating_sub(sh.every[j]);
+                let variance = variance0 + missed as f64 * sh.variance_growth[j];
+                if nu * nu > g2 * variance {
+                    *gated_now = true;
+                    continue;
+                }
             }
-        }
-        for (a, &j) in phase.measured.iter().enumerate() {
-            let j = j as usize;
-            let (s, c) = sh.channel[j];
-            self.gated_now[a] = false;
-            let (Some(g), true) = (self.gate, self.filled[s][c]) else {
-                continue;
-            };
-            let nu = self.y_world[s][c] - self.pred_world[s][c];
-            let missed = step
-                .saturating_sub(self.last_accepted[j])
-                .saturating_sub(sh.every[j]);
-            let variance = sh.innovation_variance[p][a] + missed as f64 * sh.variance_growth[j];
-            if nu * nu > g * g * variance {
-                self.gated_now[a] = true;
-                self.filled[s][c] = false;
-            }
+            self.y_world[s][c] = v;
+            self.filled[s][c] = true;
         }
         // Un-warp: y_lin = R̃(ω̄)⁻¹ y_world, unmeasured components from the prediction; a sensor
         // without an accepted value has y_lin = C_s x⁻ (zero innovation).
-        for &s in sensors {
-            let Some(maps) = self.warps[s] else { continue };
-            if !self.filled[s].iter().any(|&f| f) {
-                self.y_lin[s] = self.u_pred[s];
+        for (slot, ((((y_lin, y), u), warp), filled)) in self
+            .y_lin
+            .iter_mut()
+            .zip(&self.y_world)
+            .zip(&self.u_pred)
+            .zip(&self.warps)
+            .zip(&self.filled)
+            .take(slots)
+            .enumerate()
+        {
+            if !filled.iter().any(|&f| f) {
+                *y_lin = *u;
                 continue;
             }
-            let y: Vec3 = [0, 1, 2].map(|c| {
-                if self.filled[s][c] {
-                    self.y_world[s][c]
-                } else {
-                    self.pred_world[s][c]
-                }
-            });
-            match maps.unwarp(&y) {
-                Some(y) => self.y_lin[s] = y,
+            match warp.unwarp(y) {
+                Some(v) => *y_lin = v,
                 None => {
                     return Err(RuntimeError::SingularWarp {
                         step,
-                        sensor: model.sensors[s].name.clone(),
-                        angle: maps.angle(),
+                        sensor: sh.model.sensors[sh.phase_sensors[p][slot]].name.clone(),
+                        angle: warp.angle(),
                     })
                 }
             }
         }
-        let nm = phase.measured.len();
+        let nm = active.len();
         let mut used = 0;
-        for (a, &j) in phase.measured.iter().enumerate() {
-            let (s, c) = sh.channel[j as usize];
-            self.innovation[a] = self.y_lin[s][c] - self.u_pred[s][c];
+        for (ch, nu) in active.iter().zip(&mut self.innovation) {
+            let (s, c) = (ch.slot, ch.component);
+            *nu = self.y_lin[s][c] - self.u_pred[s][c];
             used += self.filled[s][c] as usize;
         }
         self.x_upd.copy_from_slice(&self.x);
         matvec_t(&sh.gain_t[p], &self.innovation[..nm], &mut self.x_upd, true);
-        if let Some(index) = self.x_upd.iter().position(|v| !v.is_finite()) {
+        if let Some(index) = first_non_finite(&self.x_upd) {
             return Err(RuntimeError::NonFiniteState {
                 step,
                 stage: "update",
@@ -547,13 +552,12 @@ impl Estimator {
         }
         // Commit.
         let mut gated = 0;
-        for (a, &j) in phase.measured.iter().enumerate() {
-            let j = j as usize;
-            let (s, c) = sh.channel[j];
-            if self.gated_now[a] {
+        for (ch, &gated_now) in active.iter().zip(&self.gated_now) {
+            let j = ch.channel;
+            if gated_now {
                 self.gated[j] += 1;
                 gated += 1;
-            } else if self.filled[s][c] {
+            } else if self.filled[ch.slot][ch.component] {
                 self.last_accepted[j] = step;
             }
         }
@@ -770,6 +774,18 @@ impl Estimator {
         check_len("node std buffer", std.len(), out.len())?;
         out.copy_from_slice(std);
         Ok(())
+    }
+}
+
+/// The index of the first NaN or ±∞ in `v`, if any. One vectorisable pass first
+/// (Σ 0·vᵢ is 0 exactly when every vᵢ is finite, NaN otherwise), the search only on failure.
+#[inline]
+fn first_non_finite(v: &[f64]) -> Option<usize> {
+    let zeros = v.iter().fold(0.0, |acc, x| acc + 0.0 * x);
+    if zeros == 0.0 {
+        None
+    } else {
+        v.iter().position(|x| !x.is_finite())
     }
 }
 

@@ -29,6 +29,17 @@ pub(crate) struct PhaseStd {
     pub nodes: Vec<Vec<f64>>,
 }
 
+/// An active measurement channel of a phase.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ActiveChannel {
+    /// Index into the model's measurement channels.
+    pub channel: usize,
+    /// Position of its sensor in the phase's `phase_sensors`.
+    pub slot: usize,
+    /// x, y or z (0, 1, 2).
+    pub component: usize,
+}
+
 /// One displayed node set's rows in single precision, grouped by 8 nodes.
 #[derive(Clone, Debug)]
 pub(crate) struct DisplayRows {
@@ -50,17 +61,22 @@ pub struct PreparedModel {
     pub(crate) channel: Vec<(usize, usize)>,
     /// Per measurement channel: the sensor's `every`.
     pub(crate) every: Vec<u64>,
-    /// Per phase: sensors with at least one active channel.
+    /// Per phase: sensors with at least one active channel (a sensor's slot is its position
+    /// here).
     pub(crate) phase_sensors: Vec<Vec<usize>>,
+    /// Per phase, in the order of `kalman.phases[p].measured`: each active channel with its
+    /// sensor slot and component.
+    pub(crate) active: Vec<Vec<ActiveChannel>>,
     /// Per phase: the rows [C_s; W_s] (6 per sensor of `phase_sensors[p]`, r columns), stacked
     /// and transposed (r × 6·sensors) so that the update evaluates them in one product.
-    pub(crate) phase_rows_t: Vec<Vec<f64>>,
-    /// The load groups' rotation rows W_g stacked (3 per group) and transposed (r × 3·groups).
-    pub(crate) load_rows_t: Vec<f64>,
-    /// Fᵀ (r × r), Gᵀ (m × r) and per phase K_pᵀ (active channels × r), for [`simd::matvec_t`].
-    pub(crate) transition_t: Vec<f64>,
-    pub(crate) input_t: Vec<f64>,
-    pub(crate) gain_t: Vec<Vec<f64>>,
+    pub(crate) phase_rows_t: Vec<simd::Columns>,
+    /// The load groups' rotation rows W_g stacked (3 per group), by columns.
+    pub(crate) load_rows_t: simd::Columns,
+    /// F (r × r), G (r × m) and per phase K_p (r × active channels), by columns, for
+    /// [`simd::matvec_t`].
+    pub(crate) transition_t: simd::Columns,
+    pub(crate) input_t: simd::Columns,
+    pub(crate) gain_t: Vec<simd::Columns>,
     /// Largest number of active channels in a phase.
     pub(crate) max_measured: usize,
     pub(crate) std_prior: Vec<PhaseStd>,
@@ -171,7 +187,26 @@ impl PreparedModel {
                 s
             })
             .collect();
-        let phase_rows_t: Vec<Vec<f64>> = phase_sensors
+        let active = model
+            .kalman
+            .phases
+            .iter()
+            .zip(&phase_sensors)
+            .map(|(ph, sensors)| {
+                ph.measured
+                    .iter()
+                    .map(|&j| {
+                        let (s, c) = channel[j as usize];
+                        ActiveChannel {
+                            channel: j as usize,
+                            slot: sensors.partition_point(|&t| t < s),
+                            component: c,
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let phase_rows_t: Vec<simd::Columns> = phase_sensors
             .iter()
             .map(|sensors: &Vec<usize>| {
                 let mut rows = Vec::with_capacity(6 * r * sensors.len());
@@ -179,7 +214,7 @@ impl PreparedModel {
                     rows.extend_from_slice(&model.sensors[s].displacement_rows.data);
                     rows.extend_from_slice(&model.sensors[s].rotation_rows.data);
                 }
-                simd::transpose(&rows, 6 * sensors.len(), r)
+                simd::Columns::from_row_major(&rows, 6 * sensors.len(), r)
             })
             .collect();
         let load_rows: Vec<f64> = model
@@ -187,14 +222,14 @@ impl PreparedModel {
             .iter()
             .flat_map(|g| g.rotation_rows.data.iter().copied())
             .collect();
-        let load_rows_t = simd::transpose(&load_rows, 3 * model.loads.len(), r);
-        let transition_t = simd::transpose(&model.transition.data, r, r);
-        let input_t = simd::transpose(&model.input.data, r, model.inputs.len());
+        let load_rows_t = simd::Columns::from_row_major(&load_rows, 3 * model.loads.len(), r);
+        let transition_t = simd::Columns::from_row_major(&model.transition.data, r, r);
+        let input_t = simd::Columns::from_row_major(&model.input.data, r, model.inputs.len());
         let gain_t = model
             .kalman
             .phases
             .iter()
-            .map(|ph| simd::transpose(&ph.gain.data, r, ph.measured.len()))
+            .map(|ph| simd::Columns::from_row_major(&ph.gain.data, r, ph.measured.len()))
             .collect();
         let max_measured = model
             .kalman
@@ -357,6 +392,7 @@ impl PreparedModel {
             channel,
             every,
             phase_sensors,
+            active,
             phase_rows_t,
             load_rows_t,
             transition_t,
