@@ -62,24 +62,16 @@ pub struct Estimator {
     x_upd: Vec<f64>,
     /// Inputs after rotating load channels into the local frame (m).
     u_lin: Vec<f64>,
-    /// Per sensor slot of the current phase (`PreparedModel::phase_sensors`): y_world (the
-    /// accepted measurements, other components from the prediction), its prediction
-    /// R̃(ω̄) C_s x⁻, y_lin (local frame) and u_lin predicted.
-    y_world: Vec<Vec3>,
-    pred_world: Vec<Vec3>,
-    y_lin: Vec<Vec3>,
-    u_pred: Vec<Vec3>,
-    /// Per sensor slot: which components were filled from accepted measurements.
-    filled: Vec<[bool; 3]>,
-    /// Per sensor slot: the warp at the predicted state.
-    warps: Vec<Warp>,
+    /// Per sensor slot of the current phase (`PreparedModel::phase_sensors`): the update's
+    /// per-sensor scratch.
+    slots: Vec<SensorSlot>,
     /// [C_s x; W_s x] of the current phase's sensors (6 each), and W_g x of the load groups.
     sensor_vals: Vec<f64>,
     load_vals: Vec<f64>,
     /// Innovation per active channel of the current phase.
     innovation: Vec<f64>,
-    /// Whether each active channel of the current phase was gated.
-    gated_now: Vec<bool>,
+    /// What the last update did with each active channel of its phase.
+    verdict: Vec<Verdict>,
     k: u64,
     phase: usize,
     cov: CovarianceKind,
@@ -119,16 +111,11 @@ impl Estimator {
             x_next: vec![0.0; r],
             x_upd: vec![0.0; r],
             u_lin: vec![0.0; prepared.model.inputs.len()],
-            y_world: vec![[0.0; 3]; ns],
-            pred_world: vec![[0.0; 3]; ns],
-            y_lin: vec![[0.0; 3]; ns],
-            u_pred: vec![[0.0; 3]; ns],
-            filled: vec![[false; 3]; ns],
-            warps: vec![Warp::new(&[0.0; 3]); ns],
+            slots: vec![SensorSlot::default(); ns],
             sensor_vals: vec![0.0; 6 * ns],
             load_vals: vec![0.0; 3 * prepared.model.loads.len()],
             innovation: vec![0.0; prepared.max_measured],
-            gated_now: vec![false; prepared.max_measured],
+            verdict: vec![Verdict::Missing; prepared.max_measured],
             k: 0,
             phase: 0,
             cov: CovarianceKind::Posterior,
@@ -469,77 +456,65 @@ impl Estimator {
         // predicted world displacement R̃(ω̄) C_s x⁻, which y_world starts from.
         let vals = &mut self.sensor_vals[..6 * slots];
         matvec_t(&sh.phase_rows_t[p], &self.x, vals, false);
-        for ((((v, warp), pred), u), filled) in vals
-            .chunks_exact(6)
-            .zip(&mut self.warps)
-            .zip(&mut self.pred_world)
-            .zip(&mut self.u_pred)
-            .zip(&mut self.filled)
-        {
-            *u = [v[0], v[1], v[2]];
-            *warp = Warp::new(&[v[3], v[4], v[5]]);
-            *pred = warp.warp(u);
-            *filled = [false; 3];
+        for (v, slot) in vals.chunks_exact(6).zip(&mut self.slots) {
+            slot.u = [v[0], v[1], v[2]];
+            slot.warp = Warp::new(&[v[3], v[4], v[5]]);
+            slot.pred = slot.warp.warp(&slot.u);
+            slot.y = slot.pred;
+            slot.accepted = 0;
         }
-        self.y_world[..slots].copy_from_slice(&self.pred_world[..slots]);
         // Gate in the world frame, channel by channel: ν_j = y_world − (R̃(ω̄) C_s x⁻)_c, so an
         // outlier cannot leak into its sensor's other components through the un-warp.
         let gate2 = self.gate.map(|g| g * g);
-        for ((ch, &variance0), gated_now) in active
+        for ((ch, &variance0), verdict) in active
             .iter()
             .zip(&sh.innovation_variance[p])
-            .zip(&mut self.gated_now)
+            .zip(&mut self.verdict)
         {
-            *gated_now = false;
+            *verdict = Verdict::Missing;
             let Some(v) = get(ch.channel) else { continue };
-            let (s, c, j) = (ch.slot, ch.component, ch.channel);
+            let slot = &mut self.slots[ch.slot];
+            let c = ch.component;
             if let Some(g2) = gate2 {
-                let nu = v - self.pred_world[s][c];
+                let j = ch.channel;
+                let nu = v - slot.pred[c];
                 let missed = step
                     .saturating_sub(self.last_accepted[j])
-                    .saturating_sub(sh.every[j]);
-                let variance = variance0 + missed as f64 * sh.variance_growth[j];
+                    .saturating_sub(ch.every);
+                let variance = variance0 + missed as f64 * ch.variance_growth;
                 if nu * nu > g2 * variance {
-                    *gated_now = true;
+                    *verdict = Verdict::Gated;
                     continue;
                 }
             }
-            self.y_world[s][c] = v;
-            self.filled[s][c] = true;
+            *verdict = Verdict::Accepted;
+            slot.y[c] = v;
+            slot.accepted += 1;
         }
         // Un-warp: y_lin = R̃(ω̄)⁻¹ y_world, unmeasured components from the prediction; a sensor
         // without an accepted value has y_lin = C_s x⁻ (zero innovation).
-        for (slot, ((((y_lin, y), u), warp), filled)) in self
-            .y_lin
-            .iter_mut()
-            .zip(&self.y_world)
-            .zip(&self.u_pred)
-            .zip(&self.warps)
-            .zip(&self.filled)
-            .take(slots)
-            .enumerate()
-        {
-            if !filled.iter().any(|&f| f) {
-                *y_lin = *u;
+        for (index, slot) in self.slots[..slots].iter_mut().enumerate() {
+            if slot.accepted == 0 {
+                slot.y_lin = slot.u;
                 continue;
             }
-            match warp.unwarp(y) {
-                Some(v) => *y_lin = v,
+            match slot.warp.unwarp(&slot.y) {
+                Some(v) => slot.y_lin = v,
                 None => {
                     return Err(RuntimeError::SingularWarp {
                         step,
-                        sensor: sh.model.sensors[sh.phase_sensors[p][slot]].name.clone(),
-                        angle: warp.angle(),
+                        sensor: sh.model.sensors[sh.phase_sensors[p][index]].name.clone(),
+                        angle: slot.warp.angle(),
                     })
                 }
             }
         }
         let nm = active.len();
         let mut used = 0;
-        for (ch, nu) in active.iter().zip(&mut self.innovation) {
-            let (s, c) = (ch.slot, ch.component);
-            *nu = self.y_lin[s][c] - self.u_pred[s][c];
-            used += self.filled[s][c] as usize;
+        for ((ch, nu), &verdict) in active.iter().zip(&mut self.innovation).zip(&self.verdict) {
+            let slot = &self.slots[ch.slot];
+            *nu = slot.y_lin[ch.component] - slot.u[ch.component];
+            used += (verdict == Verdict::Accepted) as usize;
         }
         self.x_upd.copy_from_slice(&self.x);
         matvec_t(&sh.gain_t[p], &self.innovation[..nm], &mut self.x_upd, true);
@@ -552,13 +527,14 @@ impl Estimator {
         }
         // Commit.
         let mut gated = 0;
-        for (ch, &gated_now) in active.iter().zip(&self.gated_now) {
-            let j = ch.channel;
-            if gated_now {
-                self.gated[j] += 1;
-                gated += 1;
-            } else if self.filled[ch.slot][ch.component] {
-                self.last_accepted[j] = step;
+        for (ch, &verdict) in active.iter().zip(&self.verdict) {
+            match verdict {
+                Verdict::Gated => {
+                    self.gated[ch.channel] += 1;
+                    gated += 1;
+                }
+                Verdict::Accepted => self.last_accepted[ch.channel] = step,
+                Verdict::Missing => {}
             }
         }
         self.gated_total += gated as u64;
@@ -777,12 +753,61 @@ impl Estimator {
     }
 }
 
+/// The update's scratch for one sensor with an active channel.
+#[derive(Clone, Copy, Debug)]
+struct SensorSlot {
+    /// u_lin predicted, C_s x⁻ (m).
+    u: Vec3,
+    /// The maps of ω̄ = W_s x⁻.
+    warp: Warp,
+    /// The predicted world displacement R̃(ω̄) C_s x⁻ (m).
+    pred: Vec3,
+    /// y_world: the accepted measurements, other components from `pred` (m).
+    y: Vec3,
+    /// y_lin = R̃(ω̄)⁻¹ y_world (m).
+    y_lin: Vec3,
+    /// Number of accepted components.
+    accepted: u8,
+}
+
+impl Default for SensorSlot {
+    fn default() -> Self {
+        SensorSlot {
+            u: [0.0; 3],
+            warp: Warp::new(&[0.0; 3]),
+            pred: [0.0; 3],
+            y: [0.0; 3],
+            y_lin: [0.0; 3],
+            accepted: 0,
+        }
+    }
+}
+
+/// What an update did with an active channel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Verdict {
+    /// No value this step.
+    Missing,
+    /// Skipped by the innovation gate.
+    Gated,
+    /// Used.
+    Accepted,
+}
+
 /// The index of the first NaN or ±∞ in `v`, if any. One vectorisable pass first
-/// (Σ 0·vᵢ is 0 exactly when every vᵢ is finite, NaN otherwise), the search only on failure.
+/// (Σ 0·vᵢ over four lanes is 0 exactly when every vᵢ is finite, NaN otherwise), the search
+/// only on failure.
 #[inline]
 fn first_non_finite(v: &[f64]) -> Option<usize> {
-    let zeros = v.iter().fold(0.0, |acc, x| acc + 0.0 * x);
-    if zeros == 0.0 {
+    let mut lanes = [0.0f64; 4];
+    let chunks = v.chunks_exact(4);
+    let tail = chunks.remainder().iter().fold(0.0, |acc, x| acc + 0.0 * x);
+    for c in chunks {
+        for l in 0..4 {
+            lanes[l] += 0.0 * c[l];
+        }
+    }
+    if (lanes[0] + lanes[1]) + (lanes[2] + lanes[3]) + tail == 0.0 {
         None
     } else {
         v.iter().position(|x| !x.is_finite())

@@ -38,6 +38,10 @@ pub(crate) struct ActiveChannel {
     pub slot: usize,
     /// x, y or z (0, 1, 2).
     pub component: usize,
+    /// The sensor's `every`.
+    pub every: u64,
+    /// g_j = (H Q Hᵀ)_jj, m² per step.
+    pub variance_growth: f64,
 }
 
 /// One displayed node set's rows in single precision, grouped by 8 nodes.
@@ -59,8 +63,6 @@ pub struct PreparedModel {
     pub(crate) load_channels: Vec<[Option<usize>; 3]>,
     /// Per measurement channel: (sensor, component).
     pub(crate) channel: Vec<(usize, usize)>,
-    /// Per measurement channel: the sensor's `every`.
-    pub(crate) every: Vec<u64>,
     /// Per phase: sensors with at least one active channel (a sensor's slot is its position
     /// here).
     pub(crate) phase_sensors: Vec<Vec<usize>>,
@@ -83,8 +85,6 @@ pub struct PreparedModel {
     pub(crate) std_posterior: Vec<PhaseStd>,
     /// Per phase, per active channel: (H P⁻ Hᵀ)_jj + R_jj, m².
     pub(crate) innovation_variance: Vec<Vec<f64>>,
-    /// Per measurement channel: (H Q Hᵀ)_jj, m² per step.
-    pub(crate) variance_growth: Vec<f64>,
     /// Length scale L, m.
     pub(crate) length_scale: f64,
     /// Per input channel: the largest plausible |u_j| (N, or a scale for gravity; may be ∞).
@@ -171,7 +171,7 @@ impl PreparedModel {
             .iter()
             .map(|c| (c.sensor as usize, c.component as usize))
             .collect();
-        let every = channel
+        let every: Vec<u64> = channel
             .iter()
             .map(|&(s, _)| model.sensors[s].every as u64)
             .collect();
@@ -185,25 +185,6 @@ impl PreparedModel {
                 s.sort_unstable();
                 s.dedup();
                 s
-            })
-            .collect();
-        let active = model
-            .kalman
-            .phases
-            .iter()
-            .zip(&phase_sensors)
-            .map(|(ph, sensors)| {
-                ph.measured
-                    .iter()
-                    .map(|&j| {
-                        let (s, c) = channel[j as usize];
-                        ActiveChannel {
-                            channel: j as usize,
-                            slot: sensors.partition_point(|&t| t < s),
-                            component: c,
-                        }
-                    })
-                    .collect()
             })
             .collect();
         let phase_rows_t: Vec<simd::Columns> = phase_sensors
@@ -286,8 +267,30 @@ impl PreparedModel {
                     .collect()
             })
             .collect();
-        let variance_growth = (0..channel.len())
+        let variance_growth: Vec<f64> = (0..channel.len())
             .map(|j| quadratic(h_row(j), &model.kalman.process_noise, &mut tmp).max(0.0))
+            .collect();
+
+        let active = model
+            .kalman
+            .phases
+            .iter()
+            .zip(&phase_sensors)
+            .map(|(ph, sensors)| {
+                ph.measured
+                    .iter()
+                    .map(|&j| {
+                        let (s, c) = channel[j as usize];
+                        ActiveChannel {
+                            channel: j as usize,
+                            slot: sensors.partition_point(|&t| t < s),
+                            component: c,
+                            every: every[j as usize],
+                            variance_growth: variance_growth[j as usize],
+                        }
+                    })
+                    .collect()
+            })
             .collect();
 
         // Plausibility bounds.
@@ -390,7 +393,6 @@ impl PreparedModel {
             r,
             load_channels,
             channel,
-            every,
             phase_sensors,
             active,
             phase_rows_t,
@@ -402,7 +404,6 @@ impl PreparedModel {
             std_prior,
             std_posterior,
             innovation_variance,
-            variance_growth,
             length_scale,
             input_bound,
             measurement_bound,
