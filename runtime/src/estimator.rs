@@ -54,7 +54,8 @@ pub struct Estimator {
     r: usize,
     /// Current state x (posterior after `update`, prior after `predict`).
     x: Vec<f64>,
-    /// x in single precision (the display read-out's operand).
+    /// The display read-out's operand (2r): x in single precision, then x_k · 2^(−e_k) for
+    /// 16-bit rotation rows (`PreparedModel::rotation_scale`).
     x32: Vec<f32>,
     /// Scratch for F x + G u, and the state before the last prediction (for a rollback).
     x_next: Vec<f64>,
@@ -107,7 +108,7 @@ impl Estimator {
         Estimator {
             r,
             x: vec![0.0; r],
-            x32: vec![0.0; r],
+            x32: vec![0.0; 2 * r],
             x_next: vec![0.0; r],
             x_upd: vec![0.0; r],
             u_lin: vec![0.0; prepared.model.inputs.len()],
@@ -237,10 +238,17 @@ impl Estimator {
         Ok(())
     }
 
-    /// x32 ← x (single precision).
+    /// x32 ← (x, x_k · 2^(−e_k)) in single precision.
     fn sync_x32(&mut self) {
-        for (a, b) in self.x32.iter_mut().zip(&self.x) {
+        let (x32, scaled) = self.x32.split_at_mut(self.r);
+        for (((a, s), b), &scale) in x32
+            .iter_mut()
+            .zip(scaled)
+            .zip(&self.x)
+            .zip(&self.shared.rotation_scale)
+        {
             *a = *b as f32;
+            *s = *a * scale;
         }
     }
 
@@ -684,10 +692,11 @@ impl Estimator {
 
     /// World displacement of every node of node set `set`, u_i = R̃(ω_i) u_lin,i, 3 per node
     /// (m), with u_lin,i and ω_i from the set's displacement and rotation rows stored in single
-    /// precision, dot products and the warp in f32 (`docs/design.md` §5; half the bytes of
-    /// [`Estimator::node_displacements_exact`], from which it differs by f32 rounding, a few
-    /// 1e-7 of the largest displacement: measured in `tests/readout.rs`). Rotation rows that
-    /// are all zero skip the warp.
+    /// precision (rotation rows in 16-bit fixed point for large sets:
+    /// [`crate::DisplayRowFormat`]), dot products and the warp in f32 (`docs/design.md` §5).
+    /// It differs from [`Estimator::node_displacements_exact`] by a few 1e-7 of the largest
+    /// displacement with single-precision rows and up to ~2e-5 with 16-bit rotation rows
+    /// (measured in `tests/readout.rs`). Rotation rows that are all zero skip the warp.
     pub fn node_displacements(&self, set: usize, out: &mut [f64]) -> Result<(), RuntimeError> {
         let ns = self.node_set(set)?;
         check_len("node read-out buffer", 3 * ns.node_tags.len(), out.len())?;
@@ -696,14 +705,7 @@ impl Estimator {
             return check_finite_readout("node displacements", out);
         }
         let rows = &self.shared.display[set];
-        crate::simd::display(
-            &rows.rows,
-            &self.x32,
-            self.r,
-            ns.node_tags.len(),
-            rows.warped,
-            out,
-        );
+        crate::simd::display(rows, &self.x32, out);
         check_finite_readout("node displacements", out)
     }
 

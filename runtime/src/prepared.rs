@@ -12,9 +12,10 @@
 //!   node reaches per unit of input j in the linear step response after 2²⁰ steps,
 //!   d_j = max_rows |c · Σ_{i<2²⁰} Fⁱ G e_j| (an input that would statically move a point by ten
 //!   times the body's size is not physical; d_j = 0 leaves only the finiteness check);
-//! - the displayed node rows in single precision, grouped by 8 nodes so that one state entry
-//!   multiplies 6 × 8 contiguous values (no horizontal sums; the warp runs on 8 nodes at
-//!   once): half the bytes of the f64 rows.
+//! - the displayed node rows grouped by 8 nodes so that one state entry multiplies 3 × 8
+//!   contiguous values per row kind (no horizontal sums; the warp runs on 8 nodes at once):
+//!   displacement rows in single precision, rotation rows in single precision or, for large
+//!   sets, 16-bit fixed point ([`DisplayRowFormat`]): 1/2 or 3/8 of the bytes of f64 rows.
 
 use crate::simd;
 use crate::RuntimeError;
@@ -42,16 +43,6 @@ pub(crate) struct ActiveChannel {
     pub every: u64,
     /// g_j = (H Q Hᵀ)_jj, m² per step.
     pub variance_growth: f64,
-}
-
-/// One displayed node set's rows in single precision, grouped by 8 nodes.
-#[derive(Clone, Debug)]
-pub(crate) struct DisplayRows {
-    /// ⌈n/8⌉ groups of r × 6 × 8 f32: entry ((g·r + k)·6 + c)·8 + l is column k of row c
-    /// (u_x, u_y, u_z, ω_x, ω_y, ω_z) of node 8g + l (zero for padding nodes).
-    pub rows: Vec<f32>,
-    /// Whether any rotation row is non-zero (otherwise the warp is the identity and skipped).
-    pub warped: bool,
 }
 
 /// A validated model plus everything derived from it at load (see the module docs).
@@ -91,7 +82,10 @@ pub struct PreparedModel {
     pub(crate) input_bound: Vec<f64>,
     /// The largest plausible |y|, m.
     pub(crate) measurement_bound: f64,
-    pub(crate) display: Vec<DisplayRows>,
+    pub(crate) display: Vec<simd::DisplayRows>,
+    /// Per state index k: 2^(−e_k), the scale of the 16-bit display rotation rows
+    /// ([`simd::fixed16_exponents`]), exact in f32.
+    pub(crate) rotation_scale: Vec<f32>,
     /// The co-rotational tier (docs/design.md §10), when the model has one.
     pub(crate) tier: Option<crate::tier::TierModel>,
 }
@@ -155,9 +149,42 @@ fn step_response_sum(f: &Matrix, g: &Matrix) -> Vec<f64> {
     x
 }
 
+/// Single-precision display rows above this size (bytes) get 16-bit rotation rows under
+/// [`DisplayRowFormat::Auto`]: half of a 2 MiB L2 cache, beyond which the read-out streams its
+/// rows from L3 or memory and is bound by bandwidth.
+pub const COMPACT_ABOVE_BYTES: usize = 1 << 20;
+
+/// How the display read-out ([`crate::Estimator::node_displacements`]) stores a node set's
+/// rows, chosen at load. Displacement rows are always single precision.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DisplayRowFormat {
+    /// [`DisplayRowFormat::Compact`] for sets whose single-precision rows (24·r bytes per
+    /// node) exceed [`COMPACT_ABOVE_BYTES`], [`DisplayRowFormat::Single`] otherwise.
+    #[default]
+    Auto,
+    /// Rotation rows in single precision (24·r bytes per node; error a few 1e-7 of the
+    /// largest displacement, measured in `tests/readout.rs`).
+    Single,
+    /// Rotation rows in 16-bit fixed point with a power-of-two scale per state index (18·r
+    /// bytes per node). Each entry is off by at most max_i |W_ik| / 32767, so ω by at most
+    /// Σ_k |x_k| max_i |W_ik| / 32767 and the displacement by about half that times |u|
+    /// (docs/design.md §5: δ(R̃u) ≈ ½ δω × u for small rotations); measured in
+    /// `tests/readout.rs`.
+    Compact,
+}
+
 impl PreparedModel {
-    /// Validates `model` and derives the shared data (see the module docs).
+    /// Validates `model` and derives the shared data (see the module docs), with
+    /// [`DisplayRowFormat::Auto`].
     pub fn new(model: Model) -> Result<PreparedModel, RuntimeError> {
+        Self::with_display_format(model, DisplayRowFormat::Auto)
+    }
+
+    /// [`PreparedModel::new`] with the display rows stored as `display_format` says.
+    pub fn with_display_format(
+        model: Model,
+        display_format: DisplayRowFormat,
+    ) -> Result<PreparedModel, RuntimeError> {
         model.validate()?;
         let r = model.r();
         let mut load_channels = vec![[None; 3]; model.loads.len()];
@@ -358,29 +385,36 @@ impl PreparedModel {
             })
             .collect();
 
+        // Per column: the largest |entry| of the displayed sets' rotation rows, for the 16-bit
+        // rows' exponents.
+        let mut columns_max = vec![0.0f64; r];
+        for set in &model.node_sets {
+            for row in set.rotation_rows.data.chunks_exact(r.max(1)) {
+                for (m, v) in columns_max.iter_mut().zip(row) {
+                    *m = m.max(v.abs());
+                }
+            }
+        }
+        let exponents = simd::fixed16_exponents(&columns_max);
+        let rotation_scale = exponents.iter().map(|&e| 2f32.powi(-e)).collect();
         let display = model
             .node_sets
             .iter()
             .map(|set| {
                 let n = set.node_tags.len();
-                let groups = n.div_ceil(simd::GROUP);
-                let mut rows = vec![0.0f32; groups * r * 6 * simd::GROUP];
-                for i in 0..n {
-                    let (g, lane) = (i / simd::GROUP, i % simd::GROUP);
-                    for c in 0..3 {
-                        let d = set.displacement_rows.row(3 * i + c);
-                        let w = set.rotation_rows.row(3 * i + c);
-                        for k in 0..r {
-                            let at = ((g * r + k) * 6 + c) * simd::GROUP + lane;
-                            rows[at] = d[k] as f32;
-                            rows[at + 3 * simd::GROUP] = w[k] as f32;
-                        }
-                    }
-                }
-                DisplayRows {
-                    rows,
-                    warped: set.rotation_rows.data.iter().any(|&v| v != 0.0),
-                }
+                let compact = match display_format {
+                    DisplayRowFormat::Single => false,
+                    DisplayRowFormat::Compact => true,
+                    DisplayRowFormat::Auto => 6 * r * n * 4 > COMPACT_ABOVE_BYTES,
+                };
+                simd::DisplayRows::new(
+                    n,
+                    r,
+                    |i| set.displacement_rows.row(i),
+                    |i| set.rotation_rows.row(i),
+                    set.rotation_rows.data.iter().any(|&v| v != 0.0),
+                    compact.then_some(&exponents[..]),
+                )
             })
             .collect();
 
@@ -408,6 +442,7 @@ impl PreparedModel {
             input_bound,
             measurement_bound,
             display,
+            rotation_scale,
             model,
         })
     }

@@ -5,9 +5,9 @@
 //!
 //! - [`matvec_t`]: y = A x or y += A x from Aᵀ (f64; the step's F x, G u, K ν and the sensor
 //!   and load rows), [`matvec`] from A row-major (the sensor read-outs);
-//! - [`display`]: the displayed nodes' u = C_i x and ω = W_i x from f32 rows grouped by 8
-//!   nodes, accumulated in f32, and the warp R̃(ω) u on 8 nodes at once (the read-out; the
-//!   rounding it costs is measured in `tests/readout.rs`).
+//! - [`display`]: the displayed nodes' u = C_i x from f32 rows and ω = W_i x from 16-bit
+//!   fixed-point rows, grouped by 8 nodes, accumulated in f32, and the warp R̃(ω) u on 8
+//!   nodes at once (the read-out; the rounding it costs is measured in `tests/readout.rs`).
 
 /// Σ aᵢ bᵢ with four partial sums (f64).
 #[inline(always)]
@@ -276,85 +276,121 @@ fn lanes<const FUSED: bool>(a: [f32; GROUP], b: [f32; GROUP], c: [f32; GROUP]) -
     o
 }
 
+/// A rotation-row entry type of [`DisplayRows`]: f32, or 16-bit fixed point (exact in f32).
+pub(crate) trait RotationEntry: Copy {
+    /// The entry in f32 (before the column's scale).
+    fn value(self) -> f32;
+}
+
+impl RotationEntry for f32 {
+    #[inline(always)]
+    fn value(self) -> f32 {
+        self
+    }
+}
+
+impl RotationEntry for i16 {
+    #[inline(always)]
+    fn value(self) -> f32 {
+        f32::from(self)
+    }
+}
+
+/// Σ_k rows[k][c][l] · x_k for one group: C rows of 8 lanes per state index k.
 #[inline(always)]
-fn display_body<const FUSED: bool>(
-    rows: &[f32],
+fn accumulate<const C: usize, const FUSED: bool, T: RotationEntry>(
+    rows: &[T],
     x: &[f32],
+) -> [[f32; GROUP]; C] {
+    let mut acc = [[0.0f32; GROUP]; C];
+    for (kb, &xk) in rows.chunks_exact(C * GROUP).zip(x) {
+        for (c, a) in acc.iter_mut().enumerate() {
+            let row = &kb[c * GROUP..(c + 1) * GROUP];
+            for l in 0..GROUP {
+                let v = row[l].value();
+                a[l] = if FUSED {
+                    v.mul_add(xk, a[l])
+                } else {
+                    a[l] + v * xk
+                };
+            }
+        }
+    }
+    acc
+}
+
+/// One group's world displacements (see [`display`]) into `out` (3 per node, `count` nodes).
+#[inline(always)]
+fn warp_group<const FUSED: bool>(u: [[f32; GROUP]; 3], w: [[f32; GROUP]; 3], out: &mut [f64]) {
+    let [ux, uy, uz] = u;
+    let [wx, wy, wz] = w;
+    // u + A₁ ω×u + B₁ ω×(ω×u), lane-wise in f32 (series for θ < 1/2).
+    let mut t = [0.0f32; GROUP];
+    for l in 0..GROUP {
+        t[l] = wx[l] * wx[l] + wy[l] * wy[l] + wz[l] * wz[l];
+    }
+    let horner = |c: &[f32; 4]| {
+        let mut v = [c[3]; GROUP];
+        for &ck in c[..3].iter().rev() {
+            v = lanes::<FUSED>(v, t, [ck; GROUP]);
+        }
+        v
+    };
+    let (a1, b1) = (horner(&A1), horner(&B1));
+    let mut v = [[0.0f32; GROUP]; 6];
+    for l in 0..GROUP {
+        // ω × u, then ω × (ω × u).
+        let (p, q, s) = (
+            wy[l] * uz[l] - wz[l] * uy[l],
+            wz[l] * ux[l] - wx[l] * uz[l],
+            wx[l] * uy[l] - wy[l] * ux[l],
+        );
+        v[0][l] = p;
+        v[1][l] = q;
+        v[2][l] = s;
+        v[3][l] = wy[l] * s - wz[l] * q;
+        v[4][l] = wz[l] * p - wx[l] * s;
+        v[5][l] = wx[l] * q - wy[l] * p;
+    }
+    for (l, o) in out.chunks_exact_mut(3).enumerate() {
+        if t[l] < 0.25 {
+            o[0] = (ux[l] + a1[l] * v[0][l] + b1[l] * v[3][l]) as f64;
+            o[1] = (uy[l] + a1[l] * v[1][l] + b1[l] * v[4][l]) as f64;
+            o[2] = (uz[l] + a1[l] * v[2][l] + b1[l] * v[5][l]) as f64;
+        } else {
+            // Large rotation: the closed form in f64.
+            let omega = [wx[l] as f64, wy[l] as f64, wz[l] as f64];
+            let u = [ux[l] as f64, uy[l] as f64, uz[l] as f64];
+            o.copy_from_slice(&crate::warp::Warp::new(&omega).warp(&u));
+        }
+    }
+}
+
+#[inline(always)]
+fn display_body<const FUSED: bool, T: RotationEntry>(
+    displacement: &[f32],
+    rotation: Option<&[T]>,
     r: usize,
-    nodes: usize,
-    warped: bool,
+    (xd, xr): (&[f32], &[f32]),
     out: &mut [f64],
 ) {
     if r == 0 {
         out.iter_mut().for_each(|v| *v = 0.0);
         return;
     }
-    let x = &x[..r];
-    for (g, block) in rows.chunks_exact(6 * GROUP * r).enumerate() {
-        // acc[c][l]: component c (u_x, u_y, u_z, ω_x, ω_y, ω_z) of node 8g + l.
-        let mut acc = [[0.0f32; GROUP]; 6];
-        for (kb, &xk) in block.chunks_exact(6 * GROUP).zip(x) {
-            for (c, a) in acc.iter_mut().enumerate() {
-                let row = &kb[c * GROUP..(c + 1) * GROUP];
-                for l in 0..GROUP {
-                    a[l] = if FUSED {
-                        row[l].mul_add(xk, a[l])
-                    } else {
-                        a[l] + row[l] * xk
-                    };
+    let block = 3 * GROUP * r;
+    for (g, o) in out.chunks_mut(3 * GROUP).enumerate() {
+        let u = accumulate::<3, FUSED, f32>(&displacement[g * block..(g + 1) * block], xd);
+        match rotation {
+            Some(rot) => {
+                let w = accumulate::<3, FUSED, T>(&rot[g * block..(g + 1) * block], xr);
+                warp_group::<FUSED>(u, w, o);
+            }
+            None => {
+                let [ux, uy, uz] = u;
+                for (l, o) in o.chunks_exact_mut(3).enumerate() {
+                    o.copy_from_slice(&[ux[l] as f64, uy[l] as f64, uz[l] as f64]);
                 }
-            }
-        }
-        let [ux, uy, uz, wx, wy, wz] = acc;
-        let first = g * GROUP;
-        let count = GROUP.min(nodes.saturating_sub(first));
-        if !warped {
-            for l in 0..count {
-                let o = &mut out[3 * (first + l)..3 * (first + l) + 3];
-                o.copy_from_slice(&[ux[l] as f64, uy[l] as f64, uz[l] as f64]);
-            }
-            continue;
-        }
-        // u + A₁ ω×u + B₁ ω×(ω×u), lane-wise in f32 (series for θ < 1/2).
-        let mut t = [0.0f32; GROUP];
-        for l in 0..GROUP {
-            t[l] = wx[l] * wx[l] + wy[l] * wy[l] + wz[l] * wz[l];
-        }
-        let horner = |c: &[f32; 4]| {
-            let mut v = [c[3]; GROUP];
-            for &ck in c[..3].iter().rev() {
-                v = lanes::<FUSED>(v, t, [ck; GROUP]);
-            }
-            v
-        };
-        let (a1, b1) = (horner(&A1), horner(&B1));
-        let mut w = [[0.0f32; GROUP]; 6];
-        for l in 0..GROUP {
-            // ω × u, then ω × (ω × u).
-            let (p, q, s) = (
-                wy[l] * uz[l] - wz[l] * uy[l],
-                wz[l] * ux[l] - wx[l] * uz[l],
-                wx[l] * uy[l] - wy[l] * ux[l],
-            );
-            w[0][l] = p;
-            w[1][l] = q;
-            w[2][l] = s;
-            w[3][l] = wy[l] * s - wz[l] * q;
-            w[4][l] = wz[l] * p - wx[l] * s;
-            w[5][l] = wx[l] * q - wy[l] * p;
-        }
-        for l in 0..count {
-            let i = first + l;
-            let o = &mut out[3 * i..3 * i + 3];
-            if t[l] < 0.25 {
-                o[0] = (ux[l] + a1[l] * w[0][l] + b1[l] * w[3][l]) as f64;
-                o[1] = (uy[l] + a1[l] * w[1][l] + b1[l] * w[4][l]) as f64;
-                o[2] = (uz[l] + a1[l] * w[2][l] + b1[l] * w[5][l]) as f64;
-            } else {
-                // Large rotation: the closed form in f64.
-                let omega = [wx[l] as f64, wy[l] as f64, wz[l] as f64];
-                let u = [ux[l] as f64, uy[l] as f64, uz[l] as f64];
-                o.copy_from_slice(&crate::warp::Warp::new(&omega).warp(&u));
             }
         }
     }
@@ -362,29 +398,146 @@ fn display_body<const FUSED: bool>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn display_avx2(rows: &[f32], x: &[f32], r: usize, nodes: usize, warped: bool, out: &mut [f64]) {
-    display_body::<true>(rows, x, r, nodes, warped, out)
-}
-
-/// World displacements of `nodes` nodes from the grouped f32 display rows (layout
-/// `[group][k][component][lane]`, 6 × 8 values per state index and group): per node
-/// u = C_i x, ω = W_i x accumulated in f32, then R̃(ω) u (`docs/design.md` §5) in f32 for
-/// θ < 1/2 (four-term series) and in f64 otherwise; `out` gets 3 f64 per node.
-#[inline]
-pub(crate) fn display(
-    rows: &[f32],
-    x: &[f32],
+fn display_avx2<T: RotationEntry>(
+    displacement: &[f32],
+    rotation: Option<&[T]>,
     r: usize,
-    nodes: usize,
-    warped: bool,
+    x: (&[f32], &[f32]),
     out: &mut [f64],
 ) {
+    display_body::<true, T>(displacement, rotation, r, x, out)
+}
+
+/// How a displayed node set's rotation rows are stored.
+#[derive(Clone, Debug)]
+pub(crate) enum RotationRows {
+    /// All zero: the warp is the identity and skipped.
+    Zero,
+    /// Single precision (x_k unscaled).
+    Single(Vec<f32>),
+    /// 16-bit fixed point: entry v stands for v · 2^(−e_k), e_k from [`fixed16_exponents`]
+    /// (the scale folded into the state operand).
+    Fixed16(Vec<i16>),
+}
+
+/// One displayed node set's rows grouped by 8 nodes, so that one state entry multiplies 3 × 8
+/// contiguous values per row kind (no horizontal sums; the warp runs on 8 nodes at once):
+/// ⌈n/8⌉ groups of r × 3 × 8; entry ((g·r + k)·3 + c)·8 + l is column k of row c (x, y, z) of
+/// node 8g + l (zero for padding nodes).
+#[derive(Clone, Debug)]
+pub(crate) struct DisplayRows {
+    /// The state dimension r.
+    pub r: usize,
+    /// Displacement rows C_i in single precision.
+    pub displacement: Vec<f32>,
+    /// Rotation rows W_i.
+    pub rotation: RotationRows,
+}
+
+/// Largest magnitude of a 16-bit entry.
+const FIXED16_MAX: f64 = 32767.0;
+
+/// Per column k: the exponent e_k of 16-bit rows, the largest integer with
+/// max_i |W_ik| · 2^e_k ≤ 32767 (`columns_max[k]` = that maximum; 0 for a zero column). The
+/// rounding error of an entry is then at most 2^(−e_k−1) ≤ max_i |W_ik| / 32767.
+pub(crate) fn fixed16_exponents(columns_max: &[f64]) -> Vec<i32> {
+    columns_max
+        .iter()
+        .map(|&m| {
+            if m > 0.0 && m.is_finite() {
+                let mut e = (FIXED16_MAX / m).log2().floor().clamp(-100.0, 100.0) as i32;
+                while e > -100 && m * 2f64.powi(e) > FIXED16_MAX {
+                    e -= 1;
+                }
+                e
+            } else {
+                0
+            }
+        })
+        .collect()
+}
+
+impl DisplayRows {
+    /// The grouped rows of n nodes: `displacement(i)` and `rotation(i)` give the r-vectors of
+    /// row i (3 per node, components x, y, z); rotation rows all zero (`warped` false) are not
+    /// stored; `fixed16` = the exponents of [`fixed16_exponents`] to store them in 16 bits,
+    /// `None` for single precision.
+    pub(crate) fn new<'a>(
+        n: usize,
+        r: usize,
+        displacement: impl Fn(usize) -> &'a [f64],
+        rotation: impl Fn(usize) -> &'a [f64],
+        warped: bool,
+        fixed16: Option<&[i32]>,
+    ) -> Self {
+        let len = n.div_ceil(GROUP) * r * 3 * GROUP;
+        let at = |i: usize, c: usize, k: usize| {
+            let (g, lane) = (i / GROUP, i % GROUP);
+            ((g * r + k) * 3 + c) * GROUP + lane
+        };
+        let grouped = |f: &dyn Fn(usize, usize, usize) -> f32| {
+            let mut v = vec![0.0f32; len];
+            for i in 0..n {
+                for c in 0..3 {
+                    for k in 0..r {
+                        v[at(i, c, k)] = f(i, c, k);
+                    }
+                }
+            }
+            v
+        };
+        let d = grouped(&|i, c, k| displacement(3 * i + c)[k] as f32);
+        let rotation = match (warped, fixed16) {
+            (false, _) => RotationRows::Zero,
+            (true, None) => RotationRows::Single(grouped(&|i, c, k| rotation(3 * i + c)[k] as f32)),
+            (true, Some(e)) => {
+                let mut v = vec![0i16; len];
+                for i in 0..n {
+                    for c in 0..3 {
+                        let row = rotation(3 * i + c);
+                        for k in 0..r {
+                            let q = (row[k] * 2f64.powi(e[k])).round();
+                            v[at(i, c, k)] = q.clamp(-FIXED16_MAX, FIXED16_MAX) as i16;
+                        }
+                    }
+                }
+                RotationRows::Fixed16(v)
+            }
+        };
+        DisplayRows {
+            r,
+            displacement: d,
+            rotation,
+        }
+    }
+}
+
+/// World displacements of the nodes of `rows` (`out`: 3 f64 per node, at most 8 per group):
+/// per node u = C_i x and ω = W_i x accumulated in f32, then R̃(ω) u (`docs/design.md` §5) in
+/// f32 for θ < 1/2 (four-term series) and in f64 otherwise. `x` holds 2r values: x in f32,
+/// then x_k · 2^(−e_k) for 16-bit rotation rows (the rows' scales folded into the state; x
+/// again for single-precision rows).
+#[inline]
+pub(crate) fn display(rows: &DisplayRows, x: &[f32], out: &mut [f64]) {
+    let (d, r) = (&rows.displacement[..], rows.r);
+    let (plain, scaled) = ((&x[..r], &x[..r]), (&x[..r], &x[r..2 * r]));
     #[cfg(target_arch = "x86_64")]
     if has_avx2_fma() {
         // SAFETY: the CPU has AVX2 and FMA (checked just above).
-        return unsafe { display_avx2(rows, x, r, nodes, warped, out) };
+        unsafe {
+            match &rows.rotation {
+                RotationRows::Zero => display_avx2::<f32>(d, None, r, plain, out),
+                RotationRows::Single(w) => display_avx2(d, Some(&w[..]), r, plain, out),
+                RotationRows::Fixed16(w) => display_avx2(d, Some(&w[..]), r, scaled, out),
+            }
+        }
+        return;
     }
-    display_body::<false>(rows, x, r, nodes, warped, out)
+    match &rows.rotation {
+        RotationRows::Zero => display_body::<false, f32>(d, None, r, plain, out),
+        RotationRows::Single(w) => display_body::<false, f32>(d, Some(w), r, plain, out),
+        RotationRows::Fixed16(w) => display_body::<false, i16>(d, Some(w), r, scaled, out),
+    }
 }
 
 #[cfg(test)]
