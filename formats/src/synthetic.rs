@@ -1,6 +1,7 @@
-//! Benchmark support (feature `synthetic`): synthetic models (random matrices of the shapes a
-//! compiled model has, no physics) and the median timer. One source for `crokf-verify bench`
-//! and the runtime's `bench` example, so that both time the same model the same way.
+//! Benchmark and test support (feature `synthetic`): synthetic models (random matrices of the
+//! shapes a compiled model has, no physics), the median timer, and the deterministic generator
+//! of test data. One source for `crokf-verify bench` and the runtime's `bench` example, so that
+//! both time the same model the same way, and for the tests' and fuzzers' random numbers.
 
 use crate as fmt;
 use std::time::Instant;
@@ -34,6 +35,58 @@ impl Noise {
     /// A rows × cols matrix of numbers in [-scale, scale).
     pub fn matrix(&mut self, rows: usize, cols: usize, scale: f64) -> fmt::Matrix {
         fmt::Matrix::from_fn(rows as u32, cols as u32, |_, _| scale * self.next_value())
+    }
+}
+
+/// SplitMix64 (Steele, Lea & Flood 2014): a small deterministic generator for test data and
+/// mutations. One copy for the runtime's test models, the fuzzers and the tests' noise.
+#[derive(Clone, Debug)]
+pub struct SplitMix64(pub u64);
+
+impl SplitMix64 {
+    /// Next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1) (53 random bits).
+    pub fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Uniform in [-1, 1).
+    pub fn uniform(&mut self) -> f64 {
+        self.unit() * 2.0 - 1.0
+    }
+
+    /// Standard normal (Box–Muller, cosine branch).
+    pub fn normal(&mut self) -> f64 {
+        let (u1, u2) = (self.unit(), self.unit());
+        (-2.0 * (1.0 - u1).ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    }
+
+    /// Uniform index below `n` (0 when `n` is 0).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n.max(1) as u64) as usize
+    }
+
+    /// One element of a non-empty slice.
+    pub fn pick<'a, T>(&mut self, items: &'a [T]) -> &'a T {
+        &items[self.below(items.len())]
+    }
+
+    /// `n` numbers uniform in [-scale, scale).
+    pub fn vec(&mut self, n: usize, scale: f64) -> Vec<f64> {
+        (0..n).map(|_| scale * self.uniform()).collect()
+    }
+
+    /// A rows × cols matrix of numbers uniform in [-scale, scale).
+    pub fn matrix(&mut self, rows: usize, cols: usize, scale: f64) -> fmt::Matrix {
+        fmt::Matrix::from_fn(rows as u32, cols as u32, |_, _| scale * self.uniform())
     }
 }
 

@@ -5,33 +5,8 @@ use crokf_formats::*;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-/// SplitMix64 PRNG.
-pub struct Rng(pub u64);
-impl Rng {
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [-1, 1).
-    pub fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-    }
-    /// Standard normal (Box–Muller).
-    pub fn normal(&mut self) -> f64 {
-        let u1 = (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
-        let u2 = (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
-        (-2.0 * (1.0 - u1).ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-    }
-    pub fn vec(&mut self, n: usize, scale: f64) -> Vec<f64> {
-        (0..n).map(|_| scale * self.uniform()).collect()
-    }
-    pub fn matrix(&mut self, rows: usize, cols: usize, scale: f64) -> Matrix {
-        Matrix::from_fn(rows as u32, cols as u32, |_, _| scale * self.uniform())
-    }
-}
+/// The shared test generator (SplitMix64).
+pub use crokf_formats::synthetic::SplitMix64 as Rng;
 
 // ---- dense row-major helpers (n×n unless stated) ----
 
