@@ -125,7 +125,13 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             "warped"
         };
         for run in [Run::OpenLoop, Run::Given, Run::Withheld] {
-            let out = run_model(&model, run, &inputs, &sensors_ref, &shown_ref, tip)?;
+            let out = match run_model(&model, run, &inputs, &sensors_ref, &shown_ref, tip) {
+                Ok(out) => out,
+                Err(e) => {
+                    println!("| {path} | {tier} | {} | refused: {e} |", run.label());
+                    continue;
+                }
+            };
             let stat = |c: &Option<ChiSquare>| match c {
                 Some(c) if c.dof > 0 => {
                     let (lo, hi) = c.bounds();

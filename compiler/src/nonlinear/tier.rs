@@ -166,9 +166,17 @@ pub struct LinearisedTier {
     pub measured_rows: DMatrix<f64>,
 }
 
-/// The scene's random-walk force states and the white noise channels they do not replace,
-/// each as (column index into `full.operators.inputs` / `.noise`, σ).
-fn noise_model(full: &FullOrder) -> Result<(Vec<(usize, f64)>, Vec<usize>), NonlinearError> {
+/// The scene's noise model on the tier: random-walk force states and the white noise channels
+/// they do not replace.
+struct NoiseModel {
+    /// Per force state: (input channel index into `full.operators.inputs`, σ in N per step).
+    force: Vec<(usize, f64)>,
+    /// White noise channels (indices into `full.operators.noise`).
+    white: Vec<usize>,
+}
+
+/// The scene's [`NoiseModel`] (docs/design.md §11.4).
+fn noise_model(full: &FullOrder) -> Result<NoiseModel, NonlinearError> {
     let force_loads = random_walk_loads(full);
     let mut force = Vec::with_capacity(3 * force_loads.len());
     for &(g, sigma) in &force_loads {
@@ -187,7 +195,7 @@ fn noise_model(full: &FullOrder) -> Result<(Vec<(usize, f64)>, Vec<usize>), Nonl
             _ => true,
         })
         .collect();
-    Ok((force, white))
+    Ok(NoiseModel { force, white })
 }
 
 /// The tier's filter (docs/design.md §11.4): the reduced model linearised at rest
@@ -214,7 +222,7 @@ pub fn linearised_filter(
     let model = &tier.model;
     let r = model.order();
     let v = &tier.basis.vectors;
-    let (force, white) = noise_model(full)?;
+    let NoiseModel { force, white } = noise_model(full)?;
     let project = |column: &[f64]| v.tr_mul(&DVector::from_column_slice(column));
     let ops = &full.operators;
     let lin = LinearisedTier {
@@ -432,7 +440,7 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
         stiffness += e.weight * rows.transpose() * matrix(&e.stiffness) * &rows;
     }
     let input = matrix(&t.input);
-    let (force, white) = noise_model(full)?;
+    let NoiseModel { force, white } = noise_model(full)?;
     let mut noise_columns = Vec::with_capacity(white.len());
     for &j in &white {
         // A load's white noise channel is σ times its load channel (fem::operators), whose VᵀB
