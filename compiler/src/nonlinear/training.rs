@@ -211,7 +211,8 @@ impl TrainingPlan {
                 for (g2, (second, _)) in self.ranges.iter().enumerate().skip(g + 1) {
                     for d in &self.directions {
                         for sign in [1.0, -1.0] {
-                            let d2 = d.map(|c| sign * c);
+                            // + 0.0 turns −0 into +0 (labels).
+                            let d2 = d.map(|c| sign * c + 0.0);
                             for h in &self.histories {
                                 out.push(TrainingRun {
                                     label: format!(
