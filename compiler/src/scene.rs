@@ -610,6 +610,15 @@ pub struct CorotationalSpec {
     /// Runtime Newton: most iterations per step.
     #[serde(default = "default_newton_iterations")]
     pub newton_iterations: usize,
+    /// Also train on every pair of load groups loaded together, in the same and opposite
+    /// directions (scenes with two or more groups; e.g. an end torque made of two groups).
+    /// Adds 2 × directions × histories runs per pair (docs/corotational-tier.md §6).
+    #[serde(default = "default_combinations")]
+    pub combinations: bool,
+}
+
+fn default_combinations() -> bool {
+    true
 }
 
 fn default_training_every() -> usize {

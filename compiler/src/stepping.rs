@@ -13,7 +13,7 @@ mod sparse;
 
 pub use corotational::{
     deformation_gradient, element_force, element_tangent, polar_rotation, CorotationalSimulator,
-    NewtonOptions, NewtonStats,
+    ModifiedNewton, NewtonOptions, NewtonStats,
 };
 pub use linear::{static_solve, LinearSimulator};
 

@@ -194,6 +194,75 @@ fn a_load_far_outside_the_envelope_is_reported_and_never_garbage() {
     assert!(status.envelope.load_ratio > 5.0, "{status:?}");
 }
 
+/// The training runs give bitwise the same snapshots on one thread and on two (runs are
+/// independent and gathered by index), and modified Newton (the training default) stays within
+/// the Newton tolerance of full Newton (the reference's solver) on the twist scene's pair runs.
+#[test]
+fn training_is_thread_independent_and_modified_newton_matches_full_newton() {
+    use crokf_compile::nonlinear::training::{train, TrainingPlan};
+    let scene = twist_scene();
+    let full = FullOrder::build(&scene, &mut StageTimer::default()).expect("front end");
+    let spec = full
+        .scene
+        .scene
+        .reduction
+        .corotational
+        .clone()
+        .expect("tier table");
+    let names: Vec<String> = full
+        .operators
+        .loads
+        .iter()
+        .map(|l| l.name.clone())
+        .collect();
+    let mut plan = TrainingPlan::from_scene(&spec, &names);
+    plan.duration = 0.1;
+    plan.directions = vec![[0.0, 1.0, 0.0]];
+    let runs = plan.runs();
+    // 2 single-group runs per group (ramp, step) + 2 signs × 2 histories for the pair.
+    assert_eq!(runs.len(), 2 * 2 + 4, "{runs:?}");
+    assert!(runs
+        .iter()
+        .any(|r| r.loads == vec![(0, [0.0, 1.0, 0.0]), (1, [0.0, -1.0, 0.0])]));
+    plan.modified = Some(crokf_compile::stepping::ModifiedNewton::default());
+    plan.threads = 1;
+    let one = train(&full, &plan, &mut |_, _, _| {}).expect("training");
+    plan.threads = 2;
+    let two = train(&full, &plan, &mut |_, _, _| {}).expect("training");
+    assert_eq!(
+        one.snapshots, two.snapshots,
+        "thread count changed the snapshots"
+    );
+    assert_eq!(one.run_of, two.run_of);
+    plan.modified = None;
+    let reference = train(&full, &plan, &mut |_, _, _| {}).expect("training");
+    let mut worst = 0.0f64;
+    for (a, b) in reference.snapshots.iter().zip(&one.snapshots) {
+        let d: f64 = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let n: f64 = a.iter().map(|x| x * x).sum::<f64>().sqrt();
+        worst = worst.max(d / n);
+    }
+    eprintln!(
+        "training: modified vs full Newton, worst relative snapshot difference {worst:.2e}; \
+         factorisations {} vs {}, solves {} vs {}",
+        one.newton.factorisations,
+        reference.newton.factorisations,
+        one.newton.solves,
+        reference.newton.solves
+    );
+    assert_eq!(reference.snapshots.len(), one.snapshots.len());
+    assert!(
+        worst < 1e-6,
+        "modified vs full Newton snapshots: {worst:.2e}"
+    );
+    assert!(one.newton.factorisations * 3 < reference.newton.factorisations);
+}
+
 /// Torque group force, N per group (each half of the end face).
 const TWIST_RANGE: f64 = 600.0;
 

@@ -7,15 +7,27 @@
 //! Run list, in this order: for each load group g, each direction d of `directions` and each
 //! history h of `histories`, one run with only group g loaded by the world-frame dead load
 //! f(t) = h(t)·F_g·d, F_g the group's load range (N). Histories: a ramp from 0 to a·F_g over
-//! t_r then held, or a step to a·F_g at t = 0 (a the history's multiple of the range). Step k
+//! t_r then held, or a step to a·F_g at t = 0 (a the history's multiple of the range). Then,
+//! with `combinations` and at least two groups, for each pair of groups g < g′, each d and each
+//! sign s = +1, −1 and each h: one run with both loaded, f(t) = h(t)(F_g d b_g + s F_g′ d b_g′)
+//! (same and opposite directions: e.g. an end torque made of two opposite forces). Step k
 //! (k = 0 … N−1, N = round(duration/Δt)) holds f(kΔt); a snapshot is kept after every
 //! `every`-th step and after the last.
+//!
+//! Cost (docs/design.md §10, training; docs/corotational-tier.md §6): the runs use
+//! [`ModifiedNewton`] (a factorised Newton matrix kept while the iteration contracts; the same
+//! tolerance 1e-8 as the full-order reference, which keeps full Newton) and are computed
+//! `threads` at a time, each with sequential factorisations; each run is independent and its
+//! results are gathered by run index, so the snapshots (and the model file) do not depend on the
+//! thread count or scheduling.
 
 use crate::fem::operators::InputKind;
 use crate::fem::FemModel;
 use crate::full_order::FullOrder;
 use crate::scene::CorotationalSpec;
-use crate::stepping::{CorotationalSimulator, NewtonOptions, Simulator, SteppingError};
+use crate::stepping::{
+    CorotationalSimulator, ModifiedNewton, NewtonOptions, NewtonStats, Simulator, SteppingError,
+};
 
 use super::NonlinearError;
 
@@ -83,6 +95,31 @@ pub struct TrainingPlan {
     pub every: usize,
     /// Newton settings of the full-order runs.
     pub newton: NewtonOptions,
+    /// Modified Newton in the runs (the default; None: full Newton, J refactored every
+    /// iteration, as the full-order reference).
+    pub modified: Option<ModifiedNewton>,
+    /// Pair runs: every pair of groups loaded together, same and opposite directions.
+    pub combinations: bool,
+    /// Runs computed at a time (≥ 1; results do not depend on it).
+    pub threads: usize,
+}
+
+/// One training run: the loaded groups (index into [`TrainingPlan::ranges`]) with their unit
+/// world directions, and the history of the multiple of each group's range.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainingRun {
+    /// Label, e.g. `tip (+0, +0, -1) ramp 1.25×`.
+    pub label: String,
+    /// (group, unit direction) of every loaded group.
+    pub loads: Vec<(usize, [f64; 3])>,
+    /// Load history.
+    pub history: History,
+}
+
+/// Runs computed at a time by default: two (the training runs are independent; more threads
+/// than cores only add memory), or one on a single-core machine.
+pub fn default_threads() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get().min(2))
 }
 
 /// The six axis directions ±x, ±y, ±z, in that order.
@@ -115,6 +152,9 @@ impl TrainingPlan {
             duration,
             every,
             newton: NewtonOptions::default(),
+            modified: Some(ModifiedNewton::default()),
+            combinations: true,
+            threads: default_threads(),
         }
     }
 
@@ -145,27 +185,48 @@ impl TrainingPlan {
             duration: spec.duration,
             every: spec.every,
             newton: NewtonOptions::default(),
+            modified: Some(ModifiedNewton::default()),
+            combinations: spec.combinations,
+            threads: default_threads(),
         }
     }
 
-    /// Every run: (label, load group index into `ranges`, direction, history), in run order.
-    pub fn runs(&self) -> Vec<(String, usize, [f64; 3], History)> {
+    /// Every run, in run order (module doc).
+    pub fn runs(&self) -> Vec<TrainingRun> {
+        let direction = |d: &[f64; 3]| format!("({:+.0}, {:+.0}, {:+.0})", d[0], d[1], d[2]);
         let mut out = Vec::new();
         for (g, (name, _)) in self.ranges.iter().enumerate() {
             for d in &self.directions {
                 for h in &self.histories {
-                    out.push((
-                        format!(
-                            "{name} ({:+.0}, {:+.0}, {:+.0}) {}",
-                            d[0],
-                            d[1],
-                            d[2],
-                            h.label()
-                        ),
-                        g,
-                        *d,
-                        *h,
-                    ));
+                    out.push(TrainingRun {
+                        label: format!("{name} {} {}", direction(d), h.label()),
+                        loads: vec![(g, *d)],
+                        history: *h,
+                    });
+                }
+            }
+        }
+        if self.combinations {
+            for (g, (first, _)) in self.ranges.iter().enumerate() {
+                for (g2, (second, _)) in self.ranges.iter().enumerate().skip(g + 1) {
+                    for d in &self.directions {
+                        for sign in [1.0, -1.0] {
+                            // + 0.0 turns −0 into +0 (labels).
+                            let d2 = d.map(|c| sign * c + 0.0);
+                            for h in &self.histories {
+                                out.push(TrainingRun {
+                                    label: format!(
+                                        "{first} {} + {second} {} {}",
+                                        direction(d),
+                                        direction(&d2),
+                                        h.label()
+                                    ),
+                                    loads: vec![(g, *d), (g2, d2)],
+                                    history: *h,
+                                });
+                            }
+                        }
+                    }
                 }
             }
         }
@@ -210,6 +271,9 @@ pub struct Training {
     pub envelope: TrainingEnvelope,
     /// Wall time of all runs, s.
     pub seconds: f64,
+    /// Newton counters and times summed over the runs (times are thread time: with two
+    /// threads they add up to about twice the wall time).
+    pub newton: NewtonStats,
 }
 
 /// The load vector (n, N) of a unit world force `direction` (N) on load group `group` (index
@@ -258,47 +322,64 @@ pub fn train(
         }
         groups.push(g);
     }
+    if plan.threads == 0 {
+        return Err(NonlinearError::Invalid(
+            "training plan: threads must be ≥ 1".to_owned(),
+        ));
+    }
     let started = std::time::Instant::now();
     let runs = plan.runs();
     let mut out = Training::default();
     let fem = &full.fem;
-    let dt = full.wilson.dt;
-    let steps = ((plan.duration / dt).round() as usize).max(1);
-    for (k, (label, g, direction, history)) in runs.iter().enumerate() {
-        progress(k, runs.len(), label);
-        let unit = group_load(full, groups[*g], *direction, plan.ranges[*g].1);
-        let result = (|| -> Result<Vec<Vec<f64>>, SteppingError> {
-            let mut sim = CorotationalSimulator::new(fem, full.wilson, plan.newton)?;
-            let mut frames = Vec::new();
-            let mut f = vec![0.0; unit.len()];
-            for step in 0..steps {
-                let m = history.at(step as f64 * dt);
-                f.iter_mut().zip(&unit).for_each(|(fi, u)| *fi = m * u);
-                sim.step(&f)?;
-                let u = sim.displacement();
-                if u.iter().any(|v| !v.is_finite()) {
-                    return Err(SteppingError::NonFinite {
-                        step: step + 1,
-                        time: (step + 1) as f64 * dt,
-                    });
-                }
-                if (step + 1) % plan.every == 0 || step + 1 == steps {
-                    frames.push(u.to_vec());
-                }
+    let unit_loads = |run: &TrainingRun| {
+        let mut f = vec![0.0; fem.dof_count()];
+        for &(g, d) in &run.loads {
+            let column = group_load(full, groups[g], d, plan.ranges[g].1);
+            f.iter_mut().zip(&column).for_each(|(fi, c)| *fi += c);
+        }
+        f
+    };
+    type RunResult = Result<(Vec<Vec<f64>>, NewtonStats), SteppingError>;
+    let mut results: Vec<Option<RunResult>> = (0..runs.len()).map(|_| None).collect();
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let (sender, receiver) = std::sync::mpsc::channel::<(usize, Option<RunResult>)>();
+    std::thread::scope(|scope| {
+        for _ in 0..plan.threads.min(runs.len().max(1)) {
+            let sender = sender.clone();
+            let (next, runs, unit_loads) = (&next, &runs, &unit_loads);
+            scope.spawn(move || loop {
+                let k = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(run) = runs.get(k) else { break };
+                // The receiver lives until every sender is dropped: sends cannot fail.
+                let _ = sender.send((k, None));
+                let result = training_run(full, plan, &unit_loads(run), &run.history);
+                let _ = sender.send((k, Some(result)));
+            });
+        }
+        drop(sender);
+        for (k, message) in receiver {
+            match message {
+                None => progress(k, runs.len(), &runs[k].label),
+                Some(result) => results[k] = Some(result),
             }
-            Ok(frames)
-        })();
+        }
+    });
+    for (k, (run, result)) in runs.iter().zip(results).enumerate() {
         match result {
-            Ok(frames) => {
+            Some(Ok((frames, stats))) => {
                 for u in frames {
                     out.envelope.max_displacement =
                         out.envelope.max_displacement.max(max_nodal(fem, &u));
                     out.snapshots.push(u);
                     out.run_of.push(k);
                 }
-                out.runs.push((label.clone(), None));
+                add_stats(&mut out.newton, &stats);
+                out.runs.push((run.label.clone(), None));
             }
-            Err(e) => out.runs.push((label.clone(), Some(e.to_string()))),
+            Some(Err(e)) => out.runs.push((run.label.clone(), Some(e.to_string()))),
+            None => out
+                .runs
+                .push((run.label.clone(), Some("the run did not finish".to_owned()))),
         }
     }
     let top = plan.max_multiple();
@@ -315,6 +396,52 @@ pub fn train(
     out.envelope.snapshots = out.snapshots.len();
     out.seconds = started.elapsed().as_secs_f64();
     Ok(out)
+}
+
+/// One training run: the full-order co-rotational simulator from rest under f(t) =
+/// `history`(t)·`unit`, its snapshots (every `plan.every` steps and the last) and Newton counters.
+fn training_run(
+    full: &FullOrder,
+    plan: &TrainingPlan,
+    unit: &[f64],
+    history: &History,
+) -> Result<(Vec<Vec<f64>>, NewtonStats), SteppingError> {
+    let dt = full.wilson.dt;
+    let steps = ((plan.duration / dt).round() as usize).max(1);
+    let mut sim = CorotationalSimulator::new(&full.fem, full.wilson, plan.newton)?;
+    sim.set_modified_newton(plan.modified)?;
+    sim.set_sequential();
+    let mut frames = Vec::new();
+    let mut f = vec![0.0; unit.len()];
+    for step in 0..steps {
+        let m = history.at(step as f64 * dt);
+        f.iter_mut().zip(unit).for_each(|(fi, u)| *fi = m * u);
+        sim.step(&f)?;
+        let u = sim.displacement();
+        if u.iter().any(|v| !v.is_finite()) {
+            return Err(SteppingError::NonFinite {
+                step: step + 1,
+                time: (step + 1) as f64 * dt,
+            });
+        }
+        if (step + 1) % plan.every == 0 || step + 1 == steps {
+            frames.push(u.to_vec());
+        }
+    }
+    Ok((frames, sim.stats()))
+}
+
+/// Sums the counters and times of `b` into `a` (worst increment: the larger).
+fn add_stats(a: &mut NewtonStats, b: &NewtonStats) {
+    a.steps += b.steps;
+    a.solves += b.solves;
+    a.unconverged += b.unconverged;
+    a.fallbacks += b.fallbacks;
+    a.worst_increment = a.worst_increment.max(b.worst_increment);
+    a.factorisations += b.factorisations;
+    a.assembly_seconds += b.assembly_seconds;
+    a.factor_seconds += b.factor_seconds;
+    a.solve_seconds += b.solve_seconds;
 }
 
 /// Largest nodal displacement magnitude of u (free DOFs, m).

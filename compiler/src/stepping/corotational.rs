@@ -208,8 +208,44 @@ pub struct NewtonStats {
     pub unconverged: usize,
     /// Solves that fell back to the warped matrix (consistent one not positive definite).
     pub fallbacks: usize,
-    /// Largest final relative increment ‖δ‖/‖Û‖ of any step.
+    /// Largest final relative increment ‖δ‖/‖Û‖ of any step (with [`ModifiedNewton`]: the
+    /// estimated error η‖δ‖/‖Û‖ of the accepted iterate).
     pub worst_increment: f64,
+    /// Numeric Cholesky factorisations of the Newton matrix (= `solves` with full Newton).
+    pub factorisations: usize,
+    /// Wall time in element loops (internal force, tangents), s.
+    pub assembly_seconds: f64,
+    /// Wall time in numeric factorisations, s.
+    pub factor_seconds: f64,
+    /// Wall time in triangular solves, s.
+    pub solve_seconds: f64,
+}
+
+/// Modified Newton for the dynamic step (docs/design.md §10, training cost): the factorised
+/// Newton matrix J_t is kept across iterations and time steps while the iteration contracts,
+/// and refactored at the current iterate when it stalls. Iteration k solves J_t* δₖ = r(Ûₖ)
+/// with the stale J_t*; ρₖ = ‖δₖ‖/‖δₖ₋₁‖ estimates the contraction, and the iterate is accepted
+/// when its estimated error η‖δₖ‖ ≤ tolerance·‖Û‖, η = max(ρ/(1−ρ), 1) (Hairer & Wanner,
+/// *Solving ODEs II*, §IV.8; ρ of the previous step at k = 1). A factorisation is redone when
+/// ρₖ > `contraction`, when ρₖ ≥ 1, or after `iterations` iterations without acceptance. The
+/// converged state meets the same tolerance as full Newton (to the accuracy of the η
+/// estimate); the path is an option of [`CorotationalSimulator`], off by default (the
+/// full-order reference keeps full Newton).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ModifiedNewton {
+    /// Refactor when the measured contraction ρ exceeds this (0 < contraction < 1).
+    pub contraction: f64,
+    /// Iterations with one factorisation before it is redone (≥ 1).
+    pub iterations: usize,
+}
+
+impl Default for ModifiedNewton {
+    fn default() -> Self {
+        ModifiedNewton {
+            contraction: 0.25,
+            iterations: 8,
+        }
+    }
 }
 
 /// Per-element data kept between steps.
@@ -254,6 +290,14 @@ pub struct CorotationalSimulator {
     a: Vec<f64>,
     time: f64,
     stats: NewtonStats,
+    /// Modified Newton settings (None: full Newton, J_t refactored every iteration).
+    modified: Option<ModifiedNewton>,
+    /// The kept factorisation of J_t (modified Newton only).
+    kept: Option<super::sparse::Factor>,
+    /// Last measured contraction ρ (modified Newton only).
+    contraction: f64,
+    /// β K_t U̇_θ, element by element (modified Newton only), N.
+    damping_force: Vec<f64>,
     /// Round-off floor of a Newton increment, m: 16 ε × the diagonal of the mesh's bounding box
     /// (f_int carries ~ε·h relative noise even at rest).
     floor: f64,
@@ -326,6 +370,10 @@ impl CorotationalSimulator {
             a: vec![0.0; n],
             time: 0.0,
             stats: NewtonStats::default(),
+            modified: None,
+            kept: None,
+            contraction: 0.0,
+            damping_force: Vec::new(),
             floor: 16.0 * f64::EPSILON * crate::mesh::bounding_diagonal(&fem.positions),
         })
     }
@@ -335,9 +383,82 @@ impl CorotationalSimulator {
         self.stats
     }
 
+    /// Factorisations and triangular solves on the calling thread only (faer's thread pool
+    /// otherwise): for simulators run several at a time, e.g. the training runs. Results are
+    /// those of a sequential factorisation.
+    pub fn set_sequential(&mut self) {
+        self.pattern.set_sequential();
+    }
+
+    /// Selects modified Newton for [`Simulator::step`] (None: full Newton, the default); checks
+    /// the settings. The tolerance stays [`NewtonOptions::tolerance`].
+    pub fn set_modified_newton(
+        &mut self,
+        modified: Option<ModifiedNewton>,
+    ) -> Result<(), SteppingError> {
+        if let Some(m) = modified {
+            if !(m.contraction > 0.0 && m.contraction < 1.0) || m.iterations == 0 {
+                return Err(SteppingError::Options(format!(
+                    "modified Newton: contraction must lie in (0, 1) and iterations be ≥ 1, got                      {} and {}",
+                    m.contraction, m.iterations
+                )));
+            }
+            self.damping_force = vec![0.0; self.pattern.n];
+        }
+        self.modified = modified;
+        self.kept = None;
+        Ok(())
+    }
+
+    /// Internal force f_int(u) into `self.internal` and, with `velocity` = Some(v), the damping
+    /// stiffness force K_t v = Σₑ Rₑ Kₑ Rₑᵀ vₑ into `self.damping_force` (element by element,
+    /// no matrix assembled), at the free-DOF displacement u (m).
+    fn assemble_force(&mut self, u: &[f64], velocity: Option<&[f64]>) {
+        let started = std::time::Instant::now();
+        self.internal.iter_mut().for_each(|v| *v = 0.0);
+        self.damping_force.iter_mut().for_each(|v| *v = 0.0);
+        for el in &self.elements {
+            let rest = el.nodes.map(|n| self.rest[n]);
+            let mut current = rest;
+            for (k, dof) in el.dofs.iter().enumerate() {
+                if let Some(d) = dof {
+                    current[k / 3][k % 3] += u[*d];
+                }
+            }
+            let kin = Kinematics::new(&el.geometry, &el.ke, &rest, &current);
+            for a in 0..4 {
+                let fa = kin.force(a);
+                for i in 0..3 {
+                    if let Some(d) = el.dofs[3 * a + i] {
+                        self.internal[d] += fa[i];
+                    }
+                }
+            }
+            if let Some(vel) = velocity {
+                let mut local = [0.0; 12];
+                for a in 0..4 {
+                    let va = Vector3::from_fn(|i, _| el.dofs[3 * a + i].map_or(0.0, |d| vel[d]));
+                    local[3 * a..3 * a + 3].copy_from_slice(kin.r.tr_mul(&va).as_slice());
+                }
+                let k_local = crate::fem::element::mul12(&el.ke, &local);
+                for a in 0..4 {
+                    let fa = kin.r
+                        * Vector3::new(k_local[3 * a], k_local[3 * a + 1], k_local[3 * a + 2]);
+                    for i in 0..3 {
+                        if let Some(d) = el.dofs[3 * a + i] {
+                            self.damping_force[d] += fa[i];
+                        }
+                    }
+                }
+            }
+        }
+        self.stats.assembly_seconds += started.elapsed().as_secs_f64();
+    }
+
     /// Internal force f_int(u) (n, N), warped stiffness and (if enabled) consistent tangent
     /// (pattern values) at the free-DOF displacement u (m).
     fn assemble(&mut self, u: &[f64]) {
+        let started = std::time::Instant::now();
         let consistent = self.options.consistent;
         self.internal.iter_mut().for_each(|v| *v = 0.0);
         self.warped.iter_mut().for_each(|v| *v = 0.0);
@@ -376,6 +497,7 @@ impl CorotationalSimulator {
                 }
             });
         }
+        self.stats.assembly_seconds += started.elapsed().as_secs_f64();
     }
 
     /// Internal force f_int(u) (n, N) at the free-DOF displacement u (n, m).
@@ -410,7 +532,11 @@ impl CorotationalSimulator {
             {
                 *j = c_k * k + c_w * w + c_m * m;
             }
-            match self.pattern.factor(&self.jacobian, what) {
+            let started = std::time::Instant::now();
+            let factored = self.pattern.factor(&self.jacobian, what);
+            self.stats.factor_seconds += started.elapsed().as_secs_f64();
+            self.stats.factorisations += 1;
+            match factored {
                 Ok(factor) => return Ok(factor),
                 Err(SteppingError::NotPositiveDefinite { .. }) if use_consistent => {
                     self.stats.fallbacks += 1;
@@ -446,7 +572,7 @@ impl CorotationalSimulator {
                 }
                 let factor =
                     self.factor_newton(1.0, 0.0, 0.0, "tangent stiffness (static solve)")?;
-                factor.solve_in_place(&mut r);
+                timed_solve(&mut self.stats, &factor, &mut r);
                 total_solves += 1;
                 trial.iter_mut().zip(&r).for_each(|(t, d)| *t += d);
                 let step = norm(&r);
@@ -484,10 +610,122 @@ impl CorotationalSimulator {
     }
 }
 
+/// b ← A⁻¹ b with the time counted in `stats.solve_seconds`.
+fn timed_solve(stats: &mut NewtonStats, factor: &super::sparse::Factor, b: &mut [f64]) {
+    let started = std::time::Instant::now();
+    factor.solve_in_place(b);
+    stats.solve_seconds += started.elapsed().as_secs_f64();
+}
+
+impl CorotationalSimulator {
+    /// One Wilson-θ step by [`ModifiedNewton`]: the residual r(Û) of [`CorotationalSimulator`]
+    /// with β K_t U̇_θ evaluated element by element, J_t refactored only when needed.
+    fn step_modified(&mut self, f: &[f64], m: ModifiedNewton) -> Result<(), SteppingError> {
+        let n = self.pattern.n;
+        let w = self.wilson;
+        let tau = w.tau();
+        let (a0, a2) = (w.mass_coefficient(), w.damping_coefficient());
+        let (alpha, beta) = (self.alpha, self.beta);
+        let mut u_hat = self.u.clone();
+        let mut vel = vec![0.0; n];
+        let mut r = vec![0.0; n];
+        let mut y = vec![0.0; n];
+        let mut my = vec![0.0; n];
+        let limit = self.options.max_newton.max(4 * m.iterations);
+        let mut estimate = f64::INFINITY;
+        let mut previous = f64::INFINITY;
+        let mut since_factor = 0;
+        let mut iterations = 0;
+        let mut refactor = self.kept.is_none();
+        while iterations < limit {
+            for i in 0..n {
+                let du = u_hat[i] - self.u[i];
+                let acc = a0 * du - 6.0 / tau * self.v[i] - 2.0 * self.a[i];
+                vel[i] = a2 * du - 2.0 * self.v[i] - 0.5 * tau * self.a[i];
+                y[i] = acc + alpha * vel[i];
+            }
+            if refactor {
+                // Tangents at Û, the new J_t; the damping force from the assembled K_t.
+                self.assemble(&u_hat);
+                if beta != 0.0 {
+                    self.pattern
+                        .mul(&self.warped, &vel, &mut self.damping_force);
+                }
+                self.kept = None;
+                let factor = self.factor_newton(
+                    1.0,
+                    a2 * beta,
+                    a0 + a2 * alpha,
+                    "co-rotational Wilson-θ matrix J_t",
+                )?;
+                self.kept = Some(factor);
+                since_factor = 0;
+                previous = f64::INFINITY;
+                refactor = false;
+            } else {
+                self.assemble_force(&u_hat, (beta != 0.0).then_some(&vel[..]));
+            }
+            for i in 0..n {
+                r[i] = f[i] - self.internal[i] - beta * self.damping_force[i];
+            }
+            self.pattern.mul(&self.mass, &y, &mut my);
+            r.iter_mut().zip(&my).for_each(|(r, v)| *r -= v);
+            let Some(factor) = self.kept.as_ref() else {
+                unreachable!("a factorisation is kept before it is used");
+            };
+            timed_solve(&mut self.stats, factor, &mut r);
+            u_hat.iter_mut().zip(&r).for_each(|(x, d)| *x += d);
+            iterations += 1;
+            since_factor += 1;
+            let step = norm(&r);
+            if !step.is_finite() {
+                return Err(SteppingError::NonFinite {
+                    step: self.stats.steps + 1,
+                    time: self.time + w.dt,
+                });
+            }
+            if since_factor >= 2 {
+                self.contraction = step / previous;
+            }
+            previous = step;
+            let eta = if self.contraction < 1.0 {
+                (self.contraction / (1.0 - self.contraction)).max(1.0)
+            } else {
+                f64::INFINITY
+            };
+            estimate = if step <= self.floor {
+                0.0
+            } else {
+                eta * step / norm(&u_hat)
+            };
+            if estimate <= self.options.tolerance {
+                break;
+            }
+            if (since_factor >= 2 && self.contraction > m.contraction)
+                || since_factor >= m.iterations
+            {
+                refactor = true;
+            }
+        }
+        self.stats.steps += 1;
+        self.stats.solves += iterations;
+        if estimate > self.options.tolerance {
+            self.stats.unconverged += 1;
+        }
+        self.stats.worst_increment = self.stats.worst_increment.max(estimate);
+        advance_all(&w, &mut self.u, &mut self.v, &mut self.a, &u_hat);
+        self.time += w.dt;
+        Ok(())
+    }
+}
+
 impl Simulator for CorotationalSimulator {
     fn step(&mut self, f: &[f64]) -> Result<(), SteppingError> {
         let n = self.pattern.n;
         check_len("load vector f", n, f.len())?;
+        if let Some(m) = self.modified {
+            return self.step_modified(f, m);
+        }
         let w = self.wilson;
         let tau = w.tau();
         let (a0, a2) = (w.mass_coefficient(), w.damping_coefficient());
@@ -521,7 +759,7 @@ impl Simulator for CorotationalSimulator {
                 a0 + a2 * alpha,
                 "co-rotational Wilson-θ matrix J_t",
             )?;
-            factor.solve_in_place(&mut r);
+            timed_solve(&mut self.stats, &factor, &mut r);
             u_hat.iter_mut().zip(&r).for_each(|(x, d)| *x += d);
             iterations += 1;
             let step = norm(&r);
@@ -559,5 +797,74 @@ impl Simulator for CorotationalSimulator {
 
     fn time(&self) -> f64 {
         self.time
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fem::operators::Operators;
+    use crate::mesh::procedural::{box_mesh, BeamScene};
+    use crate::scene::Scene;
+
+    /// Modified Newton (the training runs' path) against full Newton (the reference) on a
+    /// 6×1×1 beam swung by a tip load ramped to a large rotation: the same trajectory to the
+    /// Newton tolerance, with fewer factorisations than steps.
+    #[test]
+    fn modified_newton_follows_full_newton_with_fewer_factorisations() {
+        let dt = 5e-3;
+        let text = BeamScene {
+            mesh_file: "generated.msh".into(),
+            displays: Vec::new(),
+            dt,
+            ..BeamScene::default()
+        }
+        .toml();
+        let scene = Scene::parse(&text, std::path::Path::new("test.toml")).expect("scene");
+        let mesh = box_mesh([6, 1, 1], [1.0, 0.1, 0.1]);
+        let fem = FemModel::assemble(&mesh, &scene, 1.0).expect("assembles");
+        let ops = Operators::build(&mesh, &scene, &fem, 1.0).expect("operators");
+        let column = &ops.inputs[2].column;
+        let wilson = WilsonTheta::from_time(&scene.time);
+        let options = NewtonOptions::default();
+        let mut full = CorotationalSimulator::new(&fem, wilson, options).expect("simulator");
+        let mut modified = CorotationalSimulator::new(&fem, wilson, options).expect("simulator");
+        modified
+            .set_modified_newton(Some(ModifiedNewton::default()))
+            .expect("settings");
+        let (mut worst, mut largest) = (0.0f64, 0.0f64);
+        let steps = 120;
+        for k in 1..=steps {
+            // −z tip force ramped to 60 N over 60 steps, then held.
+            let m = -60.0 * (k as f64 / 60.0).min(1.0);
+            let f: Vec<f64> = column.iter().map(|b| m * b).collect();
+            full.step(&f).expect("full Newton step");
+            modified.step(&f).expect("modified Newton step");
+            let (a, b) = (full.displacement(), modified.displacement());
+            let diff = norm(&a.iter().zip(b).map(|(x, y)| x - y).collect::<Vec<_>>());
+            worst = worst.max(diff / norm(a));
+            largest = largest.max(a.iter().fold(0.0f64, |m, v| m.max(v.abs())));
+        }
+        let (sf, sm) = (full.stats(), modified.stats());
+        assert!(
+            largest > 0.3,
+            "a large deflection expected, got {largest} m"
+        );
+        assert!(worst < 1e-6, "modified vs full Newton: {worst:.2e}");
+        assert_eq!(sm.unconverged, 0, "{sm:?}");
+        assert_eq!(sf.factorisations, sf.solves, "{sf:?}");
+        assert!(
+            sm.factorisations * 4 < sf.factorisations,
+            "full {sf:?}, modified {sm:?}"
+        );
+        assert!(set_check(&fem, wilson).is_err());
+    }
+
+    fn set_check(fem: &FemModel, wilson: WilsonTheta) -> Result<(), SteppingError> {
+        let mut sim = CorotationalSimulator::new(fem, wilson, NewtonOptions::default())?;
+        sim.set_modified_newton(Some(ModifiedNewton {
+            contraction: 1.5,
+            iterations: 4,
+        }))
     }
 }

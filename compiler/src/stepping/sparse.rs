@@ -2,10 +2,14 @@
 //! tetrahedral mesh), filled element by element, with a sparse Cholesky whose symbolic analysis
 //! is done once and reused for every numeric refactorisation.
 
+use std::sync::Arc;
+
+use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::solvers::Solve;
-use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
+use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymbolicCholesky};
+use faer::sparse::linalg::solvers::Llt;
 use faer::sparse::{SparseColMat, SparseColMatRef, SymbolicSparseColMat};
-use faer::{MatMut, Side};
+use faer::{Conj, MatMut, Par, Side};
 
 use crate::fem::{sparse_entries, FemModel};
 
@@ -17,7 +21,10 @@ pub(crate) struct Pattern {
     /// n, the number of free DOFs.
     pub n: usize,
     symbolic: SymbolicSparseColMat<usize>,
-    llt: SymbolicLlt<usize>,
+    llt: Arc<SymbolicCholesky<usize>>,
+    /// Parallelism of the numeric factorisations and solves (faer's global setting unless
+    /// [`Pattern::set_sequential`]).
+    par: Par,
 }
 
 impl Pattern {
@@ -46,10 +53,27 @@ impl Pattern {
             col_ptr.push(row_idx.len());
         }
         let symbolic = SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx);
-        let llt = SymbolicLlt::try_new(symbolic.as_ref(), Side::Lower).map_err(|e| {
+        let llt = factorize_symbolic_cholesky(
+            symbolic.as_ref(),
+            Side::Lower,
+            Default::default(),
+            Default::default(),
+        )
+        .map_err(|e| {
             SteppingError::Solver(format!("symbolic Cholesky of the {n}×{n} pattern: {e:?}"))
         })?;
-        Ok(Pattern { n, symbolic, llt })
+        Ok(Pattern {
+            n,
+            symbolic,
+            llt: Arc::new(llt),
+            par: faer::get_global_parallelism(),
+        })
+    }
+
+    /// Factorisations and solves on the calling thread only (for simulators run several at a
+    /// time, e.g. the training runs: no thread pool shared between them).
+    pub fn set_sequential(&mut self) {
+        self.par = Par::Seq;
     }
 
     /// Number of stored entries.
@@ -95,28 +119,75 @@ impl Pattern {
     /// Numeric Cholesky of the matrix with values `a` (symbolic analysis reused).
     pub fn factor(&self, a: &[f64], what: &str) -> Result<Factor, SteppingError> {
         let mat = SparseColMatRef::new(self.symbolic.as_ref(), a);
-        Llt::try_new_with_symbolic(self.llt.clone(), mat, Side::Lower)
-            .map(Factor)
-            .map_err(|e| not_positive_definite(what, self.n, e))
+        let mut values = vec![0.0; self.llt.len_val()];
+        let mut scratch = MemBuffer::try_new(
+            self.llt
+                .factorize_numeric_llt_scratch::<f64>(self.par, Default::default()),
+        )
+        .map_err(|e| SteppingError::Solver(format!("{what}: workspace: {e:?}")))?;
+        self.llt
+            .factorize_numeric_llt::<f64>(
+                &mut values,
+                mat,
+                Side::Lower,
+                Default::default(),
+                self.par,
+                MemStack::new(&mut scratch),
+                Default::default(),
+            )
+            .map_err(|e| SteppingError::NotPositiveDefinite {
+                what: what.to_owned(),
+                n: self.n,
+                detail: format!("{e:?}"),
+            })?;
+        Ok(Factor::OnPattern {
+            symbolic: Arc::clone(&self.llt),
+            values,
+            par: self.par,
+        })
     }
 }
 
 /// A numeric sparse Cholesky factorisation.
-pub(crate) struct Factor(Llt<usize, f64>);
+pub(crate) enum Factor {
+    /// Of a stand-alone matrix.
+    Whole(Llt<usize, f64>),
+    /// Of values on a [`Pattern`], with the pattern's parallelism.
+    OnPattern {
+        symbolic: Arc<SymbolicCholesky<usize>>,
+        values: Vec<f64>,
+        par: Par,
+    },
+}
 
 impl Factor {
     /// Cholesky of a stand-alone symmetric positive definite matrix (both triangles stored).
     pub fn of(mat: &SparseColMat<usize, f64>, what: &str) -> Result<Self, SteppingError> {
         mat.sp_cholesky(Side::Lower)
-            .map(Factor)
+            .map(Factor::Whole)
             .map_err(|e| not_positive_definite(what, mat.nrows(), e))
     }
 
     /// Overwrites `b` with A⁻¹ b.
     pub fn solve_in_place(&self, b: &mut [f64]) {
         let n = b.len();
-        self.0
-            .solve_in_place(MatMut::from_column_major_slice_mut(b, n, 1));
+        let rhs = MatMut::from_column_major_slice_mut(b, n, 1);
+        match self {
+            Factor::Whole(llt) => llt.solve_in_place(rhs),
+            Factor::OnPattern {
+                symbolic,
+                values,
+                par,
+            } => {
+                let mut scratch = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, *par));
+                LltRef::new(symbolic, values).solve_in_place_with_conj(
+                    Conj::No,
+                    rhs,
+                    *par,
+                    MemStack::new(&mut scratch),
+                );
+            }
+        }
     }
 }
 

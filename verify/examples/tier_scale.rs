@@ -1,0 +1,235 @@
+//! Training cost and step speed of the co-rotational tier at scale (docs/corotational-tier.md
+//! §6, docs/design.md §10): where the training time goes, and the tier step against the
+//! full-order co-rotational step in the same run.
+//!
+//! ```sh
+//! # training only (the scene's [reduction.corotational] plan): runs, steps, Newton solves,
+//! # factorisations, time in assembly / factorisation / triangular solves
+//! cargo run --release -p crokf-verify --example tier_scale -- train SCENE [--full-newton] [--threads N] [--sequential]
+//! # step speed: tier step (runtime, MODEL compiled from SCENE) against the full-order
+//! # co-rotational step of SCENE's mesh, medians of the same run
+//! cargo run --release -p crokf-verify --example tier_scale -- bench SCENE MODEL [--steps N]
+//! ```
+//!
+//! `bench` times three steps under the tier-load ramp of the load channel with the largest
+//! range (to 0.8 × the range over the run, z component): the runtime's tier step
+//! (`Estimator::predict`), the full-order co-rotational step with one Newton solve (assembly +
+//! factorisation + solve: the cheapest full-order step, the one of `crokf-verify bench`), and
+//! the full-order step to convergence (Newton to 1e-8, the reference of `crokf-verify`).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use crokf_compile::nonlinear::training::{train, TrainingPlan};
+use crokf_compile::report::StageTimer;
+use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, Simulator};
+use crokf_compile::FullOrder;
+use crokf_runtime::{load_model, Estimator};
+
+fn main() -> ExitCode {
+    match run() {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn flag_value(args: &[String], name: &str) -> Option<String> {
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1).cloned())
+}
+
+fn run() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let usage = "usage: tier_scale train SCENE [--full-newton] [--threads N] | \
+                 tier_scale bench SCENE MODEL [--steps N]";
+    let (Some(mode), Some(scene)) = (args.first(), args.get(1)) else {
+        return Err(usage.into());
+    };
+    if args.iter().any(|a| a == "--sequential") {
+        // faer's sparse Cholesky single-threaded (default: all cores).
+        faer::set_global_parallelism(faer::Par::Seq);
+    }
+    let full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
+    println!(
+        "{scene}: {} tetrahedra, {} free DOFs, Δt = {} s",
+        full.fem.elements.len(),
+        full.fem.dof_count(),
+        full.wilson.dt
+    );
+    match mode.as_str() {
+        "train" => train_cost(&full, &args),
+        "bench" => {
+            let Some(model) = args.get(2) else {
+                return Err(usage.into());
+            };
+            let steps = flag_value(&args, "--steps")
+                .map(|s| s.parse::<usize>())
+                .transpose()?
+                .unwrap_or(20);
+            bench(&full, &PathBuf::from(model), steps)
+        }
+        _ => Err(usage.into()),
+    }
+}
+
+fn train_cost(full: &FullOrder, args: &[String]) -> Result<(), Box<dyn std::error::Error>> {
+    let Some(spec) = full.scene.scene.reduction.corotational.as_ref() else {
+        return Err("the scene has no [reduction.corotational] table".into());
+    };
+    let names: Vec<String> = full
+        .operators
+        .loads
+        .iter()
+        .map(|l| l.name.clone())
+        .collect();
+    let mut plan = TrainingPlan::from_scene(spec, &names);
+    if args.iter().any(|a| a == "--full-newton") {
+        plan.modified = None;
+    }
+    if let Some(t) = flag_value(args, "--threads") {
+        plan.threads = t.parse()?;
+    }
+    let mut progress = |k: usize, of: usize, label: &str| {
+        eprintln!("run {}/{of}: {label}", k + 1);
+    };
+    let training = train(full, &plan, &mut progress)?;
+    let s = training.newton;
+    let per_step = |v: f64| v / s.steps.max(1) as f64;
+    println!(
+        "training: {} runs ({} failed), {} snapshots, wall {:.1} s ({} thread(s), {})",
+        training.runs.len(),
+        training.runs.iter().filter(|r| r.1.is_some()).count(),
+        training.snapshots.len(),
+        training.seconds,
+        plan.threads,
+        if plan.modified.is_some() {
+            "modified Newton"
+        } else {
+            "full Newton"
+        }
+    );
+    println!(
+        "steps {}, Newton solves {} ({:.2}/step), factorisations {} ({:.2}/step), unconverged \
+         {}, fallbacks {}, worst estimated error {:.1e}",
+        s.steps,
+        s.solves,
+        per_step(s.solves as f64),
+        s.factorisations,
+        per_step(s.factorisations as f64),
+        s.unconverged,
+        s.fallbacks,
+        s.worst_increment
+    );
+    println!(
+        "thread time: assembly {:.1} s, factorisation {:.1} s, solves {:.1} s (per step {:.2} / \
+         {:.2} / {:.2} ms)",
+        s.assembly_seconds,
+        s.factor_seconds,
+        s.solve_seconds,
+        1e3 * per_step(s.assembly_seconds),
+        1e3 * per_step(s.factor_seconds),
+        1e3 * per_step(s.solve_seconds)
+    );
+    Ok(())
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn bench(
+    full: &FullOrder,
+    model_path: &std::path::Path,
+    steps: usize,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let model = load_model(model_path)?;
+    let mut estimator = Estimator::new(&model)?;
+    if !estimator.is_corotational() {
+        return Err(format!("{} is not a co-rotational tier model", model_path.display()).into());
+    }
+    let spec = full
+        .scene
+        .scene
+        .reduction
+        .corotational
+        .as_ref()
+        .ok_or("the scene has no [reduction.corotational] table")?;
+    let (load, range) = spec
+        .ranges
+        .iter()
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .ok_or("no load range")?;
+    let label = format!("{load}.z");
+    let channel = full
+        .operators
+        .inputs
+        .iter()
+        .position(|c| c.label == label)
+        .ok_or_else(|| format!("no input channel {label}"))?;
+    let column = &full.operators.inputs[channel].column;
+    let input = model
+        .inputs
+        .iter()
+        .position(|c| c.label == label)
+        .ok_or_else(|| format!("the model has no input {label}"))?;
+    let force = |k: usize| -0.8 * range * (k as f64 / steps as f64);
+    let mut f = vec![0.0; column.len()];
+    let mut u = vec![0.0; model.inputs.len()];
+    // Runtime tier step: 200 × the full-order steps, timed per step.
+    let mut tier = Vec::new();
+    for k in 1..=200 * steps {
+        u[input] = force(k.div_ceil(200));
+        let started = Instant::now();
+        estimator.predict(&u)?;
+        tier.push(started.elapsed().as_secs_f64());
+    }
+    let mut one_solve = Vec::new();
+    let mut converged = Vec::new();
+    let options = NewtonOptions::default();
+    let mut single = CorotationalSimulator::new(
+        &full.fem,
+        full.wilson,
+        NewtonOptions {
+            max_newton: 1,
+            ..options
+        },
+    )?;
+    let mut reference = CorotationalSimulator::new(&full.fem, full.wilson, options)?;
+    for k in 1..=steps {
+        let m = force(k);
+        f.iter_mut().zip(column).for_each(|(fi, b)| *fi = m * b);
+        let started = Instant::now();
+        single.step(&f)?;
+        one_solve.push(started.elapsed().as_secs_f64());
+        let started = Instant::now();
+        reference.step(&f)?;
+        converged.push(started.elapsed().as_secs_f64());
+    }
+    let (t, s, c) = (median(tier), median(one_solve), median(converged));
+    let stats = reference.stats();
+    println!(
+        "medians over {steps} full-order steps and {} tier steps (load to {:.3} N on {label}):",
+        200 * steps,
+        force(steps)
+    );
+    println!("  tier step (runtime predict): {:.2} µs", 1e6 * t);
+    println!(
+        "  full-order co-rotational step, one Newton solve: {:.1} ms  (ratio {:.2e})",
+        1e3 * s,
+        s / t
+    );
+    println!(
+        "  full-order co-rotational step, Newton to 1e-8 ({:.2} solves/step): {:.1} ms  (ratio \
+         {:.2e})",
+        stats.solves as f64 / stats.steps.max(1) as f64,
+        1e3 * c,
+        c / t
+    );
+    Ok(())
+}
