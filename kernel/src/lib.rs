@@ -67,16 +67,12 @@ pub enum PolarError {
     NoConvergence,
 }
 
-/// The rotation R of the polar decomposition F = R S. Refuses inverted or degenerate elements
-/// (det F ≤ 1e-12‖F‖³_F). Two iterations, both converging quadratically to R and stopping
-/// when ‖ΔX‖_F ≤ 1e-8, when the next change would be ~1e-16:
-///
-/// - near-orthogonal F (‖FᵀF − I‖_F ≤ 1/2, strains below ~20 %, every element of the
-///   examples' tiers): Newton–Schulz, X ← X (3I − XᵀX)/2 (Higham, *Functions of Matrices*
-///   §8.3; converges for ‖I − XᵀX‖₂ < 1), multiplications only: no division or square root
-///   on the critical path, 3–4 iterations at a few % strain;
-/// - otherwise Newton's iteration X ← ½(γX + (γX)⁻ᵀ), scaled by γ = (‖X⁻¹‖_F/‖X‖_F)^½
-///   (Higham) while X is far from orthogonal (‖ΔX‖_F > 1e-2), unscaled (γ = 1) near it.
+/// The rotation R of the polar decomposition F = R S by Newton's iteration
+/// X ← ½(γX + (γX)⁻ᵀ): scaled by γ = (‖X⁻¹‖_F/‖X‖_F)^½ (Higham) while X is far from
+/// orthogonal (‖ΔX‖_F > 1e-2), unscaled (γ = 1) near it, where the iteration converges
+/// quadratically; stops when ‖ΔX‖_F ≤ 1e-8, when the next change would be ~1e-16 (3–4
+/// iterations for an element strained by a few %). Refuses inverted or degenerate elements
+/// (det F ≤ 1e-12‖F‖³_F).
 #[inline(always)]
 pub fn polar_rotation(f: &Mat3) -> Result<Mat3, PolarError> {
     let n = norm(f);
@@ -86,17 +82,6 @@ pub fn polar_rotation(f: &Mat3) -> Result<Mat3, PolarError> {
     }
     if d <= 1e-12 * n * n * n {
         return Err(PolarError::Inverted(d));
-    }
-    let xtx = gram(f);
-    let off: f64 = (0..3)
-        .flat_map(|i| (0..3).map(move |j| (i, j)))
-        .map(|(i, j)| {
-            let d = xtx[i][j] - if i == j { 1.0 } else { 0.0 };
-            d * d
-        })
-        .sum();
-    if off <= 0.25 {
-        return newton_schulz(f, xtx);
     }
     let mut x = *f;
     let mut scaled = true;
@@ -122,50 +107,6 @@ pub fn polar_rotation(f: &Mat3) -> Result<Mat3, PolarError> {
             return Ok(x);
         }
         scaled = change > 1e-4;
-    }
-    Err(PolarError::NoConvergence)
-}
-
-/// XᵀX (symmetric).
-#[inline(always)]
-fn gram(x: &Mat3) -> Mat3 {
-    let mut g = [[0.0; 3]; 3];
-    for i in 0..3 {
-        for j in i..3 {
-            let v = x[0][i] * x[0][j] + x[1][i] * x[1][j] + x[2][i] * x[2][j];
-            g[i][j] = v;
-            g[j][i] = v;
-        }
-    }
-    g
-}
-
-/// Newton–Schulz for the orthogonal polar factor from X = `f` with XᵀX = `xtx` (see
-/// [`polar_rotation`]).
-#[inline(always)]
-fn newton_schulz(f: &Mat3, xtx: Mat3) -> Result<Mat3, PolarError> {
-    let (mut x, mut g) = (*f, xtx);
-    for _ in 0..30 {
-        // M = (3I − XᵀX)/2, X ← X M.
-        let mut m = [[0.0; 3]; 3];
-        for i in 0..3 {
-            for j in 0..3 {
-                m[i][j] = -0.5 * g[i][j] + if i == j { 1.5 } else { 0.0 };
-            }
-        }
-        let mut change = 0.0;
-        let mut next = [[0.0; 3]; 3];
-        for i in 0..3 {
-            for j in 0..3 {
-                next[i][j] = x[i][0] * m[0][j] + x[i][1] * m[1][j] + x[i][2] * m[2][j];
-                change += (next[i][j] - x[i][j]) * (next[i][j] - x[i][j]);
-            }
-        }
-        x = next;
-        if change <= 1e-16 {
-            return Ok(x);
-        }
-        g = gram(&x);
     }
     Err(PolarError::NoConvergence)
 }
@@ -436,51 +377,6 @@ mod tests {
             polar_rotation(&inverted),
             Err(PolarError::Inverted(_))
         ));
-    }
-
-    /// Both iterations (Newton–Schulz near orthogonal, scaled Newton beyond) give R of
-    /// F = R S to round-off, for stretches on either side of the switch ‖FᵀF − I‖_F = 1/2.
-    #[test]
-    fn polar_of_small_and_large_stretches() {
-        let axis = [0.6f64, -0.48, 0.64];
-        for (angle, st) in [
-            (0.4f64, [1.01, 0.995, 1.002]),
-            (2.5, [1.2, 0.85, 1.1]),
-            (1.0, [2.0, 0.6, 1.3]),
-            (3.0, [0.3, 3.0, 1.0]),
-        ] {
-            let (s, c) = angle.sin_cos();
-            let k = axis;
-            let r: Mat3 = std::array::from_fn(|i| {
-                std::array::from_fn(|j| {
-                    let cross = [[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]][i][j];
-                    k[i] * k[j] * (1.0 - c) + if i == j { c } else { 0.0 } + s * cross
-                })
-            });
-            // F = R S with S symmetric positive definite (a stretch along rotated axes).
-            let q: Mat3 = std::array::from_fn(|i| {
-                std::array::from_fn(|j| {
-                    if i == j {
-                        0.8
-                    } else {
-                        0.2 * (i + 2 * j) as f64 / 6.0
-                    }
-                })
-            });
-            let qo = polar_rotation(&q).unwrap(); // an orthogonal frame for S's axes
-            let stretch: Mat3 = std::array::from_fn(|i| {
-                std::array::from_fn(|j| (0..3).map(|a| qo[i][a] * st[a] * qo[j][a]).sum())
-            });
-            let f: Mat3 = std::array::from_fn(|i| {
-                std::array::from_fn(|j| (0..3).map(|a| r[i][a] * stretch[a][j]).sum())
-            });
-            let got = polar_rotation(&f).unwrap();
-            for i in 0..3 {
-                for j in 0..3 {
-                    assert!((got[i][j] - r[i][j]).abs() < 1e-13, "{st:?}: {got:?}");
-                }
-            }
-        }
     }
 
     /// A rigid rotation of an element (any angle) gives no force: Rᵀ(x − x₀) = X − X₀.
