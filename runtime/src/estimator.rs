@@ -73,6 +73,8 @@ pub struct Estimator {
     innovation: Vec<f64>,
     /// What the last update did with each active channel of its phase.
     verdict: Vec<Verdict>,
+    /// Per active channel of the tier's current phase: gated in this update.
+    tier_gated: Vec<bool>,
     k: u64,
     phase: usize,
     cov: CovarianceKind,
@@ -117,6 +119,7 @@ impl Estimator {
             load_vals: vec![0.0; 3 * prepared.model.loads.len()],
             innovation: vec![0.0; prepared.max_measured],
             verdict: vec![Verdict::Missing; prepared.max_measured],
+            tier_gated: vec![false; prepared.tier.as_ref().map_or(0, |t| t.max_measured())],
             k: 0,
             phase: 0,
             cov: CovarianceKind::Posterior,
@@ -203,7 +206,8 @@ impl Estimator {
         self.tier_status
     }
 
-    /// The state: x (length r) for the warped tier, s = (q, q̇, q̈) (3r) for the tier.
+    /// The state: x (length r) for the warped tier, s = (q, q̇, q̈, f) for the tier (3r + 3 per
+    /// random-walk load group, docs/design.md §11.4).
     pub fn state(&self) -> &[f64] {
         match &self.tier {
             Some(t) => &t.s,
@@ -440,9 +444,15 @@ impl Estimator {
         get: &impl Fn(usize) -> Option<f64>,
     ) -> Result<usize, RuntimeError> {
         if let (Some(t), Some(tm)) = (&mut self.tier, &self.shared.tier) {
-            // Constant-gain extended filter: ν = y − V_s q (world frame, linear), s += K_p ν.
-            // No innovation gate on this tier yet.
-            let used = t.update(tm, self.phase, get);
+            // Constant-gain extended filter: ν = y − V_s q (world frame, linear), s += K_p ν,
+            // with the same innovation gate as the warped tier (docs/design.md §6, §11.4).
+            let gate = crate::tier::Gate {
+                sigmas: self.gate,
+                step: self.k,
+                last_accepted: &self.last_accepted,
+                every: &self.shared.every,
+            };
+            let used = t.update_gated(tm, self.phase, get, &gate, &mut self.tier_gated);
             if let Some(index) = t.s_upd.iter().position(|v| !v.is_finite()) {
                 return Err(RuntimeError::NonFiniteState {
                     step: self.k,
@@ -451,6 +461,18 @@ impl Estimator {
                 });
             }
             std::mem::swap(&mut t.s, &mut t.s_upd);
+            let mut gated = 0;
+            for (&j, &rejected) in tm.measured(self.phase).iter().zip(&self.tier_gated) {
+                let j = j as usize;
+                if rejected {
+                    self.gated[j] += 1;
+                    gated += 1;
+                } else if get(j).is_some() {
+                    self.last_accepted[j] = self.k;
+                }
+            }
+            self.gated_total += gated as u64;
+            self.gated_last = gated;
             self.cov = CovarianceKind::Posterior;
             self.awaiting_update = false;
             return Ok(used);
@@ -473,7 +495,6 @@ impl Estimator {
         }
         // Gate in the world frame, channel by channel: ν_j = y_world − (R̃(ω̄) C_s x⁻)_c, so an
         // outlier cannot leak into its sensor's other components through the un-warp.
-        let gate2 = self.gate.map(|g| g * g);
         for ((ch, &variance0), verdict) in active
             .iter()
             .zip(&sh.innovation_variance[p])
@@ -483,14 +504,13 @@ impl Estimator {
             let Some(v) = get(ch.channel) else { continue };
             let slot = &mut self.slots[ch.slot];
             let c = ch.component;
-            if let Some(g2) = gate2 {
+            if let Some(sigmas) = self.gate {
                 let j = ch.channel;
                 let nu = v - slot.pred[c];
                 let missed = step
                     .saturating_sub(self.last_accepted[j])
                     .saturating_sub(ch.every);
-                let variance = variance0 + missed as f64 * ch.variance_growth;
-                if nu * nu > g2 * variance {
+                if crate::tier::gate_rejects(nu, sigmas, variance0, missed, ch.variance_growth) {
                     *verdict = Verdict::Gated;
                     continue;
                 }

@@ -54,6 +54,8 @@ pub struct PreparedModel {
     pub(crate) load_channels: Vec<[Option<usize>; 3]>,
     /// Per measurement channel: (sensor, component).
     pub(crate) channel: Vec<(usize, usize)>,
+    /// Per measurement channel: its sensor's `every` (base steps between markers).
+    pub(crate) every: Vec<u64>,
     /// Per phase: sensors with at least one active channel (a sensor's slot is its position
     /// here).
     pub(crate) phase_sensors: Vec<Vec<usize>>,
@@ -427,6 +429,7 @@ impl PreparedModel {
             r,
             load_channels,
             channel,
+            every,
             phase_sensors,
             active,
             phase_rows_t,

@@ -341,6 +341,17 @@ impl TierModel {
         self.force_channels.len()
     }
 
+    /// The measurement channels phase `phase` of the tier's filter updates with, in the order
+    /// of its gain's columns.
+    pub fn measured(&self, phase: usize) -> &[u32] {
+        &self.measured[phase]
+    }
+
+    /// Largest number of measured channels in a phase of the tier's filter.
+    pub fn max_measured(&self) -> usize {
+        self.measured.iter().map(Vec::len).max().unwrap_or(0)
+    }
+
     /// Reduced force f_r,int(q) + β K_t,r(q) q̇ (r) into `out` (module docs); `q`, `velocity`
     /// and `out` of length r. Refuses an inverted sampled element (its index).
     /// `rotations` receives each element's R (length: the number of sampled elements).
