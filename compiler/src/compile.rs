@@ -98,11 +98,14 @@ fn corotational_tier(
             .join(", ")
     ));
     report.notes.push(format!(
-        "co-rotational tier filter (linearised at rest, state (q, q̇, q̈) = {}): closed-loop \
-         spectral radius {:.6}, Riccati residual {:.1e}",
-        3 * r,
+        "co-rotational tier filter (linearised at rest, state (q, q̇, q̈, f) = {}, {} force \
+         states): closed-loop spectral radius {:.6}, Riccati residual {:.1e}, static residual \
+         of the force channels at the markers {:.1e}",
+        3 * r + 3 * filter.force_loads.len(),
+        3 * filter.force_loads.len(),
         filter.schedule.closed_loop_spectral_radius,
-        filter.schedule.worst_relative_residual
+        filter.schedule.worst_relative_residual,
+        filter.static_residual
     ));
     let section = tier::tier_section(
         full,

@@ -157,6 +157,25 @@ pub fn output_standard_deviations(c: MatRef<f64>, p: MatRef<f64>) -> Vec<f64> {
         .collect()
 }
 
+/// Checks the shapes and values shared by both Riccati entry points: F square with at least
+/// one state, H m×n, Q n×n, all finite. Returns m, the number of measurement rows.
+fn check_system(f: MatRef<f64>, h: MatRef<f64>, q: MatRef<f64>) -> Result<usize, KalmanError> {
+    let n = f.nrows();
+    let m = h.nrows();
+    check_square("F", f)?;
+    if n == 0 {
+        return Err(KalmanError::Shape(
+            "F is 0x0: the model has no states".into(),
+        ));
+    }
+    check_shape("H", h, m, n)?;
+    check_shape("Q", q, n, n)?;
+    for (name, mat) in [("F", f), ("H", h), ("Q", q)] {
+        check_finite(name, mat)?;
+    }
+    Ok(m)
+}
+
 /// Solves the filter DARE P = F P Fᵀ − F P Hᵀ (H P Hᵀ + R)⁻¹ H P Fᵀ + Q for its stabilizing
 /// solution and returns the steady-state gain, posterior covariance and accuracy figures.
 ///
@@ -168,20 +187,9 @@ pub fn solve_filter_dare(
     q: MatRef<f64>,
     r: MatRef<f64>,
 ) -> Result<DareSolution, KalmanError> {
-    let n = f.nrows();
-    let m = h.nrows();
-    check_square("F", f)?;
-    if n == 0 {
-        return Err(KalmanError::Shape(
-            "F is 0x0: the model has no states".into(),
-        ));
-    }
-    check_shape("H", h, m, n)?;
-    check_shape("Q", q, n, n)?;
+    let m = check_system(f, h, q)?;
     check_shape("R", r, m, m)?;
-    for (name, mat) in [("F", f), ("H", h), ("Q", q), ("R", r)] {
-        check_finite(name, mat)?;
-    }
+    check_finite("R", r)?;
     let q = validate_q(q)?;
     let r = validate_r(r)?;
     let f = f.to_owned();
@@ -220,16 +228,8 @@ pub fn periodic_gains(
     r_diag: &[f64],
     every: &[u32],
 ) -> Result<PeriodicSchedule, KalmanError> {
+    let m = check_system(f, h, q)?;
     let n = f.nrows();
-    let m = h.nrows();
-    check_square("F", f)?;
-    if n == 0 {
-        return Err(KalmanError::Shape(
-            "F is 0x0: the model has no states".into(),
-        ));
-    }
-    check_shape("H", h, m, n)?;
-    check_shape("Q", q, n, n)?;
     if r_diag.len() != m {
         return Err(KalmanError::Shape(format!(
             "r_diag has {} entries but H has {} measurement rows",
@@ -243,9 +243,6 @@ pub fn periodic_gains(
             every.len(),
             m
         )));
-    }
-    for (name, mat) in [("F", f), ("H", h), ("Q", q)] {
-        check_finite(name, mat)?;
     }
     let r_full = Mat::from_fn(m, m, |i, j| if i == j { r_diag[i] } else { 0.0 });
     check_finite("R", r_full.as_ref())?;

@@ -492,19 +492,13 @@ fn unobservable_unstable_mode_is_refused() {
     assert!(matches!(e, KalmanError::Undetectable { .. }), "{msg}");
 }
 
-#[test]
-fn rigid_body_mode_needs_a_position_sensor() {
-    // No Dirichlet nodes: a rigid-body mode (k = c = 0, eigenvalue 1 of Wilson-θ, defective)
-    // next to a 13 Hz mode, force noise on both. A position sensor makes the data detectable;
-    // a velocity-only sensor cannot see the position drift (eigenvector [1, 0, 0]).
-    let wt = WilsonTheta {
-        dt: 1e-3,
-        theta: 1.4,
-    };
-    let n = 6;
-    let mut f = Mat::<f64>::zeros(n, n);
-    let mut gam = Mat::<f64>::zeros(n, 2);
-    for (mode, hz) in [0.0f64, 13.0].into_iter().enumerate() {
+/// Two modes (frequencies in Hz, ζ = 2 %) in Wilson-θ form (θ = 1.4, step `dt` s): the
+/// transition F (6×6, state [q, q̇, q̈] per mode) and the force input Γ (6×2, one force per mode).
+fn two_modes(dt: f64, hz: [f64; 2]) -> (Mat<f64>, Mat<f64>) {
+    let wt = WilsonTheta { dt, theta: 1.4 };
+    let mut f = Mat::<f64>::zeros(6, 6);
+    let mut gam = Mat::<f64>::zeros(6, 2);
+    for (mode, hz) in hz.into_iter().enumerate() {
         let w = 2.0 * std::f64::consts::PI * hz;
         let (phi, g) = wt.modal_block(w * w, 2.0 * 0.02 * w);
         for i in 0..3 {
@@ -514,6 +508,15 @@ fn rigid_body_mode_needs_a_position_sensor() {
             gam[(3 * mode + i, mode)] = g[i];
         }
     }
+    (f, gam)
+}
+
+#[test]
+fn rigid_body_mode_needs_a_position_sensor() {
+    // No Dirichlet nodes: a rigid-body mode (k = c = 0, eigenvalue 1 of Wilson-θ, defective)
+    // next to a 13 Hz mode, force noise on both. A position sensor makes the data detectable;
+    // a velocity-only sensor cannot see the position drift (eigenvector [1, 0, 0]).
+    let (f, gam) = two_modes(1e-3, [0.0, 13.0]);
     let q = &gam * gam.transpose();
     let r = diag(&[1e-8]);
     let h = from_rows(&[&[1.0, 0.0, 0.0, 1.0, 0.0, 0.0]]);
@@ -593,23 +596,8 @@ fn malformed_inputs_are_refused() {
 fn filtered_run_beats_open_loop_and_innovations_are_consistent() {
     // Two lightly damped modes (5 Hz, 13 Hz, ζ = 2 %) in Wilson-θ form, state [q, q̇, q̈] per
     // mode, Δt = 2 ms, force noise on each mode (Q singular: rank 2), two position sensors.
-    let wt = WilsonTheta {
-        dt: 2e-3,
-        theta: 1.4,
-    };
-    let n = 6;
-    let mut f = Mat::<f64>::zeros(n, n);
-    let mut gam = Mat::<f64>::zeros(n, 2);
-    for (mode, hz) in [5.0f64, 13.0].into_iter().enumerate() {
-        let w = 2.0 * std::f64::consts::PI * hz;
-        let (phi, g) = wt.modal_block(w * w, 2.0 * 0.02 * w);
-        for i in 0..3 {
-            for j in 0..3 {
-                f[(3 * mode + i, 3 * mode + j)] = phi[i][j];
-            }
-            gam[(3 * mode + i, mode)] = g[i];
-        }
-    }
+    let (f, gam) = two_modes(2e-3, [5.0, 13.0]);
+    let n = f.nrows();
     let sigma_force = [3.0f64, 5.0];
     let q = &gam * diag(&[sigma_force[0].powi(2), sigma_force[1].powi(2)]) * gam.transpose();
     let h = from_rows(&[

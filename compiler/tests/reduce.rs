@@ -275,6 +275,18 @@ fn cantilever(stiffness: f64) -> (Lattice, Mat<f64>, SparseColMat<usize, f64>) {
     (lat, b, rows)
 }
 
+/// Every mode of the lattice (k = n): the basis spans the whole space, so the reduced model
+/// must equal the full-order one.
+fn complete_basis(lat: &Lattice, b: &Mat<f64>) -> ModalBasis {
+    modal_basis(
+        lat.k.as_ref(),
+        lat.m.as_ref(),
+        b.as_ref(),
+        &all_modes(lat.n),
+    )
+    .unwrap()
+}
+
 fn check_orthonormal(basis: &ModalBasis, lat: &Lattice) {
     let v = &basis.vectors;
     let mtm = v.transpose() * symmetric_dense(&lat.m) * v;
@@ -304,13 +316,7 @@ fn check_orthonormal(basis: &ModalBasis, lat: &Lattice) {
 #[test]
 fn leading_hankel_singular_values_match_dense_full_order_system() {
     let (lat, b, rows) = cantilever(1e4);
-    let basis = modal_basis(
-        lat.k.as_ref(),
-        lat.m.as_ref(),
-        b.as_ref(),
-        &all_modes(lat.n),
-    )
-    .unwrap();
+    let basis = complete_basis(&lat, &b);
     assert_eq!(basis.len(), lat.n, "k = n: static correction adds nothing");
     let w = WilsonTheta {
         dt: 1e-3,
@@ -608,13 +614,7 @@ fn static_correction_spans_the_static_response() {
 fn reduced_response_error_within_bound_and_falls_with_order() {
     let (lat, b, rows) = cantilever(1e4);
     let b = b.subcols(0, 2).to_owned();
-    let basis = modal_basis(
-        lat.k.as_ref(),
-        lat.m.as_ref(),
-        b.as_ref(),
-        &all_modes(lat.n),
-    )
-    .unwrap();
+    let basis = complete_basis(&lat, &b);
     let w = WilsonTheta {
         dt: 2e-3,
         theta: 1.4,
@@ -799,13 +799,7 @@ fn normalised_hankel_singular_values_invariant_to_physical_scale() {
 #[test]
 fn time_steps_from_haptics_to_video_match_dense_reference() {
     let (lat, b, rows) = cantilever(1e4);
-    let basis = modal_basis(
-        lat.k.as_ref(),
-        lat.m.as_ref(),
-        b.as_ref(),
-        &all_modes(lat.n),
-    )
-    .unwrap();
+    let basis = complete_basis(&lat, &b);
     let (kd, md) = (symmetric_dense(&lat.k), symmetric_dense(&lat.m));
     let cfull = full_output(&rows);
     for dt in [1e-4, 1.0 / 30.0] {
@@ -829,13 +823,7 @@ fn time_steps_from_haptics_to_video_match_dense_reference() {
 #[test]
 fn undamped_model_relies_on_wilson_damping_or_is_refused_by_name() {
     let (lat, b, rows) = cantilever(1e4);
-    let basis = modal_basis(
-        lat.k.as_ref(),
-        lat.m.as_ref(),
-        b.as_ref(),
-        &all_modes(lat.n),
-    )
-    .unwrap();
+    let basis = complete_basis(&lat, &b);
     // Video rate: Wilson-θ's numerical damping makes every block strictly stable.
     let w = WilsonTheta {
         dt: 1.0 / 30.0,

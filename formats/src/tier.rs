@@ -1,4 +1,4 @@
-//! The co-rotational tier section of a model file (format v3; docs/model-format.md,
+//! The co-rotational tier section of a model file (format v4; docs/model-format.md,
 //! docs/design.md §10): a hyper-reduced co-rotational model on the reduced coordinates q (r)
 //! with u ≈ V q (world-frame displacements of the free DOFs, m per unit q).
 //!
@@ -10,8 +10,10 @@
 //! J = K_t,r(q̂)(1 + a₂β) + (a₀ + a₂α) M_r,   q̂ ← q̂ + J⁻¹ res
 //! ```
 //! then the Wilson-θ update of (q, q̇, q̈). The filter (constant-gain extended Kalman filter
-//! from the DARE of the model linearised at rest) has the state s = (q, q̇, q̈) (3r) and the
-//! linear measurement map y = H V q.
+//! from the DARE of the model linearised at rest, docs/design.md §11.4) has the state
+//! s = (q, q̇, q̈, f) (3r + 3·`force_loads.len()`) and the linear measurement map y = H V q.
+//! f holds the world force of each random-walk load group (3 components, N, f_{k+1} = f_k + w);
+//! it enters the step as an input: f_r = VᵀB (u + f) (a load channel's column of `input`).
 
 use crate::{KalmanGains, Matrix};
 use serde::{Deserialize, Serialize};
@@ -47,10 +49,24 @@ pub struct CorotationalTier {
     pub elements: Vec<TierElement>,
     /// What the compiler trained on.
     pub envelope: TrainingEnvelope,
-    /// Constant-gain filter on s = (q, q̇, q̈) (state dimension 3r): gains (3r × measured),
-    /// prior/posterior covariances (3r × 3r), process noise (3r × 3r) of the model linearised
-    /// at rest; `measurement_variance` as `Model::kalman`.
+    /// Load groups (indices into `Model::loads`, increasing) whose force is estimated by
+    /// random-walk states (format v4; docs/design.md §11.4): group `force_loads[k]`'s world
+    /// force (x, y, z, N) is state 3r + 3k + c, added to the group's input channels (so the
+    /// group needs all three load channels). Empty (or absent, as in a v3 payload): white
+    /// force model, s = (q, q̇, q̈).
+    #[serde(default)]
+    pub force_loads: Vec<u32>,
+    /// Constant-gain filter on s = (q, q̇, q̈, f) (state dimension [`Self::state_dim`]): gains
+    /// (state × measured), prior/posterior covariances and process noise (state × state) of the
+    /// model linearised at rest; `measurement_variance` as `Model::kalman`.
     pub kalman: KalmanGains,
+}
+
+impl CorotationalTier {
+    /// Dimension of the filter's state s = (q, q̇, q̈, f): 3r + 3·`force_loads.len()`.
+    pub fn state_dim(&self) -> usize {
+        3 * self.order as usize + 3 * self.force_loads.len()
+    }
 }
 
 /// One sampled element: f contributes wₑ V_eᵀ fₑ(Xₑ + V_e q).

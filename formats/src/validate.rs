@@ -285,8 +285,9 @@ fn check_kalman(prefix: &str, k: &crate::KalmanGains, r: u64, q: usize) -> Resul
     Ok(())
 }
 
-/// The co-rotational tier section (format v3): shapes against r = `tier.order`, m inputs,
-/// the model's sensors and node sets, q measurements; finite values; weights ≥ 0.
+/// The co-rotational tier section (format v4): shapes against r = `tier.order`, m inputs,
+/// the model's sensors and node sets, q measurements; finite values; weights ≥ 0; force
+/// states on existing load groups with three load channels, increasing.
 fn check_tier(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatError> {
     let r = t.order as u64;
     if t.order == 0 {
@@ -376,5 +377,27 @@ fn check_tier(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatEr
             format!("must be ≥ 1, got {}", env.state_margin),
         ));
     }
-    check_kalman("tier.kalman", &t.kalman, 3 * r, model.measurements.len())
+    check_increasing("tier.force_loads", &t.force_loads)?;
+    for &g in &t.force_loads {
+        let channels = model
+            .inputs
+            .iter()
+            .filter(|i| matches!(i.kind, crate::InputKind::Load { load, .. } if load == g))
+            .count();
+        if g as usize >= model.loads.len() || channels != 3 {
+            return Err(invalid(
+                "tier.force_loads",
+                format!(
+                    "load group {g}: not a load group of the model with three load channels ({} groups)",
+                    model.loads.len()
+                ),
+            ));
+        }
+    }
+    check_kalman(
+        "tier.kalman",
+        &t.kalman,
+        t.state_dim() as u64,
+        model.measurements.len(),
+    )
 }

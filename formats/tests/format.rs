@@ -159,7 +159,7 @@ fn round_trip_and_determinism() {
     let bytes = encode(&model);
     assert_eq!(bytes, encode(&model), "encoding must be deterministic");
     assert_eq!(&bytes[..8], b"CROKF\0\r\n");
-    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 3);
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 4);
     let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
     assert_eq!(len as usize, bytes.len() - HEADER_LEN);
     assert_eq!(hex(&bytes[20..52]), sha256_hex(&bytes[HEADER_LEN..]));
@@ -228,10 +228,10 @@ fn every_truncation_is_an_error() {
 
 #[test]
 fn other_versions_and_wrong_magic() {
-    assert_eq!(FORMAT_VERSION, 3);
-    // Version-1 and version-2 files (before the co-rotational tier section) are refused before
-    // their payload is read, with both versions and the remedy in the message.
-    for old in [1u32, 2] {
+    assert_eq!(FORMAT_VERSION, 4);
+    // Version-1 to version-3 files (before the tier's force states) are refused before their
+    // payload is read, with both versions and the remedy in the message.
+    for old in [1u32, 2, 3] {
         let mut bytes = encode(&small_model());
         bytes[8..12].copy_from_slice(&old.to_le_bytes());
         let err = decode(&bytes).unwrap_err();
@@ -239,20 +239,20 @@ fn other_versions_and_wrong_magic() {
             err,
             FormatError::UnsupportedVersion {
                 found: old,
-                supported: 3
+                supported: 4
             }
         );
         assert_eq!(
             err.to_string(),
-            format!("model format v{old}, this runtime reads v3: recompile the model with crokf-compile")
+            format!("model format v{old}, this runtime reads v4: recompile the model with crokf-compile")
         );
     }
     let mut bytes = encode(&small_model());
-    bytes[8..12].copy_from_slice(&4u32.to_le_bytes());
+    bytes[8..12].copy_from_slice(&5u32.to_le_bytes());
     let err = decode(&bytes).unwrap_err();
     assert!(
         err.to_string()
-            .starts_with("model format v4, this runtime reads v3: "),
+            .starts_with("model format v5, this runtime reads v4: "),
         "{err}"
     );
     let mut bytes = encode(&small_model());
@@ -428,16 +428,18 @@ fn matrix_bytes_not_multiple_of_eight() {
     );
 }
 
-/// A small synthetic co-rotational tier (r = 2) for `small_model()`.
+/// A small synthetic co-rotational tier (r = 2, force states on load group 0: state 3r + 3)
+/// for `small_model()`.
 fn small_tier(model: &Model) -> CorotationalTier {
     let r = 2u32;
+    let n = 3 * r + 3;
     let q = model.measurements.len() as u32;
     let mut g = Rng(7);
     let phase = |measured: Vec<u32>, g: &mut Rng| KalmanPhase {
-        gain: g.matrix(3 * r, measured.len() as u32),
+        gain: g.matrix(n, measured.len() as u32),
         measured,
-        prior_covariance: Matrix::identity(3 * r),
-        posterior_covariance: Matrix::identity(3 * r),
+        prior_covariance: Matrix::identity(n),
+        posterior_covariance: Matrix::identity(n),
     };
     let phases = vec![
         phase((0..q).collect(), &mut g),
@@ -486,10 +488,11 @@ fn small_tier(model: &Model) -> CorotationalTier {
             max_coordinate_norm: 3.0,
             state_margin: 1.5,
         },
+        force_loads: vec![0],
         kalman: KalmanGains {
             period: 2,
             phases,
-            process_noise: Matrix::identity(3 * r),
+            process_noise: Matrix::identity(n),
             measurement_variance: model.kalman.measurement_variance.clone(),
         },
     }
@@ -526,7 +529,19 @@ fn tier_section_round_trip_and_validation() {
     assert!(e.contains("tier.sensor_rows"), "{e}");
     let e = bad(&|t| t.kalman.phases[0].gain = Matrix::zeros(2, 4));
     assert!(
+        e.contains("tier.kalman.phases[0].gain") && e.contains("9×4"),
+        "{e}"
+    );
+    // Force states: the filter's state is 3r + 3 per group; a group must exist and have
+    // three load channels.
+    let e = bad(&|t| t.force_loads.clear());
+    assert!(
         e.contains("tier.kalman.phases[0].gain") && e.contains("6×4"),
+        "{e}"
+    );
+    let e = bad(&|t| t.force_loads = vec![1]);
+    assert!(
+        e.contains("tier.force_loads") && e.contains("load group 1"),
         "{e}"
     );
     let e = bad(&|t| t.envelope.loads[0].name = "nowhere".into());

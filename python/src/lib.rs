@@ -474,6 +474,24 @@ impl Estimator {
         let i = node_set_index(&self.model, set)?;
         Ok((i, self.model.node_sets[i].node_tags.len()))
     }
+
+    /// One per-node read-out of a node set as an (n, 3) array: `read(estimator, set, out)`
+    /// fills the 3n values.
+    fn node_array<'py>(
+        &self,
+        py: Python<'py>,
+        set: &Bound<'py, PyAny>,
+        read: fn(
+            &crokf_runtime::Estimator,
+            usize,
+            &mut [f64],
+        ) -> Result<(), crokf_runtime::RuntimeError>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let (i, n) = self.set_index(set)?;
+        let mut out = vec![0.0; 3 * n];
+        read(&self.inner, i, &mut out).map_err(runtime_err)?;
+        to_array2(py, n, 3, out)
+    }
 }
 
 #[pymethods]
@@ -702,12 +720,7 @@ impl Estimator {
         py: Python<'py>,
         set: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let (i, n) = self.set_index(set)?;
-        let mut out = vec![0.0; 3 * n];
-        self.inner
-            .node_displacements(i, &mut out)
-            .map_err(runtime_err)?;
-        to_array2(py, n, 3, out)
+        self.node_array(py, set, crokf_runtime::Estimator::node_displacements)
     }
 
     /// World position X + u of every node of a node set, (n, 3), m.
@@ -716,12 +729,7 @@ impl Estimator {
         py: Python<'py>,
         set: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let (i, n) = self.set_index(set)?;
-        let mut out = vec![0.0; 3 * n];
-        self.inner
-            .node_positions(i, &mut out)
-            .map_err(runtime_err)?;
-        to_array2(py, n, 3, out)
+        self.node_array(py, set, crokf_runtime::Estimator::node_positions)
     }
 
     /// Standard deviation of every node displacement of a node set, (n, 3), m.
@@ -730,10 +738,7 @@ impl Estimator {
         py: Python<'py>,
         set: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let (i, n) = self.set_index(set)?;
-        let mut out = vec![0.0; 3 * n];
-        self.inner.node_std(i, &mut out).map_err(runtime_err)?;
-        to_array2(py, n, 3, out)
+        self.node_array(py, set, crokf_runtime::Estimator::node_std)
     }
 
     fn __repr__(&self) -> String {

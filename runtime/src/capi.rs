@@ -172,9 +172,9 @@ model_count!(
     /// Number of sensors (sensor read-outs have 3 values per sensor).
     crokf_model_num_sensors, |m| m.sensors.len());
 model_count!(
-    /// State length (of `crokf_state`): r for the warped tier, 3·r_tier (q, q̇, q̈) for the
-    /// co-rotational tier (docs/design.md §10).
-    crokf_model_state_dim, |m| m.tier.as_ref().map_or(m.r(), |t| 3 * t.order as usize));
+    /// State length (of `crokf_state`): r for the warped tier; 3·r_tier + 3 per random-walk
+    /// load group, s = (q, q̇, q̈, f), for the co-rotational tier (docs/design.md §10, §11.4).
+    crokf_model_state_dim, |m| m.tier.as_ref().map_or(m.r(), |t| t.state_dim()));
 model_count!(
     /// 1 when the model carries the co-rotational tier (docs/design.md §10), else 0.
     crokf_model_is_corotational, |m| m.tier.is_some() as usize);
@@ -500,7 +500,7 @@ node_readout!(
     /// Standard deviations of node set `set`'s displacements, 3 per node (m).
     crokf_node_std, node_std);
 
-/// Copies the state (length `crokf_model_state_dim`: x for the warped tier, (q, q̇, q̈) for
+/// Copies the state (length `crokf_model_state_dim`: x for the warped tier, (q, q̇, q̈, f) for
 /// the co-rotational tier). Returns 0 or -1.
 ///
 /// # Safety

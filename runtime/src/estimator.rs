@@ -54,7 +54,8 @@ pub struct Estimator {
     r: usize,
     /// Current state x (posterior after `update`, prior after `predict`).
     x: Vec<f64>,
-    /// x in single precision (the display read-out's operand).
+    /// The display read-out's operand (2r): x in single precision, then x_k · 2^(−e_k) for
+    /// 16-bit rotation rows (`PreparedModel::rotation_scale`).
     x32: Vec<f32>,
     /// Scratch for F x + G u, and the state before the last prediction (for a rollback).
     x_next: Vec<f64>,
@@ -62,23 +63,16 @@ pub struct Estimator {
     x_upd: Vec<f64>,
     /// Inputs after rotating load channels into the local frame (m).
     u_lin: Vec<f64>,
-    /// Per sensor scratch: y_world as measured, its prediction R̃(ω̄) C_s x⁻, y_lin (local
-    /// frame) and u_lin predicted.
-    y_world: Vec<Vec3>,
-    pred_world: Vec<Vec3>,
-    y_lin: Vec<Vec3>,
-    u_pred: Vec<Vec3>,
-    /// Per sensor scratch: which components were filled from accepted measurements.
-    filled: Vec<[bool; 3]>,
-    /// Per sensor scratch: the warp at the predicted state.
-    warps: Vec<Option<Warp>>,
+    /// Per sensor slot of the current phase (`PreparedModel::phase_sensors`): the update's
+    /// per-sensor scratch.
+    slots: Vec<SensorSlot>,
     /// [C_s x; W_s x] of the current phase's sensors (6 each), and W_g x of the load groups.
     sensor_vals: Vec<f64>,
     load_vals: Vec<f64>,
     /// Innovation per active channel of the current phase.
     innovation: Vec<f64>,
-    /// Whether each active channel of the current phase was gated.
-    gated_now: Vec<bool>,
+    /// What the last update did with each active channel of its phase.
+    verdict: Vec<Verdict>,
     k: u64,
     phase: usize,
     cov: CovarianceKind,
@@ -114,20 +108,15 @@ impl Estimator {
         Estimator {
             r,
             x: vec![0.0; r],
-            x32: vec![0.0; r],
+            x32: vec![0.0; 2 * r],
             x_next: vec![0.0; r],
             x_upd: vec![0.0; r],
             u_lin: vec![0.0; prepared.model.inputs.len()],
-            y_world: vec![[0.0; 3]; ns],
-            pred_world: vec![[0.0; 3]; ns],
-            y_lin: vec![[0.0; 3]; ns],
-            u_pred: vec![[0.0; 3]; ns],
-            filled: vec![[false; 3]; ns],
-            warps: vec![None; ns],
+            slots: vec![SensorSlot::default(); ns],
             sensor_vals: vec![0.0; 6 * ns],
             load_vals: vec![0.0; 3 * prepared.model.loads.len()],
             innovation: vec![0.0; prepared.max_measured],
-            gated_now: vec![false; prepared.max_measured],
+            verdict: vec![Verdict::Missing; prepared.max_measured],
             k: 0,
             phase: 0,
             cov: CovarianceKind::Posterior,
@@ -249,10 +238,17 @@ impl Estimator {
         Ok(())
     }
 
-    /// x32 ← x (single precision).
+    /// x32 ← (x, x_k · 2^(−e_k)) in single precision.
     fn sync_x32(&mut self) {
-        for (a, b) in self.x32.iter_mut().zip(&self.x) {
+        let (x32, scaled) = self.x32.split_at_mut(self.r);
+        for (((a, s), b), &scale) in x32
+            .iter_mut()
+            .zip(scaled)
+            .zip(&self.x)
+            .zip(&self.shared.rotation_scale)
+        {
             *a = *b as f32;
+            *s = *a * scale;
         }
     }
 
@@ -358,7 +354,7 @@ impl Estimator {
         }
         matvec_t(&sh.transition_t, &self.x, &mut self.x_next, false);
         matvec_t(&sh.input_t, &self.u_lin, &mut self.x_next, true);
-        if let Some(index) = self.x_next.iter().position(|v| !v.is_finite()) {
+        if let Some(index) = first_non_finite(&self.x_next) {
             return Err(RuntimeError::NonFiniteState {
                 step: self.k + 1,
                 stage: "prediction",
@@ -460,85 +456,77 @@ impl Estimator {
             return Ok(used);
         }
         let sh: &PreparedModel = &self.shared;
-        let model = &sh.model;
         let p = self.phase;
         let step = self.k;
-        let phase = &model.kalman.phases[p];
-        let sensors = &sh.phase_sensors[p];
-        let vals = &mut self.sensor_vals[..6 * sensors.len()];
+        let active = &sh.active[p];
+        let slots = sh.phase_sensors[p].len();
+        // Per sensor slot of the phase: [C_s x⁻; W_s x⁻], the warp at ω̄ = W_s x⁻ and the
+        // predicted world displacement R̃(ω̄) C_s x⁻, which y_world starts from.
+        let vals = &mut self.sensor_vals[..6 * slots];
         matvec_t(&sh.phase_rows_t[p], &self.x, vals, false);
-        for (v, &s) in vals.chunks_exact(6).zip(sensors) {
-            self.u_pred[s] = [v[0], v[1], v[2]];
-            self.warps[s] = Some(Warp::new(&[v[3], v[4], v[5]]));
-            self.filled[s] = [false; 3];
-        }
-        for &j in &phase.measured {
-            let (s, c) = sh.channel[j as usize];
-            if let Some(v) = get(j as usize) {
-                self.y_world[s][c] = v;
-                self.filled[s][c] = true;
-            }
+        for (v, slot) in vals.chunks_exact(6).zip(&mut self.slots) {
+            slot.u = [v[0], v[1], v[2]];
+            slot.warp = Warp::new(&[v[3], v[4], v[5]]);
+            slot.pred = slot.warp.warp(&slot.u);
+            slot.y = slot.pred;
+            slot.accepted = 0;
         }
         // Gate in the world frame, channel by channel: ν_j = y_world − (R̃(ω̄) C_s x⁻)_c, so an
         // outlier cannot leak into its sensor's other components through the un-warp.
-        for &s in sensors {
-            if let Some(maps) = self.warps[s] {
-                self.pred_world[s] = maps.warp(&self.u_pred[s]);
+        let gate2 = self.gate.map(|g| g * g);
+        for ((ch, &variance0), verdict) in active
+            .iter()
+            .zip(&sh.innovation_variance[p])
+            .zip(&mut self.verdict)
+        {
+            *verdict = Verdict::Missing;
+            let Some(v) = get(ch.channel) else { continue };
+            let slot = &mut self.slots[ch.slot];
+            let c = ch.component;
+            if let Some(g2) = gate2 {
+                let j = ch.channel;
+                let nu = v - slot.pred[c];
+                let missed = step
+                    .saturating_sub(self.last_accepted[j])
+                    .saturating_sub(ch.every);
+                let variance = variance0 + missed as f64 * ch.variance_growth;
+                if nu * nu > g2 * variance {
+                    *verdict = Verdict::Gated;
+                    continue;
+                }
             }
-        }
-        for (a, &j) in phase.measured.iter().enumerate() {
-            let j = j as usize;
-            let (s, c) = sh.channel[j];
-            self.gated_now[a] = false;
-            let (Some(g), true) = (self.gate, self.filled[s][c]) else {
-                continue;
-            };
-            let nu = self.y_world[s][c] - self.pred_world[s][c];
-            let missed = step
-                .saturating_sub(self.last_accepted[j])
-                .saturating_sub(sh.every[j]);
-            let variance = sh.innovation_variance[p][a] + missed as f64 * sh.variance_growth[j];
-            if nu * nu > g * g * variance {
-                self.gated_now[a] = true;
-                self.filled[s][c] = false;
-            }
+            *verdict = Verdict::Accepted;
+            slot.y[c] = v;
+            slot.accepted += 1;
         }
         // Un-warp: y_lin = R̃(ω̄)⁻¹ y_world, unmeasured components from the prediction; a sensor
         // without an accepted value has y_lin = C_s x⁻ (zero innovation).
-        for &s in sensors {
-            let Some(maps) = self.warps[s] else { continue };
-            if !self.filled[s].iter().any(|&f| f) {
-                self.y_lin[s] = self.u_pred[s];
+        for (index, slot) in self.slots[..slots].iter_mut().enumerate() {
+            if slot.accepted == 0 {
+                slot.y_lin = slot.u;
                 continue;
             }
-            let y: Vec3 = [0, 1, 2].map(|c| {
-                if self.filled[s][c] {
-                    self.y_world[s][c]
-                } else {
-                    self.pred_world[s][c]
-                }
-            });
-            match maps.unwarp(&y) {
-                Some(y) => self.y_lin[s] = y,
+            match slot.warp.unwarp(&slot.y) {
+                Some(v) => slot.y_lin = v,
                 None => {
                     return Err(RuntimeError::SingularWarp {
                         step,
-                        sensor: model.sensors[s].name.clone(),
-                        angle: maps.angle(),
+                        sensor: sh.model.sensors[sh.phase_sensors[p][index]].name.clone(),
+                        angle: slot.warp.angle(),
                     })
                 }
             }
         }
-        let nm = phase.measured.len();
+        let nm = active.len();
         let mut used = 0;
-        for (a, &j) in phase.measured.iter().enumerate() {
-            let (s, c) = sh.channel[j as usize];
-            self.innovation[a] = self.y_lin[s][c] - self.u_pred[s][c];
-            used += self.filled[s][c] as usize;
+        for ((ch, nu), &verdict) in active.iter().zip(&mut self.innovation).zip(&self.verdict) {
+            let slot = &self.slots[ch.slot];
+            *nu = slot.y_lin[ch.component] - slot.u[ch.component];
+            used += (verdict == Verdict::Accepted) as usize;
         }
         self.x_upd.copy_from_slice(&self.x);
         matvec_t(&sh.gain_t[p], &self.innovation[..nm], &mut self.x_upd, true);
-        if let Some(index) = self.x_upd.iter().position(|v| !v.is_finite()) {
+        if let Some(index) = first_non_finite(&self.x_upd) {
             return Err(RuntimeError::NonFiniteState {
                 step,
                 stage: "update",
@@ -547,14 +535,14 @@ impl Estimator {
         }
         // Commit.
         let mut gated = 0;
-        for (a, &j) in phase.measured.iter().enumerate() {
-            let j = j as usize;
-            let (s, c) = sh.channel[j];
-            if self.gated_now[a] {
-                self.gated[j] += 1;
-                gated += 1;
-            } else if self.filled[s][c] {
-                self.last_accepted[j] = step;
+        for (ch, &verdict) in active.iter().zip(&self.verdict) {
+            match verdict {
+                Verdict::Gated => {
+                    self.gated[ch.channel] += 1;
+                    gated += 1;
+                }
+                Verdict::Accepted => self.last_accepted[ch.channel] = step,
+                Verdict::Missing => {}
             }
         }
         self.gated_total += gated as u64;
@@ -704,10 +692,11 @@ impl Estimator {
 
     /// World displacement of every node of node set `set`, u_i = R̃(ω_i) u_lin,i, 3 per node
     /// (m), with u_lin,i and ω_i from the set's displacement and rotation rows stored in single
-    /// precision, dot products and the warp in f32 (`docs/design.md` §5; half the bytes of
-    /// [`Estimator::node_displacements_exact`], from which it differs by f32 rounding, a few
-    /// 1e-7 of the largest displacement: measured in `tests/readout.rs`). Rotation rows that
-    /// are all zero skip the warp.
+    /// precision (rotation rows in 16-bit fixed point for large sets:
+    /// [`crate::DisplayRowFormat`]), dot products and the warp in f32 (`docs/design.md` §5).
+    /// It differs from [`Estimator::node_displacements_exact`] by a few 1e-7 of the largest
+    /// displacement with single-precision rows and up to ~2e-5 with 16-bit rotation rows
+    /// (measured in `tests/readout.rs`). Rotation rows that are all zero skip the warp.
     pub fn node_displacements(&self, set: usize, out: &mut [f64]) -> Result<(), RuntimeError> {
         let ns = self.node_set(set)?;
         check_len("node read-out buffer", 3 * ns.node_tags.len(), out.len())?;
@@ -716,14 +705,7 @@ impl Estimator {
             return check_finite_readout("node displacements", out);
         }
         let rows = &self.shared.display[set];
-        crate::simd::display(
-            &rows.rows,
-            &self.x32,
-            self.r,
-            ns.node_tags.len(),
-            rows.warped,
-            out,
-        );
+        crate::simd::display(rows, &self.x32, out);
         check_finite_readout("node displacements", out)
     }
 
@@ -770,6 +752,67 @@ impl Estimator {
         check_len("node std buffer", std.len(), out.len())?;
         out.copy_from_slice(std);
         Ok(())
+    }
+}
+
+/// The update's scratch for one sensor with an active channel.
+#[derive(Clone, Copy, Debug)]
+struct SensorSlot {
+    /// u_lin predicted, C_s x⁻ (m).
+    u: Vec3,
+    /// The maps of ω̄ = W_s x⁻.
+    warp: Warp,
+    /// The predicted world displacement R̃(ω̄) C_s x⁻ (m).
+    pred: Vec3,
+    /// y_world: the accepted measurements, other components from `pred` (m).
+    y: Vec3,
+    /// y_lin = R̃(ω̄)⁻¹ y_world (m).
+    y_lin: Vec3,
+    /// Number of accepted components.
+    accepted: u8,
+}
+
+impl Default for SensorSlot {
+    fn default() -> Self {
+        SensorSlot {
+            u: [0.0; 3],
+            warp: Warp::new(&[0.0; 3]),
+            pred: [0.0; 3],
+            y: [0.0; 3],
+            y_lin: [0.0; 3],
+            accepted: 0,
+        }
+    }
+}
+
+/// What an update did with an active channel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Verdict {
+    /// No value this step.
+    Missing,
+    /// Skipped by the innovation gate.
+    Gated,
+    /// Used.
+    Accepted,
+}
+
+/// The index of the first NaN or ±∞ in `v`, if any. One vectorisable pass first
+/// (Σ 0·vᵢ over four lanes is 0 exactly when every vᵢ is finite, NaN otherwise), the search
+/// only on failure.
+#[inline]
+fn first_non_finite(v: &[f64]) -> Option<usize> {
+    let mut lanes = [0.0f64; 4];
+    let chunks = v.chunks_exact(4);
+    let tail = chunks.remainder().iter().fold(0.0, |acc, x| acc + 0.0 * x);
+    for c in chunks {
+        for l in 0..4 {
+            lanes[l] += 0.0 * c[l];
+        }
+    }
+    if (lanes[0] + lanes[1]) + (lanes[2] + lanes[3]) + tail == 0.0 {
+        None
+    } else {
+        v.iter().position(|x| !x.is_finite())
     }
 }
 

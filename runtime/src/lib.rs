@@ -23,7 +23,7 @@ pub mod warp;
 
 pub use crokf_formats::{FormatError, Model};
 pub use estimator::{CovarianceKind, Estimator, DEFAULT_GATE_SIGMAS};
-pub use prepared::PreparedModel;
+pub use prepared::{DisplayRowFormat, PreparedModel, COMPACT_ABOVE_BYTES};
 pub use tier::{EnvelopeStatus, TierError, TierStatus};
 
 use std::path::{Path, PathBuf};

@@ -12,9 +12,10 @@
 //!   node reaches per unit of input j in the linear step response after 2²⁰ steps,
 //!   d_j = max_rows |c · Σ_{i<2²⁰} Fⁱ G e_j| (an input that would statically move a point by ten
 //!   times the body's size is not physical; d_j = 0 leaves only the finiteness check);
-//! - the displayed node rows in single precision, grouped by 8 nodes so that one state entry
-//!   multiplies 6 × 8 contiguous values (no horizontal sums; the warp runs on 8 nodes at
-//!   once): half the bytes of the f64 rows.
+//! - the displayed node rows grouped by 8 nodes so that one state entry multiplies 3 × 8
+//!   contiguous values per row kind (no horizontal sums; the warp runs on 8 nodes at once):
+//!   displacement rows in single precision, rotation rows in single precision or, for large
+//!   sets, 16-bit fixed point ([`DisplayRowFormat`]): 1/2 or 3/8 of the bytes of f64 rows.
 
 use crate::simd;
 use crate::RuntimeError;
@@ -29,14 +30,19 @@ pub(crate) struct PhaseStd {
     pub nodes: Vec<Vec<f64>>,
 }
 
-/// One displayed node set's rows in single precision, grouped by 8 nodes.
-#[derive(Clone, Debug)]
-pub(crate) struct DisplayRows {
-    /// ⌈n/8⌉ groups of r × 6 × 8 f32: entry ((g·r + k)·6 + c)·8 + l is column k of row c
-    /// (u_x, u_y, u_z, ω_x, ω_y, ω_z) of node 8g + l (zero for padding nodes).
-    pub rows: Vec<f32>,
-    /// Whether any rotation row is non-zero (otherwise the warp is the identity and skipped).
-    pub warped: bool,
+/// An active measurement channel of a phase.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ActiveChannel {
+    /// Index into the model's measurement channels.
+    pub channel: usize,
+    /// Position of its sensor in the phase's `phase_sensors`.
+    pub slot: usize,
+    /// x, y or z (0, 1, 2).
+    pub component: usize,
+    /// The sensor's `every`.
+    pub every: u64,
+    /// g_j = (H Q Hᵀ)_jj, m² per step.
+    pub variance_growth: f64,
 }
 
 /// A validated model plus everything derived from it at load (see the module docs).
@@ -48,34 +54,38 @@ pub struct PreparedModel {
     pub(crate) load_channels: Vec<[Option<usize>; 3]>,
     /// Per measurement channel: (sensor, component).
     pub(crate) channel: Vec<(usize, usize)>,
-    /// Per measurement channel: the sensor's `every`.
-    pub(crate) every: Vec<u64>,
-    /// Per phase: sensors with at least one active channel.
+    /// Per phase: sensors with at least one active channel (a sensor's slot is its position
+    /// here).
     pub(crate) phase_sensors: Vec<Vec<usize>>,
+    /// Per phase, in the order of `kalman.phases[p].measured`: each active channel with its
+    /// sensor slot and component.
+    pub(crate) active: Vec<Vec<ActiveChannel>>,
     /// Per phase: the rows [C_s; W_s] (6 per sensor of `phase_sensors[p]`, r columns), stacked
     /// and transposed (r × 6·sensors) so that the update evaluates them in one product.
-    pub(crate) phase_rows_t: Vec<Vec<f64>>,
-    /// The load groups' rotation rows W_g stacked (3 per group) and transposed (r × 3·groups).
-    pub(crate) load_rows_t: Vec<f64>,
-    /// Fᵀ (r × r), Gᵀ (m × r) and per phase K_pᵀ (active channels × r), for [`simd::matvec_t`].
-    pub(crate) transition_t: Vec<f64>,
-    pub(crate) input_t: Vec<f64>,
-    pub(crate) gain_t: Vec<Vec<f64>>,
+    pub(crate) phase_rows_t: Vec<simd::Columns>,
+    /// The load groups' rotation rows W_g stacked (3 per group), by columns.
+    pub(crate) load_rows_t: simd::Columns,
+    /// F (r × r), G (r × m) and per phase K_p (r × active channels), by columns, for
+    /// [`simd::matvec_t`].
+    pub(crate) transition_t: simd::Columns,
+    pub(crate) input_t: simd::Columns,
+    pub(crate) gain_t: Vec<simd::Columns>,
     /// Largest number of active channels in a phase.
     pub(crate) max_measured: usize,
     pub(crate) std_prior: Vec<PhaseStd>,
     pub(crate) std_posterior: Vec<PhaseStd>,
     /// Per phase, per active channel: (H P⁻ Hᵀ)_jj + R_jj, m².
     pub(crate) innovation_variance: Vec<Vec<f64>>,
-    /// Per measurement channel: (H Q Hᵀ)_jj, m² per step.
-    pub(crate) variance_growth: Vec<f64>,
     /// Length scale L, m.
     pub(crate) length_scale: f64,
     /// Per input channel: the largest plausible |u_j| (N, or a scale for gravity; may be ∞).
     pub(crate) input_bound: Vec<f64>,
     /// The largest plausible |y|, m.
     pub(crate) measurement_bound: f64,
-    pub(crate) display: Vec<DisplayRows>,
+    pub(crate) display: Vec<simd::DisplayRows>,
+    /// Per state index k: 2^(−e_k), the scale of the 16-bit display rotation rows
+    /// ([`simd::fixed16_exponents`]), exact in f32.
+    pub(crate) rotation_scale: Vec<f32>,
     /// The co-rotational tier (docs/design.md §10), when the model has one.
     pub(crate) tier: Option<crate::tier::TierModel>,
 }
@@ -139,9 +149,42 @@ fn step_response_sum(f: &Matrix, g: &Matrix) -> Vec<f64> {
     x
 }
 
+/// Single-precision display rows above this size (bytes) get 16-bit rotation rows under
+/// [`DisplayRowFormat::Auto`]: half of a 2 MiB L2 cache, beyond which the read-out streams its
+/// rows from L3 or memory and is bound by bandwidth.
+pub const COMPACT_ABOVE_BYTES: usize = 1 << 20;
+
+/// How the display read-out ([`crate::Estimator::node_displacements`]) stores a node set's
+/// rows, chosen at load. Displacement rows are always single precision.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DisplayRowFormat {
+    /// [`DisplayRowFormat::Compact`] for sets whose single-precision rows (24·r bytes per
+    /// node) exceed [`COMPACT_ABOVE_BYTES`], [`DisplayRowFormat::Single`] otherwise.
+    #[default]
+    Auto,
+    /// Rotation rows in single precision (24·r bytes per node; error a few 1e-7 of the
+    /// largest displacement, measured in `tests/readout.rs`).
+    Single,
+    /// Rotation rows in 16-bit fixed point with a power-of-two scale per state index (18·r
+    /// bytes per node). Each entry is off by at most max_i |W_ik| / 32767, so ω by at most
+    /// Σ_k |x_k| max_i |W_ik| / 32767 and the displacement by about half that times |u|
+    /// (docs/design.md §5: δ(R̃u) ≈ ½ δω × u for small rotations); measured in
+    /// `tests/readout.rs`.
+    Compact,
+}
+
 impl PreparedModel {
-    /// Validates `model` and derives the shared data (see the module docs).
+    /// Validates `model` and derives the shared data (see the module docs), with
+    /// [`DisplayRowFormat::Auto`].
     pub fn new(model: Model) -> Result<PreparedModel, RuntimeError> {
+        Self::with_display_format(model, DisplayRowFormat::Auto)
+    }
+
+    /// [`PreparedModel::new`] with the display rows stored as `display_format` says.
+    pub fn with_display_format(
+        model: Model,
+        display_format: DisplayRowFormat,
+    ) -> Result<PreparedModel, RuntimeError> {
         model.validate()?;
         let r = model.r();
         let mut load_channels = vec![[None; 3]; model.loads.len()];
@@ -155,7 +198,7 @@ impl PreparedModel {
             .iter()
             .map(|c| (c.sensor as usize, c.component as usize))
             .collect();
-        let every = channel
+        let every: Vec<u64> = channel
             .iter()
             .map(|&(s, _)| model.sensors[s].every as u64)
             .collect();
@@ -171,7 +214,7 @@ impl PreparedModel {
                 s
             })
             .collect();
-        let phase_rows_t: Vec<Vec<f64>> = phase_sensors
+        let phase_rows_t: Vec<simd::Columns> = phase_sensors
             .iter()
             .map(|sensors: &Vec<usize>| {
                 let mut rows = Vec::with_capacity(6 * r * sensors.len());
@@ -179,7 +222,7 @@ impl PreparedModel {
                     rows.extend_from_slice(&model.sensors[s].displacement_rows.data);
                     rows.extend_from_slice(&model.sensors[s].rotation_rows.data);
                 }
-                simd::transpose(&rows, 6 * sensors.len(), r)
+                simd::Columns::from_row_major(&rows, 6 * sensors.len(), r)
             })
             .collect();
         let load_rows: Vec<f64> = model
@@ -187,14 +230,14 @@ impl PreparedModel {
             .iter()
             .flat_map(|g| g.rotation_rows.data.iter().copied())
             .collect();
-        let load_rows_t = simd::transpose(&load_rows, 3 * model.loads.len(), r);
-        let transition_t = simd::transpose(&model.transition.data, r, r);
-        let input_t = simd::transpose(&model.input.data, r, model.inputs.len());
+        let load_rows_t = simd::Columns::from_row_major(&load_rows, 3 * model.loads.len(), r);
+        let transition_t = simd::Columns::from_row_major(&model.transition.data, r, r);
+        let input_t = simd::Columns::from_row_major(&model.input.data, r, model.inputs.len());
         let gain_t = model
             .kalman
             .phases
             .iter()
-            .map(|ph| simd::transpose(&ph.gain.data, r, ph.measured.len()))
+            .map(|ph| simd::Columns::from_row_major(&ph.gain.data, r, ph.measured.len()))
             .collect();
         let max_measured = model
             .kalman
@@ -251,8 +294,30 @@ impl PreparedModel {
                     .collect()
             })
             .collect();
-        let variance_growth = (0..channel.len())
+        let variance_growth: Vec<f64> = (0..channel.len())
             .map(|j| quadratic(h_row(j), &model.kalman.process_noise, &mut tmp).max(0.0))
+            .collect();
+
+        let active = model
+            .kalman
+            .phases
+            .iter()
+            .zip(&phase_sensors)
+            .map(|(ph, sensors)| {
+                ph.measured
+                    .iter()
+                    .map(|&j| {
+                        let (s, c) = channel[j as usize];
+                        ActiveChannel {
+                            channel: j as usize,
+                            slot: sensors.partition_point(|&t| t < s),
+                            component: c,
+                            every: every[j as usize],
+                            variance_growth: variance_growth[j as usize],
+                        }
+                    })
+                    .collect()
+            })
             .collect();
 
         // Plausibility bounds.
@@ -320,29 +385,36 @@ impl PreparedModel {
             })
             .collect();
 
+        // Per column: the largest |entry| of the displayed sets' rotation rows, for the 16-bit
+        // rows' exponents.
+        let mut columns_max = vec![0.0f64; r];
+        for set in &model.node_sets {
+            for row in set.rotation_rows.data.chunks_exact(r.max(1)) {
+                for (m, v) in columns_max.iter_mut().zip(row) {
+                    *m = m.max(v.abs());
+                }
+            }
+        }
+        let exponents = simd::fixed16_exponents(&columns_max);
+        let rotation_scale = exponents.iter().map(|&e| 2f32.powi(-e)).collect();
         let display = model
             .node_sets
             .iter()
             .map(|set| {
                 let n = set.node_tags.len();
-                let groups = n.div_ceil(simd::GROUP);
-                let mut rows = vec![0.0f32; groups * r * 6 * simd::GROUP];
-                for i in 0..n {
-                    let (g, lane) = (i / simd::GROUP, i % simd::GROUP);
-                    for c in 0..3 {
-                        let d = set.displacement_rows.row(3 * i + c);
-                        let w = set.rotation_rows.row(3 * i + c);
-                        for k in 0..r {
-                            let at = ((g * r + k) * 6 + c) * simd::GROUP + lane;
-                            rows[at] = d[k] as f32;
-                            rows[at + 3 * simd::GROUP] = w[k] as f32;
-                        }
-                    }
-                }
-                DisplayRows {
-                    rows,
-                    warped: set.rotation_rows.data.iter().any(|&v| v != 0.0),
-                }
+                let compact = match display_format {
+                    DisplayRowFormat::Single => false,
+                    DisplayRowFormat::Compact => true,
+                    DisplayRowFormat::Auto => 6 * r * n * 4 > COMPACT_ABOVE_BYTES,
+                };
+                simd::DisplayRows::new(
+                    n,
+                    r,
+                    |i| set.displacement_rows.row(i),
+                    |i| set.rotation_rows.row(i),
+                    set.rotation_rows.data.iter().any(|&v| v != 0.0),
+                    compact.then_some(&exponents[..]),
+                )
             })
             .collect();
 
@@ -355,8 +427,8 @@ impl PreparedModel {
             r,
             load_channels,
             channel,
-            every,
             phase_sensors,
+            active,
             phase_rows_t,
             load_rows_t,
             transition_t,
@@ -366,11 +438,11 @@ impl PreparedModel {
             std_prior,
             std_posterior,
             innovation_variance,
-            variance_growth,
             length_scale,
             input_bound,
             measurement_bound,
             display,
+            rotation_scale,
             model,
         })
     }

@@ -5,9 +5,9 @@
 //!
 //! - [`matvec_t`]: y = A x or y += A x from Aᵀ (f64; the step's F x, G u, K ν and the sensor
 //!   and load rows), [`matvec`] from A row-major (the sensor read-outs);
-//! - [`display`]: the displayed nodes' u = C_i x and ω = W_i x from f32 rows grouped by 8
-//!   nodes, accumulated in f32, and the warp R̃(ω) u on 8 nodes at once (the read-out; the
-//!   rounding it costs is measured in `tests/readout.rs`).
+//! - [`display`]: the displayed nodes' u = C_i x from f32 rows and ω = W_i x from 16-bit
+//!   fixed-point rows, grouped by 8 nodes, accumulated in f32, and the warp R̃(ω) u on 8
+//!   nodes at once (the read-out; the rounding it costs is measured in `tests/readout.rs`).
 
 /// Σ aᵢ bᵢ with four partial sums (f64).
 #[inline(always)]
@@ -56,81 +56,191 @@ fn has_avx2_fma() -> bool {
     std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 
-/// Rows per register block of [`matvec_t`] (four AVX2 registers of f64).
-const BLOCK: usize = 16;
+/// Rows per SIMD vector of [`matvec_t`] (f64 lanes of one AVX2 register); every column of a
+/// [`Columns`] matrix is padded with zeros to a multiple of it.
+const LANES: usize = 4;
+/// Vectors per register block of [`matvec_t`] (16 rows).
+const BLOCK: usize = 4;
 
+/// A `rows × cols` matrix A stored column by column (Aᵀ row-major), each column padded with
+/// zeros to `stride` = rows rounded up to a multiple of 4, for [`matvec_t`].
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Columns {
+    data: Vec<f64>,
+    rows: usize,
+    cols: usize,
+    stride: usize,
+}
+
+impl Columns {
+    /// From A row-major (`a.len()` = rows·cols).
+    pub(crate) fn from_row_major(a: &[f64], rows: usize, cols: usize) -> Self {
+        assert_eq!(a.len(), rows * cols, "matrix data and shape disagree");
+        let stride = rows.div_ceil(LANES) * LANES;
+        let mut data = vec![0.0; stride * cols];
+        for i in 0..rows {
+            for j in 0..cols {
+                data[j * stride + i] = a[i * cols + j];
+            }
+        }
+        Columns {
+            data,
+            rows,
+            cols,
+            stride,
+        }
+    }
+}
+
+/// One block of `NV` vectors (4·NV rows from `first`) of y = A x or y += A x: two sets of
+/// accumulators (even and odd columns) so that two fused multiply–add chains per vector run in
+/// parallel; rows at or beyond `y.len()` (the zero padding) are computed but not stored.
 #[inline(always)]
-fn matvec_t_body<const FUSED: bool>(at: &[f64], x: &[f64], y: &mut [f64], add: bool) {
-    let rows = y.len();
-    if rows == 0 {
-        return;
-    }
-    let cols = x.len().min(at.len() / rows);
-    let mut b = 0;
-    while b + BLOCK <= rows {
-        let mut acc = [0.0f64; BLOCK];
-        if add {
-            acc.copy_from_slice(&y[b..b + BLOCK]);
+fn block_portable<const NV: usize>(a: &Columns, x: &[f64], y: &mut [f64], first: usize, add: bool) {
+    let mut even = [[0.0f64; LANES]; NV];
+    let mut odd = [[0.0f64; LANES]; NV];
+    let fma = |acc: &mut [f64; LANES], col: &[f64], xj: f64| {
+        for l in 0..LANES {
+            acc[l] += col[l] * xj;
         }
-        for (j, &xj) in x[..cols].iter().enumerate() {
-            let col = &at[j * rows + b..j * rows + b + BLOCK];
-            for l in 0..BLOCK {
-                acc[l] = if FUSED {
-                    col[l].mul_add(xj, acc[l])
-                } else {
-                    acc[l] + col[l] * xj
-                };
+    };
+    let cols = a.cols.min(x.len());
+    let column = |j: usize, v: usize| {
+        let at = j * a.stride + first + LANES * v;
+        &a.data[at..at + LANES]
+    };
+    let mut j = 0;
+    while j + 2 <= cols {
+        for v in 0..NV {
+            fma(&mut even[v], column(j, v), x[j]);
+            fma(&mut odd[v], column(j + 1, v), x[j + 1]);
+        }
+        j += 2;
+    }
+    if j < cols {
+        for v in 0..NV {
+            fma(&mut even[v], column(j, v), x[j]);
+        }
+    }
+    for v in 0..NV {
+        for l in 0..LANES {
+            let i = first + LANES * v + l;
+            if i < y.len() {
+                let s = even[v][l] + odd[v][l];
+                y[i] = if add { y[i] + s } else { s };
             }
         }
-        y[b..b + BLOCK].copy_from_slice(&acc);
-        b += BLOCK;
     }
-    if b < rows {
-        let tail = &mut y[b..];
-        if !add {
-            tail.iter_mut().for_each(|v| *v = 0.0);
-        }
-        for (j, &xj) in x[..cols].iter().enumerate() {
-            let col = &at[j * rows + b..(j + 1) * rows];
-            for (t, &c) in tail.iter_mut().zip(col) {
-                *t = if FUSED {
-                    c.mul_add(xj, *t)
-                } else {
-                    *t + c * xj
-                };
-            }
-        }
+}
+
+/// y = A x or y += A x by blocks of 16 rows, then one block of the 4, 8 or 12 left.
+#[inline(always)]
+fn matvec_t_portable(a: &Columns, x: &[f64], y: &mut [f64], add: bool) {
+    let vectors = a.stride / LANES;
+    let mut v = 0;
+    while v + BLOCK <= vectors {
+        block_portable::<BLOCK>(a, x, y, LANES * v, add);
+        v += BLOCK;
+    }
+    match vectors - v {
+        1 => block_portable::<1>(a, x, y, LANES * v, add),
+        2 => block_portable::<2>(a, x, y, LANES * v, add),
+        3 => block_portable::<3>(a, x, y, LANES * v, add),
+        _ => {}
     }
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn matvec_t_avx2(at: &[f64], x: &[f64], y: &mut [f64], add: bool) {
-    matvec_t_body::<true>(at, x, y, add)
-}
+mod avx2 {
+    //! [`super::matvec_t`] with AVX2 + FMA intrinsics (same blocks as the portable version).
+    use super::{Columns, BLOCK, LANES};
+    use std::arch::x86_64::*;
 
-/// y = A x (`add` false) or y += A x with A given transposed: `at[j·rows + i]` = A_ij,
-/// rows = `y.len()`, columns = `x.len()`. Column by column (y += x_j A_:j) with 16 rows of y
-/// held in registers: no horizontal sums, one fused multiply–add per 4 products.
-#[inline]
-pub(crate) fn matvec_t(at: &[f64], x: &[f64], y: &mut [f64], add: bool) {
-    #[cfg(target_arch = "x86_64")]
-    if has_avx2_fma() {
-        // SAFETY: the CPU has AVX2 and FMA (checked just above).
-        return unsafe { matvec_t_avx2(at, x, y, add) };
-    }
-    matvec_t_body::<false>(at, x, y, add)
-}
-
-/// The transpose of a row-major `rows × cols` matrix, row-major (`cols × rows`).
-pub(crate) fn transpose(a: &[f64], rows: usize, cols: usize) -> Vec<f64> {
-    let mut t = vec![0.0; rows * cols];
-    for i in 0..rows {
-        for j in 0..cols {
-            t[j * rows + i] = a[i * cols + j];
+    /// See [`super::block_portable`]. Caller: `first + 4·NV ≤ a.stride`, `x.len() ≥ a.cols`.
+    #[inline(always)]
+    unsafe fn block<const NV: usize>(
+        a: &Columns,
+        x: &[f64],
+        y: &mut [f64],
+        first: usize,
+        add: bool,
+    ) {
+        let base = a.data.as_ptr().add(first);
+        let xp = x.as_ptr();
+        let mut even = [_mm256_setzero_pd(); NV];
+        let mut odd = [_mm256_setzero_pd(); NV];
+        let mut j = 0;
+        while j + 2 <= a.cols {
+            let (x0, x1) = (_mm256_set1_pd(*xp.add(j)), _mm256_set1_pd(*xp.add(j + 1)));
+            let (c0, c1) = (base.add(j * a.stride), base.add((j + 1) * a.stride));
+            for v in 0..NV {
+                even[v] = _mm256_fmadd_pd(_mm256_loadu_pd(c0.add(LANES * v)), x0, even[v]);
+                odd[v] = _mm256_fmadd_pd(_mm256_loadu_pd(c1.add(LANES * v)), x1, odd[v]);
+            }
+            j += 2;
+        }
+        if j < a.cols {
+            let x0 = _mm256_set1_pd(*xp.add(j));
+            let c0 = base.add(j * a.stride);
+            for v in 0..NV {
+                even[v] = _mm256_fmadd_pd(_mm256_loadu_pd(c0.add(LANES * v)), x0, even[v]);
+            }
+        }
+        for v in 0..NV {
+            let s = _mm256_add_pd(even[v], odd[v]);
+            let i = first + LANES * v;
+            if i + LANES <= y.len() {
+                let out = y.as_mut_ptr().add(i);
+                let s = if add {
+                    _mm256_add_pd(_mm256_loadu_pd(out), s)
+                } else {
+                    s
+                };
+                _mm256_storeu_pd(out, s);
+            } else if i < y.len() {
+                let mut lanes = [0.0f64; LANES];
+                _mm256_storeu_pd(lanes.as_mut_ptr(), s);
+                for (o, l) in y[i..].iter_mut().zip(lanes) {
+                    *o = if add { *o + l } else { l };
+                }
+            }
         }
     }
-    t
+
+    /// See [`super::matvec_t`]. Caller: the CPU has AVX2 and FMA, `x.len() ≥ a.cols`.
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn matvec_t(a: &Columns, x: &[f64], y: &mut [f64], add: bool) {
+        let vectors = a.stride / LANES;
+        let mut v = 0;
+        while v + BLOCK <= vectors {
+            block::<BLOCK>(a, x, y, LANES * v, add);
+            v += BLOCK;
+        }
+        match vectors - v {
+            1 => block::<1>(a, x, y, LANES * v, add),
+            2 => block::<2>(a, x, y, LANES * v, add),
+            3 => block::<3>(a, x, y, LANES * v, add),
+            _ => {}
+        }
+    }
+}
+
+/// y = A x (`add` false) or y += A x, A a [`Columns`] matrix (rows = `y.len()`, at most
+/// `a.rows()`; columns = `x.len()`, at least the matrix's). Column by column
+/// (y += x_j A_:j) with 16 rows of y held in registers as two accumulator sets (even and odd
+/// j, added at the end): no horizontal sums, one fused multiply–add per 4 products, no scalar
+/// tail (the padding).
+#[inline]
+pub(crate) fn matvec_t(a: &Columns, x: &[f64], y: &mut [f64], add: bool) {
+    assert!(x.len() >= a.cols && y.len() <= a.rows, "matvec_t: shapes");
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2_fma() {
+        // SAFETY: the CPU has AVX2 and FMA (checked just above); x holds every column's
+        // coefficient and y no more rows than the matrix (asserted above), and the kernel reads
+        // columns only within `a.stride` (whole vectors of the padded storage).
+        return unsafe { avx2::matvec_t(a, x, y, add) };
+    }
+    matvec_t_portable(a, x, y, add)
 }
 
 /// y = A x (`add` false) or y += A x, A row-major with `cols` columns and `y.len()` rows.
@@ -166,85 +276,121 @@ fn lanes<const FUSED: bool>(a: [f32; GROUP], b: [f32; GROUP], c: [f32; GROUP]) -
     o
 }
 
+/// A rotation-row entry type of [`DisplayRows`]: f32, or 16-bit fixed point (exact in f32).
+pub(crate) trait RotationEntry: Copy {
+    /// The entry in f32 (before the column's scale).
+    fn value(self) -> f32;
+}
+
+impl RotationEntry for f32 {
+    #[inline(always)]
+    fn value(self) -> f32 {
+        self
+    }
+}
+
+impl RotationEntry for i16 {
+    #[inline(always)]
+    fn value(self) -> f32 {
+        f32::from(self)
+    }
+}
+
+/// Σ_k rows[k][c][l] · x_k for one group: C rows of 8 lanes per state index k.
 #[inline(always)]
-fn display_body<const FUSED: bool>(
-    rows: &[f32],
+fn accumulate<const C: usize, const FUSED: bool, T: RotationEntry>(
+    rows: &[T],
     x: &[f32],
+) -> [[f32; GROUP]; C] {
+    let mut acc = [[0.0f32; GROUP]; C];
+    for (kb, &xk) in rows.chunks_exact(C * GROUP).zip(x) {
+        for (c, a) in acc.iter_mut().enumerate() {
+            let row = &kb[c * GROUP..(c + 1) * GROUP];
+            for l in 0..GROUP {
+                let v = row[l].value();
+                a[l] = if FUSED {
+                    v.mul_add(xk, a[l])
+                } else {
+                    a[l] + v * xk
+                };
+            }
+        }
+    }
+    acc
+}
+
+/// One group's world displacements (see [`display`]) into `out` (3 per node, `count` nodes).
+#[inline(always)]
+fn warp_group<const FUSED: bool>(u: [[f32; GROUP]; 3], w: [[f32; GROUP]; 3], out: &mut [f64]) {
+    let [ux, uy, uz] = u;
+    let [wx, wy, wz] = w;
+    // u + A₁ ω×u + B₁ ω×(ω×u), lane-wise in f32 (series for θ < 1/2).
+    let mut t = [0.0f32; GROUP];
+    for l in 0..GROUP {
+        t[l] = wx[l] * wx[l] + wy[l] * wy[l] + wz[l] * wz[l];
+    }
+    let horner = |c: &[f32; 4]| {
+        let mut v = [c[3]; GROUP];
+        for &ck in c[..3].iter().rev() {
+            v = lanes::<FUSED>(v, t, [ck; GROUP]);
+        }
+        v
+    };
+    let (a1, b1) = (horner(&A1), horner(&B1));
+    let mut v = [[0.0f32; GROUP]; 6];
+    for l in 0..GROUP {
+        // ω × u, then ω × (ω × u).
+        let (p, q, s) = (
+            wy[l] * uz[l] - wz[l] * uy[l],
+            wz[l] * ux[l] - wx[l] * uz[l],
+            wx[l] * uy[l] - wy[l] * ux[l],
+        );
+        v[0][l] = p;
+        v[1][l] = q;
+        v[2][l] = s;
+        v[3][l] = wy[l] * s - wz[l] * q;
+        v[4][l] = wz[l] * p - wx[l] * s;
+        v[5][l] = wx[l] * q - wy[l] * p;
+    }
+    for (l, o) in out.chunks_exact_mut(3).enumerate() {
+        if t[l] < 0.25 {
+            o[0] = (ux[l] + a1[l] * v[0][l] + b1[l] * v[3][l]) as f64;
+            o[1] = (uy[l] + a1[l] * v[1][l] + b1[l] * v[4][l]) as f64;
+            o[2] = (uz[l] + a1[l] * v[2][l] + b1[l] * v[5][l]) as f64;
+        } else {
+            // Large rotation: the closed form in f64.
+            let omega = [wx[l] as f64, wy[l] as f64, wz[l] as f64];
+            let u = [ux[l] as f64, uy[l] as f64, uz[l] as f64];
+            o.copy_from_slice(&crate::warp::Warp::new(&omega).warp(&u));
+        }
+    }
+}
+
+#[inline(always)]
+fn display_body<const FUSED: bool, T: RotationEntry>(
+    displacement: &[f32],
+    rotation: Option<&[T]>,
     r: usize,
-    nodes: usize,
-    warped: bool,
+    (xd, xr): (&[f32], &[f32]),
     out: &mut [f64],
 ) {
     if r == 0 {
         out.iter_mut().for_each(|v| *v = 0.0);
         return;
     }
-    let x = &x[..r];
-    for (g, block) in rows.chunks_exact(6 * GROUP * r).enumerate() {
-        // acc[c][l]: component c (u_x, u_y, u_z, ω_x, ω_y, ω_z) of node 8g + l.
-        let mut acc = [[0.0f32; GROUP]; 6];
-        for (kb, &xk) in block.chunks_exact(6 * GROUP).zip(x) {
-            for (c, a) in acc.iter_mut().enumerate() {
-                let row = &kb[c * GROUP..(c + 1) * GROUP];
-                for l in 0..GROUP {
-                    a[l] = if FUSED {
-                        row[l].mul_add(xk, a[l])
-                    } else {
-                        a[l] + row[l] * xk
-                    };
+    let block = 3 * GROUP * r;
+    for (g, o) in out.chunks_mut(3 * GROUP).enumerate() {
+        let u = accumulate::<3, FUSED, f32>(&displacement[g * block..(g + 1) * block], xd);
+        match rotation {
+            Some(rot) => {
+                let w = accumulate::<3, FUSED, T>(&rot[g * block..(g + 1) * block], xr);
+                warp_group::<FUSED>(u, w, o);
+            }
+            None => {
+                let [ux, uy, uz] = u;
+                for (l, o) in o.chunks_exact_mut(3).enumerate() {
+                    o.copy_from_slice(&[ux[l] as f64, uy[l] as f64, uz[l] as f64]);
                 }
-            }
-        }
-        let [ux, uy, uz, wx, wy, wz] = acc;
-        let first = g * GROUP;
-        let count = GROUP.min(nodes.saturating_sub(first));
-        if !warped {
-            for l in 0..count {
-                let o = &mut out[3 * (first + l)..3 * (first + l) + 3];
-                o.copy_from_slice(&[ux[l] as f64, uy[l] as f64, uz[l] as f64]);
-            }
-            continue;
-        }
-        // u + A₁ ω×u + B₁ ω×(ω×u), lane-wise in f32 (series for θ < 1/2).
-        let mut t = [0.0f32; GROUP];
-        for l in 0..GROUP {
-            t[l] = wx[l] * wx[l] + wy[l] * wy[l] + wz[l] * wz[l];
-        }
-        let horner = |c: &[f32; 4]| {
-            let mut v = [c[3]; GROUP];
-            for &ck in c[..3].iter().rev() {
-                v = lanes::<FUSED>(v, t, [ck; GROUP]);
-            }
-            v
-        };
-        let (a1, b1) = (horner(&A1), horner(&B1));
-        let mut w = [[0.0f32; GROUP]; 6];
-        for l in 0..GROUP {
-            // ω × u, then ω × (ω × u).
-            let (p, q, s) = (
-                wy[l] * uz[l] - wz[l] * uy[l],
-                wz[l] * ux[l] - wx[l] * uz[l],
-                wx[l] * uy[l] - wy[l] * ux[l],
-            );
-            w[0][l] = p;
-            w[1][l] = q;
-            w[2][l] = s;
-            w[3][l] = wy[l] * s - wz[l] * q;
-            w[4][l] = wz[l] * p - wx[l] * s;
-            w[5][l] = wx[l] * q - wy[l] * p;
-        }
-        for l in 0..count {
-            let i = first + l;
-            let o = &mut out[3 * i..3 * i + 3];
-            if t[l] < 0.25 {
-                o[0] = (ux[l] + a1[l] * w[0][l] + b1[l] * w[3][l]) as f64;
-                o[1] = (uy[l] + a1[l] * w[1][l] + b1[l] * w[4][l]) as f64;
-                o[2] = (uz[l] + a1[l] * w[2][l] + b1[l] * w[5][l]) as f64;
-            } else {
-                // Large rotation: the closed form in f64.
-                let omega = [wx[l] as f64, wy[l] as f64, wz[l] as f64];
-                let u = [ux[l] as f64, uy[l] as f64, uz[l] as f64];
-                o.copy_from_slice(&crate::warp::Warp::new(&omega).warp(&u));
             }
         }
     }
@@ -252,27 +398,192 @@ fn display_body<const FUSED: bool>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn display_avx2(rows: &[f32], x: &[f32], r: usize, nodes: usize, warped: bool, out: &mut [f64]) {
-    display_body::<true>(rows, x, r, nodes, warped, out)
-}
-
-/// World displacements of `nodes` nodes from the grouped f32 display rows (layout
-/// `[group][k][component][lane]`, 6 × 8 values per state index and group): per node
-/// u = C_i x, ω = W_i x accumulated in f32, then R̃(ω) u (`docs/design.md` §5) in f32 for
-/// θ < 1/2 (four-term series) and in f64 otherwise; `out` gets 3 f64 per node.
-#[inline]
-pub(crate) fn display(
-    rows: &[f32],
-    x: &[f32],
+fn display_avx2<T: RotationEntry>(
+    displacement: &[f32],
+    rotation: Option<&[T]>,
     r: usize,
-    nodes: usize,
-    warped: bool,
+    x: (&[f32], &[f32]),
     out: &mut [f64],
 ) {
+    display_body::<true, T>(displacement, rotation, r, x, out)
+}
+
+/// How a displayed node set's rotation rows are stored.
+#[derive(Clone, Debug)]
+pub(crate) enum RotationRows {
+    /// All zero: the warp is the identity and skipped.
+    Zero,
+    /// Single precision (x_k unscaled).
+    Single(Vec<f32>),
+    /// 16-bit fixed point: entry v stands for v · 2^(−e_k), e_k from [`fixed16_exponents`]
+    /// (the scale folded into the state operand).
+    Fixed16(Vec<i16>),
+}
+
+/// One displayed node set's rows grouped by 8 nodes, so that one state entry multiplies 3 × 8
+/// contiguous values per row kind (no horizontal sums; the warp runs on 8 nodes at once):
+/// ⌈n/8⌉ groups of r × 3 × 8; entry ((g·r + k)·3 + c)·8 + l is column k of row c (x, y, z) of
+/// node 8g + l (zero for padding nodes).
+#[derive(Clone, Debug)]
+pub(crate) struct DisplayRows {
+    /// The state dimension r.
+    pub r: usize,
+    /// Displacement rows C_i in single precision.
+    pub displacement: Vec<f32>,
+    /// Rotation rows W_i.
+    pub rotation: RotationRows,
+}
+
+/// Largest magnitude of a 16-bit entry.
+const FIXED16_MAX: f64 = 32767.0;
+
+/// Per column k: the exponent e_k of 16-bit rows, the largest integer with
+/// max_i |W_ik| · 2^e_k ≤ 32767 (`columns_max[k]` = that maximum; 0 for a zero column). The
+/// rounding error of an entry is then at most 2^(−e_k−1) ≤ max_i |W_ik| / 32767.
+pub(crate) fn fixed16_exponents(columns_max: &[f64]) -> Vec<i32> {
+    columns_max
+        .iter()
+        .map(|&m| {
+            if m > 0.0 && m.is_finite() {
+                let mut e = (FIXED16_MAX / m).log2().floor().clamp(-100.0, 100.0) as i32;
+                while e > -100 && m * 2f64.powi(e) > FIXED16_MAX {
+                    e -= 1;
+                }
+                e
+            } else {
+                0
+            }
+        })
+        .collect()
+}
+
+impl DisplayRows {
+    /// The grouped rows of n nodes: `displacement(i)` and `rotation(i)` give the r-vectors of
+    /// row i (3 per node, components x, y, z); rotation rows all zero (`warped` false) are not
+    /// stored; `fixed16` = the exponents of [`fixed16_exponents`] to store them in 16 bits,
+    /// `None` for single precision.
+    pub(crate) fn new<'a>(
+        n: usize,
+        r: usize,
+        displacement: impl Fn(usize) -> &'a [f64],
+        rotation: impl Fn(usize) -> &'a [f64],
+        warped: bool,
+        fixed16: Option<&[i32]>,
+    ) -> Self {
+        let len = n.div_ceil(GROUP) * r * 3 * GROUP;
+        let at = |i: usize, c: usize, k: usize| {
+            let (g, lane) = (i / GROUP, i % GROUP);
+            ((g * r + k) * 3 + c) * GROUP + lane
+        };
+        let grouped = |f: &dyn Fn(usize, usize, usize) -> f32| {
+            let mut v = vec![0.0f32; len];
+            for i in 0..n {
+                for c in 0..3 {
+                    for k in 0..r {
+                        v[at(i, c, k)] = f(i, c, k);
+                    }
+                }
+            }
+            v
+        };
+        let d = grouped(&|i, c, k| displacement(3 * i + c)[k] as f32);
+        let rotation = match (warped, fixed16) {
+            (false, _) => RotationRows::Zero,
+            (true, None) => RotationRows::Single(grouped(&|i, c, k| rotation(3 * i + c)[k] as f32)),
+            (true, Some(e)) => {
+                let mut v = vec![0i16; len];
+                for i in 0..n {
+                    for c in 0..3 {
+                        let row = rotation(3 * i + c);
+                        for k in 0..r {
+                            let q = (row[k] * 2f64.powi(e[k])).round();
+                            v[at(i, c, k)] = q.clamp(-FIXED16_MAX, FIXED16_MAX) as i16;
+                        }
+                    }
+                }
+                RotationRows::Fixed16(v)
+            }
+        };
+        DisplayRows {
+            r,
+            displacement: d,
+            rotation,
+        }
+    }
+}
+
+/// World displacements of the nodes of `rows` (`out`: 3 f64 per node, at most 8 per group):
+/// per node u = C_i x and ω = W_i x accumulated in f32, then R̃(ω) u (`docs/design.md` §5) in
+/// f32 for θ < 1/2 (four-term series) and in f64 otherwise. `x` holds 2r values: x in f32,
+/// then x_k · 2^(−e_k) for 16-bit rotation rows (the rows' scales folded into the state; x
+/// again for single-precision rows).
+#[inline]
+pub(crate) fn display(rows: &DisplayRows, x: &[f32], out: &mut [f64]) {
+    let (d, r) = (&rows.displacement[..], rows.r);
+    let (plain, scaled) = ((&x[..r], &x[..r]), (&x[..r], &x[r..2 * r]));
     #[cfg(target_arch = "x86_64")]
     if has_avx2_fma() {
         // SAFETY: the CPU has AVX2 and FMA (checked just above).
-        return unsafe { display_avx2(rows, x, r, nodes, warped, out) };
+        unsafe {
+            match &rows.rotation {
+                RotationRows::Zero => display_avx2::<f32>(d, None, r, plain, out),
+                RotationRows::Single(w) => display_avx2(d, Some(&w[..]), r, plain, out),
+                RotationRows::Fixed16(w) => display_avx2(d, Some(&w[..]), r, scaled, out),
+            }
+        }
+        return;
     }
-    display_body::<false>(rows, x, r, nodes, warped, out)
+    match &rows.rotation {
+        RotationRows::Zero => display_body::<false, f32>(d, None, r, plain, out),
+        RotationRows::Single(w) => display_body::<false, f32>(d, Some(w), r, plain, out),
+        RotationRows::Fixed16(w) => display_body::<false, i16>(d, Some(w), r, scaled, out),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// y = A x by the textbook double loop (A row-major).
+    fn reference(a: &[f64], rows: usize, cols: usize, x: &[f64]) -> Vec<f64> {
+        (0..rows)
+            .map(|i| (0..cols).map(|j| a[i * cols + j] * x[j]).sum())
+            .collect()
+    }
+
+    #[test]
+    fn matvec_t_matches_the_double_loop_for_every_block_shape() {
+        // Rows 0..=37 cover full 16-row blocks, the 1-, 2- and 3-vector tails and partly
+        // filled last vectors; odd and even column counts cover the unpaired last column.
+        let mut seed = 1u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for rows in 0..=37 {
+            for cols in [0, 1, 2, 5, 8] {
+                let a: Vec<f64> = (0..rows * cols).map(|_| next()).collect();
+                let x: Vec<f64> = (0..cols).map(|_| next()).collect();
+                let y0: Vec<f64> = (0..rows).map(|_| next()).collect();
+                let m = Columns::from_row_major(&a, rows, cols);
+                let want = reference(&a, rows, cols, &x);
+                let mut y = y0.clone();
+                matvec_t(&m, &x, &mut y, false);
+                let mut y_add = y0.clone();
+                matvec_t(&m, &x, &mut y_add, true);
+                let mut y_portable = y0.clone();
+                matvec_t_portable(&m, &x, &mut y_portable, true);
+                for i in 0..rows {
+                    assert!((y[i] - want[i]).abs() < 1e-14, "{rows}×{cols} row {i}");
+                    assert!(
+                        (y_add[i] - y0[i] - want[i]).abs() < 1e-14,
+                        "{rows}×{cols} add"
+                    );
+                    assert!((y_portable[i] - y0[i] - want[i]).abs() < 1e-14, "portable");
+                }
+            }
+        }
+    }
 }

@@ -1,9 +1,11 @@
 //! The co-rotational tier at run time (docs/design.md §10, docs/model-format.md "tier"): the
 //! reduced co-rotational Wilson-θ step on q with a bounded Newton iteration, and the
-//! constant-gain filter on s = (q, q̇, q̈).
+//! constant-gain filter on s = (q, q̇, q̈, f) (docs/design.md §11.4): f holds the world force of
+//! each random-walk load group (3 per group, N), carried unchanged by the prediction (random
+//! walk) and corrected by the update; it adds to the group's inputs, f_r = VᵀB (u + f).
 //!
-//! Per step (τ = θΔt, a₀ = 6/τ², a₂ = 3/τ, f_r = VᵀB u held over the step; the equations of
-//! `crokf_formats::CorotationalTier`):
+//! Per step (τ = θΔt, a₀ = 6/τ², a₂ = 3/τ, f_r = VᵀB (u + f) held over the step; the equations
+//! of `crokf_formats::CorotationalTier`):
 //! ```text
 //! q̂ ← q + τq̇ + (τ²/2)q̈;  repeat ≤ newton_iterations:
 //!   Δ = q̂ − q,  q̈_θ = a₀Δ − (6/τ)q̇ − 2q̈,  q̇_θ = a₂Δ − 2q̇ − (τ/2)q̈
@@ -142,6 +144,10 @@ pub struct TierModel {
     /// VᵀB, r×m row-major.
     input: Vec<f64>,
     m: usize,
+    /// Per force state (3r + k): its input channel (the group's world component).
+    force_channels: Vec<usize>,
+    /// Filter state dimension n = 3r + force_channels.len().
+    n: usize,
     /// Per model load group: max trained force (None: never trained).
     max_force: Vec<Option<f64>>,
     /// Per input channel: its load group (None for gravity).
@@ -154,27 +160,35 @@ pub struct TierModel {
     pub(crate) node_rows: Vec<Vec<f64>>,
     /// Per measurement channel: (sensor, component).
     channel: Vec<(usize, usize)>,
-    /// Per phase: gain (3r × measured, row-major), measured channel indices.
+    /// Per phase: gain (n × measured, row-major), measured channel indices.
     gains: Vec<Vec<f64>>,
     measured: Vec<Vec<u32>>,
+    /// Per phase, per active channel: the innovation variance (H P⁻ Hᵀ)_jj + R_jj, m² (the
+    /// gate's s_j, runtime/src/estimator.rs).
+    innovation_variance: Vec<Vec<f64>>,
+    /// Per measurement channel: (H Q Hᵀ)_jj, m² per step (the gate's growth g_j).
+    variance_growth: Vec<f64>,
     /// Per phase and kind (prior, posterior): sensor std (3 per sensor), node std per set.
     pub(crate) sensor_std: [Vec<Vec<f64>>; 2],
     pub(crate) node_std: [Vec<Vec<Vec<f64>>>; 2],
 }
 
+/// c P_qq cᵀ for a row c (r) and the q-block P_qq (first r rows/cols of the n×n P).
+fn quadratic_q(c: &[f64], p: &crokf_formats::Matrix) -> f64 {
+    let (r, n) = (c.len(), p.cols as usize);
+    let mut s = 0.0;
+    for i in 0..r {
+        for j in 0..r {
+            s += c[i] * p.data[i * n + j] * c[j];
+        }
+    }
+    s
+}
+
+/// sqrt(diag(C P_qq Cᵀ)) for the rows C (k × r, row-major).
 fn std_rows(rows: &[f64], r: usize, p: &crokf_formats::Matrix) -> Vec<f64> {
-    // sqrt(diag(C P_qq Cᵀ)), P_qq the q-block (first r rows/cols of the 3r×3r P).
-    let n3 = 3 * r;
     rows.chunks_exact(r)
-        .map(|c| {
-            let mut s = 0.0;
-            for i in 0..r {
-                for j in 0..r {
-                    s += c[i] * p.data[i * n3 + j] * c[j];
-                }
-            }
-            s.max(0.0).sqrt()
-        })
+        .map(|c| quadratic_q(c, p).max(0.0).sqrt())
         .collect()
 }
 
@@ -213,7 +227,7 @@ impl TierModel {
                 InputKind::Gravity { .. } => None,
             })
             .collect();
-        let channel = model
+        let channel: Vec<(usize, usize)> = model
             .measurements
             .iter()
             .map(|m| (m.sensor as usize, m.component as usize))
@@ -242,6 +256,41 @@ impl TierModel {
         };
         let (s_prior, n_prior) = cov(false);
         let (s_post, n_post) = cov(true);
+        let force_channels: Vec<usize> = tier
+            .force_loads
+            .iter()
+            .flat_map(|&g| {
+                (0..3u8).filter_map(move |c| {
+                    model.inputs.iter().position(|i| {
+                        i.kind
+                            == InputKind::Load {
+                                load: g,
+                                component: c,
+                            }
+                    })
+                })
+            })
+            .collect();
+        let h_row = |j: usize| {
+            let (s, c) = channel[j];
+            &sensor_rows[s][c * r..(c + 1) * r]
+        };
+        let innovation_variance = k
+            .phases
+            .iter()
+            .map(|ph| {
+                ph.measured
+                    .iter()
+                    .map(|&j| {
+                        quadratic_q(h_row(j as usize), &ph.prior_covariance)
+                            + k.measurement_variance[j as usize]
+                    })
+                    .collect()
+            })
+            .collect();
+        let variance_growth = (0..channel.len())
+            .map(|j| quadratic_q(h_row(j), &k.process_noise))
+            .collect();
         TierModel {
             r,
             elements,
@@ -254,6 +303,8 @@ impl TierModel {
             max_iterations: tier.newton_iterations as usize,
             input: tier.input.data.clone(),
             m: model.inputs.len(),
+            n: 3 * r + force_channels.len(),
+            force_channels,
             max_force,
             channel_load,
             max_q: tier.envelope.max_coordinate_norm,
@@ -263,6 +314,8 @@ impl TierModel {
             channel,
             gains: k.phases.iter().map(|p| p.gain.data.clone()).collect(),
             measured: k.phases.iter().map(|p| p.measured.clone()).collect(),
+            innovation_variance,
+            variance_growth,
             sensor_std: [s_prior, s_post],
             node_std: [n_prior, n_post],
         }
@@ -276,6 +329,16 @@ impl TierModel {
     /// Number of sampled elements.
     pub fn element_count(&self) -> usize {
         self.elements.len()
+    }
+
+    /// Filter state dimension: 3r + 3 per random-walk load group (s = (q, q̇, q̈, f)).
+    pub fn state_dim(&self) -> usize {
+        self.n
+    }
+
+    /// Number of force states (3 per random-walk load group).
+    pub fn force_state_count(&self) -> usize {
+        self.force_channels.len()
     }
 
     /// Reduced force f_r,int(q) + β K_t,r(q) q̇ (r) into `out` (module docs); `q`, `velocity`
@@ -308,7 +371,7 @@ impl TierModel {
 /// The tier's stepper and filter state with all scratch (allocated once).
 #[derive(Clone, Debug)]
 pub struct TierState {
-    /// s = (q, q̇, q̈), 3r.
+    /// s = (q, q̇, q̈, f), n = 3r + force states.
     pub(crate) s: Vec<f64>,
     /// Previous s (rollback of a step) and the update's scratch.
     pub(crate) s_prev: Vec<f64>,
@@ -338,8 +401,8 @@ impl TierState {
         let r = model.r;
         let q = model.channel.len();
         TierState {
-            s: vec![0.0; 3 * r],
-            s_prev: vec![0.0; 3 * r],
+            s: vec![0.0; model.n],
+            s_prev: vec![0.0; model.n],
             q_hat: vec![0.0; r],
             acc: vec![0.0; r],
             vel: vec![0.0; r],
@@ -354,7 +417,7 @@ impl TierState {
             scratch: vec![0.0; 24 * r],
             group_force: vec![[0.0; 3]; loads],
             innovation: vec![0.0; q],
-            s_upd: vec![0.0; 3 * r],
+            s_upd: vec![0.0; model.n],
         }
     }
 
@@ -368,6 +431,12 @@ impl TierState {
     /// q (r).
     pub fn coordinates<'a>(&'a self, model: &TierModel) -> &'a [f64] {
         &self.s[..model.r]
+    }
+
+    /// The estimated forces f (3 per random-walk load group, world frame, N; empty without
+    /// force states), in the order of the tier's `force_loads`.
+    pub fn forces<'a>(&'a self, model: &TierModel) -> &'a [f64] {
+        &self.s[3 * model.r..]
     }
 
     /// Residual and rotations at q̂ (`self.force` ← f_int + β K_t q̇_θ, then `self.res`).
@@ -440,8 +509,9 @@ impl TierState {
         Ok(())
     }
 
-    /// One step with inputs `u` (m, `Model::inputs` order); `step` is the step index being
-    /// computed (for messages). On error s is unchanged.
+    /// One step with inputs `u` (m, `Model::inputs` order) plus the estimated forces f on their
+    /// channels; `step` is the step index being computed (for messages). f is carried
+    /// unchanged (random walk). On error s is unchanged.
     pub fn step(
         &mut self,
         model: &TierModel,
@@ -449,15 +519,25 @@ impl TierState {
         step: u64,
     ) -> Result<TierStatus, TierError> {
         let r = model.r;
-        // f_r = VᵀB u and the per-group world force.
+        let forces = &self.s[3 * r..];
+        // f_r = VᵀB (u + f) and the per-group world force.
         for i in 0..r {
             let row = &model.input[i * model.m..(i + 1) * model.m];
-            self.load[i] = row.iter().zip(u).map(|(a, b)| a * b).sum();
+            let mut v: f64 = row.iter().zip(u).map(|(a, b)| a * b).sum();
+            for (&ch, &fk) in model.force_channels.iter().zip(forces) {
+                v += row[ch] * fk;
+            }
+            self.load[i] = v;
         }
         self.group_force.iter_mut().for_each(|g| *g = [0.0; 3]);
         for (j, ch) in model.channel_load.iter().enumerate() {
             if let Some((g, c)) = *ch {
                 self.group_force[g][c] += u[j];
+            }
+        }
+        for (&ch, &fk) in model.force_channels.iter().zip(forces) {
+            if let Some((g, c)) = model.channel_load[ch] {
+                self.group_force[g][c] += fk;
             }
         }
         let mut load_ratio: f64 = 0.0;
@@ -567,24 +647,74 @@ impl TierState {
     }
 
     /// Innovations of phase p's channels (measurement `get(j)`, missing → 0 innovation) and
-    /// `s_upd` ← s + K_p ν (not committed); returns the number of values used.
+    /// `s_upd` ← s + K_p ν (not committed); returns the number of values used. No gate
+    /// ([`TierState::update_gated`] with `gate = None`).
     pub fn update(
         &mut self,
         model: &TierModel,
         phase: usize,
         get: &impl Fn(usize) -> Option<f64>,
     ) -> usize {
+        self.update_gated(model, phase, get, &Gate::OFF, &mut [])
+    }
+
+    /// Commits the last [`TierState::update`] / [`TierState::update_gated`]: s ← `s_upd`
+    /// (what the estimator does after its checks).
+    pub fn commit_update(&mut self) {
+        std::mem::swap(&mut self.s, &mut self.s_upd);
+    }
+
+    /// The filter state s = (q, q̇, q̈, f) (length [`TierModel::state_dim`]).
+    pub fn state(&self) -> &[f64] {
+        &self.s
+    }
+
+    /// The last update's uncommitted result (length [`TierModel::state_dim`]).
+    pub fn pending_update(&self) -> &[f64] {
+        &self.s_upd
+    }
+
+    /// [`TierState::update`] with the innovation gate of the warped tier (runtime/src/
+    /// estimator.rs, docs/design.md §6): an active channel j whose innovation
+    /// ν_j = y_j − (V_s q⁻)_c exceeds it, ν_j² > g² (s_j + n_j g_j) with s_j = (H P⁻ Hᵀ + R)_jj,
+    /// g_j = (H Q Hᵀ)_jj and n_j = `gate.missed(j)`, is treated as missing and flagged in
+    /// `gated_now[a]` (a: its position among the phase's active channels; `gated_now` at least
+    /// that long when the gate is on). Returns the number of values used (present, not gated).
+    /// Nothing is committed: `s_upd` holds the result.
+    pub fn update_gated(
+        &mut self,
+        model: &TierModel,
+        phase: usize,
+        get: &impl Fn(usize) -> Option<f64>,
+        gate: &Gate<'_>,
+        gated_now: &mut [bool],
+    ) -> usize {
         let measured = &model.measured[phase];
         let nm = measured.len();
         let mut used = 0;
         for (a, &j) in measured.iter().enumerate() {
-            let (s, c) = model.channel[j as usize];
-            self.innovation[a] = match get(j as usize) {
-                Some(y) => {
+            let j = j as usize;
+            let (s, c) = model.channel[j];
+            let nu = get(j).map(|y| y - self.sensor(model, s)[c]);
+            let rejected = match (nu, gate.sigmas) {
+                (Some(nu), Some(g)) => gate_rejects(
+                    nu,
+                    g,
+                    model.innovation_variance[phase][a],
+                    gate.missed(j),
+                    model.variance_growth[j],
+                ),
+                _ => false,
+            };
+            if let Some(flag) = gated_now.get_mut(a) {
+                *flag = rejected;
+            }
+            self.innovation[a] = match nu {
+                Some(nu) if !rejected => {
                     used += 1;
-                    y - self.sensor(model, s)[c]
+                    nu
                 }
-                None => 0.0,
+                _ => 0.0,
             };
         }
         let gain = &model.gains[phase];
@@ -593,6 +723,44 @@ impl TierState {
         }
         used
     }
+}
+
+/// The innovation gate's configuration for one update (docs/design.md §6): `sigmas` g (None:
+/// off) and, per measurement channel, the steps it went without an accepted value beyond its
+/// period (n_j, from the caller's bookkeeping).
+#[derive(Clone, Copy, Debug)]
+pub struct Gate<'a> {
+    /// g, in standard deviations of the innovation; `None`: off.
+    pub sigmas: Option<f64>,
+    /// The step k being updated.
+    pub step: u64,
+    /// Per measurement channel: the step of its last accepted value (0: none yet).
+    pub last_accepted: &'a [u64],
+    /// Per measurement channel: its sensor's `every`.
+    pub every: &'a [u64],
+}
+
+impl Gate<'_> {
+    /// The gate off.
+    pub const OFF: Gate<'static> = Gate {
+        sigmas: None,
+        step: 0,
+        last_accepted: &[],
+        every: &[],
+    };
+
+    /// n_j = max(0, k − last accepted step − every_j).
+    fn missed(&self, j: usize) -> u64 {
+        match (self.last_accepted.get(j), self.every.get(j)) {
+            (Some(&last), Some(&every)) => self.step.saturating_sub(last).saturating_sub(every),
+            _ => 0,
+        }
+    }
+}
+
+/// The gate's test (docs/design.md §6): true when ν² > g² (s + n·growth).
+pub fn gate_rejects(nu: f64, sigmas: f64, variance: f64, missed: u64, growth: f64) -> bool {
+    nu * nu > sigmas * sigmas * (variance + missed as f64 * growth)
 }
 
 #[inline(always)]

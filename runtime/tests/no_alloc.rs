@@ -65,6 +65,15 @@ fn no_allocation_per_step() {
         });
     }
     assert_eq!(total, 0, "allocations during 50 steps with read-outs");
+    // The compact display rows (16-bit rotation rows) read out without allocating either.
+    let compact = crokf_runtime::PreparedModel::with_display_format(
+        model.clone(),
+        crokf_runtime::DisplayRowFormat::Compact,
+    )
+    .unwrap();
+    let mut other = Estimator::from_prepared(std::sync::Arc::new(compact));
+    other.set_state(est.state()).unwrap();
+    assert_eq!(count(|| other.node_displacements(0, &mut n0).unwrap()), 0);
     assert!(est.state().iter().any(|&v| v != 0.0));
     assert_eq!(count(|| est.reset()), 0);
 }

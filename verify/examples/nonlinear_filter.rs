@@ -1,12 +1,22 @@
 //! Open-loop and filtered error of compiled models against the full-order co-rotational FEM on
-//! a scenario (docs/design.md §10 item 5, docs/corotational-tier.md): the runtime's
-//! `Estimator` on each MODEL file, given the scenario's loads as inputs and, for the filtered
-//! run, the reference's sensor displacements plus Gaussian noise of the scene's σ (seed 7).
-//! Errors are relative L2 over the displayed nodes and the whole trajectory, world frame.
+//! a scenario (docs/design.md §10 item 5, §11.4, docs/corotational-tier.md): the runtime's
+//! `Estimator` on each MODEL file, three runs: open loop (the scenario's loads as inputs),
+//! filtered with the loads given, filtered with the loads withheld (every load channel 0: only
+//! the markers); filtered runs get the reference's sensor displacements plus Gaussian noise of
+//! the model's σ (seed 7; all channels, the runtime uses those active in the step's phase; gate
+//! off). Errors are relative L2 over the displayed nodes (and the sensors, and the tip marker)
+//! and the whole trajectory, world frame. For a co-rotational tier model the filtered runs also
+//! give ANIS (ν = y − ŷ⁻ over the phase's active channels, S = H P⁻_p Hᵀ + R from the model's
+//! stored covariances), the tip marker's ANEES (posterior P_p), both with their two-sided 95 %
+//! χ² bounds, the fraction of displayed-node error components inside ±2σ (runtime σ,
+//! `Estimator::node_std`), the count of innovations beyond 5σ of their own variance, and the
+//! force states at the end. The step time is that of `predict` + `update` only (wall clock).
 //!
 //! ```sh
 //! cargo run --release -p crokf-verify --example nonlinear_filter -- SCENE SCENARIO MODEL...
 //! ```
+//! MODEL is a model file or `FILE@SCENE2` (FILE's tier with its filter recomputed for SCENE2,
+//! see `read_model`).
 //! SCENE is the scene of the reference (either tier's scene: same mesh and material).
 
 use std::path::PathBuf;
@@ -16,8 +26,9 @@ use crokf_compile::report::StageTimer;
 use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, Simulator};
 use crokf_compile::FullOrder;
 use crokf_runtime::{load_model, Estimator};
-use crokf_verify::comparison::Gaussian;
+use crokf_verify::comparison::{ChiSquare, Gaussian};
 use crokf_verify::scenario::{Horizon, Scenario};
+use nalgebra::DMatrix;
 
 fn main() -> ExitCode {
     match run() {
@@ -79,77 +90,299 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         }
         sensors_ref.push(s);
     }
+    // Tip marker: the sensor named `tip`, else the one with the largest peak displacement
+    // (as `crokf-verify report`).
+    let tip = ops
+        .sensors
+        .iter()
+        .position(|s| s.name == "tip")
+        .or_else(|| {
+            (0..ops.sensors.len()).max_by(|&a, &b| {
+                let peak = |s: usize| {
+                    sensors_ref
+                        .iter()
+                        .map(|y| {
+                            (y[3 * s].powi(2) + y[3 * s + 1].powi(2) + y[3 * s + 2].powi(2)).sqrt()
+                        })
+                        .fold(0.0, f64::max)
+                };
+                peak(a).total_cmp(&peak(b))
+            })
+        })
+        .unwrap_or(0);
     println!(
-        "| model | tier | open loop | filtered | sensors, filtered | median step (µs) |\n|---|---|---:|---:|---:|---:|"
+        "tip marker: {} (NEES); loads withheld = every load channel 0, gravity kept\n",
+        ops.sensors.get(tip).map_or("—", |s| s.name.as_str())
+    );
+    println!(
+        "| model | tier | run | nodes | sensors | tip | ANIS [95 % bounds] | tip ANEES [95 % bounds] | 2σ coverage | > 5σ innovations | final f (N) | median step (µs) |\n|---|---|---|---:|---:|---:|---|---|---:|---:|---|---:|"
     );
     for path in &args[2..] {
-        let model = load_model(path)?;
+        let model = read_model(path)?;
         let tier = if model.tier.is_some() {
             "co-rotational"
         } else {
             "warped"
         };
-        let mut row = Vec::new();
-        let mut sensor_err = f64::NAN;
-        let mut median_step = f64::NAN;
-        for filtered in [false, true] {
-            let mut est = Estimator::new(&model)?;
-            est.set_innovation_gate(None);
-            let mut rng = Gaussian::new(7);
-            let (mut e2, mut r2, mut se2, mut sr2) = (0.0, 0.0, 0.0, 0.0);
-            let mut shown = vec![0.0; shown_ref[0].len()];
-            let mut sens = vec![0.0; 3 * model.sensors.len()];
-            let mut times = Vec::with_capacity(steps);
-            for k in 0..steps {
-                let y: Vec<Option<f64>> = model
-                    .measurements
-                    .iter()
-                    .enumerate()
-                    .map(|(j, m)| {
-                        let sigma = model.kalman.measurement_variance[j].sqrt();
-                        Some(
-                            sensors_ref[k][3 * m.sensor as usize + m.component as usize]
-                                + sigma * rng.normal(),
-                        )
-                    })
-                    .collect();
-                let clock = std::time::Instant::now();
-                if filtered {
-                    est.step(&inputs[k], &y)?;
+        for run in [Run::OpenLoop, Run::Given, Run::Withheld] {
+            let out = run_model(&model, run, &inputs, &sensors_ref, &shown_ref, tip)?;
+            let stat = |c: &Option<ChiSquare>| match c {
+                Some(c) if c.dof > 0 => {
+                    let (lo, hi) = c.bounds();
+                    format!("{:.3} [{lo:.3}, {hi:.3}]", c.mean())
+                }
+                _ => "—".into(),
+            };
+            println!(
+                "| {path} | {tier} | {} | {:.2} % | {:.2} % | {:.2} % | {} | {} | {} | {} | {} | {:.1} |",
+                run.label(),
+                100.0 * out.nodes,
+                100.0 * out.sensors,
+                100.0 * out.tip,
+                stat(&out.nis),
+                stat(&out.nees),
+                out.coverage
+                    .map_or("—".into(), |c| format!("{:.1} %", 100.0 * c)),
+                out.outliers.map_or("—".into(), |n| n.to_string()),
+                if out.forces.is_empty() {
+                    "—".into()
                 } else {
-                    est.predict(&inputs[k])?;
-                }
-                times.push(clock.elapsed().as_secs_f64());
-                let mut at = 0;
-                for set in 0..model.node_sets.len() {
-                    let len = 3 * model.node_sets[set].node_tags.len();
-                    est.node_displacements_exact(set, &mut shown[at..at + len])?;
-                    at += len;
-                }
-                for (a, b) in shown.iter().zip(&shown_ref[k]) {
-                    e2 += (a - b) * (a - b);
-                    r2 += b * b;
-                }
-                est.sensor_displacements(&mut sens)?;
-                for (a, b) in sens.iter().zip(&sensors_ref[k]) {
-                    se2 += (a - b) * (a - b);
-                    sr2 += b * b;
-                }
-            }
-            row.push((e2 / r2).sqrt());
-            if filtered {
-                sensor_err = (se2 / sr2).sqrt();
-                times.sort_by(f64::total_cmp);
-                median_step = times[times.len() / 2];
-            }
+                    format!(
+                        "[{}]",
+                        out.forces
+                            .iter()
+                            .map(|f| format!("{f:.4}"))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    )
+                },
+                out.median_step * 1e6
+            );
         }
-        println!(
-            "| {path} | {tier} | {:.2} % | {:.2} % | {:.2} % | {:.1} |",
-            100.0 * row[0],
-            100.0 * row[1],
-            100.0 * sensor_err,
-            median_step * 1e6
-        );
     }
     Ok(())
+}
+
+/// A model file, or `FILE@SCENE`: FILE's co-rotational tier with its filter recomputed for
+/// SCENE's sensors and noise model (`crokf_compile::nonlinear::tier::refilter`: same training,
+/// e.g. the scene's 30 Hz or 1 mm variant). FILE may then be a format-v3 tier file (read past
+/// its header; its tier gets the force states of SCENE).
+fn read_model(arg: &str) -> Result<crokf_formats::Model, Box<dyn std::error::Error>> {
+    let Some((file, scene)) = arg.split_once('@') else {
+        return Ok(load_model(arg)?);
+    };
+    let bytes = std::fs::read(file)?;
+    let mut model = match crokf_formats::decode(&bytes) {
+        Ok(m) => m,
+        Err(crokf_formats::FormatError::UnsupportedVersion { found: 3, .. }) => {
+            crokf_formats::decode_payload(&bytes[crokf_formats::HEADER_LEN..])?
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
+    let rho = crokf_compile::nonlinear::tier::refilter(&full, &mut model)?;
+    eprintln!("{arg}: tier filter recomputed, closed-loop spectral radius {rho:.6}");
+    model.validate()?;
+    Ok(model)
+}
+
+/// Which run of a model.
+#[derive(Clone, Copy, PartialEq)]
+enum Run {
+    /// Predictions only, the scenario's loads as inputs.
+    OpenLoop,
+    /// Filtered, the loads given.
+    Given,
+    /// Filtered, every load channel 0 (only the markers).
+    Withheld,
+}
+
+impl Run {
+    fn label(self) -> &'static str {
+        match self {
+            Run::OpenLoop => "open loop",
+            Run::Given => "filtered, loads given",
+            Run::Withheld => "filtered, loads withheld",
+        }
+    }
+}
+
+/// Figures of one run (relative L2 errors over the trajectory, world frame).
+struct RunFigures {
+    nodes: f64,
+    sensors: f64,
+    tip: f64,
+    /// Co-rotational tier only (its covariances are in the world frame, n × n).
+    nis: Option<ChiSquare>,
+    nees: Option<ChiSquare>,
+    coverage: Option<f64>,
+    /// Active innovations beyond 5σ of their own variance (what the 5σ gate would skip with
+    /// every channel accepted at its period).
+    outliers: Option<usize>,
+    /// The tier's force states at the end (N).
+    forces: Vec<f64>,
+    median_step: f64,
+}
+
+/// C P_qq Cᵀ (3 × 3) for rows a, b (3 × r each, row-major) and the q-block of P (n × n).
+fn block(a: &[f64], b: &[f64], r: usize, p: &crokf_formats::Matrix) -> DMatrix<f64> {
+    let n = p.cols as usize;
+    DMatrix::from_fn(3, 3, |i, j| {
+        let mut s = 0.0;
+        for k in 0..r {
+            for l in 0..r {
+                s += a[i * r + k] * p.data[k * n + l] * b[j * r + l];
+            }
+        }
+        s
+    })
+}
+
+fn run_model(
+    model: &crokf_formats::Model,
+    run: Run,
+    inputs: &[Vec<f64>],
+    sensors_ref: &[Vec<f64>],
+    shown_ref: &[Vec<f64>],
+    tip: usize,
+) -> Result<RunFigures, Box<dyn std::error::Error>> {
+    let steps = inputs.len();
+    let mut est = Estimator::new(model)?;
+    est.set_innovation_gate(None);
+    let mut rng = Gaussian::new(7);
+    let (mut e2, mut r2, mut se2, mut sr2, mut te2, mut tr2) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut shown = vec![0.0; shown_ref[0].len()];
+    let mut sigma = vec![0.0; shown_ref[0].len()];
+    let mut sens = vec![0.0; 3 * model.sensors.len()];
+    let mut estimates = vec![0.0; model.measurements.len()];
+    let mut times = Vec::with_capacity(steps);
+    let tier = model.tier.as_ref();
+    let filtered = run != Run::OpenLoop;
+    let mut nis = ChiSquare::default();
+    let mut nees = ChiSquare::default();
+    let (mut inside, mut total, mut outliers) = (0usize, 0usize, 0usize);
+    let is_load: Vec<bool> = model
+        .inputs
+        .iter()
+        .map(|i| matches!(i.kind, crokf_formats::InputKind::Load { .. }))
+        .collect();
+    for k in 0..steps {
+        let y: Vec<Option<f64>> = model
+            .measurements
+            .iter()
+            .enumerate()
+            .map(|(j, m)| {
+                let sigma = model
+                    .tier
+                    .as_ref()
+                    .map_or(&model.kalman, |t| &t.kalman)
+                    .measurement_variance[j]
+                    .sqrt();
+                Some(
+                    sensors_ref[k][3 * m.sensor as usize + m.component as usize]
+                        + sigma * rng.normal(),
+                )
+            })
+            .collect();
+        let u: Vec<f64> = inputs[k]
+            .iter()
+            .zip(&is_load)
+            .map(|(&v, &load)| if run == Run::Withheld && load { 0.0 } else { v })
+            .collect();
+        let clock = std::time::Instant::now();
+        est.predict(&u)?;
+        let mut elapsed = clock.elapsed().as_secs_f64();
+        if filtered {
+            if let Some(t) = tier {
+                // NIS over the phase's active channels: ν = y − ŷ⁻, S = H P⁻ Hᵀ + R.
+                est.measurement_estimates(&mut estimates)?;
+                let phase = &t.kalman.phases[est.phase()];
+                let active = &phase.measured;
+                let r = t.order as usize;
+                let mut s_mat = DMatrix::zeros(active.len(), active.len());
+                let mut nu = nalgebra::DVector::zeros(active.len());
+                for (a, &ja) in active.iter().enumerate() {
+                    let ma = &model.measurements[ja as usize];
+                    nu[a] = y[ja as usize].unwrap_or(0.0) - estimates[ja as usize];
+                    for (b, &jb) in active.iter().enumerate() {
+                        let mb = &model.measurements[jb as usize];
+                        let blk = block(
+                            &t.sensor_rows[ma.sensor as usize].data,
+                            &t.sensor_rows[mb.sensor as usize].data,
+                            r,
+                            &phase.prior_covariance,
+                        );
+                        s_mat[(a, b)] = blk[(ma.component as usize, mb.component as usize)];
+                    }
+                    s_mat[(a, a)] += t.kalman.measurement_variance[ja as usize];
+                    if nu[a] * nu[a] > 25.0 * s_mat[(a, a)] {
+                        outliers += 1;
+                    }
+                }
+                if let Some(chol) = s_mat.clone().cholesky() {
+                    nis.sum += nu.dot(&chol.solve(&nu));
+                    nis.dof += active.len();
+                }
+            }
+            let clock = std::time::Instant::now();
+            est.update(&y)?;
+            elapsed += clock.elapsed().as_secs_f64();
+        }
+        times.push(elapsed);
+        let mut at = 0;
+        for set in 0..model.node_sets.len() {
+            let len = 3 * model.node_sets[set].node_tags.len();
+            est.node_displacements_exact(set, &mut shown[at..at + len])?;
+            if filtered && tier.is_some() {
+                est.node_std(set, &mut sigma[at..at + len])?;
+            }
+            at += len;
+        }
+        for ((a, b), s) in shown.iter().zip(&shown_ref[k]).zip(&sigma) {
+            e2 += (a - b) * (a - b);
+            r2 += b * b;
+            if (a - b).abs() <= 2.0 * s {
+                inside += 1;
+            }
+            total += 1;
+        }
+        est.sensor_displacements(&mut sens)?;
+        for (i, (a, b)) in sens.iter().zip(&sensors_ref[k]).enumerate() {
+            se2 += (a - b) * (a - b);
+            sr2 += b * b;
+            if i / 3 == tip {
+                te2 += (a - b) * (a - b);
+                tr2 += b * b;
+            }
+        }
+        if let (true, Some(t)) = (filtered, tier) {
+            let phase = &t.kalman.phases[est.phase()];
+            let rows = &t.sensor_rows[tip].data;
+            let sig = block(rows, rows, t.order as usize, &phase.posterior_covariance);
+            let e = nalgebra::DVector::from_fn(3, |c, _| {
+                sens[3 * tip + c] - sensors_ref[k][3 * tip + c]
+            });
+            if let Some(chol) = sig.cholesky() {
+                nees.sum += e.dot(&chol.solve(&e));
+                nees.dof += 3;
+            }
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    let tiered = filtered && tier.is_some();
+    let forces = match tier {
+        Some(t) => est.state()[3 * t.order as usize..].to_vec(),
+        None => Vec::new(),
+    };
+    Ok(RunFigures {
+        nodes: (e2 / r2).sqrt(),
+        sensors: (se2 / sr2).sqrt(),
+        tip: (te2 / tr2).sqrt(),
+        nis: tiered.then_some(nis),
+        nees: tiered.then_some(nees),
+        coverage: tiered.then(|| inside as f64 / total as f64),
+        outliers: tiered.then_some(outliers),
+        forces,
+        median_step: times[times.len() / 2],
+    })
 }

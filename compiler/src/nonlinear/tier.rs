@@ -3,14 +3,17 @@
 //! the DARE of the model linearised at rest ([`linearised_filter`]); and the model file's tier
 //! section ([`tier_section`], docs/model-format.md).
 
+use faer::linalg::solvers::Solve as _;
 use faer::Mat;
 use nalgebra::{DMatrix, DVector};
 
 use crokf_formats as fmt;
 
+use crate::fem::operators::InputKind;
 use crate::full_order::FullOrder;
 use crate::kalman::{self, PeriodicSchedule};
 use crate::outputs::Measurements;
+use crate::scene::ForceModel;
 
 use super::basis::{self, Basis};
 use super::ecsw::{self, EcswOptions, NnlsSolution};
@@ -117,14 +120,92 @@ pub fn point_rows(full: &FullOrder, v: &DMatrix<f64>, weights: &[(usize, f64)]) 
     out
 }
 
-/// The tier's filter: the reduced model linearised at rest (K_r = reduced consistent tangent
-/// at q = 0, C_r = αM_r + βK_r), stepped by the same Wilson-θ recursion on s = (q, q̇, q̈)
-/// (3r), process noise from the scene's noise channels projected on V (VᵀB_w), measurement
-/// map y = H V q; the periodic steady-state gains of `kalman::periodic_gains`.
-///
-/// Route: mass-normalised modes of (K_r, M_r) (Φ, λ) decouple the recursion into 3×3 blocks
-/// ([`crate::dynamics::WilsonTheta::modal_block`]); the DARE is solved in modal coordinates
-/// and mapped back with T = diag(Φ, Φ, Φ).
+/// The scene's random-walk load groups (docs/design.md §11): `(group, σ per step, N)` for each
+/// load with `force_model = "random_walk"` and `force_noise_std > 0`, in scene order.
+pub fn random_walk_loads(full: &FullOrder) -> Vec<(usize, f64)> {
+    full.scene
+        .scene
+        .loads
+        .iter()
+        .enumerate()
+        .filter(|(_, l)| l.force_model == ForceModel::RandomWalk && l.force_noise_std > 0.0)
+        .map(|(i, l)| (i, l.force_noise_std))
+        .collect()
+}
+
+/// The deterministic input channel of component `c` of load group `load`, if any.
+fn load_channel(full: &FullOrder, load: usize, c: usize) -> Option<usize> {
+    full.operators
+        .inputs
+        .iter()
+        .position(|ch| ch.kind == InputKind::Load { load, component: c })
+}
+
+/// The tier linearised at rest in reduced coordinates: everything its filter needs, which is
+/// also what the model file's tier section stores (so a filter can be recomputed from a model
+/// file for other sensors' noise or rates without retraining, [`refilter`]).
+#[derive(Clone, Debug)]
+pub struct LinearisedTier {
+    /// M_r (r × r, kg per q²).
+    pub mass: DMatrix<f64>,
+    /// K_r at rest (r × r): Σ wₑ V_eᵀ Kₑ V_e, N/m per q².
+    pub stiffness: DMatrix<f64>,
+    /// Rayleigh α (1/s) and β (s).
+    pub alpha: f64,
+    /// Rayleigh β, s.
+    pub beta: f64,
+    /// Δt and θ.
+    pub wilson: crate::dynamics::WilsonTheta,
+    /// VᵀB of each force state's input channel (r each; 3 per random-walk group).
+    pub force_columns: Vec<DVector<f64>>,
+    /// σ per force state, N per step.
+    pub force_sigma: Vec<f64>,
+    /// VᵀB_w of each white process-noise channel (r each; σ included).
+    pub noise_columns: Vec<DVector<f64>>,
+    /// H V: the measured channels' rows of V (channels × r).
+    pub measured_rows: DMatrix<f64>,
+}
+
+/// The scene's random-walk force states and the white noise channels they do not replace,
+/// each as (column index into `full.operators.inputs` / `.noise`, σ).
+fn noise_model(full: &FullOrder) -> Result<(Vec<(usize, f64)>, Vec<usize>), NonlinearError> {
+    let force_loads = random_walk_loads(full);
+    let mut force = Vec::with_capacity(3 * force_loads.len());
+    for &(g, sigma) in &force_loads {
+        for c in 0..3 {
+            let ch = load_channel(full, g, c).ok_or_else(|| {
+                NonlinearError::Invalid(format!(
+                    "tier filter: load group {g} has no input channel for component {c}"
+                ))
+            })?;
+            force.push((ch, sigma));
+        }
+    }
+    let white = (0..full.operators.noise.len())
+        .filter(|&j| match full.operators.noise[j].kind {
+            InputKind::Noise { load: Some(g) } => !force_loads.iter().any(|&(l, _)| l == g),
+            _ => true,
+        })
+        .collect();
+    Ok((force, white))
+}
+
+/// The tier's filter (docs/design.md §11.4): the reduced model linearised at rest
+/// (K_r = reduced consistent tangent at q = 0, C_r = αM_r + βK_r), stepped by the same Wilson-θ
+/// recursion on s = (q, q̇, q̈) (3r), augmented with 3 random-walk force states f per
+/// random-walk load group (world force, N; f_{k+1} = f_k + w, w ~ N(0, σ² I₃), σ the load's
+/// `force_noise_std`), which enter the step as a load f_r = VᵀB f (the group's nodal
+/// distribution, held over the step like an input):
+/// ```text
+/// s_{k+1} = A s_k + Γ Vᵀ(B u_k + B_f f_k) + Γ Vᵀ B_w w_k,   f_{k+1} = f_k + w_f,k
+/// y_k = H V q_k + v_k
+/// ```
+/// Process noise: the scene's white noise channels projected on V (VᵀB_w), except those of the
+/// random-walk groups, which the force increments replace (as on the warped tier,
+/// `ReducedModel::with_force_states`). The force states have no output columns: the static
+/// response of the linearised tier to each force channel, H V K_r⁻¹ Vᵀ b, is compared with the
+/// full-order H K⁻¹ b and the worst relative residual returned (`static_residual`), so that
+/// the choice is measured on every compile.
 pub fn linearised_filter(
     full: &FullOrder,
     tier: &Tier,
@@ -133,16 +214,78 @@ pub fn linearised_filter(
     let model = &tier.model;
     let r = model.order();
     let v = &tier.basis.vectors;
-    let k = model.tangent(&DVector::zeros(r), 0.0, true);
-    let m = &model.mass;
-    let chol = m.clone().cholesky().ok_or_else(|| {
+    let (force, white) = noise_model(full)?;
+    let project = |column: &[f64]| v.tr_mul(&DVector::from_column_slice(column));
+    let ops = &full.operators;
+    let lin = LinearisedTier {
+        mass: model.mass.clone(),
+        stiffness: model.tangent(&DVector::zeros(r), 0.0, true),
+        alpha: model.alpha,
+        beta: model.beta,
+        wilson: full.wilson,
+        force_columns: force
+            .iter()
+            .map(|&(ch, _)| project(&ops.inputs[ch].column))
+            .collect(),
+        force_sigma: force.iter().map(|&(_, s)| s).collect(),
+        noise_columns: white
+            .iter()
+            .map(|&j| project(&ops.noise[j].column))
+            .collect(),
+        measured_rows: measured_rows(measurements, |s| {
+            point_rows(full, v, &ops.sensors[s].weights)
+        }),
+    };
+    let channels: Vec<usize> = force.iter().map(|&(ch, _)| ch).collect();
+    let residual = static_residual(
+        full,
+        v,
+        &lin.stiffness,
+        &lin.measured_rows,
+        &channels,
+        measurements,
+    )?;
+    let mut filter = filter_of(&lin, measurements)?;
+    filter.force_loads = random_walk_loads(full).iter().map(|&(g, _)| g).collect();
+    filter.static_residual = residual;
+    Ok(filter)
+}
+
+/// H V (channels × r) from each sensor's 3 × r rows.
+fn measured_rows(
+    measurements: &Measurements,
+    rows_of: impl Fn(usize) -> DMatrix<f64>,
+) -> DMatrix<f64> {
+    let mut h = DMatrix::zeros(measurements.channels.len(), 0);
+    for (row, &(s, c)) in measurements.channels.iter().enumerate() {
+        let rows = rows_of(s);
+        if h.ncols() == 0 {
+            h = DMatrix::zeros(measurements.channels.len(), rows.ncols());
+        }
+        h.row_mut(row).copy_from(&rows.row(c));
+    }
+    h
+}
+
+/// The filter of a [`LinearisedTier`] (see [`linearised_filter`]).
+///
+/// Route: mass-normalised modes of (K_r, M_r) (Φ, λ) decouple the recursion into 3×3 blocks
+/// ([`crate::dynamics::WilsonTheta::modal_block`]); the DARE of the augmented pair is solved in
+/// scaled modal coordinates x̃ (`kalman::periodic_gains`; the scaling D in the code) and mapped
+/// back with T D, T = diag(Φ, Φ, Φ, I).
+pub fn filter_of(
+    lin: &LinearisedTier,
+    measurements: &Measurements,
+) -> Result<TierFilter, NonlinearError> {
+    let r = lin.mass.nrows();
+    let chol = lin.mass.clone().cholesky().ok_or_else(|| {
         NonlinearError::Invalid("tier filter: reduced mass matrix is not positive definite".into())
     })?;
     let l = chol.l();
     let l_inv = l.clone().try_inverse().ok_or_else(|| {
         NonlinearError::Invalid("tier filter: reduced mass matrix is singular".into())
     })?;
-    let kt = &l_inv * &k * l_inv.transpose();
+    let kt = &l_inv * &lin.stiffness * l_inv.transpose();
     let kt = (&kt + kt.transpose()) * 0.5;
     let eig = kt.symmetric_eigen();
     let mut order: Vec<usize> = (0..r).collect();
@@ -156,12 +299,14 @@ pub fn linearised_filter(
             "tier filter: the reduced stiffness at rest is not positive definite (eigenvalue {bad:e})"
         )));
     }
-    let w = full.wilson;
+    let w = lin.wilson;
     let n3 = 3 * r;
-    let mut f = Mat::<f64>::zeros(n3, n3);
+    let nf = lin.force_columns.len();
+    let n = n3 + nf;
+    let mut f = Mat::<f64>::zeros(n, n);
     let mut gamma = vec![[0.0; 3]; r];
     for i in 0..r {
-        let (a, g) = w.modal_block(lambda[i], model.alpha + model.beta * lambda[i]);
+        let (a, g) = w.modal_block(lambda[i], lin.alpha + lin.beta * lambda[i]);
         for k1 in 0..3 {
             for k2 in 0..3 {
                 f[(k1 * r + i, k2 * r + i)] = a[k1][k2];
@@ -169,28 +314,55 @@ pub fn linearised_filter(
         }
         gamma[i] = g;
     }
-    // Noise: modal load Φᵀ Vᵀ b_w per channel.
-    let noise = &full.operators.noise;
-    let mut gw = Mat::<f64>::zeros(n3, noise.len());
-    for (c, ch) in noise.iter().enumerate() {
-        let reduced = v.tr_mul(&DVector::from_column_slice(&ch.column));
-        let modal = phi.tr_mul(&reduced);
+    // Modal image Γ Φᵀ (Vᵀb) of a reduced load column into column `col` of `out`.
+    let modal_load = |reduced: &DVector<f64>, out: &mut Mat<f64>, col: usize| {
+        let modal = phi.tr_mul(reduced);
         for i in 0..r {
             for k1 in 0..3 {
-                gw[(k1 * r + i, c)] = gamma[i][k1] * modal[i];
+                out[(k1 * r + i, col)] = gamma[i][k1] * modal[i];
             }
         }
+    };
+    for (j, column) in lin.force_columns.iter().enumerate() {
+        modal_load(column, &mut f, n3 + j);
+        f[(n3 + j, n3 + j)] = 1.0;
     }
-    let q = &gw * gw.transpose();
-    let ops = &full.operators;
-    let channels = &measurements.channels;
-    let mut h = Mat::<f64>::zeros(channels.len(), n3);
-    for (row, &(s, c)) in channels.iter().enumerate() {
-        let rows = point_rows(full, v, &ops.sensors[s].weights) * &phi;
-        for i in 0..r {
-            h[(row, i)] = rows[(c, i)];
+    let nw = lin.noise_columns.len();
+    let mut gw = Mat::<f64>::zeros(n, nw + nf);
+    for (c, column) in lin.noise_columns.iter().enumerate() {
+        modal_load(column, &mut gw, c);
+    }
+    for (j, &sigma) in lin.force_sigma.iter().enumerate() {
+        gw[(n3 + j, nw + j)] = sigma;
+    }
+    // Diagonal scaling D (x_m = D x̃) so that F's entries are O(1) and the PBH tests of the
+    // DARE are meaningful: (1, ω_i, ω_i²) for mode i's (η, η̇, η̈), and for a force state the
+    // force whose static modal response max_i |(Φᵀ Vᵀ b)_i| / λ_i is 1 (in N, f is otherwise
+    // seen through responses of 1e-4…1e-1 per N).
+    let mut d = vec![1.0; n];
+    for i in 0..r {
+        let omega = lambda[i].sqrt();
+        d[r + i] = omega;
+        d[2 * r + i] = omega * omega;
+    }
+    for (j, column) in lin.force_columns.iter().enumerate() {
+        let modal = phi.tr_mul(column);
+        let response = (0..r).fold(0.0f64, |m, i| m.max(modal[i].abs() / lambda[i]));
+        if response > 0.0 {
+            d[n3 + j] = 1.0 / response;
         }
     }
+    let f = Mat::<f64>::from_fn(n, n, |i, j| f[(i, j)] * d[j] / d[i]);
+    let gw = Mat::<f64>::from_fn(n, gw.ncols(), |i, j| gw[(i, j)] / d[i]);
+    let q = &gw * gw.transpose();
+    let modal_rows = &lin.measured_rows * &phi;
+    let h = Mat::<f64>::from_fn(measurements.channels.len(), n, |i, j| {
+        if j < r {
+            modal_rows[(i, j)] * d[j]
+        } else {
+            0.0
+        }
+    });
     let schedule = kalman::periodic_gains(
         f.as_ref(),
         h.as_ref(),
@@ -199,14 +371,17 @@ pub fn linearised_filter(
         &measurements.every,
     )
     .map_err(|e| NonlinearError::Invalid(format!("tier filter: {e}")))?;
-    // Back to s = (q, q̇, q̈): x_s = T x_m, T = diag(Φ, Φ, Φ).
-    let mut t = Mat::<f64>::zeros(n3, n3);
+    // Back to s = (q, q̇, q̈, f): x_s = T D x̃, T = diag(Φ, Φ, Φ, I).
+    let mut t = Mat::<f64>::zeros(n, n);
     for blk in 0..3 {
         for i in 0..r {
             for j in 0..r {
-                t[(blk * r + i, blk * r + j)] = phi[(i, j)];
+                t[(blk * r + i, blk * r + j)] = phi[(i, j)] * d[blk * r + j];
             }
         }
+    }
+    for j in n3..n {
+        t[(j, j)] = d[j];
     }
     let back = |p: &Mat<f64>| &t * p * t.transpose();
     let mut schedule = schedule;
@@ -218,16 +393,174 @@ pub fn linearised_filter(
     Ok(TierFilter {
         process_noise: back(&q),
         schedule,
+        force_loads: Vec::new(),
+        static_residual: 0.0,
     })
 }
 
-/// The tier's constant-gain filter in s = (q, q̇, q̈) coordinates.
+/// Recomputes the tier filter of a model file for the scene `full` (same mesh, loads and
+/// training; other sensors' noise, rates or force-noise σ): the [`LinearisedTier`] is read
+/// from the file's tier section (M_r, K_r at rest = Σ wₑ V_eᵀ Kₑ V_e over the sampled
+/// elements, VᵀB, the sensor rows), the noise model from the scene, and the section's
+/// `force_loads` and `kalman` are replaced. The scene's distributed force noise is not in the
+/// file (no VᵀB_w): refused. Returns the new filter's closed-loop spectral radius.
+pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, NonlinearError> {
+    let measurements = Measurements::new(&full.operators);
+    let inputs = &full.operators.inputs;
+    if model.inputs.len() != inputs.len()
+        || model.measurements.len() != measurements.channels.len()
+        || (model.dt - full.wilson.dt).abs() > 1e-15 * full.wilson.dt
+    {
+        return Err(NonlinearError::Invalid(
+            "refilter: the scene's inputs, measurements or Δt differ from the model's".into(),
+        ));
+    }
+    let Some(t) = model.tier.as_mut() else {
+        return Err(NonlinearError::Invalid(
+            "refilter: the model has no tier".into(),
+        ));
+    };
+    let r = t.order as usize;
+    let matrix = |m: &fmt::Matrix| {
+        DMatrix::from_fn(m.rows as usize, m.cols as usize, |i, j| {
+            m.data[i * m.cols as usize + j]
+        })
+    };
+    let mut stiffness = DMatrix::<f64>::zeros(r, r);
+    for e in &t.elements {
+        let rows = matrix(&e.rows);
+        stiffness += e.weight * rows.transpose() * matrix(&e.stiffness) * &rows;
+    }
+    let input = matrix(&t.input);
+    let (force, white) = noise_model(full)?;
+    let mut noise_columns = Vec::with_capacity(white.len());
+    for &j in &white {
+        // A load's white noise channel is σ times its load channel (fem::operators), whose VᵀB
+        // the file holds; distributed noise is not in the file.
+        let ch = &full.operators.noise[j];
+        let column = match ch.kind {
+            InputKind::Noise { load: Some(g) } => (0..3)
+                .find(|&c| ch.label.ends_with(["x", "y", "z"][c]))
+                .and_then(|c| load_channel(full, g, c))
+                .map(|k| {
+                    DVector::from(input.column(k)) * full.scene.scene.loads[g].force_noise_std
+                }),
+            _ => None,
+        };
+        noise_columns.push(column.ok_or_else(|| {
+            NonlinearError::Invalid(format!(
+                "refilter: noise channel '{}' is not in the model file: recompile",
+                ch.label
+            ))
+        })?);
+    }
+    let lin = LinearisedTier {
+        mass: matrix(&t.mass),
+        stiffness,
+        alpha: t.alpha,
+        beta: t.beta,
+        wilson: full.wilson,
+        force_columns: force
+            .iter()
+            .map(|&(ch, _)| input.column(ch).into())
+            .collect(),
+        force_sigma: force.iter().map(|&(_, s)| s).collect(),
+        noise_columns,
+        measured_rows: measured_rows(&measurements, |s| matrix(&t.sensor_rows[s])),
+    };
+    let mut filter = filter_of(&lin, &measurements)?;
+    filter.force_loads = random_walk_loads(full).iter().map(|&(g, _)| g).collect();
+    t.force_loads = filter.force_loads.iter().map(|&g| g as u32).collect();
+    t.kalman = kalman_section(&filter, &measurements);
+    Ok(filter.schedule.closed_loop_spectral_radius)
+}
+
+/// The section's `kalman` of a filter.
+fn kalman_section(filter: &TierFilter, measurements: &Measurements) -> fmt::KalmanGains {
+    let schedule = &filter.schedule;
+    fmt::KalmanGains {
+        period: schedule.period as u32,
+        phases: schedule
+            .phases
+            .iter()
+            .map(|p| fmt::KalmanPhase {
+                measured: p.measured.iter().map(|&i| i as u32).collect(),
+                gain: crate::model_file::to_matrix(p.gain.as_ref()),
+                prior_covariance: crate::model_file::to_matrix(p.prior_covariance.as_ref()),
+                posterior_covariance: crate::model_file::to_matrix(p.posterior_covariance.as_ref()),
+            })
+            .collect(),
+        process_noise: crate::model_file::to_matrix(filter.process_noise.as_ref()),
+        measurement_variance: measurements.variance.clone(),
+    }
+}
+
+/// Worst relative static residual of the linearised tier's measured response to the force
+/// channels (docs/design.md §11.4): max over channels j of ‖H K⁻¹ b_j − H V K_r⁻¹ Vᵀ b_j‖ /
+/// ‖H K⁻¹ b_j‖ (H the measured rows, K the full-order stiffness, K_r the reduced tangent at
+/// rest). 0 without force channels.
+fn static_residual(
+    full: &FullOrder,
+    v: &DMatrix<f64>,
+    k_r: &DMatrix<f64>,
+    h_red: &DMatrix<f64>,
+    channels: &[usize],
+    measurements: &Measurements,
+) -> Result<f64, NonlinearError> {
+    if channels.is_empty() {
+        return Ok(0.0);
+    }
+    let fem = &full.fem;
+    let n = fem.dof_count();
+    let llt = fem.stiffness.sp_cholesky(faer::Side::Lower).map_err(|e| {
+        NonlinearError::Invalid(format!(
+            "tier filter: the stiffness K is not positive definite ({e:?})"
+        ))
+    })?;
+    let inputs = &full.operators.inputs;
+    let mut u = Mat::from_fn(n, channels.len(), |i, j| inputs[channels[j]].column[i]);
+    llt.solve_in_place(u.as_mut());
+    let reduced_tangent = k_r.clone().cholesky().ok_or_else(|| {
+        NonlinearError::Invalid(
+            "tier filter: the reduced tangent at rest is not positive definite".into(),
+        )
+    })?;
+    let ops = &full.operators;
+    let mut worst: f64 = 0.0;
+    for (j, &ch) in channels.iter().enumerate() {
+        let load = v.tr_mul(&DVector::from_column_slice(&inputs[ch].column));
+        let reduced = h_red * reduced_tangent.solve(&load);
+        let (mut diff, mut size) = (0.0, 0.0);
+        for (row, &(s, c)) in measurements.channels.iter().enumerate() {
+            let exact: f64 = ops.sensors[s]
+                .weights
+                .iter()
+                .filter_map(|&(node, w)| full.fem.dofs.index[node][c].map(|d| w * u[(d, j)]))
+                .sum();
+            diff += (exact - reduced[row]).powi(2);
+            size += exact * exact;
+        }
+        if size > 0.0 {
+            worst = worst.max((diff / size).sqrt());
+        }
+    }
+    Ok(worst)
+}
+
+/// The tier's constant-gain filter in s = (q, q̇, q̈, f) coordinates.
 #[derive(Clone, Debug)]
 pub struct TierFilter {
-    /// Periodic steady-state gains (3r × measured) and covariances (3r × 3r).
+    /// Periodic steady-state gains (n × measured) and covariances (n × n), n = 3r + 3 per
+    /// random-walk load group.
     pub schedule: PeriodicSchedule,
-    /// Q_s, 3r × 3r: process noise per step of the linearised model.
+    /// Q_s, n × n: process noise per step of the linearised model.
     pub process_noise: Mat<f64>,
+    /// The random-walk load groups (indices into the scene's loads) whose force states follow
+    /// the 3r kinematic states, 3 each.
+    pub force_loads: Vec<usize>,
+    /// Worst relative static residual of the measured response to a force channel
+    /// ([`static_residual`]; 0 without force states).
+    pub static_residual: f64,
 }
 
 fn to_matrix(m: &DMatrix<f64>) -> fmt::Matrix {
@@ -256,7 +589,6 @@ pub fn tier_section(
     measurements: &Measurements,
     newton: RuntimeNewton,
 ) -> fmt::CorotationalTier {
-    let schedule = &filter.schedule;
     let v = &tier.basis.vectors;
     let fem = &full.fem;
     let ops = &full.operators;
@@ -318,16 +650,6 @@ pub fn tier_section(
             },
         })
         .collect();
-    let phases = schedule
-        .phases
-        .iter()
-        .map(|p| fmt::KalmanPhase {
-            measured: p.measured.iter().map(|&i| i as u32).collect(),
-            gain: crate::model_file::to_matrix(p.gain.as_ref()),
-            prior_covariance: crate::model_file::to_matrix(p.prior_covariance.as_ref()),
-            posterior_covariance: crate::model_file::to_matrix(p.posterior_covariance.as_ref()),
-        })
-        .collect();
     fmt::CorotationalTier {
         order: r as u32,
         mass: to_matrix(&tier.model.mass),
@@ -360,11 +682,7 @@ pub fn tier_section(
             max_coordinate_norm: tier.max_coordinate_norm,
             state_margin: newton.state_margin,
         },
-        kalman: fmt::KalmanGains {
-            period: schedule.period as u32,
-            phases,
-            process_noise: crate::model_file::to_matrix(filter.process_noise.as_ref()),
-            measurement_variance: measurements.variance.clone(),
-        },
+        force_loads: filter.force_loads.iter().map(|&g| g as u32).collect(),
+        kalman: kalman_section(filter, measurements),
     }
 }
