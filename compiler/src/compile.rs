@@ -196,6 +196,7 @@ pub fn compile_reduced(
     notes.extend(reductor.basis.warnings.iter().cloned());
     notes.extend(reduced.warnings.iter().cloned());
     notes.extend(order_note);
+    notes.extend(crate::advice::tier_advice(reductor));
     if ops.noise.is_empty() {
         notes.push("no process noise declared (force_noise_std / force_noise): Q = 0, so the steady-state gain is zero and measurements are ignored".to_owned());
     }

@@ -36,6 +36,7 @@ pub mod nonlinear;
 pub mod stepping;
 
 pub mod accuracy;
+pub mod advice;
 pub mod check;
 pub mod compile;
 pub mod error;

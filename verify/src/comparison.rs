@@ -27,6 +27,15 @@
 //!
 //! [`rotation_sweep`] repeats the open-loop comparison with the scenario's loads scaled, to find
 //! where the warping approximation breaks down.
+//!
+//! The co-rotational tier (docs/design.md §10), compiled once from its own scene by
+//! [`compile_tier`] (training included), joins both as one more row / one more column: it is
+//! driven through the same public [`Estimator`] API, inputs and synthetic measurements as the
+//! warped rows (open loop, filtered with the loads given and withheld, timed the same way), so
+//! its figures are whatever the runtime's tier does. Its scene must describe the same body as the
+//! comparison's scene (same inputs, sensors and displayed node sets, checked); the references
+//! are the comparison scene's. The runtime's envelope status ([`crokf_runtime::TierStatus`]) is
+//! recorded per run: a sweep point whose loads or state leave the training envelope is marked.
 
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
@@ -35,7 +44,7 @@ use std::time::Instant;
 use crokf_formats as fmt;
 use crokf_runtime::{Estimator, RuntimeError};
 
-use crokf_compile::compile::compile_reduced;
+use crokf_compile::compile::{compile, compile_reduced};
 use crokf_compile::report::StageTimer;
 use crokf_compile::stepping::{
     deformation_gradient, polar_rotation, CorotationalSimulator, LinearSimulator, NewtonOptions,
@@ -53,7 +62,9 @@ use crate::scenario::{Horizon, Scenario, ScenarioError};
 pub use consistency::{chi_square_quantile, ChiSquare, Consistency, TipSample};
 use consistency::{Accumulator, Blocks};
 use metrics::ErrorSum;
-pub use metrics::{breakdown_rotation, relative_l2, rotation_angle, Gaussian};
+pub use metrics::{
+    breakdown_rotation, breakdown_rotation_of, relative_l2, rotation_angle, Gaussian,
+};
 pub use render::{format_seconds, sweep_markdown};
 
 /// Errors of a comparison; each names the file, order or step concerned.
@@ -224,6 +235,12 @@ pub struct Comparison {
     pub reduced: Vec<ReducedRow>,
     /// Orders whose compile or run failed, with the reason.
     pub failures: Vec<ReducedFailure>,
+    /// The co-rotational tier's row, when one was given and its runs completed.
+    pub tier: Option<TierRow>,
+    /// Why the tier's row is missing, when one was given and a run failed.
+    pub tier_failure: Option<String>,
+    /// The compiler's notes on the tier's compile (empty without a tier).
+    pub tier_notes: Vec<String>,
     /// Noise seed used.
     pub seed: u64,
     /// Whether the runtime got the loads.
@@ -243,7 +260,7 @@ pub struct ReducedFailure {
 }
 
 /// One point of [`rotation_sweep`].
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct SweepPoint {
     /// Factor on the scenario's loads.
     pub scale: f64,
@@ -255,6 +272,180 @@ pub struct SweepPoint {
     pub tip_error: f64,
     /// Linear full-order error vs the co-rotational reference (what no warping would give).
     pub linear_error: f64,
+    /// The co-rotational tier's open loop at this scale, when the sweep has a tier.
+    pub tier: Option<TierPoint>,
+}
+
+/// The co-rotational tier at one sweep scale.
+#[derive(Clone, Debug)]
+pub enum TierPoint {
+    /// The run completed.
+    Ran {
+        /// Open-loop relative L2 error over displayed nodes vs the co-rotational reference.
+        open_loop_error: f64,
+        /// Same at the tip.
+        tip_error: f64,
+        /// What the runtime said about the training envelope along the run.
+        envelope: EnvelopeSummary,
+    },
+    /// The runtime refused a step (e.g. Newton did not converge): the reason, with the step.
+    Failed(String),
+}
+
+impl TierPoint {
+    /// Open-loop error; NaN for a failed run.
+    pub fn open_loop_error(&self) -> f64 {
+        match self {
+            TierPoint::Ran {
+                open_loop_error, ..
+            } => *open_loop_error,
+            TierPoint::Failed(_) => f64::NAN,
+        }
+    }
+}
+
+/// The runtime's training-envelope status ([`crokf_runtime::EnvelopeStatus`]) over one run of
+/// the co-rotational tier, and its Newton work.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EnvelopeSummary {
+    /// Steps after which the runtime reported the load or the state outside the envelope.
+    pub steps_outside: usize,
+    /// Steps run.
+    pub steps: usize,
+    /// Largest |f_g| / trained max force over the run (> 1: a load beyond training).
+    pub max_load_ratio: f64,
+    /// Largest ‖q‖ / trained max ‖q‖ over the run.
+    pub max_state_ratio: f64,
+    /// The model's margin on the state ratio.
+    pub state_margin: f64,
+    /// Newton iterations (force evaluations) summed over the run.
+    pub newton_iterations: usize,
+}
+
+impl EnvelopeSummary {
+    /// True when any step left the envelope.
+    pub fn outside(&self) -> bool {
+        self.steps_outside > 0
+    }
+
+    /// Mean Newton iterations per step.
+    pub fn iterations_per_step(&self) -> f64 {
+        self.newton_iterations as f64 / self.steps.max(1) as f64
+    }
+
+    fn record(&mut self, status: &crokf_runtime::TierStatus) {
+        let e = &status.envelope;
+        self.steps += 1;
+        self.steps_outside += usize::from(e.outside());
+        self.max_load_ratio = self.max_load_ratio.max(e.load_ratio);
+        self.max_state_ratio = self.max_state_ratio.max(e.state_ratio);
+        self.state_margin = e.state_margin;
+        self.newton_iterations += status.iterations;
+    }
+}
+
+/// The co-rotational tier compiled from its scene (training included), once per report.
+#[derive(Clone, Debug)]
+pub struct TierModel {
+    /// The tier's scene file.
+    pub scene: PathBuf,
+    /// The compiled model (format v3 with the tier section).
+    pub model: fmt::Model,
+    /// Compile wall time, training included, s.
+    pub compile_s: f64,
+}
+
+/// Compiles the co-rotational tier of `scene` (`[reduction] model = "corotational"`), the whole
+/// pipeline with its training runs (progress of the training on stderr, from the compiler);
+/// the balanced part of the file is compiled at the scene's default order without its measured
+/// error (the report measures the tier itself). Refuses a scene without the tier.
+pub fn compile_tier(
+    scene: &Path,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<TierModel, ComparisonError> {
+    let phase = "compile co-rotational tier";
+    progress(Progress {
+        phase,
+        done: 0,
+        total: 1,
+    });
+    let start = Instant::now();
+    let compiled = compile(
+        scene,
+        &CompileOptions {
+            skip_measured_error: true,
+            ..CompileOptions::default()
+        },
+    )?;
+    let compile_s = start.elapsed().as_secs_f64();
+    if compiled.model.tier.is_none() {
+        return Err(ComparisonError::Invalid {
+            path: scene.to_owned(),
+            what: "this scene has no co-rotational tier: give a scene with [reduction] model = \"corotational\" and [reduction.corotational]".into(),
+        });
+    }
+    progress(Progress {
+        phase,
+        done: 1,
+        total: 1,
+    });
+    Ok(TierModel {
+        scene: scene.to_owned(),
+        model: compiled.model,
+        compile_s,
+    })
+}
+
+impl TierModel {
+    /// POD basis size r of the tier.
+    pub fn basis_order(&self) -> usize {
+        self.model.tier.as_ref().map_or(0, |t| t.order as usize)
+    }
+
+    /// Sampled (ECSW) elements.
+    pub fn sampled_elements(&self) -> usize {
+        self.model.tier.as_ref().map_or(0, |t| t.elements.len())
+    }
+
+    /// The compiler's notes on the tier's compile (training, sampling, its filter, advice).
+    pub fn notes(&self) -> &[String] {
+        &self.model.report.notes
+    }
+}
+
+/// The co-rotational tier's figures in [`run`].
+#[derive(Clone, Debug)]
+pub struct TierRow {
+    /// The tier's scene file.
+    pub scene: PathBuf,
+    /// POD basis size r.
+    pub basis_order: usize,
+    /// Sampled elements.
+    pub sampled_elements: usize,
+    /// State entries beyond (q, q̇, q̈): the filter's force states, if the runtime has any.
+    pub force_states: usize,
+    /// Compile wall time with training, s.
+    pub compile_s: f64,
+    /// Median runtime step, predict + update with the measurements, s (batched).
+    pub step_s: f64,
+    /// Median runtime step without measurements, s.
+    pub open_loop_step_s: f64,
+    /// Open loop: relative L2 error over displayed nodes vs the co-rotational reference.
+    pub error: f64,
+    /// Open loop: at the tip.
+    pub tip_error: f64,
+    /// Filtered, loads given (or withheld when the whole comparison withholds them).
+    pub filtered_error: f64,
+    /// Same at the tip.
+    pub filtered_tip_error: f64,
+    /// Filtered with the loads withheld.
+    pub withheld_filtered_error: f64,
+    /// Same at the tip.
+    pub withheld_filtered_tip_error: f64,
+    /// Open loop vs the LINEAR full-order reference.
+    pub error_vs_linear: f64,
+    /// Envelope and Newton work of the open-loop run.
+    pub envelope: EnvelopeSummary,
 }
 
 /// The scene and scenario, ready to run.
@@ -530,6 +721,8 @@ struct RunErrors {
     display: ErrorSum,
     tip: ErrorSum,
     display_vs_linear: ErrorSum,
+    /// The co-rotational tier's envelope status over the run (default for the warped tier).
+    envelope: EnvelopeSummary,
 }
 
 /// Drives the estimator through precomputed inputs and measurements (per step), accumulating
@@ -584,6 +777,9 @@ fn run_runtime(
         } else {
             est.step(&inputs[k], &measurements[k])
                 .map_err(|e| runtime_err(k + 1, e))?;
+        }
+        if est.is_corotational() {
+            errors.envelope.record(&est.tier_status());
         }
         for (s, buf) in set_buffers.iter_mut().enumerate() {
             est.node_displacements(s, buf)
@@ -666,7 +862,8 @@ fn time_runtime(
                 est.reset();
                 k = 0;
             }
-            // A step can only fail on a non-invertible warp, already ruled out by the run.
+            // A step can only fail on a non-invertible warp or (tier) a refused Newton step,
+            // both already ruled out by the runs over the same sequence.
             let _ = black_box(est.step(black_box(&inputs[k]), black_box(&measurements[k])));
             k += 1;
         }
@@ -731,13 +928,14 @@ fn synthetic_measurements(
 ) -> Vec<Vec<Option<f64>>> {
     let mut rng = Gaussian::new(seed);
     let ns = 3 * model.sensors.len();
-    let period = model.kalman.period.max(1) as usize;
+    // The filter the estimator runs: the tier's own when the model has one.
+    let kalman = model.tier.as_ref().map_or(&model.kalman, |t| &t.kalman);
+    let period = kalman.period.max(1) as usize;
     (0..steps)
         .map(|k| {
-            let phase = &model.kalman.phases[(k + 1) % period];
+            let phase = &kalman.phases[(k + 1) % period];
             let mut y = vec![None; model.measurements.len()];
-            let noise: Vec<f64> = model
-                .kalman
+            let noise: Vec<f64> = kalman
                 .measurement_variance
                 .iter()
                 .map(|variance| variance.sqrt() * rng.normal())
@@ -772,15 +970,171 @@ fn compile_at(
     Ok((compiled.model, start.elapsed().as_secs_f64()))
 }
 
-/// Runs the comparison of one scene and one scenario (see the module docs).
+/// Refuses a tier whose scene is not the comparison's body: the inputs, the sensors and the
+/// displayed node sets (names, sizes and rest positions) must agree, since the tier's read-outs
+/// are compared node by node with the comparison scene's references.
+fn check_tier_matches(setup: &Setup, tier: &TierModel) -> Result<(), ComparisonError> {
+    let model = &tier.model;
+    let ops = &setup.full.operators;
+    let fail = |what: String| ComparisonError::Invalid {
+        path: tier.scene.clone(),
+        what: format!(
+            "the co-rotational tier's scene does not match {}: {what}",
+            setup.scene_path.display()
+        ),
+    };
+    let inputs: Vec<&str> = model.inputs.iter().map(|c| c.label.as_str()).collect();
+    let expected: Vec<&str> = ops.inputs.iter().map(|c| c.label.as_str()).collect();
+    if inputs != expected {
+        return Err(fail(format!("inputs {inputs:?}, expected {expected:?}")));
+    }
+    let sensors: Vec<&str> = model.sensors.iter().map(|s| s.name.as_str()).collect();
+    let expected: Vec<&str> = ops.sensors.iter().map(|s| s.name.as_str()).collect();
+    if sensors != expected {
+        return Err(fail(format!("sensors {sensors:?}, expected {expected:?}")));
+    }
+    if model.node_sets.len() != ops.node_sets.len() {
+        return Err(fail(format!(
+            "{} node sets, expected {}",
+            model.node_sets.len(),
+            ops.node_sets.len()
+        )));
+    }
+    let positions = &setup.full.fem.positions;
+    let scale = positions
+        .iter()
+        .flatten()
+        .fold(0.0f64, |m, v| m.max(v.abs()))
+        .max(f64::MIN_POSITIVE);
+    for (set, ours) in model.node_sets.iter().zip(&ops.node_sets) {
+        if set.name != ours.name || set.node_tags.len() != ours.nodes.len() {
+            return Err(fail(format!(
+                "node set '{}' ({} nodes), expected '{}' ({} nodes)",
+                set.name,
+                set.node_tags.len(),
+                ours.name,
+                ours.nodes.len()
+            )));
+        }
+        for (i, &node) in ours.nodes.iter().enumerate() {
+            let rest = &set.rest_positions.data[3 * i..3 * i + 3];
+            if (0..3).any(|c| (rest[c] - positions[node][c]).abs() > 1e-9 * scale) {
+                return Err(fail(format!(
+                    "node {i} of set '{}' rests at {rest:?}, expected {:?}",
+                    set.name, positions[node]
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The tier's row: open loop, filtered with the loads given and withheld, and the timed step,
+/// through the same [`run_runtime`], inputs and synthetic measurements as the warped rows.
+fn run_tier(
+    setup: &Setup,
+    tier: &TierModel,
+    corot: &ReferenceRun,
+    linear: &ReferenceRun,
+    options: &ComparisonOptions,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<TierRow, ComparisonError> {
+    let model = &tier.model;
+    let r = tier.basis_order();
+    let mut est = Estimator::new(model).map_err(|source| ComparisonError::Runtime {
+        path: tier.scene.clone(),
+        order: r,
+        step: 0,
+        source,
+    })?;
+    // As for the warped rows: the filter itself, not the outlier gate.
+    est.set_innovation_gate(None);
+    let force_states = est.state().len().saturating_sub(3 * r);
+    let inputs = runtime_inputs(setup, &setup.scenario, model, options.withhold_loads)?;
+    let none = vec![vec![None; model.measurements.len()]; setup.steps];
+    let open = run_runtime(
+        setup,
+        &mut est,
+        &inputs,
+        &none,
+        corot,
+        Some(linear),
+        None,
+        "open loop tier",
+        progress,
+    )?;
+    let measurements = synthetic_measurements(model, corot, setup.steps, options.seed);
+    let filtered = run_runtime(
+        setup,
+        &mut est,
+        &inputs,
+        &measurements,
+        corot,
+        None,
+        None,
+        "filtered tier",
+        progress,
+    )?;
+    let withheld = if options.withhold_loads {
+        filtered
+    } else {
+        let blind = runtime_inputs(setup, &setup.scenario, model, true)?;
+        run_runtime(
+            setup,
+            &mut est,
+            &blind,
+            &measurements,
+            corot,
+            None,
+            None,
+            "withheld tier",
+            progress,
+        )?
+    };
+    let phase = "timing tier";
+    progress(Progress {
+        phase,
+        done: 0,
+        total: 1,
+    });
+    let step_s = time_runtime(&mut est, &inputs, &measurements, options.timing_samples);
+    let open_loop_step_s = time_runtime(&mut est, &inputs, &none, options.timing_samples);
+    progress(Progress {
+        phase,
+        done: 1,
+        total: 1,
+    });
+    Ok(TierRow {
+        scene: tier.scene.clone(),
+        basis_order: r,
+        sampled_elements: tier.sampled_elements(),
+        force_states,
+        compile_s: tier.compile_s,
+        step_s,
+        open_loop_step_s,
+        error: open.display.relative(),
+        tip_error: open.tip.relative(),
+        filtered_error: filtered.display.relative(),
+        filtered_tip_error: filtered.tip.relative(),
+        withheld_filtered_error: withheld.display.relative(),
+        withheld_filtered_tip_error: withheld.tip.relative(),
+        error_vs_linear: open.display_vs_linear.relative(),
+        envelope: open.envelope,
+    })
+}
+
+/// Runs the comparison of one scene and one scenario (see the module docs), with the
+/// co-rotational tier as one more row when `tier` is given (compiled by [`compile_tier`]).
 ///
 /// Phases reported through `progress`: `linear FEM`, `co-rotational FEM` (steps), `modal
 /// system` (0/1: front end and modes, once), then per order `compile r = R` (0/1), `open loop r = R`, `filtered r = R` (steps) and
-/// `timing r = R` (0/1).
+/// `timing r = R` (0/1); with a tier, `open loop tier`, `filtered tier`, `withheld tier` and
+/// `timing tier`.
 pub fn run(
     scene: &Path,
     scenario: &Path,
     options: &ComparisonOptions,
+    tier: Option<&TierModel>,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Comparison, ComparisonError> {
     if options.orders.is_empty() || options.orders.contains(&0) {
@@ -790,6 +1144,9 @@ pub fn run(
         });
     }
     let mut setup = Setup::new(scene, scenario)?;
+    if let Some(t) = tier {
+        check_tier_matches(&setup, t)?;
+    }
     let linear = run_reference(&setup, &setup.scenario, None, "linear FEM", progress)?;
     let corot = run_reference(
         &setup,
@@ -953,6 +1310,15 @@ pub fn run(
             }),
         }
     }
+    // The tier: a scene describing another body is an error of the inputs; a refused runtime
+    // step is recorded with its reason like a failed order.
+    let (tier_row, tier_failure) = match tier {
+        None => (None, None),
+        Some(t) => match run_tier(&setup, t, &corot, &linear, options, progress) {
+            Ok(row) => (Some(row), None),
+            Err(e) => (None, Some(e.to_string())),
+        },
+    };
     Ok(Comparison {
         scene: setup.scene_path.clone(),
         scenario: setup.scenario_path.clone(),
@@ -970,6 +1336,9 @@ pub fn run(
         linear: linear_row,
         reduced,
         failures,
+        tier: tier_row,
+        tier_failure,
+        tier_notes: tier.map(|t| t.notes().to_vec()).unwrap_or_default(),
         seed: options.seed,
         withheld_loads: options.withhold_loads,
         notes: setup
@@ -987,14 +1356,18 @@ pub fn run(
 /// "Where the warping approximation breaks down": for each factor in `scales`, the scenario's
 /// loads (and gravity factor) are multiplied by it and the whole scenario is re-run
 /// dynamically (same time history, same Δt) on the co-rotational reference, the linear
-/// full-order model, and the runtime at order `order` open loop (compiled once). Returns one
-/// point per scale, in the given order. Use [`breakdown_rotation`] on the result.
+/// full-order model, and the runtime at order `order` open loop (compiled once), and the
+/// co-rotational `tier` open loop when given (its envelope status recorded per scale; a refused
+/// step is recorded as [`TierPoint::Failed`] and the sweep goes on). Returns one point per
+/// scale, in the given order. Use [`breakdown_rotation`] / [`breakdown_rotation_of`] on the
+/// result.
 pub fn rotation_sweep(
     scene: &Path,
     scenario: &Path,
     order: usize,
     scales: &[f64],
     options: &ComparisonOptions,
+    tier: Option<&TierModel>,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Vec<SweepPoint>, ComparisonError> {
     if order == 0 {
@@ -1021,6 +1394,20 @@ pub fn rotation_sweep(
         step: 0,
         source,
     })?;
+    let mut tier_est = match tier {
+        None => None,
+        Some(t) => {
+            check_tier_matches(&setup, t)?;
+            let mut est = Estimator::new(&t.model).map_err(|source| ComparisonError::Runtime {
+                path: t.scene.clone(),
+                order: t.basis_order(),
+                step: 0,
+                source,
+            })?;
+            est.set_innovation_gate(None);
+            Some((t, est))
+        }
+    };
     let has_gravity = setup.full.scene.scene.gravity.is_some();
     let none = vec![vec![None; model.measurements.len()]; setup.steps];
     let mut points = Vec::with_capacity(scales.len());
@@ -1053,12 +1440,39 @@ pub fn rotation_sweep(
             &format!("open loop ×{scale}"),
             progress,
         )?;
+        let tier = match &mut tier_est {
+            None => None,
+            Some((t, est)) => {
+                let inputs = runtime_inputs(&setup, &scenario, &t.model, false)?;
+                let none = vec![vec![None; t.model.measurements.len()]; setup.steps];
+                let run = run_runtime(
+                    &setup,
+                    est,
+                    &inputs,
+                    &none,
+                    &corot,
+                    None,
+                    None,
+                    &format!("open loop tier ×{scale}"),
+                    progress,
+                );
+                Some(match run {
+                    Ok(e) => TierPoint::Ran {
+                        open_loop_error: e.display.relative(),
+                        tip_error: e.tip.relative(),
+                        envelope: e.envelope,
+                    },
+                    Err(e) => TierPoint::Failed(e.to_string()),
+                })
+            }
+        };
         points.push(SweepPoint {
             scale,
             max_rotation_deg: corot.max_rotation_deg,
             open_loop_error: open.display.relative(),
             tip_error: open.tip.relative(),
             linear_error: relative_l2(&lin.display, &corot.display),
+            tier,
         });
     }
     Ok(points)

@@ -86,7 +86,7 @@ fn run(scene: &Path, scenario: &Path, options: &ComparisonOptions) -> Comparison
             phases.push(p.phase.to_owned());
         }
     };
-    let c = comparison::run(scene, scenario, options, &mut progress)
+    let c = comparison::run(scene, scenario, options, None, &mut progress)
         .unwrap_or_else(|e| panic!("comparison failed: {e}"));
     eprintln!("{}", c.markdown());
     // The compiler's notes on the scene reach the report (the beam's static correction note).
@@ -301,6 +301,7 @@ fn filter_tracks_a_withheld_load_from_the_measurements() {
             seed: 7,
             ..options.clone()
         },
+        None,
         &mut |_| {},
     )
     .expect("comparison");
@@ -381,6 +382,7 @@ fn rotation_sweep_scales_with_the_load() {
         8,
         &scales,
         &ComparisonOptions::default(),
+        None,
         &mut |_| {},
     )
     .expect("sweep");
@@ -407,6 +409,7 @@ fn breakdown_rotation_is_the_last_point_under_the_threshold() {
         open_loop_error,
         tip_error: 0.0,
         linear_error: 0.0,
+        tier: None,
     };
     // Unsorted on purpose; the 40° point fails 5 % but passes 10 %, 60° fails both, and the
     // 80° point back under 5 % must not count (the first failure ends the range).
@@ -456,8 +459,14 @@ fn a_steady_scenario_and_bad_orders_are_refused() {
          times = [0.0]\nforces = [[0.0, 0.0, -1.0]]\n",
     )
     .expect("scenario");
-    let err = comparison::run(&scene, &steady, &ComparisonOptions::default(), &mut |_| {})
-        .expect_err("steady scenario");
+    let err = comparison::run(
+        &scene,
+        &steady,
+        &ComparisonOptions::default(),
+        None,
+        &mut |_| {},
+    )
+    .expect_err("steady scenario");
     let msg = err.to_string();
     assert!(matches!(err, ComparisonError::Invalid { .. }), "{msg}");
     assert!(
@@ -471,6 +480,7 @@ fn a_steady_scenario_and_bad_orders_are_refused() {
             orders: vec![4, 0],
             ..ComparisonOptions::default()
         },
+        None,
         &mut |_| {},
     )
     .expect_err("order 0");
@@ -488,12 +498,18 @@ fn models() -> PathBuf {
 /// Runs the report, writes `target/tmp/report_<name>.{md,csv,svg}` and prints the markdown.
 fn report(name: &str, scene: &Path, scenario: &Path) -> Comparison {
     let mut last = String::new();
-    let c = comparison::run(scene, scenario, &ComparisonOptions::default(), &mut |p| {
-        if p.phase != last {
-            eprintln!("  {} …", p.phase);
-            last = p.phase.to_owned();
-        }
-    })
+    let c = comparison::run(
+        scene,
+        scenario,
+        &ComparisonOptions::default(),
+        None,
+        &mut |p| {
+            if p.phase != last {
+                eprintln!("  {} …", p.phase);
+                last = p.phase.to_owned();
+            }
+        },
+    )
     .unwrap_or_else(|e| panic!("{e}"));
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"));
     for (ext, text) in [("md", c.markdown()), ("csv", c.csv()), ("svg", c.svg())] {
@@ -544,6 +560,7 @@ fn sweep_cantilever() {
         order,
         &scales,
         &ComparisonOptions::default(),
+        None,
         &mut |p| {
             if p.phase != last {
                 eprintln!("  {} …", p.phase);
@@ -564,4 +581,175 @@ fn sweep_cantilever() {
         assert!(w[1].max_rotation_deg > w[0].max_rotation_deg);
     }
     assert!(points.iter().all(|p| p.open_loop_error < p.linear_error));
+}
+
+// ---------------------------------------------------------------------------------------------
+// The co-rotational tier in the report
+
+/// The tier's training block for the small beam: the tip load trained to 30 N (ramp to
+/// 1.25×, step to 0.6×, 0.15 s runs), r = 10, ECSW to 1e-2 (as tests/tests/tier.rs).
+const TIER: &str = "[reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
+    ranges = { tip = 30.0 }\nduration = 0.15\nevery = 2\norder = 10\necsw_tolerance = 1e-2\n\
+    newton_tolerance = 1e-10\nnewton_iterations = 40\n";
+
+/// The beam case `name` at `force` N over `steps` steps, and its tier scene beside it (the
+/// same body, white force model, the [`TIER`] block), compiled once.
+fn tier_case(name: &str, force: f64, steps: usize) -> (PathBuf, PathBuf, comparison::TierModel) {
+    let (scene, scenario) = beam_case(name, force, steps, 0.05);
+    let tier_scene = scene.with_file_name("scene_corotational.toml");
+    std::fs::write(&tier_scene, scene_text(0.05, "tip") + TIER).expect("tier scene");
+    let tier = comparison::compile_tier(&tier_scene, &mut |_| {})
+        .unwrap_or_else(|e| panic!("tier compile: {e}"));
+    (scene, scenario, tier)
+}
+
+#[test]
+fn the_tier_is_a_row_and_beats_warping_at_large_rotation() {
+    // 30 N ramped in over 0.05 s bends the coarse (stiff, locking) beam by about 14° within the
+    // 0.15 s run: the warped row is 5 % off there, the tier stays at its training accuracy.
+    let (scene, scenario, tier) = tier_case("tier_row", 30.0, 30);
+    let options = ComparisonOptions {
+        orders: vec![8],
+        timing_samples: 3,
+        ..ComparisonOptions::default()
+    };
+    let c = comparison::run(&scene, &scenario, &options, Some(&tier), &mut |_| {})
+        .unwrap_or_else(|e| panic!("comparison: {e}"));
+    let md = c.markdown();
+    eprintln!("{md}");
+    assert!(c.tier_failure.is_none(), "{:?}", c.tier_failure);
+    assert!(c.max_rotation_deg > 10.0, "rotation {}", c.max_rotation_deg);
+    let t = c.tier.as_ref().expect("tier row");
+    let warped = &c.reduced[0];
+    assert_eq!(t.basis_order, 10);
+    assert!(t.sampled_elements > 0 && t.sampled_elements < c.tetrahedra);
+    // The tier against the same reference as the warped row: below it, and below 2 %.
+    assert!(
+        t.error < 0.5 * warped.error && t.error < 0.02,
+        "tier {} vs warped {}",
+        t.error,
+        warped.error
+    );
+    assert!(
+        t.tip_error < warped.tip_error,
+        "{} vs {}",
+        t.tip_error,
+        warped.tip_error
+    );
+    assert!(t.error < c.linear.error);
+    // Filtered with the loads given: below the warped filter. Withheld: whatever the tier's
+    // filter makes of the markers alone (it has no force states in this scene's white force
+    // model), but a figure.
+    assert!(
+        t.filtered_error < warped.filtered_error,
+        "{} vs {}",
+        t.filtered_error,
+        warped.filtered_error
+    );
+    assert!(t.withheld_filtered_error.is_finite());
+    assert!(t.step_s > 0.0 && t.step_s.is_finite());
+    // Inside its envelope: 30 N against 37.5 N trained, and the runtime says so.
+    assert!(!t.envelope.outside(), "{:?}", t.envelope);
+    assert!(
+        (t.envelope.max_load_ratio - 0.8).abs() < 1e-9,
+        "{:?}",
+        t.envelope
+    );
+    assert_eq!(t.envelope.steps, 30);
+    // Rendering: a row in the table, two in the filter table, one CSV line, two stars.
+    let rows = markdown_rows(&md);
+    assert_eq!(rows.len(), 2 + 1 + 1, "{md}");
+    assert!(
+        rows[3].starts_with("| co-rotational tier | 10 POD, "),
+        "{}",
+        rows[3]
+    );
+    assert_eq!(rows[3].matches('|').count(), 9);
+    let filter_rows = consistency_rows(&md);
+    assert_eq!(filter_rows.len(), 2 + 2, "{md}");
+    assert!(filter_rows[2].starts_with("| tier 10 POD") && filter_rows[2].contains("| given |"));
+    let csv = c.csv();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines.len(), 1 + 2 + 1 + 1, "{csv}");
+    let width = lines[0].split(',').count();
+    assert!(lines.iter().all(|l| l.split(',').count() == width), "{csv}");
+    let tier_line: Vec<&str> = lines[4].split(',').collect();
+    assert_eq!(tier_line[0], "corotational_tier");
+    let error: f64 = tier_line[5].parse().expect("error column");
+    assert!((error - t.error).abs() <= 1e-12 * error);
+    let svg = c.svg();
+    assert_eq!(check_svg(&svg), 2 + 2 + 2, "{svg}");
+    assert!(svg.contains("co-rotational tier, open loop"));
+}
+
+#[test]
+fn a_tier_of_another_body_is_refused_before_any_run() {
+    let (_, _, tier) = tier_case("tier_other", 1.0, 4);
+    // The same beam with its end sensor named differently: not the tier's body.
+    let (scene, scenario) = beam_case_with("tier_other_scene", 1.0, 4, 0.05, "end_marker");
+    let mut ran = false;
+    let err = comparison::run(
+        &scene,
+        &scenario,
+        &ComparisonOptions::default(),
+        Some(&tier),
+        &mut |_| ran = true,
+    )
+    .expect_err("another body");
+    let msg = err.to_string();
+    assert!(!ran, "a reference ran before the check");
+    assert!(
+        msg.contains("scene_corotational.toml") && msg.contains("end_marker"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn the_sweep_table_marks_points_beyond_the_training_envelope() {
+    use comparison::{breakdown_rotation_of, EnvelopeSummary, TierPoint};
+    let envelope = |load: f64| EnvelopeSummary {
+        steps_outside: usize::from(load > 1.0) * 10,
+        steps: 10,
+        max_load_ratio: load,
+        max_state_ratio: load,
+        state_margin: 1.5,
+        newton_iterations: 20,
+    };
+    let point = |scale: f64, rotation: f64, tier: f64, load: f64| SweepPoint {
+        scale,
+        max_rotation_deg: rotation,
+        open_loop_error: rotation / 500.0,
+        tip_error: rotation / 500.0,
+        linear_error: rotation / 100.0,
+        tier: Some(TierPoint::Ran {
+            open_loop_error: tier,
+            tip_error: tier,
+            envelope: envelope(load),
+        }),
+    };
+    let points = [
+        point(0.5, 10.0, 0.001, 0.4),
+        point(1.0, 20.0, 0.015, 0.8),
+        point(2.0, 40.0, 0.03, 1.6),
+        point(4.0, 60.0, 0.2, 3.2),
+    ];
+    let tier_error = |p: &SweepPoint| p.tier.as_ref().map_or(f64::NAN, TierPoint::open_loop_error);
+    assert_eq!(breakdown_rotation_of(&points, 0.02, tier_error), Some(20.0));
+    assert_eq!(breakdown_rotation_of(&points, 0.05, tier_error), Some(40.0));
+    let md = comparison::sweep_markdown(&points, 16);
+    eprintln!("{md}");
+    let rows: Vec<&str> = md.lines().filter(|l| l.starts_with("| ")).skip(1).collect();
+    assert_eq!(rows.len(), 4);
+    assert!(rows[1].contains("| inside (0.80, 0.80) |"), "{}", rows[1]);
+    assert!(
+        rows[2].contains("**outside** (10 of 10 steps)"),
+        "{}",
+        rows[2]
+    );
+    assert!(md.contains("co-rotational tier open-loop error < 2 % up to 20.0° of rotation\n"));
+    assert!(md.contains(
+        "co-rotational tier open-loop error < 5 % up to 40.0° of rotation (that point lies outside the training envelope)"
+    ));
+    // The warped runtime's lines are unchanged in form: < 5 % (rotation / 500) up to 20°.
+    assert!(md.contains("\nopen-loop error < 5 % up to 20.0° of rotation"));
 }

@@ -3,6 +3,7 @@
 //! ```text
 //! crokf-verify simulate SCENE SCENARIO --model linear|corotational --out DIR [--vtu] [--every k]
 //! crokf-verify report SCENE SCENARIO [--orders 4,8,16,32,64] --out DIR [--sweep 0.1,0.5,1]
+//!                     [--corotational TIER_SCENE]
 //! crokf-verify beam --tetrahedra N --out DIR      # a structured beam mesh + scene (benchmarks)
 //! crokf-verify bench [--assembly 10000,50000,200000] [--steps 2000,20000,50000] [--orders 10,20,40,80]
 //! ```
@@ -74,6 +75,14 @@ struct ReportArgs {
     /// Order of the sweep's reduced model.
     #[arg(long, default_value_t = 16)]
     sweep_order: usize,
+    /// Add the co-rotational tier: a scene of the same body with `[reduction] model =
+    /// "corotational"` (e.g. models/cantilever/scene_corotational.toml). It is compiled once,
+    /// training included (minutes: ~2 on the cantilever, ~9 on the meniscus), and becomes a row
+    /// of the table, two stars on report.svg and a column of the sweep (open-loop error per load
+    /// scale, scales beyond its training envelope marked, and the rotations up to which it
+    /// stays under 2 % and 5 %).
+    #[arg(long, value_name = "TIER_SCENE")]
+    corotational: Option<PathBuf>,
 }
 
 /// One progress bar per phase on stderr (indicatif: hidden when stderr is not a terminal, so
@@ -117,8 +126,13 @@ fn report(args: &ReportArgs) -> Result<(), String> {
         withhold_loads: args.withhold_loads,
         ..comparison::ComparisonOptions::default()
     };
+    let mut inputs: Vec<(&str, &std::path::Path)> =
+        vec![("scene", &args.scene), ("scenario", &args.scenario)];
+    if let Some(tier) = &args.corotational {
+        inputs.push(("--corotational", tier));
+    }
     check_paths(
-        &[("scene", &args.scene), ("scenario", &args.scenario)],
+        &inputs,
         &[Output {
             role: "--out",
             path: &args.out,
@@ -127,8 +141,18 @@ fn report(args: &ReportArgs) -> Result<(), String> {
     )
     .map_err(|e| e.to_string())?;
     let mut bar = progress_bar();
-    let result = comparison::run(&args.scene, &args.scenario, &options, &mut bar)
-        .map_err(|e| e.to_string())?;
+    let tier = match &args.corotational {
+        Some(path) => Some(comparison::compile_tier(path, &mut bar).map_err(|e| e.to_string())?),
+        None => None,
+    };
+    let result = comparison::run(
+        &args.scene,
+        &args.scenario,
+        &options,
+        tier.as_ref(),
+        &mut bar,
+    )
+    .map_err(|e| e.to_string())?;
     std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
     let markdown = result.markdown();
     // The three files appear together, complete, or not at all.
@@ -162,6 +186,12 @@ fn report(args: &ReportArgs) -> Result<(), String> {
     for note in &result.notes {
         eprintln!("note: {note}");
     }
+    for note in &result.tier_notes {
+        eprintln!("note (co-rotational tier): {note}");
+    }
+    if let Some(why) = &result.tier_failure {
+        eprintln!("crokf-verify: the co-rotational tier failed: {why}");
+    }
     if !result.failures.is_empty() {
         eprintln!(
             "crokf-verify: {} of {} orders failed (reasons in report.md)",
@@ -176,6 +206,7 @@ fn report(args: &ReportArgs) -> Result<(), String> {
             args.sweep_order,
             &args.sweep,
             &options,
+            tier.as_ref(),
             &mut bar,
         )
         .map_err(|e| e.to_string())?;

@@ -97,15 +97,27 @@ pub fn rotation_angle(r: &nalgebra::Matrix3<f64>) -> f64 {
     s.atan2(0.5 * (r.trace() - 1.0))
 }
 
-/// The largest rotation (degrees) of the sweep up to which the open-loop error stays below
-/// `threshold`: points sorted by rotation, the last one before the first that reaches the
-/// threshold. `None` if even the smallest rotation fails it.
+/// The largest rotation (degrees) of the sweep up to which the warped runtime's open-loop
+/// error stays below `threshold` ([`breakdown_rotation_of`] on `open_loop_error`).
 pub fn breakdown_rotation(points: &[SweepPoint], threshold: f64) -> Option<f64> {
+    breakdown_rotation_of(points, threshold, |p| p.open_loop_error)
+}
+
+/// The largest rotation (degrees) of the sweep up to which `error(point)` stays below
+/// `threshold`: points sorted by rotation, the last one before the first that reaches the
+/// threshold (a NaN, e.g. a failed or absent run, counts as reaching it). `None` if even the
+/// smallest rotation fails it.
+pub fn breakdown_rotation_of(
+    points: &[SweepPoint],
+    threshold: f64,
+    error: impl Fn(&SweepPoint) -> f64,
+) -> Option<f64> {
     let mut sorted: Vec<&SweepPoint> = points.iter().collect();
     sorted.sort_by(|a, b| a.max_rotation_deg.total_cmp(&b.max_rotation_deg));
     let mut best = None;
     for p in sorted {
-        if p.open_loop_error.is_nan() || p.open_loop_error >= threshold {
+        let e = error(p);
+        if e.is_nan() || e >= threshold {
             break;
         }
         best = Some(p.max_rotation_deg);

@@ -2,20 +2,61 @@
 
 use std::fmt::Write as _;
 
-use super::{breakdown_rotation, ChiSquare, Comparison, Consistency, ReducedRow, SweepPoint};
+use super::{
+    breakdown_rotation, breakdown_rotation_of, ChiSquare, Comparison, Consistency, ReducedRow,
+    SweepPoint, TierPoint,
+};
 
-/// The sweep as a markdown table, with the 5 % and 10 % breakdown rotations.
+/// The sweep as a markdown table, with the 2 %, 5 % and 10 % breakdown rotations of the warped
+/// runtime; with a tier, its open-loop error per scale (marked where the runtime reported the
+/// loads or the state outside the training envelope) and its 2 % and 5 % rotations.
 pub fn sweep_markdown(points: &[SweepPoint], order: usize) -> String {
     let mut out = String::new();
+    let has_tier = points.iter().any(|p| p.tier.is_some());
     let _ = writeln!(
         out,
-        "| load scale | max rotation (°) | runtime r = {order} open-loop error | tip error | linear FEM error |"
+        "| load scale | max rotation (°) | runtime r = {order} open-loop error | tip error | linear FEM error |{}",
+        if has_tier {
+            " co-rotational tier open-loop error | tier tip error | training envelope (largest load ratio, state ratio) |"
+        } else {
+            ""
+        }
     );
-    let _ = writeln!(out, "|---:|---:|---:|---:|---:|");
+    let _ = writeln!(
+        out,
+        "|---:|---:|---:|---:|---:|{}",
+        if has_tier { "---:|---:|---|" } else { "" }
+    );
     for p in points {
+        let tier = match &p.tier {
+            None if has_tier => " — | — | — |".to_owned(),
+            None => String::new(),
+            Some(TierPoint::Failed(why)) => {
+                format!(" failed | — | {} |", why.replace('|', "/"))
+            }
+            Some(TierPoint::Ran {
+                open_loop_error,
+                tip_error,
+                envelope,
+            }) => format!(
+                " {} | {} | {} ({:.2}, {:.2}) |",
+                sci(*open_loop_error),
+                sci(*tip_error),
+                if envelope.outside() {
+                    format!(
+                        "**outside** ({} of {} steps)",
+                        envelope.steps_outside, envelope.steps
+                    )
+                } else {
+                    "inside".to_owned()
+                },
+                envelope.max_load_ratio,
+                envelope.max_state_ratio
+            ),
+        };
         let _ = writeln!(
             out,
-            "| {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} |{tier}",
             p.scale,
             degrees(p.max_rotation_deg),
             sci(p.open_loop_error),
@@ -23,16 +64,51 @@ pub fn sweep_markdown(points: &[SweepPoint], order: usize) -> String {
             sci(p.linear_error)
         );
     }
-    for t in [0.05, 0.10] {
+    let up_to = |d: Option<f64>| {
+        d.map_or("— (not even the smallest load)".to_owned(), |d| {
+            format!("{d:.1}° of rotation")
+        })
+    };
+    for t in [0.02, 0.05, 0.10] {
         let _ = writeln!(
             out,
             "\nopen-loop error < {:.0} % up to {}",
             100.0 * t,
-            breakdown_rotation(points, t)
-                .map_or("— (not even the smallest load)".to_owned(), |d| {
-                    format!("{d:.1}° of rotation")
-                })
+            up_to(breakdown_rotation(points, t))
         );
+    }
+    if has_tier {
+        for t in [0.02, 0.05] {
+            let tier_error =
+                |p: &SweepPoint| p.tier.as_ref().map_or(f64::NAN, |t| t.open_loop_error());
+            let reached = breakdown_rotation_of(points, t, tier_error);
+            // Whether the last point under the threshold was itself beyond training.
+            let beyond = reached.is_some_and(|d| {
+                points.iter().any(|p| {
+                    p.max_rotation_deg == d
+                        && matches!(&p.tier, Some(TierPoint::Ran { envelope, .. }) if envelope.outside())
+                })
+            });
+            let _ = writeln!(
+                out,
+                "\nco-rotational tier open-loop error < {:.0} % up to {}{}",
+                100.0 * t,
+                up_to(reached),
+                if beyond {
+                    " (that point lies outside the training envelope)"
+                } else if reached.is_some()
+                    && reached
+                        == points
+                            .iter()
+                            .map(|p| p.max_rotation_deg)
+                            .max_by(f64::total_cmp)
+                {
+                    " (the largest rotation of the sweep)"
+                } else {
+                    ""
+                }
+            );
+        }
     }
     out
 }
@@ -123,6 +199,8 @@ enum Shape {
     Square,
     Triangle,
     Diamond,
+    /// Five-pointed star: the co-rotational tier.
+    Star,
 }
 
 impl Shape {
@@ -155,6 +233,21 @@ impl Shape {
                 r#"<polygon class="{class}" points="{}" fill="{colour}"/>"#,
                 points(&[(0.0, -7.0), (6.0, 0.0), (0.0, 7.0), (-6.0, 0.0)])
             ),
+            Shape::Star => {
+                // Ten vertices alternating between radius 7 and 3 px, the first pointing up.
+                let star: Vec<(f64, f64)> = (0..10)
+                    .map(|i| {
+                        let radius = if i % 2 == 0 { 7.0 } else { 3.0 };
+                        let angle = std::f64::consts::PI * (i as f64 / 5.0 - 0.5);
+                        (radius * angle.cos(), radius * angle.sin())
+                    })
+                    .collect();
+                writeln!(
+                    s,
+                    r#"<polygon class="{class}" points="{}" fill="{colour}"/>"#,
+                    points(&star)
+                )
+            }
         };
     }
 }
@@ -259,7 +352,30 @@ impl Comparison {
                 failure.order
             );
         }
-        if !self.reduced.is_empty() {
+        if let Some(t) = &self.tier {
+            let flag = if t.error > self.linear.error {
+                " ⚠ worse than linear FEM"
+            } else {
+                ""
+            };
+            let _ = writeln!(
+                out,
+                "| co-rotational tier | {} | {} | {} | {} | {}{flag} | {} | {} |",
+                tier_order(t),
+                format_seconds(t.step_s),
+                ratio(c, t.step_s),
+                ratio(l, t.step_s),
+                sci(t.error),
+                sci(t.tip_error),
+                sci(t.filtered_error)
+            );
+        } else if self.tier_failure.is_some() {
+            let _ = writeln!(
+                out,
+                "| co-rotational tier | — | failed | — | — | — | — | — |"
+            );
+        }
+        if !self.reduced.is_empty() || self.tier.is_some() {
             let _ = writeln!(
                 out,
                 "\nFilter with the loads given and withheld (the runtime gets only the markers), \
@@ -312,6 +428,62 @@ impl Comparison {
                     );
                 }
             }
+            // The tier's filter has its own covariances (state (q, q̇, q̈)); the consistency
+            // figures above read the warped model's, so the tier shows its errors only.
+            if let Some(t) = &self.tier {
+                let runs: Vec<(&str, f64, f64)> = if self.withheld_loads {
+                    vec![("withheld", t.filtered_error, t.filtered_tip_error)]
+                } else {
+                    vec![
+                        ("given", t.filtered_error, t.filtered_tip_error),
+                        (
+                            "withheld",
+                            t.withheld_filtered_error,
+                            t.withheld_filtered_tip_error,
+                        ),
+                    ]
+                };
+                for (label, e, tip) in runs {
+                    let _ = writeln!(
+                        out,
+                        "| tier {} | {label} | {} | {} | — | — | — |",
+                        tier_order(t),
+                        sci(e),
+                        sci(tip)
+                    );
+                }
+            }
+        }
+        if let Some(t) = &self.tier {
+            let e = &t.envelope;
+            let _ = writeln!(
+                out,
+                "\nCo-rotational tier from `{}`: r = {} POD vectors, {} sampled elements{}; \
+                 compiled with its training in {:.0} s. Open loop: {:.2} Newton iterations per \
+                 step; training envelope {} (largest load ratio {:.2}, state ratio {:.2} of \
+                 margin {:.2}).",
+                t.scene.display(),
+                t.basis_order,
+                t.sampled_elements,
+                if t.force_states > 0 {
+                    format!(", {} force states", t.force_states)
+                } else {
+                    String::new()
+                },
+                t.compile_s,
+                e.iterations_per_step(),
+                if e.outside() {
+                    format!("LEFT in {} of {} steps", e.steps_outside, e.steps)
+                } else {
+                    "kept".to_owned()
+                },
+                e.max_load_ratio,
+                e.max_state_ratio,
+                e.state_margin
+            );
+        }
+        if let Some(why) = &self.tier_failure {
+            let _ = writeln!(out, "\nThe co-rotational tier failed: {why}");
         }
         for failure in &self.failures {
             let _ = writeln!(
@@ -331,6 +503,12 @@ impl Comparison {
         if !self.notes.is_empty() {
             let _ = writeln!(out, "\nCompiler notes on the scene:\n");
             for note in &self.notes {
+                let _ = writeln!(out, "- {note}");
+            }
+        }
+        if !self.tier_notes.is_empty() {
+            let _ = writeln!(out, "\nCompiler notes on the co-rotational tier's scene:\n");
+            for note in &self.tier_notes {
                 let _ = writeln!(out, "- {note}");
             }
         }
@@ -402,6 +580,25 @@ impl Comparison {
                 csv_number(row.open_loop_step_s)
             );
         }
+        if let Some(t) = &self.tier {
+            let empty = ",".repeat(12);
+            let _ = writeln!(
+                out,
+                "corotational_tier,{},{},{},{},{},{},{},{},{},{},{rot},{},{}{empty}",
+                t.basis_order,
+                csv_number(t.step_s),
+                csv_number(c / t.step_s),
+                csv_number(l / t.step_s),
+                csv_number(t.error),
+                csv_number(t.tip_error),
+                csv_number(t.filtered_error),
+                csv_number(t.filtered_tip_error),
+                csv_number(t.error_vs_linear),
+                csv_number(t.open_loop_step_s),
+                csv_number(t.withheld_filtered_error),
+                csv_number(t.withheld_filtered_tip_error),
+            );
+        }
         out
     }
 
@@ -424,6 +621,11 @@ impl Comparison {
             times.push(r.step_s);
             errors.push(r.error);
             errors.push(r.filtered_error);
+        }
+        if let Some(t) = &self.tier {
+            times.push(t.step_s);
+            errors.push(t.error);
+            errors.push(t.filtered_error);
         }
         let decades = |values: &[f64], fallback: (f64, f64)| {
             let v: Vec<f64> = values.iter().copied().filter(|&v| finite_pos(v)).collect();
@@ -593,6 +795,27 @@ impl Comparison {
                 y - 6.0
             );
         }
+        const TIER_OPEN: &str = "#9467bd";
+        const TIER_FILTERED: &str = "#d62728";
+        if let Some(t) = &self.tier {
+            let mut top = f64::INFINITY;
+            for (e, colour) in [(t.error, TIER_OPEN), (t.filtered_error, TIER_FILTERED)] {
+                if finite_pos(t.step_s) && finite_pos(e) {
+                    let (x, y) = (sx(t.step_s), sy(e));
+                    Shape::Star.draw(&mut s, x, y, colour, "marker");
+                    top = top.min(y);
+                }
+            }
+            if top.is_finite() {
+                let _ = writeln!(
+                    s,
+                    r#"<text x="{:.1}" y="{:.1}" font-size="10" text-anchor="middle" stroke="white" stroke-width="3" paint-order="stroke">tier r={}</text>"#,
+                    sx(t.step_s),
+                    top - 10.0,
+                    t.basis_order
+                );
+            }
+        }
         if finite_pos(self.corotational.step_s) {
             let x = sx(self.corotational.step_s);
             Shape::Diamond.draw(&mut s, x, y_bottom, COROT, "marker");
@@ -605,12 +828,16 @@ impl Comparison {
         }
         // Legend.
         let lx = LEFT + pw + 20.0;
-        let entries = [
+        let mut entries = vec![
             ("runtime, open loop", OPEN, Shape::Circle),
             ("runtime, filtered", FILTERED, Shape::Square),
-            ("linear FEM (full order)", LINEAR, Shape::Triangle),
-            ("co-rotational FEM (reference)", COROT, Shape::Diamond),
         ];
+        if self.tier.is_some() {
+            entries.push(("co-rotational tier, open loop", TIER_OPEN, Shape::Star));
+            entries.push(("co-rotational tier, filtered", TIER_FILTERED, Shape::Star));
+        }
+        entries.push(("linear FEM (full order)", LINEAR, Shape::Triangle));
+        entries.push(("co-rotational FEM (reference)", COROT, Shape::Diamond));
         let _ = writeln!(s, r#"<g class="legend">"#);
         for (i, (label, colour, draw)) in entries.iter().enumerate() {
             let y = TOP + 14.0 + 22.0 * i as f64;
@@ -627,6 +854,16 @@ impl Comparison {
         let _ = writeln!(s, "</svg>");
         s
     }
+}
+
+/// The tier's size in the tables: `20 POD, 169 el.` (+ force states if any).
+fn tier_order(t: &super::TierRow) -> String {
+    let force = if t.force_states > 0 {
+        format!(" + {} force", t.force_states)
+    } else {
+        String::new()
+    };
+    format!("{} POD, {} el.{force}", t.basis_order, t.sampled_elements)
 }
 
 /// `mean [low, high]` of a χ² statistic, with a mark when outside its bounds.
