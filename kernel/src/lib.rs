@@ -1,6 +1,7 @@
 //! The co-rotational element kernel of the hyper-reduced tier (docs/design.md §10), without
 //! dependencies, shared by `crokf-compile` (its reduced stepper) and `crokf-runtime` (the
-//! tier's step), so that there is one copy of the reduced element force.
+//! tier's step), so that there is one copy of the reduced element force; and the Wilson-θ
+//! advance both use ([`wilson`]).
 //!
 //! One linear tetrahedron e with rest vertex positions Xₑ (m), shape-function gradients ∇Nₐ
 //! (1/m), rest stiffness Kₑ (12×12, N/m, node-major, row-major) and basis rows V_e (12×r,
@@ -11,6 +12,8 @@
 //! out += wₑ V_eᵀ fₑ                                (r)
 //! K_t += wₑ V_eᵀ R Kₑ Rᵀ V_e                      (warped tangent, r×r)
 //! ```
+
+pub mod wilson;
 
 /// 3×3 matrix, row-major.
 pub type Mat3 = [[f64; 3]; 3];

@@ -833,14 +833,9 @@ struct Wilson {
 }
 
 impl Wilson {
-    /// (U, U̇, Ü) at t + Δt from Û = U(t + θΔt) (the compiler's `WilsonTheta::advance`).
+    /// (U, U̇, Ü) at t + Δt from Û = U(t + θΔt) ([`crokf_kernel::wilson::advance`]).
     fn advance(&self, u: f64, v: f64, a: f64, u_hat: f64) -> (f64, f64, f64) {
-        let (dt, th) = (self.dt, self.theta);
-        let a_new = 6.0 / (th * th * th * dt * dt) * (u_hat - u) - 6.0 / (th * th * dt) * v
-            + (1.0 - 3.0 / th) * a;
-        let v_new = v + 0.5 * dt * (a_new + a);
-        let u_new = u + dt * v + dt * dt / 6.0 * (a_new + 2.0 * a);
-        (u_new, v_new, a_new)
+        crokf_kernel::wilson::advance(self.dt, self.theta, u, v, a, u_hat)
     }
 }
 
