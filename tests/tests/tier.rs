@@ -14,6 +14,7 @@ use crokf_compile::nonlinear::tier;
 use crokf_compile::nonlinear::training::TrainingPlan;
 use crokf_compile::report::StageTimer;
 use crokf_compile::{compile, CompileOptions, FullOrder};
+use crokf_formats::synthetic::SplitMix64;
 use crokf_runtime::tier::{Gate, TierModel, TierState};
 use crokf_runtime::{Estimator, RuntimeError, TierError, DEFAULT_GATE_SIGMAS};
 use nalgebra::DVector;
@@ -403,22 +404,6 @@ fn a_withheld_load_is_recovered_by_the_tier_filter() {
     assert!(tip_error < 2e-2, "{tip_error:e}");
 }
 
-/// Standard normal samples (xorshift + Box–Muller), deterministic.
-struct Normal(u64);
-
-impl Normal {
-    fn uniform(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-    fn sample(&mut self) -> f64 {
-        let (a, b) = (self.uniform(), self.uniform());
-        (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
-    }
-}
-
 /// The tier's update gates like the warped tier's (docs/design.md §6): the default 5σ gate
 /// skips nothing of 600 marker values with the scene's own noise, skips a 1 m outlier on one
 /// channel (the update then equals the update without that value), and without the gate the
@@ -438,7 +423,7 @@ fn the_gate_skips_a_one_metre_outlier_and_none_of_the_scenes_noise() {
     let every = vec![1u64; q];
     let mut last = vec![0u64; q];
     let mut gated_now = vec![false; q];
-    let mut rng = Normal(0x9e37_79b9_7f4a_7c15);
+    let mut rng = SplitMix64(0x9e37_79b9_7f4a_7c15);
     let sigma: Vec<f64> = t
         .kalman
         .measurement_variance
@@ -454,7 +439,7 @@ fn the_gate_skips_a_one_metre_outlier_and_none_of_the_scenes_noise() {
         for (j, m) in model.measurements.iter().enumerate() {
             predicted[j] = st.sensor(&tm, m.sensor as usize)[m.component as usize];
         }
-        let noise: Vec<f64> = sigma.iter().map(|s| s * rng.sample()).collect();
+        let noise: Vec<f64> = sigma.iter().map(|s| s * rng.normal()).collect();
         let gate = Gate {
             sigmas: Some(DEFAULT_GATE_SIGMAS),
             step: k,
