@@ -11,7 +11,7 @@ use crate::fem::operators::Operators;
 use crate::fem::FemModel;
 use crate::mesh::{read_mesh_bytes, Mesh};
 use crate::report::StageTimer;
-use crate::scene::SceneFile;
+use crate::scene::{ForceModel, SceneFile};
 
 /// The compiler's version string, part of every model's input digest.
 pub const COMPILER_VERSION: &str = concat!("crokf-compile ", env!("CARGO_PKG_VERSION"));
@@ -36,6 +36,20 @@ pub struct FullOrder {
 }
 
 impl FullOrder {
+    /// The scene's random-walk load groups (docs/design.md §11): `(group, σ per step, N)` for
+    /// each load with `force_model = "random_walk"` and `force_noise_std > 0`, in scene order.
+    /// One list for the warped tier's force states (`Reductor`) and the co-rotational tier's.
+    pub fn random_walk_loads(&self) -> Vec<(usize, f64)> {
+        self.scene
+            .scene
+            .loads
+            .iter()
+            .enumerate()
+            .filter(|(_, l)| l.force_model == ForceModel::RandomWalk && l.force_noise_std > 0.0)
+            .map(|(i, l)| (i, l.force_noise_std))
+            .collect()
+    }
+
     /// Reads the scene and mesh, assembles K and M and builds the operators; stage costs go to
     /// `timer` ("mesh", "assembly", "operators").
     pub fn build(scene_path: &Path, timer: &mut StageTimer) -> Result<Self, CompileError> {

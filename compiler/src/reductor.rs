@@ -18,7 +18,6 @@ use crate::outputs::{columns, stack_rows, Measurements, OutputRows};
 use crate::reduce::{self, ModalBasis, ModalSystem, Order};
 use crate::reduced::ReducedModel;
 use crate::report::StageTimer;
-use crate::scene::ForceModel;
 
 /// Tolerance σ_{r+1}/σ₁ when neither order nor tolerance is given and no measured error is
 /// computed (`--no-measure`).
@@ -180,16 +179,7 @@ impl<'a> Reductor<'a> {
                 })?;
         let ops = &self.full.operators;
         let reduced = ReducedModel::from_truncation(truncation, ops.inputs.len(), &self.weights);
-        let random_walk: Vec<(usize, f64)> = self
-            .full
-            .scene
-            .scene
-            .loads
-            .iter()
-            .enumerate()
-            .filter(|(_, l)| l.force_model == ForceModel::RandomWalk && l.force_noise_std > 0.0)
-            .map(|(i, l)| (i, l.force_noise_std))
-            .collect();
+        let random_walk = self.full.random_walk_loads();
         Ok(if random_walk.is_empty() {
             reduced
         } else {

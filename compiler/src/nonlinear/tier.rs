@@ -13,7 +13,6 @@ use crate::fem::operators::InputKind;
 use crate::full_order::FullOrder;
 use crate::kalman::{self, PeriodicSchedule};
 use crate::outputs::Measurements;
-use crate::scene::ForceModel;
 
 use super::basis::{self, Basis};
 use super::ecsw::{self, EcswOptions, NnlsSolution};
@@ -120,19 +119,6 @@ pub fn point_rows(full: &FullOrder, v: &DMatrix<f64>, weights: &[(usize, f64)]) 
     out
 }
 
-/// The scene's random-walk load groups (docs/design.md §11): `(group, σ per step, N)` for each
-/// load with `force_model = "random_walk"` and `force_noise_std > 0`, in scene order.
-pub fn random_walk_loads(full: &FullOrder) -> Vec<(usize, f64)> {
-    full.scene
-        .scene
-        .loads
-        .iter()
-        .enumerate()
-        .filter(|(_, l)| l.force_model == ForceModel::RandomWalk && l.force_noise_std > 0.0)
-        .map(|(i, l)| (i, l.force_noise_std))
-        .collect()
-}
-
 /// The deterministic input channel of component `c` of load group `load`, if any.
 fn load_channel(full: &FullOrder, load: usize, c: usize) -> Option<usize> {
     full.operators
@@ -177,7 +163,7 @@ struct NoiseModel {
 
 /// The scene's [`NoiseModel`] (docs/design.md §11.4).
 fn noise_model(full: &FullOrder) -> Result<NoiseModel, NonlinearError> {
-    let force_loads = random_walk_loads(full);
+    let force_loads = full.random_walk_loads();
     let mut force = Vec::with_capacity(3 * force_loads.len());
     for &(g, sigma) in &force_loads {
         for c in 0..3 {
@@ -254,7 +240,7 @@ pub fn linearised_filter(
         measurements,
     )?;
     let mut filter = filter_of(&lin, measurements)?;
-    filter.force_loads = random_walk_loads(full).iter().map(|&(g, _)| g).collect();
+    filter.force_loads = full.random_walk_loads().iter().map(|&(g, _)| g).collect();
     filter.static_residual = residual;
     Ok(filter)
 }
@@ -477,7 +463,7 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
         measured_rows: measured_rows(&measurements, |s| matrix(&t.sensor_rows[s])),
     };
     let mut filter = filter_of(&lin, &measurements)?;
-    filter.force_loads = random_walk_loads(full).iter().map(|&(g, _)| g).collect();
+    filter.force_loads = full.random_walk_loads().iter().map(|&(g, _)| g).collect();
     t.force_loads = filter.force_loads.iter().map(|&g| g as u32).collect();
     t.kalman = kalman_section(&filter, &measurements);
     Ok(filter.schedule.closed_loop_spectral_radius)
