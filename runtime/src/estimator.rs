@@ -54,8 +54,9 @@ pub struct Estimator {
     r: usize,
     /// Current state x (posterior after `update`, prior after `predict`).
     x: Vec<f64>,
-    /// The display read-out's operand (2r): x in single precision, then x_k · 2^(−e_k) for
-    /// 16-bit rotation rows (`PreparedModel::rotation_scale`).
+    /// The display read-out's operand (3r): x in single precision, then x_k · 2^(−d_k) and
+    /// x_k · 2^(−e_k) for 16-bit displacement and rotation rows
+    /// (`PreparedModel::displacement_scale`, `rotation_scale`).
     x32: Vec<f32>,
     /// Scratch for F x + G u, and the state before the last prediction (for a rollback).
     x_next: Vec<f64>,
@@ -110,7 +111,7 @@ impl Estimator {
         Estimator {
             r,
             x: vec![0.0; r],
-            x32: vec![0.0; 2 * r],
+            x32: vec![0.0; 3 * r],
             x_next: vec![0.0; r],
             x_upd: vec![0.0; r],
             u_lin: vec![0.0; prepared.model.inputs.len()],
@@ -242,17 +243,22 @@ impl Estimator {
         Ok(())
     }
 
-    /// x32 ← (x, x_k · 2^(−e_k)) in single precision.
+    /// x32 ← (x, x_k · 2^(−d_k), x_k · 2^(−e_k)) in single precision (d, e: the exponents of
+    /// the 16-bit display displacement and rotation rows).
     fn sync_x32(&mut self) {
         let (x32, scaled) = self.x32.split_at_mut(self.r);
-        for (((a, s), b), &scale) in x32
+        let (displacement, rotation) = scaled.split_at_mut(self.r);
+        let sh = &*self.shared;
+        for ((((a, d), w), b), (&sd, &sw)) in x32
             .iter_mut()
-            .zip(scaled)
+            .zip(displacement)
+            .zip(rotation)
             .zip(&self.x)
-            .zip(&self.shared.rotation_scale)
+            .zip(sh.displacement_scale.iter().zip(&sh.rotation_scale))
         {
             *a = *b as f32;
-            *s = *a * scale;
+            *d = *a * sd;
+            *w = *a * sw;
         }
     }
 

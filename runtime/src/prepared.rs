@@ -85,8 +85,10 @@ pub struct PreparedModel {
     /// The largest plausible |y|, m.
     pub(crate) measurement_bound: f64,
     pub(crate) display: Vec<simd::DisplayRows>,
-    /// Per state index k: 2^(−e_k), the scale of the 16-bit display rotation rows
+    /// Per state index k: 2^(−e_k), the scale of the 16-bit display displacement rows
     /// ([`simd::fixed16_exponents`]), exact in f32.
+    pub(crate) displacement_scale: Vec<f32>,
+    /// The same for the 16-bit display rotation rows.
     pub(crate) rotation_scale: Vec<f32>,
     /// The co-rotational tier (docs/design.md §10), when the model has one.
     pub(crate) tier: Option<crate::tier::TierModel>,
@@ -151,28 +153,33 @@ fn step_response_sum(f: &Matrix, g: &Matrix) -> Vec<f64> {
     x
 }
 
-/// Single-precision display rows above this size (bytes) get 16-bit rotation rows under
+/// Single-precision display rows above this size (bytes) are stored in 16 bits under
 /// [`DisplayRowFormat::Auto`]: half of a 2 MiB L2 cache, beyond which the read-out streams its
 /// rows from L3 or memory and is bound by bandwidth.
 pub const COMPACT_ABOVE_BYTES: usize = 1 << 20;
 
 /// How the display read-out ([`crate::Estimator::node_displacements`]) stores a node set's
-/// rows, chosen at load. Displacement rows are always single precision.
+/// rows, chosen at load.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DisplayRowFormat {
-    /// [`DisplayRowFormat::Compact`] for sets whose single-precision rows (24·r bytes per
+    /// [`DisplayRowFormat::Fixed16`] for sets whose single-precision rows (24·r bytes per
     /// node) exceed [`COMPACT_ABOVE_BYTES`], [`DisplayRowFormat::Single`] otherwise.
     #[default]
     Auto,
-    /// Rotation rows in single precision (24·r bytes per node; error a few 1e-7 of the
-    /// largest displacement, measured in `tests/readout.rs`).
+    /// Displacement and rotation rows in single precision (24·r bytes per node; error a few
+    /// 1e-7 of the largest displacement, measured in `tests/readout.rs`).
     Single,
     /// Rotation rows in 16-bit fixed point with a power-of-two scale per state index (18·r
     /// bytes per node). Each entry is off by at most max_i |W_ik| / 32767, so ω by at most
     /// Σ_k |x_k| max_i |W_ik| / 32767 and the displacement by about half that times |u|
     /// (docs/design.md §5: δ(R̃u) ≈ ½ δω × u for small rotations); measured in
-    /// `tests/readout.rs`.
+    /// `tests/readout.rs`. Displacement rows in single precision.
     Compact,
+    /// Displacement rows in 16-bit fixed point too (12·r bytes per node): each entry off by
+    /// at most max_i |C_ik| / 32767 (the column's largest over all displayed sets), so a node's
+    /// u by at most √3 Σ_k |x_k| max_i |C_ik| / 32767, plus the rotation rows' part above;
+    /// measured in `tests/readout.rs`.
+    Fixed16,
 }
 
 impl PreparedModel {
@@ -387,27 +394,35 @@ impl PreparedModel {
             })
             .collect();
 
-        // Per column: the largest |entry| of the displayed sets' rotation rows, for the 16-bit
+        // Per column and row kind: the largest |entry| over the displayed sets, for the 16-bit
         // rows' exponents.
-        let mut columns_max = vec![0.0f64; r];
-        for set in &model.node_sets {
-            for row in set.rotation_rows.data.chunks_exact(r.max(1)) {
-                for (m, v) in columns_max.iter_mut().zip(row) {
-                    *m = m.max(v.abs());
+        let columns_max = |rows: fn(&crokf_formats::NodeSet) -> &Matrix| {
+            let mut m = vec![0.0f64; r];
+            for set in &model.node_sets {
+                for row in rows(set).data.chunks_exact(r.max(1)) {
+                    for (m, v) in m.iter_mut().zip(row) {
+                        *m = m.max(v.abs());
+                    }
                 }
             }
-        }
-        let exponents = simd::fixed16_exponents(&columns_max);
-        let rotation_scale = exponents.iter().map(|&e| 2f32.powi(-e)).collect();
+            simd::fixed16_exponents(&m)
+        };
+        let displacement_exponents = columns_max(|set| &set.displacement_rows);
+        let rotation_exponents = columns_max(|set| &set.rotation_rows);
+        let scale = |e: &[i32]| e.iter().map(|&e| 2f32.powi(-e)).collect::<Vec<f32>>();
+        let (displacement_scale, rotation_scale) =
+            (scale(&displacement_exponents), scale(&rotation_exponents));
         let display = model
             .node_sets
             .iter()
             .map(|set| {
                 let n = set.node_tags.len();
-                let compact = match display_format {
-                    DisplayRowFormat::Single => false,
-                    DisplayRowFormat::Compact => true,
-                    DisplayRowFormat::Auto => 6 * r * n * 4 > COMPACT_ABOVE_BYTES,
+                let large = 6 * r * n * 4 > COMPACT_ABOVE_BYTES;
+                let (displacement16, rotation16) = match display_format {
+                    DisplayRowFormat::Single => (false, false),
+                    DisplayRowFormat::Compact => (false, true),
+                    DisplayRowFormat::Fixed16 => (true, true),
+                    DisplayRowFormat::Auto => (large, large),
                 };
                 simd::DisplayRows::new(
                     n,
@@ -415,7 +430,10 @@ impl PreparedModel {
                     |i| set.displacement_rows.row(i),
                     |i| set.rotation_rows.row(i),
                     set.rotation_rows.data.iter().any(|&v| v != 0.0),
-                    compact.then_some(&exponents[..]),
+                    simd::Fixed16 {
+                        displacement: displacement16.then_some(&displacement_exponents[..]),
+                        rotation: rotation16.then_some(&rotation_exponents[..]),
+                    },
                 )
             })
             .collect();
@@ -445,6 +463,7 @@ impl PreparedModel {
             input_bound,
             measurement_bound,
             display,
+            displacement_scale,
             rotation_scale,
             model,
         })

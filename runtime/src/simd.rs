@@ -5,7 +5,7 @@
 //!
 //! - [`matvec_t`]: y = A x or y += A x from Aᵀ (f64; the step's F x, G u, K ν and the sensor
 //!   and load rows), [`matvec`] from A row-major (the sensor read-outs);
-//! - [`display`]: the displayed nodes' u = C_i x from f32 rows and ω = W_i x from 16-bit
+//! - [`display`]: the displayed nodes' u = C_i x and ω = W_i x from f32 or 16-bit
 //!   fixed-point rows, grouped by 8 nodes, accumulated in f32, and the warp R̃(ω) u on 8
 //!   nodes at once (the read-out; the rounding it costs is measured in `tests/readout.rs`).
 
@@ -276,20 +276,20 @@ fn lanes<const FUSED: bool>(a: [f32; GROUP], b: [f32; GROUP], c: [f32; GROUP]) -
     o
 }
 
-/// A rotation-row entry type of [`DisplayRows`]: f32, or 16-bit fixed point (exact in f32).
-pub(crate) trait RotationEntry: Copy {
+/// A row-entry type of [`DisplayRows`]: f32, or 16-bit fixed point (exact in f32).
+pub(crate) trait RowEntry: Copy {
     /// The entry in f32 (before the column's scale).
     fn value(self) -> f32;
 }
 
-impl RotationEntry for f32 {
+impl RowEntry for f32 {
     #[inline(always)]
     fn value(self) -> f32 {
         self
     }
 }
 
-impl RotationEntry for i16 {
+impl RowEntry for i16 {
     #[inline(always)]
     fn value(self) -> f32 {
         f32::from(self)
@@ -298,7 +298,7 @@ impl RotationEntry for i16 {
 
 /// Σ_k rows[k][c][l] · x_k for one group: C rows of 8 lanes per state index k.
 #[inline(always)]
-fn accumulate<const C: usize, const FUSED: bool, T: RotationEntry>(
+fn accumulate<const C: usize, const FUSED: bool, T: RowEntry>(
     rows: &[T],
     x: &[f32],
 ) -> [[f32; GROUP]; C] {
@@ -367,8 +367,8 @@ fn warp_group<const FUSED: bool>(u: [[f32; GROUP]; 3], w: [[f32; GROUP]; 3], out
 }
 
 #[inline(always)]
-fn display_body<const FUSED: bool, T: RotationEntry>(
-    displacement: &[f32],
+fn display_body<const FUSED: bool, D: RowEntry, T: RowEntry>(
+    displacement: &[D],
     rotation: Option<&[T]>,
     r: usize,
     (xd, xr): (&[f32], &[f32]),
@@ -380,7 +380,7 @@ fn display_body<const FUSED: bool, T: RotationEntry>(
     }
     let block = 3 * GROUP * r;
     for (g, o) in out.chunks_mut(3 * GROUP).enumerate() {
-        let u = accumulate::<3, FUSED, f32>(&displacement[g * block..(g + 1) * block], xd);
+        let u = accumulate::<3, FUSED, D>(&displacement[g * block..(g + 1) * block], xd);
         match rotation {
             Some(rot) => {
                 let w = accumulate::<3, FUSED, T>(&rot[g * block..(g + 1) * block], xr);
@@ -398,25 +398,42 @@ fn display_body<const FUSED: bool, T: RotationEntry>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn display_avx2<T: RotationEntry>(
-    displacement: &[f32],
+fn display_avx2<D: RowEntry, T: RowEntry>(
+    displacement: &[D],
     rotation: Option<&[T]>,
     r: usize,
     x: (&[f32], &[f32]),
     out: &mut [f64],
 ) {
-    display_body::<true, T>(displacement, rotation, r, x, out)
+    display_body::<true, D, T>(displacement, rotation, r, x, out)
 }
 
-/// How a displayed node set's rotation rows are stored.
+/// [`display_body`] with AVX2 + FMA when the CPU has them (one call per row-type pair).
+#[inline(always)]
+fn display_dispatch<D: RowEntry, T: RowEntry>(
+    displacement: &[D],
+    rotation: Option<&[T]>,
+    r: usize,
+    x: (&[f32], &[f32]),
+    out: &mut [f64],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2_fma() {
+        // SAFETY: the CPU has AVX2 and FMA (checked just above).
+        return unsafe { display_avx2(displacement, rotation, r, x, out) };
+    }
+    display_body::<false, D, T>(displacement, rotation, r, x, out)
+}
+
+/// How a displayed node set's rows of one kind are stored.
 #[derive(Clone, Debug)]
-pub(crate) enum RotationRows {
-    /// All zero: the warp is the identity and skipped.
+pub(crate) enum Rows {
+    /// All zero (rotation rows only): the warp is the identity and skipped.
     Zero,
     /// Single precision (x_k unscaled).
     Single(Vec<f32>),
-    /// 16-bit fixed point: entry v stands for v · 2^(−e_k), e_k from [`fixed16_exponents`]
-    /// (the scale folded into the state operand).
+    /// 16-bit fixed point: entry v stands for v · 2^(−e_k), e_k from [`fixed16_exponents`] of
+    /// the row kind (the scale folded into the state operand).
     Fixed16(Vec<i16>),
 }
 
@@ -428,10 +445,10 @@ pub(crate) enum RotationRows {
 pub(crate) struct DisplayRows {
     /// The state dimension r.
     pub r: usize,
-    /// Displacement rows C_i in single precision.
-    pub displacement: Vec<f32>,
+    /// Displacement rows C_i (single precision or 16-bit, never [`Rows::Zero`]).
+    pub displacement: Rows,
     /// Rotation rows W_i.
-    pub rotation: RotationRows,
+    pub rotation: Rows,
 }
 
 /// Largest magnitude of a 16-bit entry.
@@ -457,86 +474,93 @@ pub(crate) fn fixed16_exponents(columns_max: &[f64]) -> Vec<i32> {
         .collect()
 }
 
+/// The 16-bit exponents of a [`DisplayRows`] set: per state index, for the displacement rows
+/// and for the rotation rows ([`fixed16_exponents`]); `None` stores that kind in single
+/// precision.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Fixed16<'a> {
+    pub displacement: Option<&'a [i32]>,
+    pub rotation: Option<&'a [i32]>,
+}
+
 impl DisplayRows {
     /// The grouped rows of n nodes: `displacement(i)` and `rotation(i)` give the r-vectors of
     /// row i (3 per node, components x, y, z); rotation rows all zero (`warped` false) are not
-    /// stored; `fixed16` = the exponents of [`fixed16_exponents`] to store them in 16 bits,
-    /// `None` for single precision.
+    /// stored; each kind in 16 bits where `fixed16` gives its exponents.
     pub(crate) fn new<'a>(
         n: usize,
         r: usize,
         displacement: impl Fn(usize) -> &'a [f64],
         rotation: impl Fn(usize) -> &'a [f64],
         warped: bool,
-        fixed16: Option<&[i32]>,
+        fixed16: Fixed16<'_>,
     ) -> Self {
         let len = n.div_ceil(GROUP) * r * 3 * GROUP;
         let at = |i: usize, c: usize, k: usize| {
             let (g, lane) = (i / GROUP, i % GROUP);
             ((g * r + k) * 3 + c) * GROUP + lane
         };
-        let grouped = |f: &dyn Fn(usize, usize, usize) -> f32| {
-            let mut v = vec![0.0f32; len];
-            for i in 0..n {
-                for c in 0..3 {
-                    for k in 0..r {
-                        v[at(i, c, k)] = f(i, c, k);
+        let store = |row: &dyn Fn(usize) -> &'a [f64], exponents: Option<&[i32]>| match exponents {
+            None => {
+                let mut v = vec![0.0f32; len];
+                for i in 0..n {
+                    for c in 0..3 {
+                        for (k, &value) in row(3 * i + c)[..r].iter().enumerate() {
+                            v[at(i, c, k)] = value as f32;
+                        }
                     }
                 }
+                Rows::Single(v)
             }
-            v
-        };
-        let d = grouped(&|i, c, k| displacement(3 * i + c)[k] as f32);
-        let rotation = match (warped, fixed16) {
-            (false, _) => RotationRows::Zero,
-            (true, None) => RotationRows::Single(grouped(&|i, c, k| rotation(3 * i + c)[k] as f32)),
-            (true, Some(e)) => {
+            Some(e) => {
                 let mut v = vec![0i16; len];
                 for i in 0..n {
                     for c in 0..3 {
-                        let row = rotation(3 * i + c);
-                        for k in 0..r {
-                            let q = (row[k] * 2f64.powi(e[k])).round();
+                        for (k, &value) in row(3 * i + c)[..r].iter().enumerate() {
+                            let q = (value * 2f64.powi(e[k])).round();
                             v[at(i, c, k)] = q.clamp(-FIXED16_MAX, FIXED16_MAX) as i16;
                         }
                     }
                 }
-                RotationRows::Fixed16(v)
+                Rows::Fixed16(v)
             }
         };
         DisplayRows {
             r,
-            displacement: d,
-            rotation,
+            displacement: store(&displacement, fixed16.displacement),
+            rotation: if warped {
+                store(&rotation, fixed16.rotation)
+            } else {
+                Rows::Zero
+            },
         }
     }
 }
 
 /// World displacements of the nodes of `rows` (`out`: 3 f64 per node, at most 8 per group):
 /// per node u = C_i x and ω = W_i x accumulated in f32, then R̃(ω) u (`docs/design.md` §5) in
-/// f32 for θ < 1/2 (four-term series) and in f64 otherwise. `x` holds 2r values: x in f32,
-/// then x_k · 2^(−e_k) for 16-bit rotation rows (the rows' scales folded into the state; x
-/// again for single-precision rows).
+/// f32 for θ < 1/2 (four-term series) and in f64 otherwise. `x` holds 3r values: x in f32,
+/// then x_k · 2^(−e_k) with the exponents of 16-bit displacement rows, then with those of
+/// 16-bit rotation rows (the rows' scales folded into the state operand; single-precision rows
+/// use x itself).
 #[inline]
 pub(crate) fn display(rows: &DisplayRows, x: &[f32], out: &mut [f64]) {
-    let (d, r) = (&rows.displacement[..], rows.r);
-    let (plain, scaled) = ((&x[..r], &x[..r]), (&x[..r], &x[r..2 * r]));
-    #[cfg(target_arch = "x86_64")]
-    if has_avx2_fma() {
-        // SAFETY: the CPU has AVX2 and FMA (checked just above).
-        unsafe {
+    let r = rows.r;
+    let (plain, x_displacement, x_rotation) = (&x[..r], &x[r..2 * r], &x[2 * r..3 * r]);
+    macro_rules! rotation {
+        ($d:expr, $xd:expr) => {
             match &rows.rotation {
-                RotationRows::Zero => display_avx2::<f32>(d, None, r, plain, out),
-                RotationRows::Single(w) => display_avx2(d, Some(&w[..]), r, plain, out),
-                RotationRows::Fixed16(w) => display_avx2(d, Some(&w[..]), r, scaled, out),
+                Rows::Zero => display_dispatch::<_, f32>($d, None, r, ($xd, plain), out),
+                Rows::Single(w) => display_dispatch($d, Some(&w[..]), r, ($xd, plain), out),
+                Rows::Fixed16(w) => display_dispatch($d, Some(&w[..]), r, ($xd, x_rotation), out),
             }
-        }
-        return;
+        };
     }
-    match &rows.rotation {
-        RotationRows::Zero => display_body::<false, f32>(d, None, r, plain, out),
-        RotationRows::Single(w) => display_body::<false, f32>(d, Some(w), r, plain, out),
-        RotationRows::Fixed16(w) => display_body::<false, i16>(d, Some(w), r, scaled, out),
+    match &rows.displacement {
+        Rows::Single(d) => rotation!(&d[..], plain),
+        Rows::Fixed16(d) => rotation!(&d[..], x_displacement),
+        // Not built by `DisplayRows::new`: every displayed node has displacement rows.
+        Rows::Zero => out.iter_mut().for_each(|v| *v = 0.0),
     }
 }
 
