@@ -170,7 +170,27 @@ mod avx2 {
         let mut even = [_mm256_setzero_pd(); NV];
         let mut odd = [_mm256_setzero_pd(); NV];
         let mut j = 0;
-        while j + 2 <= a.cols {
+        // Four columns per iteration (the loop's bookkeeping shared by 4·NV products), then
+        // the pair and the single column left.
+        while j + 4 <= a.cols {
+            let c0 = base.add(j * a.stride);
+            let (c1, c2, c3) = (c0.add(a.stride), c0.add(2 * a.stride), c0.add(3 * a.stride));
+            let (x0, x1) = (_mm256_set1_pd(*xp.add(j)), _mm256_set1_pd(*xp.add(j + 1)));
+            let (x2, x3) = (
+                _mm256_set1_pd(*xp.add(j + 2)),
+                _mm256_set1_pd(*xp.add(j + 3)),
+            );
+            for v in 0..NV {
+                even[v] = _mm256_fmadd_pd(_mm256_loadu_pd(c0.add(LANES * v)), x0, even[v]);
+                odd[v] = _mm256_fmadd_pd(_mm256_loadu_pd(c1.add(LANES * v)), x1, odd[v]);
+            }
+            for v in 0..NV {
+                even[v] = _mm256_fmadd_pd(_mm256_loadu_pd(c2.add(LANES * v)), x2, even[v]);
+                odd[v] = _mm256_fmadd_pd(_mm256_loadu_pd(c3.add(LANES * v)), x3, odd[v]);
+            }
+            j += 4;
+        }
+        if j + 2 <= a.cols {
             let (x0, x1) = (_mm256_set1_pd(*xp.add(j)), _mm256_set1_pd(*xp.add(j + 1)));
             let (c0, c1) = (base.add(j * a.stride), base.add((j + 1) * a.stride));
             for v in 0..NV {
