@@ -94,21 +94,24 @@ pub struct PreparedModel {
     pub(crate) tier: Option<crate::tier::TierModel>,
 }
 
-/// sqrt(cᵀ P c) for every row c of `rows` (k×r), P r×r row-major.
-fn row_std(rows: &Matrix, p: &Matrix, out: &mut Vec<f64>, tmp: &mut [f64]) {
-    let r = p.cols as usize;
-    for i in 0..rows.rows as usize {
-        let c = rows.row(i);
-        p.mul_vec_into(c, &mut tmp[..r]);
-        let v: f64 = c.iter().zip(tmp.iter()).map(|(a, b)| a * b).sum();
-        out.push(v.max(0.0).sqrt());
-    }
+/// c P cᵀ for a row c of length k ≤ n and the leading k×k block of the n×n P (the whole P when
+/// k = n; the displacement block P_qq of the co-rotational tier's (q, q̇, q̈, f) covariance):
+/// Σ_i c_i (Σ_j P_ij c_j). Used at load only (read-out σ, the gate's variances).
+pub(crate) fn quadratic(c: &[f64], p: &Matrix) -> f64 {
+    let n = p.cols as usize;
+    c.iter()
+        .zip(p.data.chunks_exact(n.max(1)))
+        .map(|(ci, row)| ci * row.iter().zip(c).map(|(a, b)| a * b).sum::<f64>())
+        .sum()
 }
 
-/// cᵀ P c.
-fn quadratic(c: &[f64], p: &Matrix, tmp: &mut [f64]) -> f64 {
-    p.mul_vec_into(c, tmp);
-    c.iter().zip(tmp.iter()).map(|(a, b)| a * b).sum()
+/// sqrt(diag(C P Cᵀ)) for the rows C (row-major, `c.len()` = k·rows, k ≤ n) and the leading
+/// k×k block of P (see [`quadratic`]), appended to `out`.
+pub(crate) fn row_std(rows: &[f64], k: usize, p: &Matrix, out: &mut Vec<f64>) {
+    out.extend(
+        rows.chunks_exact(k.max(1))
+            .map(|c| quadratic(c, p).max(0.0).sqrt()),
+    );
 }
 
 /// Dense row-major n×n product.
@@ -255,18 +258,17 @@ impl PreparedModel {
             .map(|p| p.measured.len())
             .max()
             .unwrap_or(0);
-        let mut tmp = vec![0.0; r];
-        let std_of = |p: &Matrix, tmp: &mut [f64]| {
+        let std_of = |p: &Matrix| {
             let mut sensors = Vec::with_capacity(3 * model.sensors.len());
             for s in &model.sensors {
-                row_std(&s.displacement_rows, p, &mut sensors, tmp);
+                row_std(&s.displacement_rows.data, r, p, &mut sensors);
             }
             let nodes = model
                 .node_sets
                 .iter()
                 .map(|set| {
                     let mut v = Vec::with_capacity(set.displacement_rows.rows as usize);
-                    row_std(&set.displacement_rows, p, &mut v, tmp);
+                    row_std(&set.displacement_rows.data, r, p, &mut v);
                     v
                 })
                 .collect();
@@ -276,13 +278,13 @@ impl PreparedModel {
             .kalman
             .phases
             .iter()
-            .map(|ph| std_of(&ph.prior_covariance, &mut tmp))
+            .map(|ph| std_of(&ph.prior_covariance))
             .collect();
         let std_posterior = model
             .kalman
             .phases
             .iter()
-            .map(|ph| std_of(&ph.posterior_covariance, &mut tmp))
+            .map(|ph| std_of(&ph.posterior_covariance))
             .collect();
         let h_row = |j: usize| {
             let (s, c) = channel[j];
@@ -297,14 +299,14 @@ impl PreparedModel {
                     .iter()
                     .map(|&j| {
                         let j = j as usize;
-                        quadratic(h_row(j), &ph.prior_covariance, &mut tmp)
+                        quadratic(h_row(j), &ph.prior_covariance)
                             + model.kalman.measurement_variance[j]
                     })
                     .collect()
             })
             .collect();
         let variance_growth: Vec<f64> = (0..channel.len())
-            .map(|j| quadratic(h_row(j), &model.kalman.process_noise, &mut tmp).max(0.0))
+            .map(|j| quadratic(h_row(j), &model.kalman.process_noise).max(0.0))
             .collect();
 
         let active = model

@@ -31,6 +31,7 @@
 //! iterations, and once within a step at iteration [`SLOW_ITERATIONS`]: a modified Newton
 //! iteration converging to the same root. Nothing allocates per step.
 
+use crate::prepared::{quadratic, row_std};
 use crokf_formats::{CorotationalTier, InputKind, Model};
 use crokf_kernel::{self as kernel, Mat3, PolarError};
 
@@ -173,23 +174,11 @@ pub struct TierModel {
     pub(crate) node_std: [Vec<Vec<Vec<f64>>>; 2],
 }
 
-/// c P_qq cᵀ for a row c (r) and the q-block P_qq (first r rows/cols of the n×n P).
-fn quadratic_q(c: &[f64], p: &crokf_formats::Matrix) -> f64 {
-    let (r, n) = (c.len(), p.cols as usize);
-    let mut s = 0.0;
-    for i in 0..r {
-        for j in 0..r {
-            s += c[i] * p.data[i * n + j] * c[j];
-        }
-    }
-    s
-}
-
 /// sqrt(diag(C P_qq Cᵀ)) for the rows C (k × r, row-major).
 fn std_rows(rows: &[f64], r: usize, p: &crokf_formats::Matrix) -> Vec<f64> {
-    rows.chunks_exact(r)
-        .map(|c| quadratic_q(c, p).max(0.0).sqrt())
-        .collect()
+    let mut out = Vec::with_capacity(rows.len() / r.max(1));
+    row_std(rows, r, p, &mut out);
+    out
 }
 
 impl TierModel {
@@ -282,14 +271,14 @@ impl TierModel {
                 ph.measured
                     .iter()
                     .map(|&j| {
-                        quadratic_q(h_row(j as usize), &ph.prior_covariance)
+                        quadratic(h_row(j as usize), &ph.prior_covariance)
                             + k.measurement_variance[j as usize]
                     })
                     .collect()
             })
             .collect();
         let variance_growth = (0..channel.len())
-            .map(|j| quadratic_q(h_row(j), &k.process_noise))
+            .map(|j| quadratic(h_row(j), &k.process_noise))
             .collect();
         TierModel {
             r,
