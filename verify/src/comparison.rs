@@ -52,7 +52,7 @@ use crokf_compile::stepping::{
 };
 use crokf_compile::{CompileError, CompileOptions, FullOrder, Reductor};
 
-use crate::bench::median_seconds;
+use crate::bench::{median_step_seconds, step_clock_seconds};
 
 mod consistency;
 mod metrics;
@@ -166,9 +166,11 @@ pub struct FullOrderRow {
 /// open loop, filtered with the loads given and withheld, against the co-rotational reference.
 #[derive(Clone, Debug)]
 pub struct RuntimeFigures {
-    /// Median runtime step, predict + update with the measurements, s (batched).
+    /// Median runtime step, predict + update with the measurements, s (batched; thread CPU
+    /// time, [`crate::bench::step_clock_seconds`]).
     pub step_s: f64,
-    /// Median runtime step without measurements (predict + empty update), s (batched).
+    /// Median runtime step without measurements (predict + empty update), s (batched; thread
+    /// CPU time).
     pub open_loop_step_s: f64,
     /// Open loop: relative L2 error over displayed nodes vs the co-rotational reference.
     pub error: f64,
@@ -883,8 +885,9 @@ fn time_row(
     (step_s, open_loop_step_s)
 }
 
-/// Median time of one `est.step` over the precomputed sequence, s: batches of consecutive steps
-/// (each batch ≥ ~2 ms, wrapping to the start with a reset), `samples` batches.
+/// Median time of one `est.step` over the precomputed sequence, s, in this thread's CPU time
+/// ([`step_clock_seconds`]): batches of consecutive steps (each batch ≥ ~2 ms, wrapping to the
+/// start with a reset), `samples` batches.
 fn time_runtime(
     est: &mut Estimator,
     inputs: &[Vec<f64>],
@@ -912,15 +915,16 @@ fn time_runtime(
     // Calibrate the batch so one sample lasts about 2 ms.
     let mut batch = 16;
     loop {
-        let start = Instant::now();
+        let start = step_clock_seconds();
         run(est, batch);
-        let t = start.elapsed().as_secs_f64();
-        if t >= 2e-3 || batch >= 1 << 22 {
+        let t = step_clock_seconds() - start;
+        // NaN (no clock) ends the calibration too.
+        if t.is_nan() || t >= 2e-3 || batch >= 1 << 22 {
             break;
         }
         batch *= 2;
     }
-    median_seconds(samples, || run(est, batch)) / batch as f64
+    median_step_seconds(samples, || run(est, batch)) / batch as f64
 }
 
 /// Inputs per step k = 0..N (the step k → k+1 holds u(t_k)), in `model.inputs` order.

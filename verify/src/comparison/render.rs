@@ -2,6 +2,8 @@
 
 use std::fmt::Write as _;
 
+use crate::bench::STEP_CLOCK;
+
 use super::{
     breakdown_rotation, breakdown_rotation_of, ChiSquare, Comparison, Consistency, ReducedRow,
     RuntimeFigures, SweepPoint, TierPoint,
@@ -281,8 +283,10 @@ impl Comparison {
             "\nErrors: relative L2 over the {} displayed nodes and the whole trajectory, world \
              frame, against the co-rotational full-order reference; tip error at sensor `{}`. \
              Filtered: measurements = reference sensor displacements + Gaussian noise \
-             (noise_std, seed {:#x}){}. Runtime step = predict + update (median of batches); \
-             full-order step = median over the run.\n",
+             (noise_std, seed {:#x}){}. Runtime step = predict + update, median of batches \
+             in {STEP_CLOCK} (the runtime steps on one thread: jobs sharing the machine do not \
+             count); full-order step = median wall time over the run (its sparse solver may \
+             use several threads).\n",
             self.displayed_nodes,
             self.tip.as_deref().unwrap_or("—"),
             self.seed,
@@ -294,7 +298,7 @@ impl Comparison {
         );
         let _ = writeln!(
             out,
-            "| model | r | step time | speed-up vs co-rotational FEM | speed-up vs linear FEM | relative L2 error | tip error | filtered error |"
+            "| model | r | step time (runtime: {STEP_CLOCK}) | speed-up vs co-rotational FEM | speed-up vs linear FEM | relative L2 error | tip error | filtered error |"
         );
         let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|---:|");
         let c = self.corotational.step_s;
@@ -688,7 +692,7 @@ impl Comparison {
         }
         let _ = writeln!(
             s,
-            r#"<text x="{}" y="{}" text-anchor="middle">step time (log scale)</text>"#,
+            r#"<text x="{}" y="{}" text-anchor="middle">step time (log scale; runtime: {STEP_CLOCK}, FEM: wall time)</text>"#,
             LEFT + pw / 2.0,
             H - 18.0
         );
