@@ -79,8 +79,6 @@ pub fn beam_of_size(tetrahedra: usize) -> Mesh {
     box_mesh([nx, k, k], [1.0, 0.1, 0.1])
 }
 
-/// The benchmark scene text (mesh file "generated"): soft beam clamped at `xmin`, tip load on
-/// `xmax` with force noise, three sensors along the top, the boundary displayed, Δt = 1 ms.
 /// The benchmark beam scene (the shared fixture): 1 MPa, a tip load with 0.01 N force noise,
 /// three sensors along the top, the surface displayed, Δt = 1 ms; `mesh_file` is the generated
 /// mesh's name.
