@@ -82,13 +82,6 @@ fn full_basis(fem: &FemModel) -> DMatrix<f64> {
     b.vectors
 }
 
-fn wilson(scene: &Scene) -> WilsonTheta {
-    WilsonTheta {
-        dt: scene.time.dt,
-        theta: scene.time.theta,
-    }
-}
-
 fn rel(a: &[f64], b: &[f64]) -> f64 {
     let d: f64 = a
         .iter()
@@ -104,7 +97,8 @@ fn full_basis_with_every_element_reproduces_the_full_order_stepper() {
     let (fem, ops, scene) = model([6, 1, 1], true);
     let v = full_basis(&fem);
     let all: Vec<(usize, f64)> = (0..fem.elements.len()).map(|e| (e, 1.0)).collect();
-    let reduced = ReducedModel::new(&fem, &v, &all, wilson(&scene)).expect("model");
+    let reduced =
+        ReducedModel::new(&fem, &v, &all, WilsonTheta::from_time(&scene.time)).expect("model");
     // M_r = VᵀMV = I.
     let eye = DMatrix::<f64>::identity(v.ncols(), v.ncols());
     assert!((&reduced.mass - eye).norm() < 1e-10);
@@ -126,7 +120,7 @@ fn full_basis_with_every_element_reproduces_the_full_order_stepper() {
     .expect("stepper");
     let mut full = CorotationalSimulator::new(
         &fem,
-        wilson(&scene),
+        WilsonTheta::from_time(&scene.time),
         NewtonOptions {
             max_newton: 30,
             tolerance: 1e-12,
@@ -168,7 +162,8 @@ fn rigid_rotation_gives_no_reduced_force() {
     let (fem, _, scene) = model([4, 1, 1], false);
     let v = full_basis(&fem);
     let all: Vec<(usize, f64)> = (0..fem.elements.len()).map(|e| (e, 1.0)).collect();
-    let reduced = ReducedModel::new(&fem, &v, &all, wilson(&scene)).expect("model");
+    let reduced =
+        ReducedModel::new(&fem, &v, &all, WilsonTheta::from_time(&scene.time)).expect("model");
     let rot = Rotation3::from_axis_angle(&Vector3::y_axis(), 1.2);
     let mut u = vec![0.0; fem.dof_count()];
     let mut stretch = vec![0.0; fem.dof_count()];
@@ -275,8 +270,12 @@ fn pod_of_a_rank_two_set_projects_it_exactly() {
 fn ecsw_weights_reproduce_the_training_forces_to_the_tolerance() {
     let (fem, ops, scene) = model([8, 1, 1], true);
     // Training: a few static-ish states of the full-order model under tip loads.
-    let mut full = CorotationalSimulator::new(&fem, wilson(&scene), NewtonOptions::default())
-        .expect("full-order");
+    let mut full = CorotationalSimulator::new(
+        &fem,
+        WilsonTheta::from_time(&scene.time),
+        NewtonOptions::default(),
+    )
+    .expect("full-order");
     let mut snapshots = Vec::new();
     for k in 0..40 {
         let s = (k as f64 / 10.0).min(1.0);
@@ -309,9 +308,20 @@ fn ecsw_weights_reproduce_the_training_forces_to_the_tolerance() {
     assert!(sol.weights.len() < fem.elements.len() / 2);
     // The reduced force of the sampled model at a training state against all elements.
     let all: Vec<(usize, f64)> = (0..fem.elements.len()).map(|e| (e, 1.0)).collect();
-    let exact = ReducedModel::new(&fem, &basis.vectors, &all, wilson(&scene)).expect("model");
-    let sampled =
-        ReducedModel::new(&fem, &basis.vectors, &sol.weights, wilson(&scene)).expect("model");
+    let exact = ReducedModel::new(
+        &fem,
+        &basis.vectors,
+        &all,
+        WilsonTheta::from_time(&scene.time),
+    )
+    .expect("model");
+    let sampled = ReducedModel::new(
+        &fem,
+        &basis.vectors,
+        &sol.weights,
+        WilsonTheta::from_time(&scene.time),
+    )
+    .expect("model");
     let q = basis.project(&snapshots[25]);
     let r = basis.len();
     let (mut fe, mut fs, mut d) = (DVector::zeros(r), DVector::zeros(r), DVector::zeros(r));
@@ -358,9 +368,14 @@ fn reduced_static_solve_with_the_full_basis_matches_the_full_order_static_solve(
     let (fem, ops, scene) = model([6, 1, 1], true);
     let v = full_basis(&fem);
     let all: Vec<(usize, f64)> = (0..fem.elements.len()).map(|e| (e, 1.0)).collect();
-    let reduced = ReducedModel::new(&fem, &v, &all, wilson(&scene)).expect("model");
-    let mut full = CorotationalSimulator::new(&fem, wilson(&scene), NewtonOptions::default())
-        .expect("full-order");
+    let reduced =
+        ReducedModel::new(&fem, &v, &all, WilsonTheta::from_time(&scene.time)).expect("model");
+    let mut full = CorotationalSimulator::new(
+        &fem,
+        WilsonTheta::from_time(&scene.time),
+        NewtonOptions::default(),
+    )
+    .expect("full-order");
     let f = tip_load(&fem, &ops, [0.0, 0.0, -40.0]);
     let u = full.static_solve(&f, 1e-11).expect("full static");
     let q = reduced

@@ -3,6 +3,8 @@
 //! Prints the case count, the outcomes and the time; a panic or an accepted invalid model
 //! aborts with the payload.
 
+#[path = "../tests/support/model.rs"]
+mod model;
 #[path = "../tests/support/mutate.rs"]
 mod mutate;
 

@@ -1,6 +1,6 @@
 //! The model: everything the runtime needs, computed offline by `crokf-compile`.
 //!
-//! Notation (DESIGN.md): r = reduced state dimension, m = number of deterministic input
+//! Notation (docs/design.md): r = reduced state dimension, m = number of deterministic input
 //! channels, q = number of measurement channels. All matrices are row-major [`Matrix`].
 //! Lengths in metres, forces in newtons, time in seconds, angles in radians.
 
@@ -60,7 +60,7 @@ pub struct InputChannel {
 pub enum InputKind {
     /// World-frame force component `component` (0 = x, 1 = y, 2 = z), N, total over load group
     /// `loads[load]`. At run time the group's world force vector is rotated into the local
-    /// frame, f_lin = Rᵀ(ω_g) f_world (DESIGN.md §5).
+    /// frame, f_lin = Rᵀ(ω_g) f_world (docs/design.md §5).
     Load {
         /// Index into [`Model::loads`].
         load: u32,
@@ -81,7 +81,7 @@ pub enum InputKind {
 pub struct LoadGroup {
     /// Name (the scene's load name).
     pub name: String,
-    /// W_g, 3×r: infinitesimal rotation at the group, ω_g = W_g x, rad (DESIGN.md §5).
+    /// W_g, 3×r: infinitesimal rotation at the group, ω_g = W_g x, rad (docs/design.md §5).
     pub rotation_rows: Matrix,
 }
 

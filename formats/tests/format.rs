@@ -1,156 +1,11 @@
 //! Model file encoding: round trip, determinism, and corruption of every kind → typed error.
 
+use crokf_formats::synthetic::SplitMix64;
 use crokf_formats::*;
-use std::collections::BTreeMap;
 
-/// Tiny deterministic PRNG (SplitMix64), uniform in [-1, 1).
-struct Rng(u64);
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-    }
-    fn matrix(&mut self, rows: u32, cols: u32) -> Matrix {
-        Matrix::from_fn(rows, cols, |_, _| self.uniform())
-    }
-}
-
-/// r = 4, loads: one group (3 channels) + gravity, 2 sensors (3 + 1 components, the second
-/// every 2 steps → period 2), one displayed node set of 3 nodes.
-fn small_model() -> Model {
-    let mut g = Rng(7);
-    let r = 4u32;
-    let sensors = vec![
-        SensorInfo {
-            name: "tip".into(),
-            position: [1.0, 0.0, 0.5],
-            displacement_rows: g.matrix(3, r),
-            rotation_rows: g.matrix(3, r),
-            components: vec![0, 1, 2],
-            every: 1,
-        },
-        SensorInfo {
-            name: "mid".into(),
-            position: [0.5, 0.0, 0.5],
-            displacement_rows: g.matrix(3, r),
-            rotation_rows: g.matrix(3, r),
-            components: vec![2],
-            every: 2,
-        },
-    ];
-    let measurements = vec![
-        MeasurementChannel {
-            sensor: 0,
-            component: 0,
-        },
-        MeasurementChannel {
-            sensor: 0,
-            component: 1,
-        },
-        MeasurementChannel {
-            sensor: 0,
-            component: 2,
-        },
-        MeasurementChannel {
-            sensor: 1,
-            component: 2,
-        },
-    ];
-    let phase = |measured: Vec<u32>, g: &mut Rng| KalmanPhase {
-        gain: g.matrix(r, measured.len() as u32),
-        measured,
-        prior_covariance: Matrix::identity(r),
-        posterior_covariance: Matrix::identity(r),
-    };
-    let phases = vec![
-        phase(vec![0, 1, 2, 3], &mut g),
-        phase(vec![0, 1, 2], &mut g),
-    ];
-    let mut transition = g.matrix(r, r);
-    transition.data[2 * 4 + 1] = 12345.678; // a marker the corruption test looks for
-    Model {
-        dt: 1e-3,
-        theta: 1.4,
-        state_dim: r,
-        transition,
-        input: g.matrix(r, 4),
-        inputs: vec![
-            InputChannel {
-                label: "push.x".into(),
-                kind: InputKind::Load {
-                    load: 0,
-                    component: 0,
-                },
-            },
-            InputChannel {
-                label: "push.y".into(),
-                kind: InputKind::Load {
-                    load: 0,
-                    component: 1,
-                },
-            },
-            InputChannel {
-                label: "push.z".into(),
-                kind: InputKind::Load {
-                    load: 0,
-                    component: 2,
-                },
-            },
-            InputChannel {
-                label: "gravity".into(),
-                kind: InputKind::Gravity {
-                    acceleration: [0.0, 0.0, -9.81],
-                },
-            },
-        ],
-        loads: vec![LoadGroup {
-            name: "push".into(),
-            rotation_rows: g.matrix(3, r),
-        }],
-        sensors,
-        measurements,
-        kalman: KalmanGains {
-            period: 2,
-            phases,
-            process_noise: Matrix::identity(r),
-            measurement_variance: vec![1e-6, 1e-6, 1e-6, 4e-6],
-        },
-        node_sets: vec![NodeSet {
-            name: "surface".into(),
-            node_tags: vec![10, 11, 12],
-            rest_positions: g.matrix(3, 3),
-            triangles: vec![[0, 1, 2]],
-            displacement_rows: g.matrix(9, r),
-            rotation_rows: g.matrix(9, r),
-        }],
-        report: CompileReport {
-            hankel_singular_values: vec![3.0, 2.0, 1.0, 0.5, 0.1],
-            error_bound: 0.2,
-            order: r,
-            modes: 6,
-            highest_kept_frequency_hz: 120.0,
-            nyquist_hz: 500.0,
-            spectral_radius: 0.99,
-            riccati_residual: 1e-14,
-            closed_loop_spectral_radius: 0.9,
-            measured_errors: BTreeMap::from([("tip".to_string(), 0.01)]),
-            timings_s: BTreeMap::from([("total".to_string(), 1.5), ("dare".to_string(), 0.1)]),
-            notes: vec!["synthetic".into()],
-        },
-        inputs_digest: InputsDigest {
-            mesh_sha256: sha256_hex(b"mesh"),
-            scene_sha256: sha256_hex(b"scene"),
-            compiler_version: "test".into(),
-        },
-        tier: None,
-    }
-}
+#[path = "support/model.rs"]
+mod model;
+use model::small_model;
 
 #[test]
 fn round_trip_and_determinism() {
@@ -370,7 +225,7 @@ fn nan_in_a_matrix_is_named_even_with_a_valid_hash() {
 fn rehashed_garbage_never_panics() {
     let bytes = encode(&small_model());
     let payload = bytes[HEADER_LEN..].to_vec();
-    let mut rng = Rng(99);
+    let mut rng = SplitMix64(99);
     let mut accepted = 0;
     for i in 0..payload.len() {
         for v in [0x00u8, 0xff, 0xc1, 0xdb, (rng.next_u64() & 0xff) as u8] {
@@ -431,33 +286,33 @@ fn matrix_bytes_not_multiple_of_eight() {
 /// A small synthetic co-rotational tier (r = 2, force states on load group 0: state 3r + 3)
 /// for `small_model()`.
 fn small_tier(model: &Model) -> CorotationalTier {
-    let r = 2u32;
+    let r = 2usize;
     let n = 3 * r + 3;
     let q = model.measurements.len() as u32;
-    let mut g = Rng(7);
-    let phase = |measured: Vec<u32>, g: &mut Rng| KalmanPhase {
-        gain: g.matrix(n, measured.len() as u32),
+    let mut g = SplitMix64(7);
+    let phase = |measured: Vec<u32>, g: &mut SplitMix64| KalmanPhase {
+        gain: g.matrix(n, measured.len(), 1.0),
         measured,
-        prior_covariance: Matrix::identity(n),
-        posterior_covariance: Matrix::identity(n),
+        prior_covariance: Matrix::identity(n as u32),
+        posterior_covariance: Matrix::identity(n as u32),
     };
     let phases = vec![
         phase((0..q).collect(), &mut g),
         phase(vec![0, 1, 2], &mut g),
     ];
     CorotationalTier {
-        order: r,
-        mass: Matrix::identity(r),
+        order: r as u32,
+        mass: Matrix::identity(r as u32),
         alpha: 0.5,
         beta: 1e-3,
         newton_tolerance: 1e-6,
         newton_iterations: 20,
-        input: g.matrix(r, model.inputs.len() as u32),
-        sensor_rows: model.sensors.iter().map(|_| g.matrix(3, r)).collect(),
+        input: g.matrix(r, model.inputs.len(), 1.0),
+        sensor_rows: model.sensors.iter().map(|_| g.matrix(3, r, 1.0)).collect(),
         node_set_rows: model
             .node_sets
             .iter()
-            .map(|s| g.matrix(3 * s.node_tags.len() as u32, r))
+            .map(|s| g.matrix(3 * s.node_tags.len(), r, 1.0))
             .collect(),
         elements: vec![TierElement {
             element: 3,
@@ -465,7 +320,7 @@ fn small_tier(model: &Model) -> CorotationalTier {
             rest: [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
             gradients: [[-1.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
             stiffness: Matrix::identity(12),
-            rows: g.matrix(12, r),
+            rows: g.matrix(12, r, 1.0),
         }],
         envelope: TrainingEnvelope {
             loads: vec![EnvelopeLoad {
@@ -492,7 +347,7 @@ fn small_tier(model: &Model) -> CorotationalTier {
         kalman: KalmanGains {
             period: 2,
             phases,
-            process_noise: Matrix::identity(n),
+            process_noise: Matrix::identity(n as u32),
             measurement_variance: model.kalman.measurement_variance.clone(),
         },
     }

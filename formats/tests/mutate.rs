@@ -2,6 +2,8 @@
 //! accepted model valid and finite, NaN/inf in matrices refused (`support/mutate.rs`; the
 //! long run is `cargo run --release -p crokf-formats --example mutate`).
 
+#[path = "support/model.rs"]
+mod model;
 #[path = "support/mutate.rs"]
 mod mutate;
 

@@ -26,7 +26,7 @@ fn rodrigues(w: &[f64; 3]) -> [[f64; 3]; 3] {
     r
 }
 
-/// R̃ with an explicit axis, DESIGN.md §5.
+/// R̃ with an explicit axis, docs/design.md §5.
 fn warp_closed(w: &[f64; 3]) -> [[f64; 3]; 3] {
     let th = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
     let n = [w[0] / th, w[1] / th, w[2] / th];

@@ -52,7 +52,7 @@ use crokf_compile::stepping::{
 };
 use crokf_compile::{CompileError, CompileOptions, FullOrder, Reductor};
 
-use crate::bench::median_seconds;
+use crate::bench::{median_step_seconds, step_clock_seconds};
 
 mod consistency;
 mod metrics;
@@ -162,6 +162,57 @@ pub struct FullOrderRow {
     pub newton: Option<NewtonStats>,
 }
 
+/// The runtime's step times and errors in one row (a warped order or the co-rotational tier):
+/// open loop, filtered with the loads given and withheld, against the co-rotational reference.
+#[derive(Clone, Debug)]
+pub struct RuntimeFigures {
+    /// Median runtime step, predict + update with the measurements, s (batched; thread CPU
+    /// time, [`crate::bench::step_clock_seconds`]).
+    pub step_s: f64,
+    /// Median runtime step without measurements (predict + empty update), s (batched; thread
+    /// CPU time).
+    pub open_loop_step_s: f64,
+    /// Open loop: relative L2 error over displayed nodes vs the co-rotational reference.
+    pub error: f64,
+    /// Open loop: relative L2 error at the tip vs the co-rotational reference.
+    pub tip_error: f64,
+    /// Filtered (loads given, or withheld when the whole comparison withholds them): relative
+    /// L2 error over displayed nodes vs the co-rotational reference.
+    pub filtered_error: f64,
+    /// Filtered: relative L2 error at the tip vs the co-rotational reference.
+    pub filtered_tip_error: f64,
+    /// Filtered with the loads withheld from the runtime (only the markers carry the force):
+    /// relative L2 error over displayed nodes vs the co-rotational reference. Equal to
+    /// `filtered_error` when the whole comparison withholds the loads.
+    pub withheld_filtered_error: f64,
+    /// Same at the tip.
+    pub withheld_filtered_tip_error: f64,
+    /// Open loop: relative L2 error over displayed nodes vs the LINEAR full-order reference.
+    pub error_vs_linear: f64,
+}
+
+impl RuntimeFigures {
+    /// The figures of a row from its timed steps and its open-loop, filtered and withheld runs.
+    fn new(
+        (step_s, open_loop_step_s): (f64, f64),
+        open: &RunErrors,
+        filtered: &RunErrors,
+        withheld: &RunErrors,
+    ) -> Self {
+        RuntimeFigures {
+            step_s,
+            open_loop_step_s,
+            error: open.display.relative(),
+            tip_error: open.tip.relative(),
+            filtered_error: filtered.display.relative(),
+            filtered_tip_error: filtered.tip.relative(),
+            withheld_filtered_error: withheld.display.relative(),
+            withheld_filtered_tip_error: withheld.tip.relative(),
+            error_vs_linear: open.display_vs_linear.relative(),
+        }
+    }
+}
+
 /// The runtime's figures at one order.
 #[derive(Clone, Debug)]
 pub struct ReducedRow {
@@ -172,30 +223,12 @@ pub struct ReducedRow {
     pub order: usize,
     /// Random-walk force states appended to the balanced ones (3 per such load group).
     pub force_states: usize,
-    /// Median runtime step, predict + update with the measurements, s (batched).
-    pub step_s: f64,
-    /// Median runtime step without measurements (predict + empty update), s (batched).
-    pub open_loop_step_s: f64,
-    /// Open loop: relative L2 error over displayed nodes vs the co-rotational reference.
-    pub error: f64,
-    /// Open loop: relative L2 error at the tip vs the co-rotational reference.
-    pub tip_error: f64,
-    /// Filtered: relative L2 error over displayed nodes vs the co-rotational reference.
-    pub filtered_error: f64,
-    /// Filtered: relative L2 error at the tip vs the co-rotational reference.
-    pub filtered_tip_error: f64,
-    /// Filtered with the loads withheld from the runtime (only the markers carry the force):
-    /// relative L2 error over displayed nodes vs the co-rotational reference. Equal to
-    /// `filtered_error` when the whole comparison withholds the loads.
-    pub withheld_filtered_error: f64,
-    /// Same at the tip.
-    pub withheld_filtered_tip_error: f64,
+    /// Step times and errors.
+    pub runtime: RuntimeFigures,
     /// NIS, NEES, 2σ coverage and the tip trace of the filtered run (docs/design.md §11).
     pub consistency: Consistency,
     /// The same for the run with the loads withheld.
     pub withheld_consistency: Consistency,
-    /// Open loop: relative L2 error over displayed nodes vs the LINEAR full-order reference.
-    pub error_vs_linear: f64,
     /// The compiler's measured errors (empty unless `measure_compile_error`).
     pub compile_measured_errors: std::collections::BTreeMap<String, f64>,
     /// Compile wall time, s.
@@ -426,24 +459,8 @@ pub struct TierRow {
     pub force_states: usize,
     /// Compile wall time with training, s.
     pub compile_s: f64,
-    /// Median runtime step, predict + update with the measurements, s (batched).
-    pub step_s: f64,
-    /// Median runtime step without measurements, s.
-    pub open_loop_step_s: f64,
-    /// Open loop: relative L2 error over displayed nodes vs the co-rotational reference.
-    pub error: f64,
-    /// Open loop: at the tip.
-    pub tip_error: f64,
-    /// Filtered, loads given (or withheld when the whole comparison withholds them).
-    pub filtered_error: f64,
-    /// Same at the tip.
-    pub filtered_tip_error: f64,
-    /// Filtered with the loads withheld.
-    pub withheld_filtered_error: f64,
-    /// Same at the tip.
-    pub withheld_filtered_tip_error: f64,
-    /// Open loop vs the LINEAR full-order reference.
-    pub error_vs_linear: f64,
+    /// Step times and errors, as for the warped rows.
+    pub runtime: RuntimeFigures,
     /// Envelope and Newton work of the open-loop run.
     pub envelope: EnvelopeSummary,
 }
@@ -842,8 +859,35 @@ fn run_runtime(
     Ok(errors)
 }
 
-/// Median time of one `est.step` over the precomputed sequence, s: batches of consecutive steps
-/// (each batch ≥ ~2 ms, wrapping to the start with a reset), `samples` batches.
+/// The row's timed steps (progress `phase`, 0/1): the median runtime step with the
+/// measurements and without (open loop), s.
+fn time_row(
+    est: &mut Estimator,
+    inputs: &[Vec<f64>],
+    measurements: &[Vec<Option<f64>>],
+    none: &[Vec<Option<f64>>],
+    samples: usize,
+    phase: &str,
+    progress: &mut dyn FnMut(Progress),
+) -> (f64, f64) {
+    progress(Progress {
+        phase,
+        done: 0,
+        total: 1,
+    });
+    let step_s = time_runtime(est, inputs, measurements, samples);
+    let open_loop_step_s = time_runtime(est, inputs, none, samples);
+    progress(Progress {
+        phase,
+        done: 1,
+        total: 1,
+    });
+    (step_s, open_loop_step_s)
+}
+
+/// Median time of one `est.step` over the precomputed sequence, s, in this thread's CPU time
+/// ([`step_clock_seconds`]): batches of consecutive steps (each batch ≥ ~2 ms, wrapping to the
+/// start with a reset), `samples` batches.
 fn time_runtime(
     est: &mut Estimator,
     inputs: &[Vec<f64>],
@@ -871,15 +915,16 @@ fn time_runtime(
     // Calibrate the batch so one sample lasts about 2 ms.
     let mut batch = 16;
     loop {
-        let start = Instant::now();
+        let start = step_clock_seconds();
         run(est, batch);
-        let t = start.elapsed().as_secs_f64();
-        if t >= 2e-3 || batch >= 1 << 22 {
+        let t = step_clock_seconds() - start;
+        // NaN (no clock) ends the calibration too.
+        if t.is_nan() || t >= 2e-3 || batch >= 1 << 22 {
             break;
         }
         batch *= 2;
     }
-    median_seconds(samples, || run(est, batch)) / batch as f64
+    median_step_seconds(samples, || run(est, batch)) / batch as f64
 }
 
 /// Inputs per step k = 0..N (the step k → k+1 holds u(t_k)), in `model.inputs` order.
@@ -1091,34 +1136,22 @@ fn run_tier(
             progress,
         )?
     };
-    let phase = "timing tier";
-    progress(Progress {
-        phase,
-        done: 0,
-        total: 1,
-    });
-    let step_s = time_runtime(&mut est, &inputs, &measurements, options.timing_samples);
-    let open_loop_step_s = time_runtime(&mut est, &inputs, &none, options.timing_samples);
-    progress(Progress {
-        phase,
-        done: 1,
-        total: 1,
-    });
+    let times = time_row(
+        &mut est,
+        &inputs,
+        &measurements,
+        &none,
+        options.timing_samples,
+        "timing tier",
+        progress,
+    );
     Ok(TierRow {
         scene: tier.scene.clone(),
         basis_order: r,
         sampled_elements: tier.sampled_elements(),
         force_states,
         compile_s: tier.compile_s,
-        step_s,
-        open_loop_step_s,
-        error: open.display.relative(),
-        tip_error: open.tip.relative(),
-        filtered_error: filtered.display.relative(),
-        filtered_tip_error: filtered.tip.relative(),
-        withheld_filtered_error: withheld.display.relative(),
-        withheld_filtered_tip_error: withheld.tip.relative(),
-        error_vs_linear: open.display_vs_linear.relative(),
+        runtime: RuntimeFigures::new(times, &open, &filtered, &withheld),
         envelope: open.envelope,
     })
 }
@@ -1270,34 +1303,22 @@ pub fn run(
                 )?;
                 (errors, acc.finish())
             };
-            let phase = format!("timing r = {order}");
-            progress(Progress {
-                phase: &phase,
-                done: 0,
-                total: 1,
-            });
-            let step_s = time_runtime(&mut est, &inputs, &measurements, options.timing_samples);
-            let open_loop_step_s = time_runtime(&mut est, &inputs, &none, options.timing_samples);
-            progress(Progress {
-                phase: &phase,
-                done: 1,
-                total: 1,
-            });
+            let times = time_row(
+                &mut est,
+                &inputs,
+                &measurements,
+                &none,
+                options.timing_samples,
+                &format!("timing r = {order}"),
+                progress,
+            );
             Ok(ReducedRow {
                 requested_order: order,
                 order: r,
                 force_states: r.saturating_sub(model.report.order as usize),
-                step_s,
-                open_loop_step_s,
-                error: open.display.relative(),
-                tip_error: open.tip.relative(),
-                filtered_error: filtered.display.relative(),
-                filtered_tip_error: filtered.tip.relative(),
-                withheld_filtered_error: withheld.display.relative(),
-                withheld_filtered_tip_error: withheld.tip.relative(),
+                runtime: RuntimeFigures::new(times, &open, &filtered, &withheld),
                 consistency,
                 withheld_consistency,
-                error_vs_linear: open.display_vs_linear.relative(),
                 compile_measured_errors: model.report.measured_errors.clone(),
                 compile_s,
             })

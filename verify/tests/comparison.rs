@@ -214,29 +214,33 @@ fn tiny_load_runtime_error_matches_compile_report_and_linear_reference() {
     for row in &c.reduced {
         assert_eq!(row.order, row.requested_order);
         let step = row.compile_measured_errors["step"];
-        let ratio = row.error_vs_linear / step;
+        let ratio = row.runtime.error_vs_linear / step;
         assert!(
             (0.1..10.0).contains(&ratio),
             "r = {}: runtime error vs linear {:.3e}, compiler's step error {step:.3e}",
             row.order,
-            row.error_vs_linear
+            row.runtime.error_vs_linear
         );
         // Triangle inequality: the two references differ by c.linear.error (relative).
         assert!(
-            (row.error - row.error_vs_linear).abs() <= 2.0 * c.linear.error + 1e-12,
+            (row.runtime.error - row.runtime.error_vs_linear).abs() <= 2.0 * c.linear.error + 1e-12,
             "r = {}: {} vs {}",
             row.order,
-            row.error,
-            row.error_vs_linear
+            row.runtime.error,
+            row.runtime.error_vs_linear
         );
-        assert!(row.step_s > 0.0 && row.step_s < 1e-3, "{}", row.step_s);
-        assert!(row.tip_error.is_finite() && row.filtered_error.is_finite());
+        assert!(
+            row.runtime.step_s > 0.0 && row.runtime.step_s < 1e-3,
+            "{}",
+            row.runtime.step_s
+        );
+        assert!(row.runtime.tip_error.is_finite() && row.runtime.filtered_error.is_finite());
     }
     assert!(
-        c.reduced[1].error < 0.5 * c.reduced[0].error,
+        c.reduced[1].runtime.error < 0.5 * c.reduced[0].runtime.error,
         "error must fall with r: {} (r = 4) vs {} (r = 8)",
-        c.reduced[0].error,
-        c.reduced[1].error
+        c.reduced[0].runtime.error,
+        c.reduced[1].runtime.error
     );
     assert!(c.corotational.step_s > c.linear.step_s);
 
@@ -265,7 +269,7 @@ fn tiny_load_runtime_error_matches_compile_report_and_linear_reference() {
     assert_eq!(r8[0], "runtime");
     assert_eq!(r8[1], "8");
     let error: f64 = r8[5].parse().expect("error column");
-    assert!((error - c.reduced[1].error).abs() <= 1e-12 * error);
+    assert!((error - c.reduced[1].runtime.error).abs() <= 1e-12 * error);
     let svg = c.svg();
     assert_eq!(check_svg(&svg), 2 * 2 + 2, "{svg}");
 }
@@ -285,13 +289,25 @@ fn filter_tracks_a_withheld_load_from_the_measurements() {
     let c = run(&scene, &scenario, &options);
     assert_eq!(c.tip.as_deref(), Some("end_marker"));
     let row = &c.reduced[0];
-    assert!((row.error - 1.0).abs() < 1e-12, "{}", row.error);
-    assert!((row.tip_error - 1.0).abs() < 1e-12, "{}", row.tip_error);
-    assert!(row.filtered_error < 0.3, "filtered {}", row.filtered_error);
     assert!(
-        row.filtered_tip_error < 0.3,
+        (row.runtime.error - 1.0).abs() < 1e-12,
+        "{}",
+        row.runtime.error
+    );
+    assert!(
+        (row.runtime.tip_error - 1.0).abs() < 1e-12,
+        "{}",
+        row.runtime.tip_error
+    );
+    assert!(
+        row.runtime.filtered_error < 0.3,
+        "filtered {}",
+        row.runtime.filtered_error
+    );
+    assert!(
+        row.runtime.filtered_tip_error < 0.3,
         "filtered tip {}",
-        row.filtered_tip_error
+        row.runtime.filtered_tip_error
     );
     // Another seed gives another noise draw but a similar error.
     let other = comparison::run(
@@ -305,9 +321,9 @@ fn filter_tracks_a_withheld_load_from_the_measurements() {
         &mut |_| {},
     )
     .expect("comparison");
-    let f2 = other.reduced[0].filtered_error;
+    let f2 = other.reduced[0].runtime.filtered_error;
     assert!(
-        f2 != row.filtered_error && (f2 / row.filtered_error - 1.0).abs() < 0.5,
+        f2 != row.runtime.filtered_error && (f2 / row.runtime.filtered_error - 1.0).abs() < 0.5,
         "{f2}"
     );
 }
@@ -625,29 +641,29 @@ fn the_tier_is_a_row_and_beats_warping_at_large_rotation() {
     assert!(t.sampled_elements > 0 && t.sampled_elements < c.tetrahedra);
     // The tier against the same reference as the warped row: below it, and below 2 %.
     assert!(
-        t.error < 0.5 * warped.error && t.error < 0.02,
+        t.runtime.error < 0.5 * warped.runtime.error && t.runtime.error < 0.02,
         "tier {} vs warped {}",
-        t.error,
-        warped.error
+        t.runtime.error,
+        warped.runtime.error
     );
     assert!(
-        t.tip_error < warped.tip_error,
+        t.runtime.tip_error < warped.runtime.tip_error,
         "{} vs {}",
-        t.tip_error,
-        warped.tip_error
+        t.runtime.tip_error,
+        warped.runtime.tip_error
     );
-    assert!(t.error < c.linear.error);
+    assert!(t.runtime.error < c.linear.error);
     // Filtered with the loads given: below the warped filter. Withheld: whatever the tier's
     // filter makes of the markers alone (it has no force states in this scene's white force
     // model), but a figure.
     assert!(
-        t.filtered_error < warped.filtered_error,
+        t.runtime.filtered_error < warped.runtime.filtered_error,
         "{} vs {}",
-        t.filtered_error,
-        warped.filtered_error
+        t.runtime.filtered_error,
+        warped.runtime.filtered_error
     );
-    assert!(t.withheld_filtered_error.is_finite());
-    assert!(t.step_s > 0.0 && t.step_s.is_finite());
+    assert!(t.runtime.withheld_filtered_error.is_finite());
+    assert!(t.runtime.step_s > 0.0 && t.runtime.step_s.is_finite());
     // Inside its envelope: 30 N against 37.5 N trained, and the runtime says so.
     assert!(!t.envelope.outside(), "{:?}", t.envelope);
     assert!(
@@ -676,7 +692,7 @@ fn the_tier_is_a_row_and_beats_warping_at_large_rotation() {
     let tier_line: Vec<&str> = lines[4].split(',').collect();
     assert_eq!(tier_line[0], "corotational_tier");
     let error: f64 = tier_line[5].parse().expect("error column");
-    assert!((error - t.error).abs() <= 1e-12 * error);
+    assert!((error - t.runtime.error).abs() <= 1e-12 * error);
     let svg = c.svg();
     assert_eq!(check_svg(&svg), 2 + 2 + 2, "{svg}");
     assert!(svg.contains("co-rotational tier, open loop"));

@@ -259,6 +259,34 @@ struct ElementData {
     slots: [u32; 144],
 }
 
+impl ElementData {
+    /// Co-rotated kinematics at the free-DOF displacement u (m): the rest positions of the
+    /// element's vertices (from `rest`, all nodes) plus u at its free DOFs.
+    fn kinematics(&self, rest: &[[f64; 3]], u: &[f64]) -> Kinematics {
+        let rest = self.nodes.map(|n| rest[n]);
+        let mut current = rest;
+        for (k, dof) in self.dofs.iter().enumerate() {
+            if let Some(d) = dof {
+                current[k / 3][k % 3] += u[*d];
+            }
+        }
+        Kinematics::new(&self.geometry, &self.ke, &rest, &current)
+    }
+
+    /// Adds the world-frame node forces `force(a)` (a = 0..3, N) into `out` at the element's
+    /// free DOFs.
+    fn scatter(&self, out: &mut [f64], force: impl Fn(usize) -> Vector3<f64>) {
+        for a in 0..4 {
+            let fa = force(a);
+            for i in 0..3 {
+                if let Some(d) = self.dofs[3 * a + i] {
+                    out[d] += fa[i];
+                }
+            }
+        }
+    }
+}
+
 /// Full-order co-rotational Wilson-θ: M Ü + C U̇ + f_int(U) = f with
 /// f_int = Σₑ Rₑ Kₑ (Rₑᵀ xₑ − Xₑ), C = αM + β K_t, K_t = Σₑ Rₑ Kₑ Rₑᵀ (warped).
 ///
@@ -418,22 +446,8 @@ impl CorotationalSimulator {
         self.internal.iter_mut().for_each(|v| *v = 0.0);
         self.damping_force.iter_mut().for_each(|v| *v = 0.0);
         for el in &self.elements {
-            let rest = el.nodes.map(|n| self.rest[n]);
-            let mut current = rest;
-            for (k, dof) in el.dofs.iter().enumerate() {
-                if let Some(d) = dof {
-                    current[k / 3][k % 3] += u[*d];
-                }
-            }
-            let kin = Kinematics::new(&el.geometry, &el.ke, &rest, &current);
-            for a in 0..4 {
-                let fa = kin.force(a);
-                for i in 0..3 {
-                    if let Some(d) = el.dofs[3 * a + i] {
-                        self.internal[d] += fa[i];
-                    }
-                }
-            }
+            let kin = el.kinematics(&self.rest, u);
+            el.scatter(&mut self.internal, |a| kin.force(a));
             if let Some(vel) = velocity {
                 let mut local = [0.0; 12];
                 for a in 0..4 {
@@ -441,15 +455,9 @@ impl CorotationalSimulator {
                     local[3 * a..3 * a + 3].copy_from_slice(kin.r.tr_mul(&va).as_slice());
                 }
                 let k_local = crate::fem::element::mul12(&el.ke, &local);
-                for a in 0..4 {
-                    let fa = kin.r
-                        * Vector3::new(k_local[3 * a], k_local[3 * a + 1], k_local[3 * a + 2]);
-                    for i in 0..3 {
-                        if let Some(d) = el.dofs[3 * a + i] {
-                            self.damping_force[d] += fa[i];
-                        }
-                    }
-                }
+                el.scatter(&mut self.damping_force, |a| {
+                    kin.r * Vector3::new(k_local[3 * a], k_local[3 * a + 1], k_local[3 * a + 2])
+                });
             }
         }
         self.stats.assembly_seconds += started.elapsed().as_secs_f64();
@@ -465,22 +473,8 @@ impl CorotationalSimulator {
         self.consistent.iter_mut().for_each(|v| *v = 0.0);
         let (warped, consistent_values) = (&mut self.warped, &mut self.consistent);
         for el in &self.elements {
-            let rest = el.nodes.map(|n| self.rest[n]);
-            let mut current = rest;
-            for (k, dof) in el.dofs.iter().enumerate() {
-                if let Some(d) = dof {
-                    current[k / 3][k % 3] += u[*d];
-                }
-            }
-            let kin = Kinematics::new(&el.geometry, &el.ke, &rest, &current);
-            for a in 0..4 {
-                let fa = kin.force(a);
-                for i in 0..3 {
-                    if let Some(d) = el.dofs[3 * a + i] {
-                        self.internal[d] += fa[i];
-                    }
-                }
-            }
+            let kin = el.kinematics(&self.rest, u);
+            el.scatter(&mut self.internal, |a| kin.force(a));
             kin.tangents(&el.geometry, &el.ke, consistent, |a, b, kw, kc| {
                 for i in 0..3 {
                     for j in 0..3 {

@@ -3,104 +3,15 @@
 //! which lands in matrix data, stored as raw little-endian doubles —, truncation, deleted or
 //! repeated chunks) and re-hashed, so that decoding gets past the SHA-256 check and exercises
 //! the MessagePack structure and `Model::validate`. Shared by `tests/mutate.rs` (a few thousand
-//! cases) and `examples/mutate.rs` (≥ 10⁶ cases).
+//! cases) and `examples/mutate.rs` (≥ 10⁶ cases), which both declare `mod model` (the fixture,
+//! `support/model.rs`) beside `mod mutate`.
 
+use crokf_formats::synthetic::SplitMix64 as Rng;
 use crokf_formats::*;
-use std::collections::BTreeMap;
 
-/// SplitMix64.
-pub struct Rng(pub u64);
-impl Rng {
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    pub fn below(&mut self, n: usize) -> usize {
-        (self.next_u64() % n.max(1) as u64) as usize
-    }
-    fn matrix(&mut self, rows: u32, cols: u32) -> Matrix {
-        Matrix::from_fn(rows, cols, |_, _| {
-            (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        })
-    }
-}
-
-/// A small valid model: r = 3, one load group (3 channels), two sensors (one every 2 steps),
-/// one node set of 2 nodes.
+/// The valid model the mutations start from: the tests' fixture (`support/model.rs`).
 pub fn seed_model() -> Model {
-    let mut g = Rng(3);
-    let r = 3;
-    let sensor = |g: &mut Rng, name: &str, components: Vec<u8>, every| SensorInfo {
-        name: name.into(),
-        position: [0.5, 0.0, 0.0],
-        displacement_rows: g.matrix(3, r),
-        rotation_rows: g.matrix(3, r),
-        components,
-        every,
-    };
-    let sensors = vec![
-        sensor(&mut g, "tip", vec![0, 1, 2], 1),
-        sensor(&mut g, "mid", vec![2], 2),
-    ];
-    let measurements: Vec<MeasurementChannel> = [(0, 0), (0, 1), (0, 2), (1, 2)]
-        .iter()
-        .map(|&(sensor, component)| MeasurementChannel { sensor, component })
-        .collect();
-    let phase = |g: &mut Rng, measured: Vec<u32>| KalmanPhase {
-        gain: g.matrix(r, measured.len() as u32),
-        measured,
-        prior_covariance: Matrix::identity(r),
-        posterior_covariance: Matrix::identity(r),
-    };
-    Model {
-        dt: 1e-3,
-        theta: 1.4,
-        state_dim: r,
-        transition: g.matrix(r, r),
-        input: g.matrix(r, 3),
-        inputs: (0..3u8)
-            .map(|c| InputChannel {
-                label: format!("push.{}", component_label(c)),
-                kind: InputKind::Load {
-                    load: 0,
-                    component: c,
-                },
-            })
-            .collect(),
-        loads: vec![LoadGroup {
-            name: "push".into(),
-            rotation_rows: g.matrix(3, r),
-        }],
-        sensors,
-        measurements,
-        kalman: KalmanGains {
-            period: 2,
-            phases: vec![
-                phase(&mut g, vec![0, 1, 2, 3]),
-                phase(&mut g, vec![0, 1, 2]),
-            ],
-            process_noise: Matrix::identity(r),
-            measurement_variance: vec![1e-6, 1e-6, 1e-6, 4e-6],
-        },
-        node_sets: vec![NodeSet {
-            name: "surface".into(),
-            node_tags: vec![7, 9],
-            rest_positions: g.matrix(2, 3),
-            triangles: vec![],
-            displacement_rows: g.matrix(6, r),
-            rotation_rows: g.matrix(6, r),
-        }],
-        report: CompileReport {
-            order: r,
-            measured_errors: BTreeMap::new(),
-            ..Default::default()
-        },
-        inputs_digest: InputsDigest::default(),
-        tier: None,
-    }
+    crate::model::small_model()
 }
 
 const MARKERS: [u8; 12] = [

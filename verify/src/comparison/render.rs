@@ -2,9 +2,11 @@
 
 use std::fmt::Write as _;
 
+use crate::bench::STEP_CLOCK;
+
 use super::{
     breakdown_rotation, breakdown_rotation_of, ChiSquare, Comparison, Consistency, ReducedRow,
-    SweepPoint, TierPoint,
+    RuntimeFigures, SweepPoint, TierPoint,
 };
 
 /// The sweep as a markdown table, with the 2 %, 5 % and 10 % breakdown rotations of the warped
@@ -281,8 +283,10 @@ impl Comparison {
             "\nErrors: relative L2 over the {} displayed nodes and the whole trajectory, world \
              frame, against the co-rotational full-order reference; tip error at sensor `{}`. \
              Filtered: measurements = reference sensor displacements + Gaussian noise \
-             (noise_std, seed {:#x}){}. Runtime step = predict + update (median of batches); \
-             full-order step = median over the run.\n",
+             (noise_std, seed {:#x}){}. Runtime step = predict + update, median of batches \
+             in {STEP_CLOCK} (the runtime steps on one thread: jobs sharing the machine do not \
+             count); full-order step = median wall time over the run (its sparse solver may \
+             use several threads).\n",
             self.displayed_nodes,
             self.tip.as_deref().unwrap_or("—"),
             self.seed,
@@ -294,7 +298,7 @@ impl Comparison {
         );
         let _ = writeln!(
             out,
-            "| model | r | step time | speed-up vs co-rotational FEM | speed-up vs linear FEM | relative L2 error | tip error | filtered error |"
+            "| model | r | step time (runtime: {STEP_CLOCK}) | speed-up vs co-rotational FEM | speed-up vs linear FEM | relative L2 error | tip error | filtered error |"
         );
         let _ = writeln!(out, "|---|---:|---:|---:|---:|---:|---:|---:|");
         let c = self.corotational.step_s;
@@ -327,23 +331,7 @@ impl Comparison {
             } else {
                 r
             };
-            // A reduced row that is worse than the full-order linear FEM is flagged: the
-            // reduction or the warping costs more than the co-rotation gains there.
-            let flag = if row.error > self.linear.error {
-                " ⚠ worse than linear FEM"
-            } else {
-                ""
-            };
-            let _ = writeln!(
-                out,
-                "| runtime | {r} | {} | {} | {} | {}{flag} | {} | {} |",
-                format_seconds(row.step_s),
-                ratio(c, row.step_s),
-                ratio(l, row.step_s),
-                sci(row.error),
-                sci(row.tip_error),
-                sci(row.filtered_error)
-            );
+            self.speed_row(&mut out, "runtime", &r, &row.runtime);
         }
         for failure in &self.failures {
             let _ = writeln!(
@@ -353,22 +341,7 @@ impl Comparison {
             );
         }
         if let Some(t) = &self.tier {
-            let flag = if t.error > self.linear.error {
-                " ⚠ worse than linear FEM"
-            } else {
-                ""
-            };
-            let _ = writeln!(
-                out,
-                "| co-rotational tier | {} | {} | {} | {} | {}{flag} | {} | {} |",
-                tier_order(t),
-                format_seconds(t.step_s),
-                ratio(c, t.step_s),
-                ratio(l, t.step_s),
-                sci(t.error),
-                sci(t.tip_error),
-                sci(t.filtered_error)
-            );
+            self.speed_row(&mut out, "co-rotational tier", &tier_order(t), &t.runtime);
         } else if self.tier_failure.is_some() {
             let _ = writeln!(
                 out,
@@ -390,31 +363,10 @@ impl Comparison {
             );
             let _ = writeln!(out, "|---:|---|---:|---:|---:|---:|---:|");
             for row in &self.reduced {
-                let known = !self.withheld_loads;
-                let runs: Vec<(&str, f64, f64, &Consistency)> = if known {
-                    vec![
-                        (
-                            "given",
-                            row.filtered_error,
-                            row.filtered_tip_error,
-                            &row.consistency,
-                        ),
-                        (
-                            "withheld",
-                            row.withheld_filtered_error,
-                            row.withheld_filtered_tip_error,
-                            &row.withheld_consistency,
-                        ),
-                    ]
-                } else {
-                    vec![(
-                        "withheld",
-                        row.filtered_error,
-                        row.filtered_tip_error,
-                        &row.consistency,
-                    )]
-                };
-                for (label, e, tip, c) in runs {
+                let consistencies: [&Consistency; 2] =
+                    [&row.consistency, &row.withheld_consistency];
+                let runs = row.runtime.filter_runs(self.withheld_loads);
+                for ((label, e, tip), c) in runs.into_iter().zip(consistencies) {
                     let _ = writeln!(
                         out,
                         "| {} | {label} | {} | {} | {} | {} | {:.1} % / {:.1} % |",
@@ -431,19 +383,7 @@ impl Comparison {
             // The tier's filter has its own covariances (state (q, q̇, q̈)); the consistency
             // figures above read the warped model's, so the tier shows its errors only.
             if let Some(t) = &self.tier {
-                let runs: Vec<(&str, f64, f64)> = if self.withheld_loads {
-                    vec![("withheld", t.filtered_error, t.filtered_tip_error)]
-                } else {
-                    vec![
-                        ("given", t.filtered_error, t.filtered_tip_error),
-                        (
-                            "withheld",
-                            t.withheld_filtered_error,
-                            t.withheld_filtered_tip_error,
-                        ),
-                    ]
-                };
-                for (label, e, tip) in runs {
+                for (label, e, tip) in t.runtime.filter_runs(self.withheld_loads) {
                     let _ = writeln!(
                         out,
                         "| tier {} | {label} | {} | {} | — | — | — |",
@@ -547,9 +487,7 @@ impl Comparison {
             let (cs, w) = (&row.consistency, &row.withheld_consistency);
             let (nis_lo, nis_hi) = cs.nis.bounds();
             let (nees_lo, nees_hi) = cs.nees_tip.bounds();
-            let extra = [
-                row.withheld_filtered_error,
-                row.withheld_filtered_tip_error,
+            let consistency = [
                 cs.nis.mean(),
                 nis_lo,
                 nis_hi,
@@ -565,41 +503,71 @@ impl Comparison {
             ]
             .map(csv_number)
             .join(",");
-            let _ = writeln!(
-                out,
-                "runtime,{},{},{},{},{},{},{},{},{},{},{rot},{extra}",
-                row.order,
-                csv_number(row.step_s),
-                csv_number(c / row.step_s),
-                csv_number(l / row.step_s),
-                csv_number(row.error),
-                csv_number(row.tip_error),
-                csv_number(row.filtered_error),
-                csv_number(row.filtered_tip_error),
-                csv_number(row.error_vs_linear),
-                csv_number(row.open_loop_step_s)
-            );
+            self.csv_row(&mut out, "runtime", row.order, &row.runtime, &consistency);
         }
         if let Some(t) = &self.tier {
-            let empty = ",".repeat(12);
-            let _ = writeln!(
-                out,
-                "corotational_tier,{},{},{},{},{},{},{},{},{},{},{rot},{},{}{empty}",
+            // The tier has no consistency figures (see the Markdown's filter table).
+            let empty = ",".repeat(11);
+            self.csv_row(
+                &mut out,
+                "corotational_tier",
                 t.basis_order,
-                csv_number(t.step_s),
-                csv_number(c / t.step_s),
-                csv_number(l / t.step_s),
-                csv_number(t.error),
-                csv_number(t.tip_error),
-                csv_number(t.filtered_error),
-                csv_number(t.filtered_tip_error),
-                csv_number(t.error_vs_linear),
-                csv_number(t.open_loop_step_s),
-                csv_number(t.withheld_filtered_error),
-                csv_number(t.withheld_filtered_tip_error),
+                &t.runtime,
+                &empty,
             );
         }
         out
+    }
+
+    /// A runtime row of the speed table: step time, the speed-ups over both full-order models,
+    /// open-loop, tip and filtered errors; flagged where it is worse than the linear FEM (the
+    /// reduction or the warping costs more there than the co-rotation gains).
+    fn speed_row(&self, out: &mut String, model: &str, r: &str, f: &RuntimeFigures) {
+        let (c, l) = (self.corotational.step_s, self.linear.step_s);
+        let flag = if f.error > self.linear.error {
+            " ⚠ worse than linear FEM"
+        } else {
+            ""
+        };
+        let _ = writeln!(
+            out,
+            "| {model} | {r} | {} | {} | {} | {}{flag} | {} | {} |",
+            format_seconds(f.step_s),
+            ratio(c, f.step_s),
+            ratio(l, f.step_s),
+            sci(f.error),
+            sci(f.tip_error),
+            sci(f.filtered_error)
+        );
+    }
+
+    /// A runtime line of the CSV: the figures of `f` in the header's order, then
+    /// `consistency` (the 12 consistency fields, comma-separated, empty where none apply).
+    fn csv_row(
+        &self,
+        out: &mut String,
+        model: &str,
+        r: usize,
+        f: &RuntimeFigures,
+        consistency: &str,
+    ) {
+        let (c, l) = (self.corotational.step_s, self.linear.step_s);
+        let _ = writeln!(
+            out,
+            "{model},{r},{},{},{},{},{},{},{},{},{},{},{},{},{consistency}",
+            csv_number(f.step_s),
+            csv_number(c / f.step_s),
+            csv_number(l / f.step_s),
+            csv_number(f.error),
+            csv_number(f.tip_error),
+            csv_number(f.filtered_error),
+            csv_number(f.filtered_tip_error),
+            csv_number(f.error_vs_linear),
+            csv_number(f.open_loop_step_s),
+            csv_number(self.max_rotation_deg),
+            csv_number(f.withheld_filtered_error),
+            csv_number(f.withheld_filtered_tip_error),
+        );
     }
 
     /// A self-contained SVG plot: step time (log x) against relative L2 error (log y), one
@@ -617,15 +585,11 @@ impl Comparison {
         let finite_pos = |v: f64| v.is_finite() && v > 0.0;
         let mut times = vec![self.corotational.step_s, self.linear.step_s];
         let mut errors = vec![self.linear.error];
-        for r in &self.reduced {
-            times.push(r.step_s);
-            errors.push(r.error);
-            errors.push(r.filtered_error);
-        }
-        if let Some(t) = &self.tier {
-            times.push(t.step_s);
-            errors.push(t.error);
-            errors.push(t.filtered_error);
+        let runtime = self.reduced.iter().map(|r| &r.runtime);
+        for f in runtime.chain(self.tier.iter().map(|t| &t.runtime)) {
+            times.push(f.step_s);
+            errors.push(f.error);
+            errors.push(f.filtered_error);
         }
         let decades = |values: &[f64], fallback: (f64, f64)| {
             let v: Vec<f64> = values.iter().copied().filter(|&v| finite_pos(v)).collect();
@@ -728,7 +692,7 @@ impl Comparison {
         }
         let _ = writeln!(
             s,
-            r#"<text x="{}" y="{}" text-anchor="middle">step time (log scale)</text>"#,
+            r#"<text x="{}" y="{}" text-anchor="middle">step time (log scale; runtime: {STEP_CLOCK}, FEM: wall time)</text>"#,
             LEFT + pw / 2.0,
             H - 18.0
         );
@@ -743,12 +707,12 @@ impl Comparison {
         let series = |pick: &dyn Fn(&ReducedRow) -> f64| -> Vec<(f64, f64, usize)> {
             self.reduced
                 .iter()
-                .filter(|r| finite_pos(r.step_s) && finite_pos(pick(r)))
-                .map(|r| (sx(r.step_s), sy(pick(r)), r.order))
+                .filter(|r| finite_pos(r.runtime.step_s) && finite_pos(pick(r)))
+                .map(|r| (sx(r.runtime.step_s), sy(pick(r)), r.order))
                 .collect()
         };
-        let open = series(&|r| r.error);
-        let filtered = series(&|r| r.filtered_error);
+        let open = series(&|r| r.runtime.error);
+        let filtered = series(&|r| r.runtime.filtered_error);
         const OPEN: &str = "#1f77b4";
         const FILTERED: &str = "#ff7f0e";
         const LINEAR: &str = "#2ca02c";
@@ -799,9 +763,10 @@ impl Comparison {
         const TIER_FILTERED: &str = "#d62728";
         if let Some(t) = &self.tier {
             let mut top = f64::INFINITY;
-            for (e, colour) in [(t.error, TIER_OPEN), (t.filtered_error, TIER_FILTERED)] {
-                if finite_pos(t.step_s) && finite_pos(e) {
-                    let (x, y) = (sx(t.step_s), sy(e));
+            let f = &t.runtime;
+            for (e, colour) in [(f.error, TIER_OPEN), (f.filtered_error, TIER_FILTERED)] {
+                if finite_pos(f.step_s) && finite_pos(e) {
+                    let (x, y) = (sx(f.step_s), sy(e));
                     Shape::Star.draw(&mut s, x, y, colour, "marker");
                     top = top.min(y);
                 }
@@ -810,7 +775,7 @@ impl Comparison {
                 let _ = writeln!(
                     s,
                     r#"<text x="{:.1}" y="{:.1}" font-size="10" text-anchor="middle" stroke="white" stroke-width="3" paint-order="stroke">tier r={}</text>"#,
-                    sx(t.step_s),
+                    sx(f.step_s),
                     top - 10.0,
                     t.basis_order
                 );
@@ -853,6 +818,26 @@ impl Comparison {
         let _ = writeln!(s, "</g>");
         let _ = writeln!(s, "</svg>");
         s
+    }
+}
+
+impl RuntimeFigures {
+    /// The filter table's runs: (loads, filtered error, tip error), "given" and "withheld", or
+    /// only "withheld" when the whole comparison withholds the loads (then the filtered run is
+    /// the withheld one).
+    fn filter_runs(&self, withheld_loads: bool) -> Vec<(&'static str, f64, f64)> {
+        if withheld_loads {
+            vec![("withheld", self.filtered_error, self.filtered_tip_error)]
+        } else {
+            vec![
+                ("given", self.filtered_error, self.filtered_tip_error),
+                (
+                    "withheld",
+                    self.withheld_filtered_error,
+                    self.withheld_filtered_tip_error,
+                ),
+            ]
+        }
     }
 }
 

@@ -66,7 +66,7 @@ pub fn open_loop(
     scenario: &Scenario,
     path: &Path,
 ) -> Result<Vec<OpenLoop>, TierError> {
-    let dt = full.scene.scene.time.dt;
+    let dt = full.wilson.dt;
     let steps = match scenario.horizon(dt) {
         Horizon::Steps(k) => k,
         Horizon::Steady(_) => {
