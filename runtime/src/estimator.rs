@@ -1,5 +1,5 @@
 //! The online estimator: periodic steady-state Kalman filter on the reduced model, with the
-//! co-rotational maps of DESIGN.md §5 at its boundary. Everything is allocated in
+//! co-rotational maps of docs/design.md §5 at its boundary. Everything is allocated in
 //! [`Estimator::new`]; `predict`, `update`, `step` and the read-outs never allocate (except to
 //! build an error value).
 

@@ -1,6 +1,6 @@
 //! crokf runtime: loads a model file and runs the reduced-order co-rotational Kalman filter
-//! online (DESIGN.md §1, §5, §6). Dependency-light: no linear-algebra crate, no allocation per
-//! step.
+//! online (docs/design.md §1, §5, §6). Dependency-light: no linear-algebra crate, no allocation
+//! per step.
 //!
 //! ```no_run
 //! use crokf_runtime::{load_model, Estimator};

@@ -1,4 +1,4 @@
-//! Co-rotational maps of DESIGN.md §5, applied to 3-vectors without heap allocation.
+//! Co-rotational maps of docs/design.md §5, applied to 3-vectors without heap allocation.
 //!
 //! With ω ∈ ℝ³ (rad), θ = |ω| and W = `[ω]×` (so W v = ω × v):
 //!
@@ -8,9 +8,9 @@
 //! R̃(ω)⁻¹ = I − (A₁/D) W + ((A₁² − A₀B₁)/D) W²,   D = A₀² + θ²A₁² = det R̃ = (sin(θ/2)/(θ/2))²
 //! ```
 //!
-//! These are the forms of DESIGN.md with n = ω/θ absorbed into W (so no division by θ). The
-//! inverse follows because all three are polynomials in W with W³ = −θ²W: on the plane ⊥ ω,
-//! W/θ acts as multiplication by i, on ω itself as 0. For θ < 1/2 the coefficients come from
+//! These are the forms of docs/design.md §5 with n = ω/θ absorbed into W (so no division by
+//! θ). The inverse follows because all three are polynomials in W with W³ = −θ²W: on the
+//! plane ⊥ ω, W/θ acts as multiplication by i, on ω itself as 0. For θ < 1/2 the coefficients come from
 //! their Taylor series (no cancellation); D vanishes only at θ = 2π, 4π, …
 
 /// 3-vector.
