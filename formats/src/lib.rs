@@ -19,6 +19,7 @@ pub mod output;
 pub mod synthetic;
 mod tier;
 mod validate;
+pub mod vtk;
 
 pub use matrix::Matrix;
 pub use model::{

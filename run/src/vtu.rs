@@ -5,15 +5,8 @@
 //! In ParaView, "Warp By Vector" on `displacement` shows the deformed surface.
 
 use crokf_formats::output::{OutputError, StagedDir};
+use crokf_formats::vtk::{self, DataArray, UnstructuredGrid, Values};
 use crokf_runtime::{Estimator, RuntimeError};
-use std::fmt::Write as _;
-
-fn xml_escape(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
-}
 
 /// Renders the current estimate of every node set as a VTU document: a single piece with the
 /// node sets one after the other (point and cell data `node_set` give the set index).
@@ -32,90 +25,42 @@ pub fn render_vtu(est: &Estimator) -> Result<String, RuntimeError> {
         sd.extend_from_slice(&buf);
         points.extend_from_slice(&set.rest_positions.data);
         tags.extend_from_slice(&set.node_tags);
-        set_of_point.extend(std::iter::repeat_n(set_index, n));
+        set_of_point.extend(std::iter::repeat_n(set_index as u32, n));
         if set.triangles.is_empty() {
             for i in 0..n as u64 {
                 conn.push(base + i);
-                offsets.push(conn.len());
-                types.push(1u8); // VTK_VERTEX
-                set_of_cell.push(set_index);
+                offsets.push(conn.len() as u64);
+                types.push(vtk::VTK_VERTEX);
+                set_of_cell.push(set_index as u32);
             }
         } else {
             for t in &set.triangles {
                 conn.extend(t.iter().map(|&v| base + v as u64));
-                offsets.push(conn.len());
-                types.push(5u8); // VTK_TRIANGLE
-                set_of_cell.push(set_index);
+                offsets.push(conn.len() as u64);
+                types.push(vtk::VTK_TRIANGLE);
+                set_of_cell.push(set_index as u32);
             }
         }
     }
-    fn array<T: std::fmt::Display>(s: &mut String, head: &str, values: &[T]) {
-        s.push_str(head);
-        s.push('\n');
-        for v in values {
-            let _ = write!(s, "{v} ");
-        }
-        s.push_str("\n</DataArray>\n");
+    let array = |name, components, values| DataArray {
+        name,
+        components,
+        values,
+    };
+    Ok(UnstructuredGrid {
+        points: &points,
+        connectivity: &conn,
+        offsets: &offsets,
+        types: &types,
+        point_data: &[
+            array("displacement", 3, Values::F64(&u)),
+            array("displacement_std", 3, Values::F64(&sd)),
+            array("node_tag", 1, Values::U64(&tags)),
+            array("node_set", 1, Values::U32(&set_of_point)),
+        ],
+        cell_data: &[array("node_set", 1, Values::U32(&set_of_cell))],
     }
-    // LowerExp is only implemented for numbers; format f64 arrays through this wrapper.
-    struct E(f64);
-    impl std::fmt::Display for E {
-        fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-            write!(f, "{:e}", self.0)
-        }
-    }
-    let f = |v: &[f64]| v.iter().map(|&x| E(x)).collect::<Vec<_>>();
-    let mut s = String::new();
-    s.push_str("<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n<UnstructuredGrid>\n");
-    let _ = writeln!(
-        s,
-        "<Piece NumberOfPoints=\"{}\" NumberOfCells=\"{}\">",
-        tags.len(),
-        types.len()
-    );
-    s.push_str("<PointData Vectors=\"displacement\">\n");
-    array(&mut s, "<DataArray type=\"Float64\" Name=\"displacement\" NumberOfComponents=\"3\" format=\"ascii\">", &f(&u));
-    array(&mut s, "<DataArray type=\"Float64\" Name=\"displacement_std\" NumberOfComponents=\"3\" format=\"ascii\">", &f(&sd));
-    array(
-        &mut s,
-        "<DataArray type=\"UInt64\" Name=\"node_tag\" format=\"ascii\">",
-        &tags,
-    );
-    array(
-        &mut s,
-        "<DataArray type=\"UInt32\" Name=\"node_set\" format=\"ascii\">",
-        &set_of_point,
-    );
-    s.push_str("</PointData>\n<CellData>\n");
-    array(
-        &mut s,
-        "<DataArray type=\"UInt32\" Name=\"node_set\" format=\"ascii\">",
-        &set_of_cell,
-    );
-    s.push_str("</CellData>\n<Points>\n");
-    array(
-        &mut s,
-        "<DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">",
-        &f(&points),
-    );
-    s.push_str("</Points>\n<Cells>\n");
-    array(
-        &mut s,
-        "<DataArray type=\"UInt64\" Name=\"connectivity\" format=\"ascii\">",
-        &conn,
-    );
-    array(
-        &mut s,
-        "<DataArray type=\"UInt64\" Name=\"offsets\" format=\"ascii\">",
-        &offsets,
-    );
-    array(
-        &mut s,
-        "<DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">",
-        &types,
-    );
-    s.push_str("</Cells>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n");
-    Ok(s)
+    .to_xml())
 }
 
 /// Writes `step_{k:06}.vtu` for the estimator's current step k into the staged folder;
@@ -141,14 +86,5 @@ pub const PVD_NAME: &str = "estimates.pvd";
 
 /// Writes `estimates.pvd` listing `(time s, file name)` pairs into the staged folder.
 pub fn write_pvd(dir: &mut StagedDir, entries: &[(f64, String)]) -> Result<(), OutputError> {
-    let mut s = String::from("<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"1.0\" byte_order=\"LittleEndian\">\n<Collection>\n");
-    for (t, file) in entries {
-        let _ = writeln!(
-            s,
-            "<DataSet timestep=\"{t:e}\" group=\"\" part=\"0\" file=\"{}\"/>",
-            xml_escape(file)
-        );
-    }
-    s.push_str("</Collection>\n</VTKFile>\n");
-    dir.write(PVD_NAME, s.as_bytes())
+    dir.write(PVD_NAME, vtk::collection(entries).as_bytes())
 }

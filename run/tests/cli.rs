@@ -98,21 +98,16 @@ fn crokf_run_matches_the_library() {
         vtu.contains("<Piece NumberOfPoints=\"5\" NumberOfCells=\"3\">"),
         "{vtu}"
     );
-    assert!(
-        vtu.contains("Name=\"connectivity\" format=\"ascii\">\n0 1 2 0 2 3 4 \n"),
-        "{vtu}"
-    );
-    assert!(
-        vtu.contains("Name=\"types\" format=\"ascii\">\n5 5 1 \n"),
-        "{vtu}"
-    );
-    let start = vtu.find("Name=\"displacement\"").unwrap();
-    let body = &vtu[start..];
-    let body = &body[body.find('>').unwrap() + 1..body.find("</DataArray>").unwrap()];
-    let vals: Vec<f64> = body
-        .split_whitespace()
-        .map(|v| v.parse().unwrap())
-        .collect();
+    // The values of the data array `name` (whitespace-separated, any line layout).
+    let values = |name: &str| -> Vec<f64> {
+        let start = vtu.find(&format!("Name=\"{name}\"")).unwrap();
+        let body = &vtu[start..];
+        let body = &body[body.find('>').unwrap() + 1..body.find("</DataArray>").unwrap()];
+        body.split_whitespace().map(|v| v.parse().unwrap()).collect()
+    };
+    assert_eq!(values("connectivity"), [0.0, 1.0, 2.0, 0.0, 2.0, 3.0, 4.0], "{vtu}");
+    assert_eq!(values("types"), [5.0, 5.0, 1.0], "{vtu}");
+    let vals = values("displacement");
     assert_eq!(vals.len(), 15);
     assert_eq!(vals[..12], node_u[..]);
 }
