@@ -19,27 +19,9 @@ pub fn median_seconds(samples: usize, mut f: impl FnMut()) -> f64 {
     t[t.len() / 2]
 }
 
-/// A deterministic pseudo-random sequence in [-1, 1) (xorshift64*).
-pub struct Noise(pub u64);
-
-impl Noise {
-    /// Next number in [-1, 1).
-    pub fn next_value(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        let v = self.0.wrapping_mul(0x2545_f491_4f6c_dd1d);
-        (v >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-    }
-
-    /// A rows × cols matrix of numbers in [-scale, scale).
-    pub fn matrix(&mut self, rows: usize, cols: usize, scale: f64) -> fmt::Matrix {
-        fmt::Matrix::from_fn(rows as u32, cols as u32, |_, _| scale * self.next_value())
-    }
-}
-
 /// SplitMix64 (Steele, Lea & Flood 2014): a small deterministic generator for test data and
-/// mutations. One copy for the runtime's test models, the fuzzers and the tests' noise.
+/// mutations. One copy for the runtime's test models and benchmarks, the fuzzers and the tests'
+/// noise.
 #[derive(Clone, Debug)]
 pub struct SplitMix64(pub u64);
 
@@ -93,7 +75,7 @@ impl SplitMix64 {
 /// A synthetic model with the runtime benchmark's shapes: r states, `inputs` input channels on
 /// two load groups, `measured` measured components (sensors of 3), one node set of `nodes`.
 pub fn benchmark_model(r: usize, inputs: usize, measured: usize, nodes: usize) -> fmt::Model {
-    let mut rng = Noise(0x9e37_79b9_7f4a_7c15);
+    let mut rng = SplitMix64(0x9e37_79b9_7f4a_7c15);
     let mut transition = rng.matrix(r, r, 0.3 / (r as f64).sqrt());
     for i in 0..r {
         transition.data[i * r + i] += 0.6;

@@ -41,10 +41,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let model = crokf_formats::synthetic::benchmark_model(r, inputs, measured, nodes);
         let mut est = Estimator::new(&model)?;
         let u = vec![0.5; inputs];
-        let mut rng = crokf_formats::synthetic::Noise(7);
-        let y: Vec<Option<f64>> = (0..measured)
-            .map(|_| Some(1e-3 * rng.next_value()))
-            .collect();
+        let mut rng = crokf_formats::synthetic::SplitMix64(7);
+        let y: Vec<Option<f64>> = (0..measured).map(|_| Some(1e-3 * rng.uniform())).collect();
         let batch = 100;
         let mut failed = None;
         let step_s = median_seconds(301, || {

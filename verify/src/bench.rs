@@ -178,10 +178,8 @@ pub fn runtime(r: usize, measured: usize, inputs: usize, nodes: usize) -> Runtim
     let model = fmt::synthetic::benchmark_model(r, inputs, measured, nodes);
     let mut est = Estimator::new(&model).expect("synthetic model is valid");
     let u = vec![0.5; inputs];
-    let mut rng = fmt::synthetic::Noise(7);
-    let y: Vec<Option<f64>> = (0..measured)
-        .map(|_| Some(1e-3 * rng.next_value()))
-        .collect();
+    let mut rng = fmt::synthetic::SplitMix64(7);
+    let y: Vec<Option<f64>> = (0..measured).map(|_| Some(1e-3 * rng.uniform())).collect();
     let batch = 1000;
     let step_s = median_seconds(21, || {
         for _ in 0..batch {
