@@ -718,11 +718,12 @@ impl Estimator {
 
     /// World displacement of every node of node set `set`, u_i = R̃(ω_i) u_lin,i, 3 per node
     /// (m), with u_lin,i and ω_i from the set's displacement and rotation rows stored in single
-    /// precision (rotation rows in 16-bit fixed point for large sets:
-    /// [`crate::DisplayRowFormat`]), dot products and the warp in f32 (`docs/design.md` §5).
-    /// It differs from [`Estimator::node_displacements_exact`] by a few 1e-7 of the largest
-    /// displacement with single-precision rows and up to ~2e-5 with 16-bit rotation rows
-    /// (measured in `tests/readout.rs`). Rotation rows that are all zero skip the warp.
+    /// precision (both in 16-bit fixed point for large sets: [`crate::DisplayRowFormat`]), dot
+    /// products and the warp in f32 (`docs/design.md` §5). It differs from
+    /// [`Estimator::node_displacements_exact`] by a few 1e-7 of the largest displacement with
+    /// single-precision rows and by about 3e-5 (examples) to 1e-4 (a synthetic model at
+    /// 2.4 rad) with 16-bit rows (measured in `tests/readout.rs`). Rotation rows that are all
+    /// zero skip the warp.
     pub fn node_displacements(&self, set: usize, out: &mut [f64]) -> Result<(), RuntimeError> {
         let ns = self.node_set(set)?;
         check_len("node read-out buffer", 3 * ns.node_tags.len(), out.len())?;
