@@ -81,18 +81,9 @@ fn corotational_tier(
         .map_err(|e| fail(&e))?;
     let env = &built.training.envelope;
     let r = built.model.order();
-    let statics = built
-        .basis
-        .labels
-        .iter()
-        .filter(|l| l.starts_with("static"))
-        .count();
     report.notes.push(format!(
-        "co-rotational tier: r = {r} = {statics} static corrections (one per load channel) + {} \
-         POD vectors of {} training snapshots ({} of {} runs, each run scaled to unit largest \
-         M-norm), {} sampled elements of {} (ECSW residual {:.2e}, tolerance {:.0e}); \
-         envelope: {}",
-        r - statics,
+        "co-rotational tier: r = {r} POD vectors of {} training snapshots ({} of {} runs), {} \
+         sampled elements of {} (ECSW residual {:.2e}, tolerance {:.0e}); envelope: {}",
         env.snapshots,
         env.runs.0,
         env.runs.1,

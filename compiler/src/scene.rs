@@ -598,8 +598,7 @@ pub struct CorotationalSpec {
     /// Multiple of the range of the step runs (0 = no step runs).
     #[serde(default = "default_step_multiple")]
     pub step_multiple: f64,
-    /// Basis size r (the static corrections of the load channels, then POD vectors of the
-    /// training snapshots).
+    /// Basis size r (POD vectors of the training snapshots).
     #[serde(default = "default_tier_order")]
     pub order: usize,
     /// ECSW relative tolerance on the training forces.

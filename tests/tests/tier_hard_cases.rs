@@ -296,16 +296,11 @@ fn twist_scene() -> PathBuf {
 /// directions per group), the combined torque is 2.6 relative L2 off (263 %) at a 31.5° twist
 /// while the envelope status says inside (‖q‖ at 0.04 of the trained maximum); the upper group
 /// alone, a trained case, is 5.2 % off at 55°. With the pair runs of the training plan
-/// (`combinations`, default; 48 runs) it was 95 % off at the same 31.5° with a basis of POD
-/// alone: bending (a metre) filled every POD vector, the linear static torsion response was
-/// 21 % off even with the exact VᵀKV. With the static corrections first and each run scaled
-/// before the POD (docs/corotational-tier.md §2) that response is exact in the basis and the
-/// twist is 55 % off (release run); the sampled elements still give the linear torsion 16 %
-/// off (ECSW, 97 elements at 5e-3 on 80 snapshots, few of them torsion): the sampling is now
-/// the limit. (The envelope's state ratio, 1e-4, is small because the bending runs set the
-/// trained maximum of ‖q‖, not because the tier does not move.)
+/// (`combinations`, default; 48 runs) it is 95 % off at the same 31.5° (release run), the
+/// envelope's state ratio 2.9e-6: the tier barely moves under the torque; not traced yet
+/// (basis r = 16 of POD over all 48 runs, or the sampling).
 #[test]
-#[ignore = "known miss: 55 % (95 % with a POD-only basis, 263 % without pair runs); see the doc comment"]
+#[ignore = "known miss: 95 % with pair runs (263 % without); see the doc comment"]
 fn twist_by_an_end_torque_follows_the_full_order_corotational_fem() {
     let scene = twist_scene();
     let options = CompileOptions {

@@ -162,38 +162,6 @@ pub fn modal_derivatives(
     Ok(out)
 }
 
-/// The snapshots of every training run divided by the largest M-norm of that run
-/// (`run_of[i]`: the run of snapshot i), so that each run weighs alike in the POD: a stiff
-/// load case (an end torque: centimetres) is not drowned by a soft one (bending: a metre),
-/// whose snapshots would otherwise fill every POD vector (docs/corotational-tier.md §2).
-pub fn per_run_normalised(
-    mass: &SparseColMat<usize, f64>,
-    snapshots: &[Vec<f64>],
-    run_of: &[usize],
-) -> Vec<Vec<f64>> {
-    let norms: Vec<f64> = snapshots
-        .iter()
-        .map(|u| dot(u, &sparse_mul(mass, u)).max(0.0).sqrt())
-        .collect();
-    let runs = run_of.iter().copied().max().map_or(0, |m| m + 1);
-    let mut largest = vec![0.0f64; runs];
-    for (&run, &norm) in run_of.iter().zip(&norms) {
-        largest[run] = largest[run].max(norm);
-    }
-    snapshots
-        .iter()
-        .zip(run_of)
-        .map(|(u, &run)| {
-            let scale = if largest[run] > 0.0 {
-                1.0 / largest[run]
-            } else {
-                0.0
-            };
-            u.iter().map(|v| v * scale).collect()
-        })
-        .collect()
-}
-
 /// POD of `snapshots` (each n, m) in the M inner product by the method of snapshots: the
 /// eigenpairs (λₖ, ψₖ) of the Gram matrix G = SᵀMS (s × s) give the modes Sψₖ/√λₖ, in
 /// decreasing λₖ, up to `max_modes` and down to λₖ ≥ `relative_floor`·λ₁. Returns the modes

@@ -40,10 +40,8 @@ pub struct Tier {
     pub seconds: [f64; 2],
 }
 
-/// Builds the tier from training snapshots: the basis is the static correction K⁻¹ b_j of
-/// every load input channel j, then the POD vectors of the snapshots in the M inner product
-/// (each run's snapshots scaled to unit largest M-norm, [`basis::per_run_normalised`]),
-/// M-orthonormalised, `order` columns in all; ECSW on the (unscaled) snapshots with `ecsw`.
+/// Builds the tier from training snapshots: the first `order` POD vectors of the snapshots in
+/// the M inner product, ECSW on the snapshots with `ecsw`.
 pub fn from_training(
     full: &FullOrder,
     training: Training,
@@ -56,8 +54,7 @@ pub fn from_training(
         ));
     }
     let clock = std::time::Instant::now();
-    let weighted = basis::per_run_normalised(&full.fem.mass, &training.snapshots, &training.run_of);
-    let (mut modes, pod_values) = basis::pod(&full.fem.mass, &weighted, order, 1e-14);
+    let (mut modes, pod_values) = basis::pod(&full.fem.mass, &training.snapshots, order, 1e-14);
     for (_, v) in &mut modes {
         let top = v
             .iter()
@@ -67,20 +64,7 @@ pub fn from_training(
             v.iter_mut().for_each(|x| *x = -*x);
         }
     }
-    // Static corrections first: K⁻¹ b_j of every load input channel, so that the linear static
-    // response to any combination of the loads lies in the basis (an end torque made of two
-    // opposite group forces included), then the POD vectors.
-    let mut candidates = Vec::new();
-    for ch in &full.operators.inputs {
-        if let InputKind::Load { .. } = ch.kind {
-            let u = crate::stepping::static_solve(&full.fem, &ch.column).map_err(|e| {
-                NonlinearError::Invalid(format!("static correction {}: {e}", ch.label))
-            })?;
-            candidates.push((format!("static {}", ch.label), u));
-        }
-    }
-    candidates.extend(modes);
-    let basis = basis::m_orthonormalise(&full.fem.mass, &candidates, 1e-8, order);
+    let basis = basis::m_orthonormalise(&full.fem.mass, &modes, 1e-8, order);
     let t_pod = clock.elapsed().as_secs_f64();
     let clock = std::time::Instant::now();
     let sampling = ecsw::sample_elements(
