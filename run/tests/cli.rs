@@ -103,9 +103,15 @@ fn crokf_run_matches_the_library() {
         let start = vtu.find(&format!("Name=\"{name}\"")).unwrap();
         let body = &vtu[start..];
         let body = &body[body.find('>').unwrap() + 1..body.find("</DataArray>").unwrap()];
-        body.split_whitespace().map(|v| v.parse().unwrap()).collect()
+        body.split_whitespace()
+            .map(|v| v.parse().unwrap())
+            .collect()
     };
-    assert_eq!(values("connectivity"), [0.0, 1.0, 2.0, 0.0, 2.0, 3.0, 4.0], "{vtu}");
+    assert_eq!(
+        values("connectivity"),
+        [0.0, 1.0, 2.0, 0.0, 2.0, 3.0, 4.0],
+        "{vtu}"
+    );
     assert_eq!(values("types"), [5.0, 5.0, 1.0], "{vtu}");
     let vals = values("displacement");
     assert_eq!(vals.len(), 15);
