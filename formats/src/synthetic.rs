@@ -72,6 +72,27 @@ impl SplitMix64 {
     }
 }
 
+/// The three input channels of load group `load` named `name`: `name.x`, `name.y`, `name.z`
+/// (world force components, N).
+pub fn load_inputs(name: &str, load: u32) -> Vec<fmt::InputChannel> {
+    (0..3u8)
+        .map(|component| fmt::InputChannel {
+            label: format!("{name}.{}", fmt::component_label(component)),
+            kind: fmt::InputKind::Load { load, component },
+        })
+        .collect()
+}
+
+/// A gravity input channel (`gravity`: a scale of g = (0, 0, −9.81) m/s²).
+pub fn gravity_input() -> fmt::InputChannel {
+    fmt::InputChannel {
+        label: "gravity".into(),
+        kind: fmt::InputKind::Gravity {
+            acceleration: [0.0, 0.0, -9.81],
+        },
+    }
+}
+
 /// A synthetic model with the runtime benchmark's shapes: r states, `inputs` input channels on
 /// two load groups, `measured` measured components (sensors of 3), one node set of `nodes`.
 pub fn benchmark_model(r: usize, inputs: usize, measured: usize, nodes: usize) -> fmt::Model {

@@ -114,6 +114,34 @@ pub(crate) fn row_std(rows: &[f64], k: usize, p: &Matrix, out: &mut Vec<f64>) {
     );
 }
 
+/// The innovation gate's variances of a Kalman section (docs/design.md §6), h_j = `h_row(j)`
+/// the row of measurement channel j (over the leading block of P and Q): per phase and active
+/// channel j, s_j = h_j P⁻_p h_jᵀ + R_jj (m²), and per channel (all `channels`) the growth per
+/// step without an accepted value, g_j = max(h_j Q h_jᵀ, 0) (m²).
+pub(crate) fn gate_variances<'a>(
+    kalman: &crokf_formats::KalmanGains,
+    channels: usize,
+    h_row: impl Fn(usize) -> &'a [f64],
+) -> (Vec<Vec<f64>>, Vec<f64>) {
+    let innovation_variance = kalman
+        .phases
+        .iter()
+        .map(|ph| {
+            ph.measured
+                .iter()
+                .map(|&j| {
+                    let j = j as usize;
+                    quadratic(h_row(j), &ph.prior_covariance) + kalman.measurement_variance[j]
+                })
+                .collect()
+        })
+        .collect();
+    let variance_growth = (0..channels)
+        .map(|j| quadratic(h_row(j), &kalman.process_noise).max(0.0))
+        .collect();
+    (innovation_variance, variance_growth)
+}
+
 /// Dense row-major n×n product.
 fn square_product(a: &[f64], b: &[f64], n: usize) -> Vec<f64> {
     let mut c = vec![0.0; n * n];
@@ -290,24 +318,8 @@ impl PreparedModel {
             let (s, c) = channel[j];
             model.sensors[s].displacement_rows.row(c)
         };
-        let innovation_variance = model
-            .kalman
-            .phases
-            .iter()
-            .map(|ph| {
-                ph.measured
-                    .iter()
-                    .map(|&j| {
-                        let j = j as usize;
-                        quadratic(h_row(j), &ph.prior_covariance)
-                            + model.kalman.measurement_variance[j]
-                    })
-                    .collect()
-            })
-            .collect();
-        let variance_growth: Vec<f64> = (0..channel.len())
-            .map(|j| quadratic(h_row(j), &model.kalman.process_noise).max(0.0))
-            .collect();
+        let (innovation_variance, variance_growth) =
+            gate_variances(&model.kalman, channel.len(), h_row);
 
         let active = model
             .kalman

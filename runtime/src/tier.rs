@@ -31,7 +31,7 @@
 //! iterations, and once within a step at iteration [`SLOW_ITERATIONS`]: a modified Newton
 //! iteration converging to the same root. Nothing allocates per step.
 
-use crate::prepared::{quadratic, row_std};
+use crate::prepared::{gate_variances, row_std};
 use crokf_formats::{CorotationalTier, InputKind, Model};
 use crokf_kernel::{self as kernel, Mat3, PolarError};
 
@@ -264,22 +264,7 @@ impl TierModel {
             let (s, c) = channel[j];
             &sensor_rows[s][c * r..(c + 1) * r]
         };
-        let innovation_variance = k
-            .phases
-            .iter()
-            .map(|ph| {
-                ph.measured
-                    .iter()
-                    .map(|&j| {
-                        quadratic(h_row(j as usize), &ph.prior_covariance)
-                            + k.measurement_variance[j as usize]
-                    })
-                    .collect()
-            })
-            .collect();
-        let variance_growth = (0..channel.len())
-            .map(|j| quadratic(h_row(j), &k.process_noise))
-            .collect();
+        let (innovation_variance, variance_growth) = gate_variances(k, channel.len(), h_row);
         TierModel {
             r,
             elements,

@@ -64,35 +64,11 @@ pub fn small_model() -> Model {
         state_dim: r as u32,
         transition,
         input: g.matrix(r, 4, 1.0),
-        inputs: vec![
-            InputChannel {
-                label: "push.x".into(),
-                kind: InputKind::Load {
-                    load: 0,
-                    component: 0,
-                },
-            },
-            InputChannel {
-                label: "push.y".into(),
-                kind: InputKind::Load {
-                    load: 0,
-                    component: 1,
-                },
-            },
-            InputChannel {
-                label: "push.z".into(),
-                kind: InputKind::Load {
-                    load: 0,
-                    component: 2,
-                },
-            },
-            InputChannel {
-                label: "gravity".into(),
-                kind: InputKind::Gravity {
-                    acceleration: [0.0, 0.0, -9.81],
-                },
-            },
-        ],
+        inputs: [
+            crokf_formats::synthetic::load_inputs("push", 0),
+            vec![crokf_formats::synthetic::gravity_input()],
+        ]
+        .concat(),
         loads: vec![LoadGroup {
             name: "push".into(),
             rotation_rows: g.matrix(3, r, 1.0),
