@@ -35,18 +35,14 @@ fn corotational_tier(
         path: path.clone(),
         message: e.to_string(),
     };
-    let Some(spec) = full.scene.scene.reduction.corotational.as_ref() else {
+    let (Some(spec), Some(plan)) = (
+        full.scene.scene.reduction.corotational.as_ref(),
+        TrainingPlan::of_scene(full),
+    ) else {
         return Err(fail(
             &"reduction.model = \"corotational\" needs [reduction.corotational]",
         ));
     };
-    let names: Vec<String> = full
-        .operators
-        .loads
-        .iter()
-        .map(|l| l.name.clone())
-        .collect();
-    let plan = TrainingPlan::from_scene(spec, &names);
     let mut progress = |k: usize, of: usize, label: &str| {
         eprintln!(
             "crokf-compile: co-rotational training run {}/{of}: {label}",

@@ -202,20 +202,7 @@ fn training_is_thread_independent_and_modified_newton_matches_full_newton() {
     use crokf_compile::nonlinear::training::{train, TrainingPlan};
     let scene = twist_scene();
     let full = FullOrder::build(&scene, &mut StageTimer::default()).expect("front end");
-    let spec = full
-        .scene
-        .scene
-        .reduction
-        .corotational
-        .clone()
-        .expect("tier table");
-    let names: Vec<String> = full
-        .operators
-        .loads
-        .iter()
-        .map(|l| l.name.clone())
-        .collect();
-    let mut plan = TrainingPlan::from_scene(&spec, &names);
+    let mut plan = TrainingPlan::of_scene(&full).expect("tier table");
     plan.duration = 0.1;
     plan.directions = vec![[0.0, 1.0, 0.0]];
     let runs = plan.runs();

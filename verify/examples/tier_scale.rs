@@ -78,16 +78,9 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
 }
 
 fn train_cost(full: &FullOrder, args: &[String]) -> Result<(), Box<dyn std::error::Error>> {
-    let Some(spec) = full.scene.scene.reduction.corotational.as_ref() else {
+    let Some(mut plan) = TrainingPlan::of_scene(full) else {
         return Err("the scene has no [reduction.corotational] table".into());
     };
-    let names: Vec<String> = full
-        .operators
-        .loads
-        .iter()
-        .map(|l| l.name.clone())
-        .collect();
-    let mut plan = TrainingPlan::from_scene(spec, &names);
     if args.iter().any(|a| a == "--full-newton") {
         plan.modified = None;
     }

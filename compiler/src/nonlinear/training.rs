@@ -191,6 +191,19 @@ impl TrainingPlan {
         }
     }
 
+    /// [`TrainingPlan::from_scene`] for the scene `full` was built from: its
+    /// `[reduction.corotational]` table and its load groups' names; `None` without the table.
+    pub fn of_scene(full: &FullOrder) -> Option<Self> {
+        let spec = full.scene.scene.reduction.corotational.as_ref()?;
+        let names: Vec<String> = full
+            .operators
+            .loads
+            .iter()
+            .map(|l| l.name.clone())
+            .collect();
+        Some(Self::from_scene(spec, &names))
+    }
+
     /// Every run, in run order (module doc).
     pub fn runs(&self) -> Vec<TrainingRun> {
         let direction = |d: &[f64; 3]| format!("({:+.0}, {:+.0}, {:+.0})", d[0], d[1], d[2]);

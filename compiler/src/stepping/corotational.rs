@@ -612,12 +612,38 @@ fn timed_solve(stats: &mut NewtonStats, factor: &super::sparse::Factor, b: &mut 
 }
 
 impl CorotationalSimulator {
+    /// The Wilson-θ rates at the iterate Û (docs/design.md §4.2): U̇_θ into `vel` and
+    /// Ü_θ + α U̇_θ into `y` (the vector M multiplies in the residual), from U, U̇, Ü.
+    fn theta_rates(&self, u_hat: &[f64], vel: &mut [f64], y: &mut [f64]) {
+        let w = self.wilson;
+        let tau = w.tau();
+        let (a0, a2) = (w.mass_coefficient(), w.damping_coefficient());
+        for i in 0..u_hat.len() {
+            let du = u_hat[i] - self.u[i];
+            let acc = a0 * du - 6.0 / tau * self.v[i] - 2.0 * self.a[i];
+            vel[i] = a2 * du - 2.0 * self.v[i] - 0.5 * tau * self.a[i];
+            y[i] = acc + self.alpha * vel[i];
+        }
+    }
+
+    /// Books a finished Newton iteration (`iterations` solves, last error estimate `error`)
+    /// and advances U, U̇, Ü from the converged Û by Wilson-θ.
+    fn finish_step(&mut self, u_hat: &[f64], iterations: usize, error: f64) {
+        self.stats.steps += 1;
+        self.stats.solves += iterations;
+        if error > self.options.tolerance {
+            self.stats.unconverged += 1;
+        }
+        self.stats.worst_increment = self.stats.worst_increment.max(error);
+        advance_all(&self.wilson, &mut self.u, &mut self.v, &mut self.a, u_hat);
+        self.time += self.wilson.dt;
+    }
+
     /// One Wilson-θ step by [`ModifiedNewton`]: the residual r(Û) of [`CorotationalSimulator`]
     /// with β K_t U̇_θ evaluated element by element, J_t refactored only when needed.
     fn step_modified(&mut self, f: &[f64], m: ModifiedNewton) -> Result<(), SteppingError> {
         let n = self.pattern.n;
         let w = self.wilson;
-        let tau = w.tau();
         let (a0, a2) = (w.mass_coefficient(), w.damping_coefficient());
         let (alpha, beta) = (self.alpha, self.beta);
         let mut u_hat = self.u.clone();
@@ -632,12 +658,7 @@ impl CorotationalSimulator {
         let mut iterations = 0;
         let mut refactor = self.kept.is_none();
         while iterations < limit {
-            for i in 0..n {
-                let du = u_hat[i] - self.u[i];
-                let acc = a0 * du - 6.0 / tau * self.v[i] - 2.0 * self.a[i];
-                vel[i] = a2 * du - 2.0 * self.v[i] - 0.5 * tau * self.a[i];
-                y[i] = acc + alpha * vel[i];
-            }
+            self.theta_rates(&u_hat, &mut vel, &mut y);
             if refactor {
                 // Tangents at Û, the new J_t; the damping force from the assembled K_t.
                 self.assemble(&u_hat);
@@ -701,14 +722,7 @@ impl CorotationalSimulator {
                 refactor = true;
             }
         }
-        self.stats.steps += 1;
-        self.stats.solves += iterations;
-        if estimate > self.options.tolerance {
-            self.stats.unconverged += 1;
-        }
-        self.stats.worst_increment = self.stats.worst_increment.max(estimate);
-        advance_all(&w, &mut self.u, &mut self.v, &mut self.a, &u_hat);
-        self.time += w.dt;
+        self.finish_step(&u_hat, iterations, estimate);
         Ok(())
     }
 }
@@ -721,7 +735,6 @@ impl Simulator for CorotationalSimulator {
             return self.step_modified(f, m);
         }
         let w = self.wilson;
-        let tau = w.tau();
         let (a0, a2) = (w.mass_coefficient(), w.damping_coefficient());
         let (alpha, beta) = (self.alpha, self.beta);
         let mut u_hat = self.u.clone();
@@ -733,11 +746,8 @@ impl Simulator for CorotationalSimulator {
         let mut iterations = 0;
         while iterations < self.options.max_newton {
             self.assemble(&u_hat);
+            self.theta_rates(&u_hat, &mut vel, &mut y);
             for i in 0..n {
-                let du = u_hat[i] - self.u[i];
-                let acc = a0 * du - 6.0 / tau * self.v[i] - 2.0 * self.a[i];
-                vel[i] = a2 * du - 2.0 * self.v[i] - 0.5 * tau * self.a[i];
-                y[i] = acc + alpha * vel[i];
                 r[i] = f[i] - self.internal[i];
             }
             // r = f − f_int − M (Ü_θ + α U̇_θ) − β K_t U̇_θ
@@ -766,14 +776,7 @@ impl Simulator for CorotationalSimulator {
                 break;
             }
         }
-        self.stats.steps += 1;
-        self.stats.solves += iterations;
-        if relative > self.options.tolerance {
-            self.stats.unconverged += 1;
-        }
-        self.stats.worst_increment = self.stats.worst_increment.max(relative);
-        advance_all(&w, &mut self.u, &mut self.v, &mut self.a, &u_hat);
-        self.time += w.dt;
+        self.finish_step(&u_hat, iterations, relative);
         Ok(())
     }
 
