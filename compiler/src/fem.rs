@@ -12,24 +12,15 @@ use faer::sparse::{SparseColMat, Triplet};
 pub use element::{ElasticMaterial, TetGeometry};
 
 use crate::mesh::selection::{SelectionError, Selections};
-use crate::mesh::Mesh;
+use crate::mesh::{Mesh, UnknownGroup};
 use crate::scene::{Scene, Target};
 
 /// Errors in building the finite-element model from a mesh and a scene.
 #[derive(Debug, thiserror::Error)]
 pub enum FemError {
     /// The scene names a physical group the mesh does not have.
-    #[error("{context}: the mesh has no physical group named '{name}'; it has: {}{}",
-        available.join(", "), group_hint(available))]
-    UnknownGroup {
-        /// Where the name appeared (e.g. "material", "fixed", "load 'tip'").
-        context: String,
-        /// The unknown name.
-        name: String,
-        /// Names that exist, each quoted, with its dimension and size: `'body' (3-D, 12
-        /// tetrahedra)`.
-        available: Vec<String>,
-    },
+    #[error(transparent)]
+    UnknownGroup(#[from] UnknownGroup),
     /// A selection (`select = [...]`) that cannot be resolved or takes nothing (boxed: it is
     /// large and rare).
     #[error(transparent)]
@@ -152,61 +143,6 @@ pub struct FemModel {
     pub notes: Vec<String>,
 }
 
-/// The mesh's physical group `name`, or an error listing the groups that exist with their sizes
-/// and, when the mesh has no physical names, how to name them or select nodes instead.
-pub fn find_group<'m>(
-    mesh: &'m Mesh,
-    name: &str,
-    context: &str,
-) -> Result<&'m crate::mesh::PhysicalGroup, FemError> {
-    mesh.group(name).ok_or_else(|| {
-        let available: Vec<String> = mesh
-            .groups
-            .iter()
-            .map(|g| {
-                let size = match g.dim {
-                    3 => format!("{} tetrahedra", g.elements.len()),
-                    2 => format!("{} triangles", g.elements.len()),
-                    _ => format!("{} nodes", g.nodes.len()),
-                };
-                format!("'{}' ({}-D, {size})", g.name, g.dim)
-            })
-            .collect();
-        FemError::UnknownGroup {
-            context: context.to_owned(),
-            name: name.to_owned(),
-            available,
-        }
-    })
-}
-
-/// What to do about an unknown group, from the list of groups the mesh has (entries as in
-/// [`FemError::UnknownGroup`]): with no groups, use a selection; with unnamed groups only
-/// (names `"dim:tag"`), use those names, name the groups in gmsh, or select by geometry.
-fn group_hint(available: &[String]) -> String {
-    let unnamed = |entry: &String| {
-        let name = entry.split('\'').nth(1).unwrap_or("");
-        let mut parts = name.splitn(2, ':');
-        let dim = parts.next().unwrap_or("");
-        let tag = parts.next().unwrap_or("");
-        dim.len() == 1 && dim.parse::<u8>().is_ok() && tag.parse::<i64>().is_ok()
-    };
-    if available.is_empty() {
-        "(no groups at all); use a selection instead, e.g. `select = [{ everything = true }]` \
-         for a material or `select = [{ box = { min = [..], max = [..] }, nodes = \"boundary\" }]` \
-         for nodes (schema in compiler/src/scene.rs)"
-            .to_owned()
-    } else if available.iter().all(unnamed) {
-        "; the mesh has no physical names: refer to a group as \"dim:tag\" as listed \
-         (e.g. group = \"3:1\"), name the groups in gmsh (Physical Volume(\"body\") = {1};), \
-         or select nodes by geometry (`select = [{ box = { min = [..], max = [..] }, \
-         nodes = \"boundary\" }]`, schema in compiler/src/scene.rs)"
-            .to_owned()
-    } else {
-        String::new()
-    }
-}
-
 /// Notes about the mesh that need the scene's unit: nodes left out, an extent that looks like
 /// the wrong unit (bounding-box diagonal above 50 m or below 5 mm).
 pub fn mesh_notes(mesh: &Mesh, unit: f64) -> Vec<String> {
@@ -264,7 +200,7 @@ impl FemModel {
             let selected;
             let (label, elements): (String, &[usize]) = match m.target() {
                 Target::Group(name) => {
-                    let group = find_group(mesh, name, "material")?;
+                    let group = mesh.find_group(name, "material")?;
                     if group.dim != 3 {
                         return Err(FemError::Scene(format!(
                             "material: physical group '{name}' is {}-dimensional; materials need a volume (3-D) group",
@@ -370,7 +306,7 @@ impl FemModel {
         for (fi, f) in scene.fixed.iter().enumerate() {
             let selected;
             let nodes: &[usize] = match f.target() {
-                Target::Group(name) => &find_group(mesh, name, "fixed")?.nodes,
+                Target::Group(name) => &mesh.find_group(name, "fixed")?.nodes,
                 Target::Select(list) => {
                     let context = format!("fixed {}", fi + 1);
                     let (s, note) = selections.nodes(list, &context)?;

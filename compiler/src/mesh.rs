@@ -24,6 +24,7 @@
 //! Nodes that belong to no tetrahedron ([`Mesh::orphan_nodes`]) stay in the mesh but not in the
 //! model (the FEM numbers only the nodes of tetrahedra).
 
+pub mod geometry;
 pub mod msh1;
 mod msh2;
 mod msh41;
@@ -34,6 +35,8 @@ pub mod vtk;
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
+
+use geometry::{cross, det3, dot, sub};
 
 /// A linear 4-node tetrahedron (gmsh element type 4).
 #[derive(Clone, Debug, PartialEq)]
@@ -90,6 +93,31 @@ impl Mesh {
     /// The physical group called `name`, if any.
     pub fn group(&self, name: &str) -> Option<&PhysicalGroup> {
         self.groups.iter().find(|g| g.name == name)
+    }
+
+    /// The physical group `name`, or an error listing the groups that exist with their sizes
+    /// and, when the mesh has no physical names, how to name them or select nodes instead;
+    /// `context` says where the name appeared (e.g. "material", "fixed", "load 'tip'").
+    pub fn find_group(&self, name: &str, context: &str) -> Result<&PhysicalGroup, UnknownGroup> {
+        self.group(name).ok_or_else(|| {
+            let available: Vec<String> = self
+                .groups
+                .iter()
+                .map(|g| {
+                    let size = match g.dim {
+                        3 => format!("{} tetrahedra", g.elements.len()),
+                        2 => format!("{} triangles", g.elements.len()),
+                        _ => format!("{} nodes", g.nodes.len()),
+                    };
+                    format!("'{}' ({}-D, {size})", g.name, g.dim)
+                })
+                .collect();
+            UnknownGroup {
+                context: context.to_owned(),
+                name: name.to_owned(),
+                available,
+            }
+        })
     }
 
     /// Names of all physical groups, for error messages.
@@ -175,24 +203,45 @@ impl Mesh {
     }
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+/// A group name the mesh does not have (from a scene's `group = ...` fields).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{context}: the mesh has no physical group named '{name}'; it has: {}{}",
+    available.join(", "), group_hint(available))]
+pub struct UnknownGroup {
+    /// Where the name appeared (e.g. "material", "fixed", "load 'tip'").
+    pub context: String,
+    /// The unknown name.
+    pub name: String,
+    /// Names that exist, each quoted, with its dimension and size: `'body' (3-D, 12
+    /// tetrahedra)`.
+    pub available: Vec<String>,
 }
 
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn det3(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> f64 {
-    dot(a, cross(b, c))
+/// What to do about an unknown group, from the list of groups the mesh has (entries as in
+/// [`UnknownGroup`]): with no groups, use a selection; with unnamed groups only
+/// (names `"dim:tag"`), use those names, name the groups in gmsh, or select by geometry.
+fn group_hint(available: &[String]) -> String {
+    let unnamed = |entry: &String| {
+        let name = entry.split('\'').nth(1).unwrap_or("");
+        let mut parts = name.splitn(2, ':');
+        let dim = parts.next().unwrap_or("");
+        let tag = parts.next().unwrap_or("");
+        dim.len() == 1 && dim.parse::<u8>().is_ok() && tag.parse::<i64>().is_ok()
+    };
+    if available.is_empty() {
+        "(no groups at all); use a selection instead, e.g. `select = [{ everything = true }]` \
+         for a material or `select = [{ box = { min = [..], max = [..] }, nodes = \"boundary\" }]` \
+         for nodes (schema in compiler/src/scene.rs)"
+            .to_owned()
+    } else if available.iter().all(unnamed) {
+        "; the mesh has no physical names: refer to a group as \"dim:tag\" as listed \
+         (e.g. group = \"3:1\"), name the groups in gmsh (Physical Volume(\"body\") = {1};), \
+         or select nodes by geometry (`select = [{ box = { min = [..], max = [..] }, \
+         nodes = \"boundary\" }]`, schema in compiler/src/scene.rs)"
+            .to_owned()
+    } else {
+        String::new()
+    }
 }
 
 /// How to get a file crokf can read, for a format it does not recognise (checked: meshio 5.3

@@ -3,6 +3,10 @@
 //! Element DOFs are ordered node-major: `[u0x, u0y, u0z, u1x, …, u3z]` (12 entries).
 //! Strains use engineering shear, rows ordered xx, yy, zz, xy, yz, zx (docs/design.md §2).
 
+use crate::mesh::geometry::sub;
+/// The 3-vector helpers live with the mesh (the earlier stage); re-exported for element code.
+pub use crate::mesh::geometry::{cross, dot};
+
 /// An isotropic linear elastic material.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ElasticMaterial {
@@ -48,24 +52,6 @@ pub struct TetGeometry {
     pub volume: f64,
     /// ∂Nₐ/∂x_j for node a (row) and direction j (column), 1/m.
     pub gradients: [[f64; 3]; 4],
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-/// Cross product a × b.
-pub fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-/// Dot product.
-pub fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 impl TetGeometry {

@@ -1,7 +1,7 @@
 //! The scene's input and output operators on the free DOFs: load groups (3 world components
 //! each), gravity, process-noise channels, point sensors and displayed node sets.
 
-use crate::fem::{find_group, FemError, FemModel};
+use crate::fem::{FemError, FemModel};
 use crate::mesh::selection::{Selected, Selections};
 use crate::mesh::Mesh;
 use crate::scene::{Component, LoadDistribution, Scene, Selector, Target};
@@ -267,7 +267,7 @@ fn display_group(
     let triangles_global: Vec<[usize; 3]> = if group_name == "surface" {
         mesh.surface_triangles()
     } else {
-        let group = find_group(mesh, group_name, &context)?;
+        let group = mesh.find_group(group_name, &context)?;
         if group.dim == 2 {
             group
                 .elements
@@ -284,7 +284,7 @@ fn display_group(
         set.into_iter().collect()
     } else {
         let used = fem.used_nodes();
-        let group = find_group(mesh, group_name, &context)?;
+        let group = mesh.find_group(group_name, &context)?;
         group
             .nodes
             .iter()
@@ -389,7 +389,7 @@ fn node_weights(
     distribution: LoadDistribution,
     context: &str,
 ) -> Result<Vec<(usize, f64)>, FemError> {
-    let group = find_group(mesh, group_name, context)?;
+    let group = mesh.find_group(group_name, context)?;
     let used = fem.used_nodes();
     let mut weights: Vec<(usize, f64)> = match distribution {
         LoadDistribution::Uniform => group

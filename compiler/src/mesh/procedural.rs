@@ -46,8 +46,7 @@ pub fn box_mesh(cells: [usize; 3], lengths: [f64; 3]) -> Mesh {
                     // Orient positively.
                     let x = t.map(|n| nodes[n]);
                     let e = |a: usize| [x[a][0] - x[0][0], x[a][1] - x[0][1], x[a][2] - x[0][2]];
-                    let det =
-                        crate::fem::element::dot(e(1), crate::fem::element::cross(e(2), e(3)));
+                    let det = super::geometry::det3(e(1), e(2), e(3));
                     if det < 0.0 {
                         t.swap(2, 3);
                     }

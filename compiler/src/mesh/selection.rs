@@ -294,7 +294,9 @@ impl<'m> Selections<'m> {
     }
 
     fn group(&self, name: &str, context: &str) -> Result<&'m PhysicalGroup, String> {
-        crate::fem::find_group(self.mesh, name, context).map_err(|e| e.to_string())
+        self.mesh
+            .find_group(name, context)
+            .map_err(|e| e.to_string())
     }
 
     fn empty(
