@@ -127,7 +127,6 @@ struct Element {
     gradients: [[f64; 3]; 4],
     stiffness: Vec<f64>,
     rows: Vec<f64>,
-    cols: Vec<f64>,
 }
 
 /// The prepared tier model (read-only, from the model file).
@@ -135,6 +134,8 @@ struct Element {
 pub struct TierModel {
     r: usize,
     elements: Vec<Element>,
+    /// The same elements packed by 8 for the force evaluation ([`kernel::Blocks`]).
+    blocks: kernel::Blocks,
     mass: Vec<f64>,
     alpha: f64,
     beta: f64,
@@ -185,7 +186,7 @@ impl TierModel {
     /// Prepares the tier of a validated model.
     pub fn new(model: &Model, tier: &CorotationalTier) -> Self {
         let r = tier.order as usize;
-        let elements = tier
+        let elements: Vec<Element> = tier
             .elements
             .iter()
             .map(|e| Element {
@@ -194,9 +195,21 @@ impl TierModel {
                 gradients: e.gradients,
                 stiffness: e.stiffness.data.clone(),
                 rows: e.rows.data.clone(),
-                cols: kernel::transpose_rows(&e.rows.data),
             })
             .collect();
+        let blocks = kernel::Blocks::new(
+            &elements
+                .iter()
+                .map(|el| kernel::Element {
+                    weight: el.weight,
+                    rest: &el.rest,
+                    gradients: &el.gradients,
+                    stiffness: &el.stiffness,
+                    rows: &el.rows,
+                    cols: &[],
+                })
+                .collect::<Vec<_>>(),
+        );
         let max_force = model
             .loads
             .iter()
@@ -268,6 +281,7 @@ impl TierModel {
         TierModel {
             r,
             elements,
+            blocks,
             mass: tier.mass.data.clone(),
             alpha: tier.alpha,
             beta: tier.beta,
@@ -328,18 +342,28 @@ impl TierModel {
 
     /// Reduced force f_r,int(q) + β K_t,r(q) q̇ (r) into `out` (module docs); `q`, `velocity`
     /// and `out` of length r. Refuses an inverted sampled element (its index).
-    /// `rotations` receives each element's R (length: the number of sampled elements).
+    /// `rotations` receives each element's R (length: the number of sampled elements);
+    /// `scratch` of length [`TierModel::force_scratch_len`].
     pub fn reduced_force(
         &self,
         q: &[f64],
         velocity: &[f64],
         out: &mut [f64],
         rotations: &mut [Mat3],
+        scratch: &mut [f64],
     ) -> Result<(), usize> {
-        force_loop(self, q, velocity, out, rotations).map_err(|(e, _)| e)
+        self.blocks
+            .reduced_force(q, velocity, self.beta, out, rotations, scratch)
+            .map_err(|(e, _)| e)
     }
 
-    /// The kernel view of element e.
+    /// Length of [`TierModel::reduced_force`]'s scratch.
+    pub fn force_scratch_len(&self) -> usize {
+        self.blocks.scratch_len()
+    }
+
+    /// The kernel view of element e for the tangent (`cols` empty: the force runs on
+    /// `blocks`).
     fn element(&self, e: usize) -> kernel::Element<'_> {
         let el = &self.elements[e];
         kernel::Element {
@@ -348,7 +372,7 @@ impl TierModel {
             gradients: &el.gradients,
             stiffness: &el.stiffness,
             rows: &el.rows,
-            cols: &el.cols,
+            cols: &[],
         }
     }
 }
@@ -373,6 +397,8 @@ pub struct TierState {
     eta: f64,
     rotations: Vec<Mat3>,
     scratch: Vec<f64>,
+    /// The force evaluation's per-lane sums ([`kernel::Blocks::scratch_len`]).
+    force_scratch: Vec<f64>,
     group_force: Vec<[f64; 3]>,
     /// Innovation scratch.
     pub(crate) innovation: Vec<f64>,
@@ -400,6 +426,7 @@ impl TierState {
             eta: 1.0,
             rotations: vec![kernel::IDENTITY; model.elements.len()],
             scratch: vec![0.0; 24 * r],
+            force_scratch: vec![0.0; model.force_scratch_len()],
             group_force: vec![[0.0; 3]; loads],
             innovation: vec![0.0; q],
             s_upd: vec![0.0; model.n],
@@ -434,12 +461,13 @@ impl TierState {
             self.acc[i] = w.a0 * du - (6.0 / w.tau) * v[i] - 2.0 * a[i];
             self.vel[i] = w.a2 * du - 2.0 * v[i] - 0.5 * w.tau * a[i];
         }
-        match force_loop(
-            model,
+        match model.blocks.reduced_force(
             &self.q_hat,
             &self.vel,
+            model.beta,
             &mut self.force,
             &mut self.rotations,
+            &mut self.force_scratch,
         ) {
             Ok(()) => {}
             Err((e, PolarError::Inverted(det))) => {
@@ -746,51 +774,6 @@ impl Gate<'_> {
 /// The gate's test (docs/design.md §6): true when ν² > g² (s + n·growth).
 pub fn gate_rejects(nu: f64, sigmas: f64, variance: f64, missed: u64, growth: f64) -> bool {
     nu * nu > sigmas * sigmas * (variance + missed as f64 * growth)
-}
-
-#[inline(always)]
-fn force_body(
-    model: &TierModel,
-    q: &[f64],
-    velocity: &[f64],
-    out: &mut [f64],
-    rotations: &mut [Mat3],
-) -> Result<(), (usize, PolarError)> {
-    out.iter_mut().for_each(|v| *v = 0.0);
-    for (e, rot) in rotations.iter_mut().enumerate().take(model.elements.len()) {
-        *rot = kernel::add_reduced_force(&model.element(e), q, velocity, model.beta, out)
-            .map_err(|p| (e, p))?;
-    }
-    Ok(())
-}
-
-/// [`force_body`] compiled with AVX2 + FMA (chosen at run time, as `simd.rs` does).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn force_avx2(
-    model: &TierModel,
-    q: &[f64],
-    velocity: &[f64],
-    out: &mut [f64],
-    rotations: &mut [Mat3],
-) -> Result<(), (usize, PolarError)> {
-    force_body(model, q, velocity, out, rotations)
-}
-
-/// f_r,int(q) + β K_t,r(q) q̇ over the sampled elements into `out`, rotations per element.
-fn force_loop(
-    model: &TierModel,
-    q: &[f64],
-    velocity: &[f64],
-    out: &mut [f64],
-    rotations: &mut [Mat3],
-) -> Result<(), (usize, PolarError)> {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-        return unsafe { force_avx2(model, q, velocity, out, rotations) };
-    }
-    force_body(model, q, velocity, out, rotations)
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
