@@ -168,6 +168,178 @@ impl Blocks {
     ) -> Result<(), (usize, PolarError)> {
         forces::<Lanes8<false>>(self, q, velocity, beta, out, rotations, scratch)
     }
+
+    /// Length of the scratch [`Blocks::add_warped_tangent`] needs:
+    /// `LANES · (r(r + 1)/2 + 12 r)`.
+    pub fn tangent_scratch_len(&self) -> usize {
+        LANES * (self.r * (self.r + 1) / 2 + 12 * self.r)
+    }
+
+    /// Adds `scale` · Σₑ wₑ V_eᵀ Rₑ Kₑ Rₑᵀ V_e to `out` (r×r row-major), both triangles with
+    /// the same value (the sum of [`crate::add_warped_tangent`] over the elements, to
+    /// round-off, symmetric by construction), with `rotations[e]` = Rₑ; `scratch` of
+    /// [`Blocks::tangent_scratch_len`]. Per block and lane: A = Rᵀ V_e, B = Kₑ A,
+    /// C = wₑ R B (12 × r), then the upper triangle of V_eᵀ C accumulated per lane.
+    pub fn add_warped_tangent(
+        &self,
+        rotations: &[Mat3],
+        scale: f64,
+        out: &mut [f64],
+        scratch: &mut [f64],
+    ) {
+        let r = self.r;
+        assert!(
+            rotations.len() >= self.count
+                && out.len() == r * r
+                && scratch.len() >= self.tangent_scratch_len(),
+            "Blocks::add_warped_tangent: lengths"
+        );
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU has AVX-512F (checked just above; it implies AVX2 and FMA).
+                return unsafe { tangent_avx512(self, rotations, scale, out, scratch) };
+            }
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                // SAFETY: the CPU has AVX2 and FMA (checked just above).
+                return unsafe { tangent_avx2(self, rotations, scale, out, scratch) };
+            }
+        }
+        tangent::<Lanes8<false>>(self, rotations, scale, out, scratch)
+    }
+
+    /// [`Blocks::add_warped_tangent`] on the portable path (for tests).
+    pub fn add_warped_tangent_portable(
+        &self,
+        rotations: &[Mat3],
+        scale: f64,
+        out: &mut [f64],
+        scratch: &mut [f64],
+    ) {
+        tangent::<Lanes8<false>>(self, rotations, scale, out, scratch)
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+fn tangent_avx512(
+    b: &Blocks,
+    rotations: &[Mat3],
+    scale: f64,
+    out: &mut [f64],
+    scratch: &mut [f64],
+) {
+    tangent::<crate::simd::Avx512>(b, rotations, scale, out, scratch)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn tangent_avx2(b: &Blocks, rotations: &[Mat3], scale: f64, out: &mut [f64], scratch: &mut [f64]) {
+    tangent::<Lanes8<true>>(b, rotations, scale, out, scratch)
+}
+
+#[inline(always)]
+fn tangent<S: Simd>(
+    b: &Blocks,
+    rotations: &[Mat3],
+    scale: f64,
+    out: &mut [f64],
+    scratch: &mut [f64],
+) {
+    let r = b.r;
+    let pairs = r * (r + 1) / 2;
+    let (acc, c_buf) = scratch.split_at_mut(LANES * pairs);
+    let c_buf = &mut c_buf[..12 * r * LANES];
+    acc.iter_mut().for_each(|v| *v = 0.0);
+    let zero = S::splat(0.0);
+    for (bi, block) in b.data.chunks_exact(b.entries * LANES).enumerate() {
+        // Each lane's rotation (the identity on padding lanes: their rows are zero).
+        let mut lanes = [[[0.0; LANES]; 3]; 3];
+        for l in 0..LANES {
+            let e = bi * LANES + l;
+            let rot = if e < b.count {
+                &rotations[e]
+            } else {
+                &crate::IDENTITY
+            };
+            for i in 0..3 {
+                for j in 0..3 {
+                    lanes[i][j][l] = rot[i][j];
+                }
+            }
+        }
+        let mut rot: Mat3S<S> = [[zero; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                rot[i][j] = S::load(&lanes[i][j]);
+            }
+        }
+        let w = S::splat(scale) * at::<S>(block, WEIGHT);
+        let columns = &block[COLUMNS * LANES..(COLUMNS + 12 * r) * LANES];
+        // C_j = w R Kₑ Rᵀ V_e[·, j], column by column.
+        for (col, c_out) in columns
+            .chunks_exact(12 * LANES)
+            .zip(c_buf.chunks_exact_mut(12 * LANES))
+        {
+            let mut a = [zero; 12];
+            for n in 0..4 {
+                let v = [
+                    S::load(&col[3 * n * LANES..]),
+                    S::load(&col[(3 * n + 1) * LANES..]),
+                    S::load(&col[(3 * n + 2) * LANES..]),
+                ];
+                for c in 0..3 {
+                    a[3 * n + c] = rot[0][c] * v[0] + rot[1][c] * v[1] + rot[2][c] * v[2];
+                }
+            }
+            let mut z = [zero; 12];
+            for j in 0..12 {
+                for i in 0..12 {
+                    z[i] = at::<S>(block, STIFFNESS + 12 * j + i).mul_add(a[j], z[i]);
+                }
+            }
+            for n in 0..4 {
+                for c in 0..3 {
+                    let v =
+                        rot[c][0] * z[3 * n] + rot[c][1] * z[3 * n + 1] + rot[c][2] * z[3 * n + 2];
+                    (w * v).store(&mut c_out[(3 * n + c) * LANES..]);
+                }
+            }
+        }
+        // acc[p, q] += Σᵢ V_e[i][p] C[i][q] for q ≥ p, per lane.
+        let mut k = 0;
+        for p in 0..r {
+            let vp: [S; 12] = {
+                let mut v = [zero; 12];
+                for (i, vi) in v.iter_mut().enumerate() {
+                    *vi = S::load(&columns[(12 * p + i) * LANES..]);
+                }
+                v
+            };
+            for q in p..r {
+                let cq = &c_buf[12 * q * LANES..];
+                let mut s = S::load(&acc[k * LANES..]);
+                for i in 0..12 {
+                    s = vp[i].mul_add(S::load(&cq[i * LANES..]), s);
+                }
+                s.store(&mut acc[k * LANES..]);
+                k += 1;
+            }
+        }
+    }
+    let mut k = 0;
+    for p in 0..r {
+        for q in p..r {
+            let v = S::load(&acc[k * LANES..]).sum();
+            out[p * r + q] += v;
+            if q != p {
+                out[q * r + p] += v;
+            }
+            k += 1;
+        }
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -642,6 +814,55 @@ mod tests {
                     worst / scale
                 );
                 assert!(worst <= 1e-13 * scale, "{worst:e} vs {scale:e}");
+            }
+        }
+    }
+
+    /// The blocked warped tangent against the scalar kernel's, summed and symmetrised as the
+    /// runtime did: to round-off, and exactly symmetric.
+    #[test]
+    fn blocked_tangent_equals_the_scalar_kernel() {
+        let mut rng = Rng(17);
+        for (n, r) in [(1, 3), (21, 20), (17, 7)] {
+            let owned = elements(&mut rng, n, r);
+            let views: Vec<Element> = owned.iter().map(Owned::view).collect();
+            let blocks = Blocks::new(&views);
+            let rotations: Vec<Mat3> = (0..n)
+                .map(|_| {
+                    let f: Mat3 = std::array::from_fn(|i| {
+                        std::array::from_fn(|j| (i == j) as u8 as f64 + 0.4 * rng.next())
+                    });
+                    crate::polar_rotation(&f).unwrap()
+                })
+                .collect();
+            let scale = 1.7;
+            let mut want = vec![0.0; r * r];
+            let mut tmp = vec![0.0; 24 * r];
+            for (e, rot) in views.iter().zip(&rotations) {
+                crate::add_warped_tangent(e, rot, scale, &mut tmp, &mut want);
+            }
+            let size = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let mut scratch = vec![0.0; blocks.tangent_scratch_len()];
+            for portable in [true, false] {
+                let mut got = vec![1.0; r * r];
+                if portable {
+                    blocks.add_warped_tangent_portable(&rotations, scale, &mut got, &mut scratch);
+                } else {
+                    blocks.add_warped_tangent(&rotations, scale, &mut got, &mut scratch);
+                }
+                let mut worst: f64 = 0.0;
+                for i in 0..r {
+                    for j in 0..r {
+                        assert_eq!(got[i * r + j], got[j * r + i]);
+                        let sym = 0.5 * (want[i * r + j] + want[j * r + i]);
+                        worst = worst.max((got[i * r + j] - 1.0 - sym).abs());
+                    }
+                }
+                eprintln!(
+                    "tangent n {n}, r {r}, portable {portable}: {:.1e}",
+                    worst / size
+                );
+                assert!(worst <= 1e-13 * size, "{worst:e} vs {size:e}");
             }
         }
     }

@@ -220,8 +220,10 @@ pub fn add_reduced_force(
 }
 
 /// Adds `scale` · wₑ V_eᵀ R Kₑ Rᵀ V_e to `out` (r×r row-major) for the element rotation `rot`;
-/// `scratch` holds 2·12·r values.
-pub fn add_warped_tangent(
+/// `scratch` holds 2·12·r values. The reference of [`Blocks::add_warped_tangent`] (what the
+/// runtime runs), kept for its test.
+#[cfg(test)]
+pub(crate) fn add_warped_tangent(
     e: &Element,
     rot: &Mat3,
     scale: f64,

@@ -119,22 +119,11 @@ pub struct TierStatus {
     pub envelope: EnvelopeStatus,
 }
 
-/// One sampled element, flat.
-#[derive(Clone, Debug)]
-struct Element {
-    weight: f64,
-    rest: [[f64; 3]; 4],
-    gradients: [[f64; 3]; 4],
-    stiffness: Vec<f64>,
-    rows: Vec<f64>,
-}
-
 /// The prepared tier model (read-only, from the model file).
 #[derive(Clone, Debug)]
 pub struct TierModel {
     r: usize,
-    elements: Vec<Element>,
-    /// The same elements packed by 8 for the force evaluation ([`kernel::Blocks`]).
+    /// The sampled elements packed by 8 ([`kernel::Blocks`]): the force and the tangent.
     blocks: kernel::Blocks,
     mass: Vec<f64>,
     alpha: f64,
@@ -186,26 +175,16 @@ impl TierModel {
     /// Prepares the tier of a validated model.
     pub fn new(model: &Model, tier: &CorotationalTier) -> Self {
         let r = tier.order as usize;
-        let elements: Vec<Element> = tier
-            .elements
-            .iter()
-            .map(|e| Element {
-                weight: e.weight,
-                rest: e.rest,
-                gradients: e.gradients,
-                stiffness: e.stiffness.data.clone(),
-                rows: e.rows.data.clone(),
-            })
-            .collect();
         let blocks = kernel::Blocks::new(
-            &elements
+            &tier
+                .elements
                 .iter()
-                .map(|el| kernel::Element {
-                    weight: el.weight,
-                    rest: &el.rest,
-                    gradients: &el.gradients,
-                    stiffness: &el.stiffness,
-                    rows: &el.rows,
+                .map(|e| kernel::Element {
+                    weight: e.weight,
+                    rest: &e.rest,
+                    gradients: &e.gradients,
+                    stiffness: &e.stiffness.data,
+                    rows: &e.rows.data,
                     cols: &[],
                 })
                 .collect::<Vec<_>>(),
@@ -280,7 +259,6 @@ impl TierModel {
         let (innovation_variance, variance_growth) = gate_variances(k, channel.len(), h_row);
         TierModel {
             r,
-            elements,
             blocks,
             mass: tier.mass.data.clone(),
             alpha: tier.alpha,
@@ -316,7 +294,7 @@ impl TierModel {
 
     /// Number of sampled elements.
     pub fn element_count(&self) -> usize {
-        self.elements.len()
+        self.blocks.len()
     }
 
     /// Filter state dimension: 3r + 3 per random-walk load group (s = (q, q̇, q̈, f)).
@@ -361,20 +339,6 @@ impl TierModel {
     pub fn force_scratch_len(&self) -> usize {
         self.blocks.scratch_len()
     }
-
-    /// The kernel view of element e for the tangent (`cols` empty: the force runs on
-    /// `blocks`).
-    fn element(&self, e: usize) -> kernel::Element<'_> {
-        let el = &self.elements[e];
-        kernel::Element {
-            weight: el.weight,
-            rest: &el.rest,
-            gradients: &el.gradients,
-            stiffness: &el.stiffness,
-            rows: &el.rows,
-            cols: &[],
-        }
-    }
 }
 
 /// The tier's stepper and filter state with all scratch (allocated once).
@@ -396,6 +360,7 @@ pub struct TierState {
     /// Error factor η of the Newton test (module docs), carried across steps.
     eta: f64,
     rotations: Vec<Mat3>,
+    /// The tangent's per-lane sums ([`kernel::Blocks::tangent_scratch_len`]).
     scratch: Vec<f64>,
     /// The force evaluation's per-lane sums ([`kernel::Blocks::scratch_len`]).
     force_scratch: Vec<f64>,
@@ -424,8 +389,8 @@ impl TierState {
             has_factor: false,
             slow: true,
             eta: 1.0,
-            rotations: vec![kernel::IDENTITY; model.elements.len()],
-            scratch: vec![0.0; 24 * r],
+            rotations: vec![kernel::IDENTITY; model.blocks.len()],
+            scratch: vec![0.0; model.blocks.tangent_scratch_len()],
             force_scratch: vec![0.0; model.force_scratch_len()],
             group_force: vec![[0.0; 3]; loads],
             innovation: vec![0.0; q],
@@ -499,17 +464,11 @@ impl TierState {
             self.jac[i] = c_m * model.mass[i];
         }
         let scale = 1.0 + w.a2 * model.beta;
-        for e in 0..model.elements.len() {
-            let el = model.element(e);
-            kernel::add_warped_tangent(
-                &el,
-                &self.rotations[e],
-                scale,
-                &mut self.scratch,
-                &mut self.jac,
-            );
-        }
-        // Symmetrise (lower triangle is what the factor reads).
+        model
+            .blocks
+            .add_warped_tangent(&self.rotations, scale, &mut self.jac, &mut self.scratch);
+        // Symmetrise M_r's part (the tangent's is symmetric; the factor reads the lower
+        // triangle).
         for i in 0..r {
             for j in 0..i {
                 let m = 0.5 * (self.jac[i * r + j] + self.jac[j * r + i]);
