@@ -426,17 +426,25 @@ fn block_force<S: Simd>(
 ) -> (Mat3S<S>, [Result<(), PolarError>; 8]) {
     let at = |k: usize| at::<S>(block, k);
     let zero = S::splat(0.0);
-    // u = V_e q, v = V_e q̇ (12 rows per lane).
+    // u = V_e q, v = V_e q̇ (12 rows per lane), ROWS rows at a time over all columns (few
+    // accumulators live: no spills with 16 AVX2 registers).
     let mut u = [zero; 12];
     let mut v = [zero; 12];
     let columns = &block[COLUMNS * LANES..(COLUMNS + 12 * r) * LANES];
-    for (j, col) in columns.chunks_exact(12 * LANES).enumerate() {
-        let (qj, vj) = (S::splat(q[j]), S::splat(velocity[j]));
-        for i in 0..12 {
-            let c = S::load(&col[i * LANES..(i + 1) * LANES]);
-            u[i] = c.mul_add(qj, u[i]);
-            v[i] = c.mul_add(vj, v[i]);
+    const ROWS: usize = 3;
+    for first in (0..12).step_by(ROWS) {
+        let mut uc = [zero; ROWS];
+        let mut vc = [zero; ROWS];
+        for (j, col) in columns.chunks_exact(12 * LANES).enumerate() {
+            let (qj, vj) = (S::splat(q[j]), S::splat(velocity[j]));
+            for k in 0..ROWS {
+                let c = S::load(&col[(first + k) * LANES..]);
+                uc[k] = c.mul_add(qj, uc[k]);
+                vc[k] = c.mul_add(vj, vc[k]);
+            }
         }
+        u[first..first + ROWS].copy_from_slice(&uc);
+        v[first..first + ROWS].copy_from_slice(&vc);
     }
     // x = X + u, F = Σₐ xₐ ⊗ ∇Nₐ (the scalar gather's operations).
     let mut x = [[zero; 3]; 4];
@@ -468,10 +476,14 @@ fn block_force<S: Simd>(
     }
     // z = Kₑ local as Σ_j local_j Kₑ[j, ·] (Kₑ symmetric).
     let mut z = [zero; 12];
-    for j in 0..12 {
-        for i in 0..12 {
-            z[i] = at(STIFFNESS + 12 * j + i).mul_add(local[j], z[i]);
+    for first in (0..12).step_by(ROWS) {
+        let mut zc = [zero; ROWS];
+        for j in 0..12 {
+            for k in 0..ROWS {
+                zc[k] = at(STIFFNESS + 12 * j + first + k).mul_add(local[j], zc[k]);
+            }
         }
+        z[first..first + ROWS].copy_from_slice(&zc);
     }
     // force = wₑ R z (per node).
     let w = at(WEIGHT);
