@@ -153,20 +153,7 @@ impl Blocks {
                 return unsafe { forces_avx2(self, q, velocity, beta, out, rotations, scratch) };
             }
         }
-        forces::<Lanes8<false>>(self, q, velocity, beta, out, rotations, scratch)
-    }
-
-    /// [`Blocks::reduced_force`] on the portable path (no fused multiply–adds; for tests).
-    pub fn reduced_force_portable(
-        &self,
-        q: &[f64],
-        velocity: &[f64],
-        beta: f64,
-        out: &mut [f64],
-        rotations: &mut [Mat3],
-        scratch: &mut [f64],
-    ) -> Result<(), (usize, PolarError)> {
-        forces::<Lanes8<false>>(self, q, velocity, beta, out, rotations, scratch)
+        forces::<Lanes8>(self, q, velocity, beta, out, rotations, scratch)
     }
 
     /// Length of the scratch [`Blocks::add_warped_tangent`] needs:
@@ -207,18 +194,7 @@ impl Blocks {
                 return unsafe { tangent_avx2(self, rotations, scale, out, scratch) };
             }
         }
-        tangent::<Lanes8<false>>(self, rotations, scale, out, scratch)
-    }
-
-    /// [`Blocks::add_warped_tangent`] on the portable path (for tests).
-    pub fn add_warped_tangent_portable(
-        &self,
-        rotations: &[Mat3],
-        scale: f64,
-        out: &mut [f64],
-        scratch: &mut [f64],
-    ) {
-        tangent::<Lanes8<false>>(self, rotations, scale, out, scratch)
+        tangent::<Lanes8>(self, rotations, scale, out, scratch)
     }
 }
 
@@ -237,7 +213,7 @@ fn tangent_avx512(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn tangent_avx2(b: &Blocks, rotations: &[Mat3], scale: f64, out: &mut [f64], scratch: &mut [f64]) {
-    tangent::<Lanes8<true>>(b, rotations, scale, out, scratch)
+    tangent::<crate::simd::Avx2>(b, rotations, scale, out, scratch)
 }
 
 #[inline(always)]
@@ -367,7 +343,7 @@ fn forces_avx2(
     rotations: &mut [Mat3],
     scratch: &mut [f64],
 ) -> Result<(), (usize, PolarError)> {
-    forces::<Lanes8<true>>(b, q, velocity, beta, out, rotations, scratch)
+    forces::<crate::simd::Avx2>(b, q, velocity, beta, out, rotations, scratch)
 }
 
 #[inline(always)]
@@ -642,6 +618,12 @@ mod tests {
     }
 
     #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn lane_polar_avx2(chunk: &[Mat3]) -> ([Result<(), PolarError>; 8], Vec<Mat3>) {
+        lane_polar::<crate::simd::Avx2>(chunk)
+    }
+
+    #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
     fn lane_polar_avx512(chunk: &[Mat3]) -> ([Result<(), PolarError>; 8], Vec<Mat3>) {
         lane_polar::<crate::simd::Avx512>(chunk)
@@ -655,7 +637,13 @@ mod tests {
         let all = matrices(&mut rng, 8 * 40);
         let mut kinds = [0usize; 3];
         type Variant = fn(&[Mat3]) -> ([Result<(), PolarError>; 8], Vec<Mat3>);
-        let mut variants: Vec<Variant> = vec![lane_polar::<Lanes8<false>>];
+        let mut variants: Vec<Variant> = vec![lane_polar::<Lanes8>];
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU has AVX2 and FMA (checked just above).
+            variants.push(|c| unsafe { lane_polar_avx2(c) });
+        }
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx512f") {
             // SAFETY: the CPU has AVX-512F (checked just above).
@@ -762,6 +750,68 @@ mod tests {
             .collect()
     }
 
+    type ForceFn = fn(
+        &Blocks,
+        &[f64],
+        &[f64],
+        f64,
+        &mut [f64],
+        &mut [Mat3],
+        &mut [f64],
+    ) -> Result<(), (usize, PolarError)>;
+    type TangentFn = fn(&Blocks, &[Mat3], f64, &mut [f64], &mut [f64]);
+
+    /// Every force path this CPU can run, by name.
+    fn force_paths() -> Vec<(&'static str, ForceFn)> {
+        let mut paths: Vec<(&'static str, ForceFn)> =
+            vec![("portable", |b, q, v, beta, o, r, s| {
+                forces::<Lanes8>(b, q, v, beta, o, r, s)
+            })];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                // SAFETY: the CPU has AVX2 and FMA (checked just above).
+                paths.push(("avx2", |b, q, v, beta, o, r, s| unsafe {
+                    forces_avx2(b, q, v, beta, o, r, s)
+                }));
+            }
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU has AVX-512F (checked just above).
+                paths.push(("avx512", |b, q, v, beta, o, r, s| unsafe {
+                    forces_avx512(b, q, v, beta, o, r, s)
+                }));
+            }
+        }
+        paths
+    }
+
+    /// Every tangent path this CPU can run, by name.
+    fn tangent_paths() -> Vec<(&'static str, TangentFn)> {
+        let mut paths: Vec<(&'static str, TangentFn)> = vec![("portable", |b, r, sc, o, s| {
+            tangent::<Lanes8>(b, r, sc, o, s)
+        })];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                // SAFETY: the CPU has AVX2 and FMA (checked just above).
+                paths.push(("avx2", |b, r, sc, o, s| unsafe {
+                    tangent_avx2(b, r, sc, o, s)
+                }));
+            }
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU has AVX-512F (checked just above).
+                paths.push(("avx512", |b, r, sc, o, s| unsafe {
+                    tangent_avx512(b, r, sc, o, s)
+                }));
+            }
+        }
+        paths
+    }
+
     /// The blocked force against the scalar kernel summed element by element, to round-off.
     /// Portable path: rotations bit for bit (each element's force is the scalar one, only the
     /// order of the sum over elements differs); SIMD paths: the fused gather changes F, so
@@ -788,14 +838,10 @@ mod tests {
                 want.iter_mut().zip(&one).for_each(|(w, o)| *w += o);
             }
             let mut scratch = vec![0.0; blocks.scratch_len()];
-            for portable in [true, false] {
+            for (path, f) in force_paths() {
+                let portable = path == "portable";
                 let mut out = vec![0.0; r];
                 let mut rot = vec![[[0.0; 3]; 3]; n];
-                let f = if portable {
-                    Blocks::reduced_force_portable
-                } else {
-                    Blocks::reduced_force
-                };
                 f(
                     &blocks,
                     &q,
@@ -822,7 +868,7 @@ mod tests {
                     .zip(&want)
                     .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
                 eprintln!(
-                    "n {n}, r {r}, portable {portable}: {:.1e} of the largest term",
+                    "n {n}, r {r}, {path}: {:.1e} of the largest term",
                     worst / scale
                 );
                 assert!(worst <= 1e-13 * scale, "{worst:e} vs {scale:e}");
@@ -855,13 +901,9 @@ mod tests {
             }
             let size = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             let mut scratch = vec![0.0; blocks.tangent_scratch_len()];
-            for portable in [true, false] {
+            for (path, f) in tangent_paths() {
                 let mut got = vec![1.0; r * r];
-                if portable {
-                    blocks.add_warped_tangent_portable(&rotations, scale, &mut got, &mut scratch);
-                } else {
-                    blocks.add_warped_tangent(&rotations, scale, &mut got, &mut scratch);
-                }
+                f(&blocks, &rotations, scale, &mut got, &mut scratch);
                 let mut worst: f64 = 0.0;
                 for i in 0..r {
                     for j in 0..r {
@@ -870,10 +912,7 @@ mod tests {
                         worst = worst.max((got[i * r + j] - 1.0 - sym).abs());
                     }
                 }
-                eprintln!(
-                    "tangent n {n}, r {r}, portable {portable}: {:.1e}",
-                    worst / size
-                );
+                eprintln!("tangent n {n}, r {r}, {path}: {:.1e}", worst / size);
                 assert!(worst <= 1e-13 * size, "{worst:e} vs {size:e}");
             }
         }

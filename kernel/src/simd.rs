@@ -1,9 +1,9 @@
 //! A few lanes of f64 as one value, so that the polar decomposition ([`crate::lanes`]) and the
 //! blocked force ([`crate::block`]) are written once and run on 1 lane (`f64`: the scalar
 //! kernel), 8 lanes in arrays (portable; LLVM vectorises each operation for the target it
-//! is compiled for) or 8 lanes in an AVX-512 register. Every operation is the IEEE one lane by
+//! is compiled for), two AVX2 registers or one AVX-512 register. Every operation is the IEEE one lane by
 //! lane (no reassociation), so a lane's result does not depend on the implementation except
-//! through [`Simd::mul_add`], which is fused in `Lanes8<true>` and `Avx512`.
+//! through [`Simd::mul_add`], which is fused in `Avx2` and `Avx512`.
 
 use std::ops::{Add, Div, Mul, Sub};
 
@@ -106,15 +106,14 @@ impl Simd for f64 {
     }
 }
 
-/// 8 lanes in an array (fused multiply–adds when `FUSED`: compile those only where the CPU
-/// has FMA, otherwise `mul_add` is a library call).
+/// 8 lanes in an array, unfused (the portable path: every operation the scalar one).
 #[derive(Clone, Copy, Debug)]
 #[repr(align(64))]
-pub struct Lanes8<const FUSED: bool>(pub [f64; 8]);
+pub struct Lanes8(pub [f64; 8]);
 
 macro_rules! lanewise {
     ($tr:ident, $f:ident, $op:tt) => {
-        impl<const FUSED: bool> $tr for Lanes8<FUSED> {
+        impl $tr for Lanes8 {
             type Output = Self;
             #[inline(always)]
             fn $f(self, o: Self) -> Self {
@@ -132,7 +131,7 @@ lanewise!(Sub, sub, -);
 lanewise!(Mul, mul, *);
 lanewise!(Div, div, /);
 
-impl<const FUSED: bool> Simd for Lanes8<FUSED> {
+impl Simd for Lanes8 {
     const LANES: usize = 8;
     #[inline(always)]
     fn splat(v: f64) -> Self {
@@ -158,11 +157,7 @@ impl<const FUSED: bool> Simd for Lanes8<FUSED> {
     fn mul_add(self, b: Self, c: Self) -> Self {
         let mut out = [0.0; 8];
         for l in 0..8 {
-            out[l] = if FUSED {
-                self.0[l].mul_add(b.0[l], c.0[l])
-            } else {
-                self.0[l] * b.0[l] + c.0[l]
-            };
+            out[l] = self.0[l] * b.0[l] + c.0[l];
         }
         Lanes8(out)
     }
@@ -277,6 +272,150 @@ mod avx512 {
                 s += v;
             }
             s
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+pub use avx2::Avx2;
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    //! 8 lanes in two AVX2 registers. Only to be used inside a function compiled with
+    //! `#[target_feature(enable = "avx2,fma")]` on a CPU that has them (the methods inline
+    //! there).
+    use super::Simd;
+    use std::arch::x86_64::*;
+    use std::ops::{Add, Div, Mul, Sub};
+
+    /// 8 f64 lanes as two `__m256d` (lanes 0–3, 4–7); fused multiply–add.
+    #[derive(Clone, Copy, Debug)]
+    pub struct Avx2(__m256d, __m256d);
+
+    macro_rules! op {
+        ($tr:ident, $f:ident, $intr:ident) => {
+            impl $tr for Avx2 {
+                type Output = Self;
+                #[inline(always)]
+                fn $f(self, o: Self) -> Self {
+                    // SAFETY: Avx2 values exist only inside AVX2 + FMA code (module docs).
+                    unsafe { Avx2($intr(self.0, o.0), $intr(self.1, o.1)) }
+                }
+            }
+        };
+    }
+    op!(Add, add, _mm256_add_pd);
+    op!(Sub, sub, _mm256_sub_pd);
+    op!(Mul, mul, _mm256_mul_pd);
+    op!(Div, div, _mm256_div_pd);
+
+    /// The 4-bit mask of a comparison result (all-ones lanes).
+    #[inline(always)]
+    unsafe fn bits(lo: __m256d, hi: __m256d) -> u8 {
+        (_mm256_movemask_pd(lo) | (_mm256_movemask_pd(hi) << 4)) as u8
+    }
+
+    /// All-ones lanes where bit l of `mask` (of 4) is set.
+    #[inline(always)]
+    unsafe fn lanes(mask: u8) -> __m256d {
+        let bit = _mm256_set_epi64x(8, 4, 2, 1);
+        let m = _mm256_and_si256(_mm256_set1_epi64x(mask as i64), bit);
+        _mm256_castsi256_pd(_mm256_cmpeq_epi64(m, bit))
+    }
+
+    // SAFETY (every method): Avx2 values exist only inside AVX2 + FMA code (module docs);
+    // loads and stores check their slice length first.
+    impl Simd for Avx2 {
+        const LANES: usize = 8;
+        #[inline(always)]
+        fn splat(v: f64) -> Self {
+            unsafe { Avx2(_mm256_set1_pd(v), _mm256_set1_pd(v)) }
+        }
+        #[inline(always)]
+        fn load(s: &[f64]) -> Self {
+            assert!(s.len() >= 8);
+            unsafe {
+                Avx2(
+                    _mm256_loadu_pd(s.as_ptr()),
+                    _mm256_loadu_pd(s.as_ptr().add(4)),
+                )
+            }
+        }
+        #[inline(always)]
+        fn store(self, s: &mut [f64]) {
+            assert!(s.len() >= 8);
+            unsafe {
+                _mm256_storeu_pd(s.as_mut_ptr(), self.0);
+                _mm256_storeu_pd(s.as_mut_ptr().add(4), self.1);
+            }
+        }
+        #[inline(always)]
+        fn lane(self, l: usize) -> f64 {
+            let mut a = [0.0; 8];
+            self.store(&mut a);
+            a[l]
+        }
+        #[inline(always)]
+        fn sqrt(self) -> Self {
+            unsafe { Avx2(_mm256_sqrt_pd(self.0), _mm256_sqrt_pd(self.1)) }
+        }
+        #[inline(always)]
+        fn mul_add(self, b: Self, c: Self) -> Self {
+            unsafe {
+                Avx2(
+                    _mm256_fmadd_pd(self.0, b.0, c.0),
+                    _mm256_fmadd_pd(self.1, b.1, c.1),
+                )
+            }
+        }
+        #[inline(always)]
+        fn blend(mask: u8, a: Self, b: Self) -> Self {
+            unsafe {
+                Avx2(
+                    _mm256_blendv_pd(b.0, a.0, lanes(mask & 15)),
+                    _mm256_blendv_pd(b.1, a.1, lanes(mask >> 4)),
+                )
+            }
+        }
+        #[inline(always)]
+        fn le(self, o: Self) -> u8 {
+            unsafe {
+                bits(
+                    _mm256_cmp_pd::<_CMP_LE_OQ>(self.0, o.0),
+                    _mm256_cmp_pd::<_CMP_LE_OQ>(self.1, o.1),
+                )
+            }
+        }
+        #[inline(always)]
+        fn gt(self, o: Self) -> u8 {
+            unsafe {
+                bits(
+                    _mm256_cmp_pd::<_CMP_GT_OQ>(self.0, o.0),
+                    _mm256_cmp_pd::<_CMP_GT_OQ>(self.1, o.1),
+                )
+            }
+        }
+        #[inline(always)]
+        fn finite(self) -> u8 {
+            // v − v is 0 exactly when v is finite (NaN for ±∞ and NaN).
+            unsafe {
+                let z = _mm256_setzero_pd();
+                bits(
+                    _mm256_cmp_pd::<_CMP_EQ_OQ>(_mm256_sub_pd(self.0, self.0), z),
+                    _mm256_cmp_pd::<_CMP_EQ_OQ>(_mm256_sub_pd(self.1, self.1), z),
+                )
+            }
+        }
+        #[inline(always)]
+        fn finite_nonzero(self) -> u8 {
+            unsafe {
+                let z = _mm256_setzero_pd();
+                self.finite()
+                    & bits(
+                        _mm256_cmp_pd::<_CMP_NEQ_OQ>(self.0, z),
+                        _mm256_cmp_pd::<_CMP_NEQ_OQ>(self.1, z),
+                    )
+            }
         }
     }
 }
