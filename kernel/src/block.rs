@@ -3,7 +3,7 @@
 //! packed by [`LANES`] into blocks, structure of arrays (entry k of element l of a block at
 //! `8k + l`), so that every product of the force runs across 8 elements in one SIMD register
 //! (AVX-512: one instruction per product for 8 elements; AVX2: two) and the polar
-//! decompositions of 8 elements share one latency chain ([`crate::lanes`]).
+//! decompositions of 8 elements share one latency chain (the kernel's lane-wise polar decomposition).
 //!
 //! Per block, with `fma(a, b, c)` = a·b + c (fused with AVX2/AVX-512):
 //! ```text
@@ -163,7 +163,7 @@ impl Blocks {
     }
 
     /// Adds `scale` · Σₑ wₑ V_eᵀ Rₑ Kₑ Rₑᵀ V_e to `out` (r×r row-major), both triangles with
-    /// the same value (the sum of [`crate::add_warped_tangent`] over the elements, to
+    /// the same value (the sum of the scalar kernel's warped tangent over the elements, to
     /// round-off, symmetric by construction), with `rotations[e]` = Rₑ; `scratch` of
     /// [`Blocks::tangent_scratch_len`]. Per block and lane: A = Rᵀ V_e, B = Kₑ A,
     /// C = wₑ R B (12 × r), then the upper triangle of V_eᵀ C accumulated per lane.
