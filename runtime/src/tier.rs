@@ -151,8 +151,9 @@ pub struct TierModel {
     pub(crate) node_rows: Vec<Vec<f64>>,
     /// Per measurement channel: (sensor, component).
     channel: Vec<(usize, usize)>,
-    /// Per phase: gain (n × measured, row-major), measured channel indices.
-    gains: Vec<Vec<f64>>,
+    /// Per phase: the gain transposed (measured × n, row-major: column a of K_p is
+    /// `gains_t[p][a n ..]`), measured channel indices.
+    gains_t: Vec<Vec<f64>>,
     measured: Vec<Vec<u32>>,
     /// Per phase, per active channel: the innovation variance (H P⁻ Hᵀ)_jj + R_jj, m² (the
     /// gate's s_j, runtime/src/estimator.rs).
@@ -278,7 +279,20 @@ impl TierModel {
             sensor_rows,
             node_rows,
             channel,
-            gains: k.phases.iter().map(|p| p.gain.data.clone()).collect(),
+            gains_t: k
+                .phases
+                .iter()
+                .map(|p| {
+                    let (n, m) = (p.gain.rows as usize, p.gain.cols as usize);
+                    let mut t = vec![0.0; n * m];
+                    for i in 0..n {
+                        for a in 0..m {
+                            t[a * n + i] = p.gain.data[i * m + a];
+                        }
+                    }
+                    t
+                })
+                .collect(),
             measured: k.phases.iter().map(|p| p.measured.clone()).collect(),
             innovation_variance,
             variance_growth,
@@ -667,7 +681,10 @@ impl TierState {
         for (a, &j) in measured.iter().enumerate() {
             let j = j as usize;
             let (s, c) = model.channel[j];
-            let nu = get(j).map(|y| y - self.sensor(model, s)[c]);
+            // (V_s q)_c: the one row this channel needs (what `sensor` gives for component c).
+            let r = model.r;
+            let row = &model.sensor_rows[s][c * r..(c + 1) * r];
+            let nu = get(j).map(|y| y - dot(row, &self.s[..r]));
             let rejected = match (nu, gate.sigmas) {
                 (Some(nu), Some(g)) => gate_rejects(
                     nu,
@@ -689,9 +706,18 @@ impl TierState {
                 _ => 0.0,
             };
         }
-        let gain = &model.gains[phase];
-        for (i, si) in self.s_upd.iter_mut().enumerate() {
-            *si = self.s[i] + dot(&gain[i * nm..(i + 1) * nm], &self.innovation[..nm]);
+        // s_upd = s + K_p ν as Σ_a ν_a K_p[·, a] (contiguous columns: vector operations), each
+        // entry summed over a in order, so s_i + (K_p ν)_i as the row-by-row product has it.
+        let gain_t = &model.gains_t[phase];
+        let n = self.s_upd.len();
+        self.s_upd.iter_mut().for_each(|v| *v = 0.0);
+        for (column, &nu) in gain_t.chunks_exact(n).zip(&self.innovation[..nm]) {
+            for (o, g) in self.s_upd.iter_mut().zip(column) {
+                *o += g * nu;
+            }
+        }
+        for (o, si) in self.s_upd.iter_mut().zip(&self.s) {
+            *o = si + *o;
         }
         used
     }
