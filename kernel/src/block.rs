@@ -47,7 +47,7 @@ pub struct Blocks {
 }
 
 impl Blocks {
-    /// Packs `elements` (all with r = `rows.len() / 12` columns).
+    /// Packs `elements` (all with r = `rows.len() / 12` columns; their `cols` are not read).
     pub fn new(elements: &[Element]) -> Self {
         let r = elements.first().map_or(0, |e| e.rows.len() / 12);
         let entries = COLUMNS + 12 * r;
