@@ -717,7 +717,7 @@ impl TierState {
             }
         }
         for (o, si) in self.s_upd.iter_mut().zip(&self.s) {
-            *o = si + *o;
+            *o += si;
         }
         used
     }
