@@ -13,7 +13,12 @@
 //! K_t += wₑ V_eᵀ R Kₑ Rᵀ V_e                      (warped tangent, r×r)
 //! ```
 
+pub mod block;
+mod lanes;
+mod simd;
 pub mod wilson;
+
+pub use block::Blocks;
 
 /// 3×3 matrix, row-major.
 pub type Mat3 = [[f64; 3]; 3];
@@ -21,20 +26,15 @@ pub type Mat3 = [[f64; 3]; 3];
 /// Identity.
 pub const IDENTITY: Mat3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 
-#[inline(always)]
+#[cfg(test)]
 fn det(m: &Mat3) -> f64 {
     m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
         - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
         + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
 }
 
-#[inline(always)]
-fn norm(m: &Mat3) -> f64 {
-    m.iter().flatten().map(|v| v * v).sum::<f64>().sqrt()
-}
-
 /// X⁻ᵀ of an invertible 3×3 matrix (cofactor matrix / det), or `None` if det = 0.
-#[inline(always)]
+#[cfg(test)]
 fn inverse_transpose(m: &Mat3) -> Option<Mat3> {
     let d = det(m);
     if d == 0.0 || !d.is_finite() {
@@ -75,43 +75,13 @@ pub enum PolarError {
 /// orthogonal (‖ΔX‖_F > 1e-2), unscaled (γ = 1) near it, where the iteration converges
 /// quadratically; stops when ‖ΔX‖_F ≤ 1e-8, when the next change would be ~1e-16 (3–4
 /// iterations for an element strained by a few %). Refuses inverted or degenerate elements
-/// (det F ≤ 1e-12‖F‖³_F).
+/// (det F ≤ 1e-12‖F‖³_F). One copy of the iteration: the kernel's lane-wise polar with one
+/// lane (which [`Blocks`] runs on 8 elements at once, bit-for-bit the same per lane).
 #[inline(always)]
 pub fn polar_rotation(f: &Mat3) -> Result<Mat3, PolarError> {
-    let n = norm(f);
-    let d = det(f);
-    if !(n.is_finite() && d.is_finite()) {
-        return Err(PolarError::NoConvergence);
-    }
-    if d <= 1e-12 * n * n * n {
-        return Err(PolarError::Inverted(d));
-    }
     let mut x = *f;
-    let mut scaled = true;
-    for _ in 0..30 {
-        let Some(inv_t) = inverse_transpose(&x) else {
-            return Err(PolarError::NoConvergence);
-        };
-        let gamma = if scaled {
-            (norm(&inv_t) / norm(&x)).sqrt()
-        } else {
-            1.0
-        };
-        let (a, b) = (0.5 * gamma, 0.5 / gamma);
-        let mut change = 0.0;
-        for i in 0..3 {
-            for j in 0..3 {
-                let next = a * x[i][j] + b * inv_t[i][j];
-                change += (next - x[i][j]) * (next - x[i][j]);
-                x[i][j] = next;
-            }
-        }
-        if change <= 1e-16 {
-            return Ok(x);
-        }
-        scaled = change > 1e-4;
-    }
-    Err(PolarError::NoConvergence)
+    let [result, ..] = lanes::polar_rotations::<f64>(&mut x);
+    result.map(|()| x)
 }
 
 /// One sampled element's data (borrowed from the caller's flat storage).
@@ -250,8 +220,10 @@ pub fn add_reduced_force(
 }
 
 /// Adds `scale` · wₑ V_eᵀ R Kₑ Rᵀ V_e to `out` (r×r row-major) for the element rotation `rot`;
-/// `scratch` holds 2·12·r values.
-pub fn add_warped_tangent(
+/// `scratch` holds 2·12·r values. The reference of [`Blocks::add_warped_tangent`] (what the
+/// runtime runs), kept for its test.
+#[cfg(test)]
+pub(crate) fn add_warped_tangent(
     e: &Element,
     rot: &Mat3,
     scale: f64,

@@ -6,8 +6,9 @@
 //! Drives input channel INPUT (label, e.g. `tip.z`) with a ramp to PEAK (N) over RAMP steps,
 //! then held, for STEPS steps; times every `predict` (the tier's nonlinear step: Newton on q)
 //! and every `step` (predict + constant-gain update, measurements = the open-loop estimates,
-//! i.e. zero innovation) separately, and prints medians, Newton iterations per step and the
-//! envelope status. Times are this thread's CPU time (the machine is shared).
+//! i.e. zero innovation) separately, and prints medians, Newton iterations per step, the
+//! slowest step and the median of the steps that refreshed the tangent, and the envelope
+//! status. Times are this thread's CPU time (the machine is shared).
 
 use crokf_runtime::{load_model, Estimator};
 
@@ -78,16 +79,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut est = Estimator::new(&model)?;
     let mut times = Vec::with_capacity(steps);
     let (mut iterations, mut refreshes, mut outside) = (0usize, 0usize, 0usize);
+    let mut refresh_times = Vec::new();
     for k in 0..steps {
         u[input] = load(k);
         let clock = Instant::now();
         est.predict(&u)?;
-        times.push(clock.elapsed().as_secs_f64());
+        let t = clock.elapsed().as_secs_f64();
+        times.push(t);
         let s = est.tier_status();
         iterations += s.iterations;
         refreshes += s.refreshed as usize;
         outside += s.envelope.outside() as usize;
+        if s.refreshed {
+            refresh_times.push(t);
+        }
     }
+    let slowest = times.iter().fold(0.0f64, |m, &t| m.max(t));
     let predict = median(times);
     let mut tip = vec![0.0; 3 * model.sensors.len()];
     est.sensor_displacements(&mut tip)?;
@@ -117,6 +124,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         step * 1e6,
         iterations as f64 / steps as f64
     );
+    println!(
+        "slowest predict {:.1} µs; steps with a tangent refresh: median {:.1} µs",
+        slowest * 1e6,
+        if refresh_times.is_empty() {
+            0.0
+        } else {
+            median(refresh_times) * 1e6
+        }
+    );
     println!("first sensor at the end: {:?} m", &tip[..3]);
     // One reduced force evaluation at the final state: median of 200 batches of 20 calls.
     let tm = est.prepared().tier().ok_or("no tier")?;
@@ -124,6 +140,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let s = est.state();
     let mut out = vec![0.0; r];
     let mut rotations = vec![[[0.0; 3]; 3]; tm.element_count()];
+    let mut scratch = vec![0.0; tm.force_scratch_len()];
     let mut batches = Vec::with_capacity(200);
     for _ in 0..200 {
         let clock = Instant::now();
@@ -133,6 +150,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 &s[r..2 * r],
                 std::hint::black_box(&mut out),
                 &mut rotations,
+                &mut scratch,
             )
             .map_err(|e| format!("inverted element {e}"))?;
         }

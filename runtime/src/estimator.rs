@@ -390,7 +390,7 @@ impl Estimator {
     /// components, with every other component (unmeasured, inactive, missing or gated) filled
     /// from the prediction R̃(ω̄) C_s x⁻; then y_lin = R̃(ω̄)⁻¹ y_world and the innovation of an
     /// active channel is `y_lin[c] − (C_s x⁻)[c]`; a sensor without an accepted value has zero
-    /// innovation. A channel whose world-frame innovation y_world[c] − (R̃(ω̄) C_s x⁻)[c] fails
+    /// innovation. A channel whose world-frame innovation y_world\[c\] − (R̃(ω̄) C_s x⁻)\[c\] fails
     /// the gate (see [`Estimator`]) is treated as missing.
     /// x = x⁻ + K_p · innovation. Errors — wrong length, a non-finite or implausible value,
     /// `update` without a preceding `predict`, a non-invertible R̃, a non-finite result — leave

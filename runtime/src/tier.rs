@@ -119,22 +119,12 @@ pub struct TierStatus {
     pub envelope: EnvelopeStatus,
 }
 
-/// One sampled element, flat.
-#[derive(Clone, Debug)]
-struct Element {
-    weight: f64,
-    rest: [[f64; 3]; 4],
-    gradients: [[f64; 3]; 4],
-    stiffness: Vec<f64>,
-    rows: Vec<f64>,
-    cols: Vec<f64>,
-}
-
 /// The prepared tier model (read-only, from the model file).
 #[derive(Clone, Debug)]
 pub struct TierModel {
     r: usize,
-    elements: Vec<Element>,
+    /// The sampled elements packed by 8 ([`kernel::Blocks`]): the force and the tangent.
+    blocks: kernel::Blocks,
     mass: Vec<f64>,
     alpha: f64,
     beta: f64,
@@ -161,8 +151,9 @@ pub struct TierModel {
     pub(crate) node_rows: Vec<Vec<f64>>,
     /// Per measurement channel: (sensor, component).
     channel: Vec<(usize, usize)>,
-    /// Per phase: gain (n × measured, row-major), measured channel indices.
-    gains: Vec<Vec<f64>>,
+    /// Per phase: the gain transposed (measured × n, row-major: column a of K_p is
+    /// `gains_t[p][a n ..]`), measured channel indices.
+    gains_t: Vec<Vec<f64>>,
     measured: Vec<Vec<u32>>,
     /// Per phase, per active channel: the innovation variance (H P⁻ Hᵀ)_jj + R_jj, m² (the
     /// gate's s_j, runtime/src/estimator.rs).
@@ -185,18 +176,20 @@ impl TierModel {
     /// Prepares the tier of a validated model.
     pub fn new(model: &Model, tier: &CorotationalTier) -> Self {
         let r = tier.order as usize;
-        let elements = tier
-            .elements
-            .iter()
-            .map(|e| Element {
-                weight: e.weight,
-                rest: e.rest,
-                gradients: e.gradients,
-                stiffness: e.stiffness.data.clone(),
-                rows: e.rows.data.clone(),
-                cols: kernel::transpose_rows(&e.rows.data),
-            })
-            .collect();
+        let blocks = kernel::Blocks::new(
+            &tier
+                .elements
+                .iter()
+                .map(|e| kernel::Element {
+                    weight: e.weight,
+                    rest: &e.rest,
+                    gradients: &e.gradients,
+                    stiffness: &e.stiffness.data,
+                    rows: &e.rows.data,
+                    cols: &[],
+                })
+                .collect::<Vec<_>>(),
+        );
         let max_force = model
             .loads
             .iter()
@@ -267,7 +260,7 @@ impl TierModel {
         let (innovation_variance, variance_growth) = gate_variances(k, channel.len(), h_row);
         TierModel {
             r,
-            elements,
+            blocks,
             mass: tier.mass.data.clone(),
             alpha: tier.alpha,
             beta: tier.beta,
@@ -286,7 +279,20 @@ impl TierModel {
             sensor_rows,
             node_rows,
             channel,
-            gains: k.phases.iter().map(|p| p.gain.data.clone()).collect(),
+            gains_t: k
+                .phases
+                .iter()
+                .map(|p| {
+                    let (n, m) = (p.gain.rows as usize, p.gain.cols as usize);
+                    let mut t = vec![0.0; n * m];
+                    for i in 0..n {
+                        for a in 0..m {
+                            t[a * n + i] = p.gain.data[i * m + a];
+                        }
+                    }
+                    t
+                })
+                .collect(),
             measured: k.phases.iter().map(|p| p.measured.clone()).collect(),
             innovation_variance,
             variance_growth,
@@ -302,7 +308,7 @@ impl TierModel {
 
     /// Number of sampled elements.
     pub fn element_count(&self) -> usize {
-        self.elements.len()
+        self.blocks.len()
     }
 
     /// Filter state dimension: 3r + 3 per random-walk load group (s = (q, q̇, q̈, f)).
@@ -328,28 +334,24 @@ impl TierModel {
 
     /// Reduced force f_r,int(q) + β K_t,r(q) q̇ (r) into `out` (module docs); `q`, `velocity`
     /// and `out` of length r. Refuses an inverted sampled element (its index).
-    /// `rotations` receives each element's R (length: the number of sampled elements).
+    /// `rotations` receives each element's R (length: the number of sampled elements);
+    /// `scratch` of length [`TierModel::force_scratch_len`].
     pub fn reduced_force(
         &self,
         q: &[f64],
         velocity: &[f64],
         out: &mut [f64],
         rotations: &mut [Mat3],
+        scratch: &mut [f64],
     ) -> Result<(), usize> {
-        force_loop(self, q, velocity, out, rotations).map_err(|(e, _)| e)
+        self.blocks
+            .reduced_force(q, velocity, self.beta, out, rotations, scratch)
+            .map_err(|(e, _)| e)
     }
 
-    /// The kernel view of element e.
-    fn element(&self, e: usize) -> kernel::Element<'_> {
-        let el = &self.elements[e];
-        kernel::Element {
-            weight: el.weight,
-            rest: &el.rest,
-            gradients: &el.gradients,
-            stiffness: &el.stiffness,
-            rows: &el.rows,
-            cols: &el.cols,
-        }
+    /// Length of [`TierModel::reduced_force`]'s scratch.
+    pub fn force_scratch_len(&self) -> usize {
+        self.blocks.scratch_len()
     }
 }
 
@@ -372,7 +374,10 @@ pub struct TierState {
     /// Error factor η of the Newton test (module docs), carried across steps.
     eta: f64,
     rotations: Vec<Mat3>,
+    /// The tangent's per-lane sums ([`kernel::Blocks::tangent_scratch_len`]).
     scratch: Vec<f64>,
+    /// The force evaluation's per-lane sums ([`kernel::Blocks::scratch_len`]).
+    force_scratch: Vec<f64>,
     group_force: Vec<[f64; 3]>,
     /// Innovation scratch.
     pub(crate) innovation: Vec<f64>,
@@ -398,8 +403,9 @@ impl TierState {
             has_factor: false,
             slow: true,
             eta: 1.0,
-            rotations: vec![kernel::IDENTITY; model.elements.len()],
-            scratch: vec![0.0; 24 * r],
+            rotations: vec![kernel::IDENTITY; model.blocks.len()],
+            scratch: vec![0.0; model.blocks.tangent_scratch_len()],
+            force_scratch: vec![0.0; model.force_scratch_len()],
             group_force: vec![[0.0; 3]; loads],
             innovation: vec![0.0; q],
             s_upd: vec![0.0; model.n],
@@ -434,12 +440,13 @@ impl TierState {
             self.acc[i] = w.a0 * du - (6.0 / w.tau) * v[i] - 2.0 * a[i];
             self.vel[i] = w.a2 * du - 2.0 * v[i] - 0.5 * w.tau * a[i];
         }
-        match force_loop(
-            model,
+        match model.blocks.reduced_force(
             &self.q_hat,
             &self.vel,
+            model.beta,
             &mut self.force,
             &mut self.rotations,
+            &mut self.force_scratch,
         ) {
             Ok(()) => {}
             Err((e, PolarError::Inverted(det))) => {
@@ -471,17 +478,11 @@ impl TierState {
             self.jac[i] = c_m * model.mass[i];
         }
         let scale = 1.0 + w.a2 * model.beta;
-        for e in 0..model.elements.len() {
-            let el = model.element(e);
-            kernel::add_warped_tangent(
-                &el,
-                &self.rotations[e],
-                scale,
-                &mut self.scratch,
-                &mut self.jac,
-            );
-        }
-        // Symmetrise (lower triangle is what the factor reads).
+        model
+            .blocks
+            .add_warped_tangent(&self.rotations, scale, &mut self.jac, &mut self.scratch);
+        // Symmetrise M_r's part (the tangent's is symmetric; the factor reads the lower
+        // triangle).
         for i in 0..r {
             for j in 0..i {
                 let m = 0.5 * (self.jac[i * r + j] + self.jac[j * r + i]);
@@ -680,7 +681,10 @@ impl TierState {
         for (a, &j) in measured.iter().enumerate() {
             let j = j as usize;
             let (s, c) = model.channel[j];
-            let nu = get(j).map(|y| y - self.sensor(model, s)[c]);
+            // (V_s q)_c: the one row this channel needs (what `sensor` gives for component c).
+            let r = model.r;
+            let row = &model.sensor_rows[s][c * r..(c + 1) * r];
+            let nu = get(j).map(|y| y - dot(row, &self.s[..r]));
             let rejected = match (nu, gate.sigmas) {
                 (Some(nu), Some(g)) => gate_rejects(
                     nu,
@@ -702,9 +706,18 @@ impl TierState {
                 _ => 0.0,
             };
         }
-        let gain = &model.gains[phase];
-        for (i, si) in self.s_upd.iter_mut().enumerate() {
-            *si = self.s[i] + dot(&gain[i * nm..(i + 1) * nm], &self.innovation[..nm]);
+        // s_upd = s + K_p ν as Σ_a ν_a K_p[·, a] (contiguous columns: vector operations), each
+        // entry summed over a in order, so s_i + (K_p ν)_i as the row-by-row product has it.
+        let gain_t = &model.gains_t[phase];
+        let n = self.s_upd.len();
+        self.s_upd.iter_mut().for_each(|v| *v = 0.0);
+        for (column, &nu) in gain_t.chunks_exact(n).zip(&self.innovation[..nm]) {
+            for (o, g) in self.s_upd.iter_mut().zip(column) {
+                *o += g * nu;
+            }
+        }
+        for (o, si) in self.s_upd.iter_mut().zip(&self.s) {
+            *o += si;
         }
         used
     }
@@ -746,51 +759,6 @@ impl Gate<'_> {
 /// The gate's test (docs/design.md §6): true when ν² > g² (s + n·growth).
 pub fn gate_rejects(nu: f64, sigmas: f64, variance: f64, missed: u64, growth: f64) -> bool {
     nu * nu > sigmas * sigmas * (variance + missed as f64 * growth)
-}
-
-#[inline(always)]
-fn force_body(
-    model: &TierModel,
-    q: &[f64],
-    velocity: &[f64],
-    out: &mut [f64],
-    rotations: &mut [Mat3],
-) -> Result<(), (usize, PolarError)> {
-    out.iter_mut().for_each(|v| *v = 0.0);
-    for (e, rot) in rotations.iter_mut().enumerate().take(model.elements.len()) {
-        *rot = kernel::add_reduced_force(&model.element(e), q, velocity, model.beta, out)
-            .map_err(|p| (e, p))?;
-    }
-    Ok(())
-}
-
-/// [`force_body`] compiled with AVX2 + FMA (chosen at run time, as `simd.rs` does).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn force_avx2(
-    model: &TierModel,
-    q: &[f64],
-    velocity: &[f64],
-    out: &mut [f64],
-    rotations: &mut [Mat3],
-) -> Result<(), (usize, PolarError)> {
-    force_body(model, q, velocity, out, rotations)
-}
-
-/// f_r,int(q) + β K_t,r(q) q̇ over the sampled elements into `out`, rotations per element.
-fn force_loop(
-    model: &TierModel,
-    q: &[f64],
-    velocity: &[f64],
-    out: &mut [f64],
-    rotations: &mut [Mat3],
-) -> Result<(), (usize, PolarError)> {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-        return unsafe { force_avx2(model, q, velocity, out, rotations) };
-    }
-    force_body(model, q, velocity, out, rotations)
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
