@@ -1,8 +1,7 @@
 //! The runtime's two hot loops, written so that LLVM vectorises them, and compiled twice: for
 //! the baseline target and with AVX2 + FMA, chosen at run time (`is_x86_feature_detected!`,
-//! cached by std); [`matvec_t`] has an AVX-512F kernel as well (bit for bit its AVX2 kernel's
-//! result, 8 rows per instruction). No dependency: this is what `multiversion` would generate
-//! for the targets, in twenty lines.
+//! cached by std). No dependency: this is what `multiversion` would generate for two targets,
+//! in twenty lines.
 //!
 //! - [`matvec_t`]: y = A x or y += A x from Aᵀ (f64; the step's F x, G u, K ν and the sensor
 //!   and load rows), [`matvec`] from A row-major (the sensor read-outs);
@@ -57,17 +56,14 @@ fn has_avx2_fma() -> bool {
     std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 
-/// Rows per SIMD vector of [`matvec_t`]'s AVX2 and portable kernels (f64 lanes of one AVX2
-/// register).
+/// Rows per SIMD vector of [`matvec_t`] (f64 lanes of one AVX2 register); every column of a
+/// [`Columns`] matrix is padded with zeros to a multiple of it.
 const LANES: usize = 4;
-/// Rows per AVX-512 vector; every column of a [`Columns`] matrix is padded with zeros to a
-/// multiple of it (so also of [`LANES`]).
-const LANES512: usize = 8;
 /// Vectors per register block of [`matvec_t`] (16 rows).
 const BLOCK: usize = 4;
 
 /// A `rows × cols` matrix A stored column by column (Aᵀ row-major), each column padded with
-/// zeros to `stride` = rows rounded up to a multiple of 8, for [`matvec_t`].
+/// zeros to `stride` = rows rounded up to a multiple of 4, for [`matvec_t`].
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Columns {
     data: Vec<f64>,
@@ -80,7 +76,7 @@ impl Columns {
     /// From A row-major (`a.len()` = rows·cols).
     pub(crate) fn from_row_major(a: &[f64], rows: usize, cols: usize) -> Self {
         assert_eq!(a.len(), rows * cols, "matrix data and shape disagree");
-        let stride = rows.div_ceil(LANES512) * LANES512;
+        let stride = rows.div_ceil(LANES) * LANES;
         let mut data = vec![0.0; stride * cols];
         for i in 0..rows {
             for j in 0..cols {
@@ -249,107 +245,6 @@ mod avx2 {
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-mod avx512 {
-    //! [`super::matvec_t`] with AVX-512F: the AVX2 kernel's blocks with 8 rows per vector,
-    //! each row's sum in the same order (even and odd columns, four columns per iteration), so
-    //! the result is bit for bit the AVX2 kernel's.
-    use super::{Columns, BLOCK, LANES512};
-    use std::arch::x86_64::*;
-
-    /// See [`super::avx2`]'s block. Caller: `first + 8·NV ≤ a.stride`, `x.len() ≥ a.cols`.
-    #[inline(always)]
-    unsafe fn block<const NV: usize>(
-        a: &Columns,
-        x: &[f64],
-        y: &mut [f64],
-        first: usize,
-        add: bool,
-    ) {
-        let base = a.data.as_ptr().add(first);
-        let xp = x.as_ptr();
-        let mut even = [_mm512_setzero_pd(); NV];
-        let mut odd = [_mm512_setzero_pd(); NV];
-        let mut j = 0;
-        while j + 4 <= a.cols {
-            let c0 = base.add(j * a.stride);
-            let (c1, c2, c3) = (c0.add(a.stride), c0.add(2 * a.stride), c0.add(3 * a.stride));
-            let (x0, x1) = (_mm512_set1_pd(*xp.add(j)), _mm512_set1_pd(*xp.add(j + 1)));
-            let (x2, x3) = (
-                _mm512_set1_pd(*xp.add(j + 2)),
-                _mm512_set1_pd(*xp.add(j + 3)),
-            );
-            for v in 0..NV {
-                even[v] = _mm512_fmadd_pd(_mm512_loadu_pd(c0.add(LANES512 * v)), x0, even[v]);
-                odd[v] = _mm512_fmadd_pd(_mm512_loadu_pd(c1.add(LANES512 * v)), x1, odd[v]);
-            }
-            for v in 0..NV {
-                even[v] = _mm512_fmadd_pd(_mm512_loadu_pd(c2.add(LANES512 * v)), x2, even[v]);
-                odd[v] = _mm512_fmadd_pd(_mm512_loadu_pd(c3.add(LANES512 * v)), x3, odd[v]);
-            }
-            j += 4;
-        }
-        if j + 2 <= a.cols {
-            let (x0, x1) = (_mm512_set1_pd(*xp.add(j)), _mm512_set1_pd(*xp.add(j + 1)));
-            let (c0, c1) = (base.add(j * a.stride), base.add((j + 1) * a.stride));
-            for v in 0..NV {
-                even[v] = _mm512_fmadd_pd(_mm512_loadu_pd(c0.add(LANES512 * v)), x0, even[v]);
-                odd[v] = _mm512_fmadd_pd(_mm512_loadu_pd(c1.add(LANES512 * v)), x1, odd[v]);
-            }
-            j += 2;
-        }
-        if j < a.cols {
-            let x0 = _mm512_set1_pd(*xp.add(j));
-            let c0 = base.add(j * a.stride);
-            for v in 0..NV {
-                even[v] = _mm512_fmadd_pd(_mm512_loadu_pd(c0.add(LANES512 * v)), x0, even[v]);
-            }
-        }
-        for v in 0..NV {
-            let s = _mm512_add_pd(even[v], odd[v]);
-            let i = first + LANES512 * v;
-            if i + LANES512 <= y.len() {
-                let out = y.as_mut_ptr().add(i);
-                let s = if add {
-                    _mm512_add_pd(_mm512_loadu_pd(out), s)
-                } else {
-                    s
-                };
-                _mm512_storeu_pd(out, s);
-            } else if i < y.len() {
-                let mut lanes = [0.0f64; LANES512];
-                _mm512_storeu_pd(lanes.as_mut_ptr(), s);
-                for (o, l) in y[i..].iter_mut().zip(lanes) {
-                    *o = if add { *o + l } else { l };
-                }
-            }
-        }
-    }
-
-    /// See [`super::matvec_t`]. Caller: the CPU has AVX-512F, `x.len() ≥ a.cols`.
-    #[target_feature(enable = "avx512f")]
-    pub(super) unsafe fn matvec_t(a: &Columns, x: &[f64], y: &mut [f64], add: bool) {
-        let vectors = a.stride / LANES512;
-        let mut v = 0;
-        while v + BLOCK <= vectors {
-            block::<BLOCK>(a, x, y, LANES512 * v, add);
-            v += BLOCK;
-        }
-        match vectors - v {
-            1 => block::<1>(a, x, y, LANES512 * v, add),
-            2 => block::<2>(a, x, y, LANES512 * v, add),
-            3 => block::<3>(a, x, y, LANES512 * v, add),
-            _ => {}
-        }
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[inline]
-fn has_avx512f() -> bool {
-    std::arch::is_x86_feature_detected!("avx512f")
-}
-
 /// y = A x (`add` false) or y += A x, A a [`Columns`] matrix (rows = `y.len()`, at most
 /// `a.rows()`; columns = `x.len()`, at least the matrix's). Column by column
 /// (y += x_j A_:j) with 16 rows of y held in registers as two accumulator sets (even and odd
@@ -359,17 +254,11 @@ fn has_avx512f() -> bool {
 pub(crate) fn matvec_t(a: &Columns, x: &[f64], y: &mut [f64], add: bool) {
     assert!(x.len() >= a.cols && y.len() <= a.rows, "matvec_t: shapes");
     #[cfg(target_arch = "x86_64")]
-    {
-        if has_avx512f() {
-            // SAFETY: the CPU has AVX-512F (checked just above); x holds every column's
-            // coefficient and y no more rows than the matrix (asserted above), and the kernel
-            // reads columns only within `a.stride` (whole 8-row vectors of the padded storage).
-            return unsafe { avx512::matvec_t(a, x, y, add) };
-        }
-        if has_avx2_fma() {
-            // SAFETY: as above, with AVX2 and FMA (checked just above; 4-row vectors).
-            return unsafe { avx2::matvec_t(a, x, y, add) };
-        }
+    if has_avx2_fma() {
+        // SAFETY: the CPU has AVX2 and FMA (checked just above); x holds every column's
+        // coefficient and y no more rows than the matrix (asserted above), and the kernel reads
+        // columns only within `a.stride` (whole vectors of the padded storage).
+        return unsafe { avx2::matvec_t(a, x, y, add) };
     }
     matvec_t_portable(a, x, y, add)
 }
@@ -730,14 +619,6 @@ mod tests {
                 matvec_t(&m, &x, &mut y_add, true);
                 let mut y_portable = y0.clone();
                 matvec_t_portable(&m, &x, &mut y_portable, true);
-                #[cfg(target_arch = "x86_64")]
-                if has_avx2_fma() && has_avx512f() {
-                    // The AVX-512 kernel (what matvec_t ran) is bit for bit the AVX2 one.
-                    let mut y2 = y0.clone();
-                    // SAFETY: the CPU has AVX2 and FMA (checked just above).
-                    unsafe { avx2::matvec_t(&m, &x, &mut y2, true) };
-                    assert_eq!(y2, y_add, "{rows}×{cols}: AVX2 and AVX-512");
-                }
                 for i in 0..rows {
                     assert!((y[i] - want[i]).abs() < 1e-14, "{rows}×{cols} row {i}");
                     assert!(
