@@ -33,6 +33,26 @@ fn check_matrix(path: &str, m: &Matrix, rows: u64, cols: u64) -> Result<(), Form
     check_finite(path, &m.data, m.cols as usize)
 }
 
+/// Symmetry of an n × n row-major matrix (finite, checked before): |a_ij − a_ji| ≤ 1e-9 ·
+/// max|a|. The tier's element stiffness Kₑ = V Bᵀ D B is symmetric up to round-off; the
+/// kernel's force multiplies by Kₑᵀ and the compiler's tangent by Kₑ (crokf-kernel), which
+/// agree only for a symmetric Kₑ.
+fn check_symmetric(path: &str, data: &[f64], n: usize) -> Result<(), FormatError> {
+    let scale = data.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    for i in 0..n {
+        for j in i + 1..n {
+            let (a, b) = (data[i * n + j], data[j * n + i]);
+            if (a - b).abs() > 1e-9 * scale {
+                return Err(invalid(
+                    path,
+                    format!("must be symmetric: ({i}, {j}) = {a:e} but ({j}, {i}) = {b:e}"),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// NaN/inf check; `cols` gives the (row, col) of the first offender (0: treat as a vector).
 fn check_finite(path: &str, data: &[f64], cols: usize) -> Result<(), FormatError> {
     if let Some((k, &value)) = data.iter().enumerate().find(|(_, v)| !v.is_finite()) {
@@ -349,6 +369,7 @@ fn check_tier(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatEr
         check_finite(&format!("{path}.rest"), el.rest.as_flattened(), 3)?;
         check_finite(&format!("{path}.gradients"), el.gradients.as_flattened(), 3)?;
         check_matrix(&format!("{path}.stiffness"), &el.stiffness, 12, 12)?;
+        check_symmetric(&format!("{path}.stiffness"), &el.stiffness.data, 12)?;
         check_matrix(&format!("{path}.rows"), &el.rows, 12, r)?;
     }
     let env = &t.envelope;

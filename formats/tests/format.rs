@@ -375,6 +375,11 @@ fn tier_section_round_trip_and_validation() {
     );
     let e = bad(&|t| t.elements[0].weight = -1.0);
     assert!(e.contains("tier.elements[0].weight"), "{e}");
+    let e = bad(&|t| t.elements[0].stiffness.data[1] = 0.5);
+    assert!(
+        e.contains("tier.elements[0].stiffness") && e.contains("symmetric"),
+        "{e}"
+    );
     let e = bad(&|t| t.elements[0].rest[2][1] = f64::NAN);
     assert!(
         e.contains("tier.elements[0].rest") && e.contains("(2, 1)"),

@@ -36,8 +36,8 @@ const COLUMNS: usize = STIFFNESS + 144;
 
 /// The sampled elements of a reduced model, packed by [`LANES`] (module docs). Padding lanes
 /// of the last block hold a unit tetrahedron with zero weight, stiffness and basis rows: F = I,
-/// no force.
-#[derive(Clone, Debug, Default)]
+/// no force. There is no empty default: build it with [`Blocks::new`].
+#[derive(Clone, Debug)]
 pub struct Blocks {
     r: usize,
     count: usize,
@@ -48,6 +48,10 @@ pub struct Blocks {
 
 impl Blocks {
     /// Packs `elements` (all with r = `rows.len() / 12` columns; their `cols` are not read).
+    /// Kₑ must be symmetric (the force and the tangent both multiply by Kₑᵀ; the model
+    /// validator checks it).
+    ///
+    /// Panics if the elements have different orders or a stiffness is not 12 × 12.
     pub fn new(elements: &[Element]) -> Self {
         let r = elements.first().map_or(0, |e| e.rows.len() / 12);
         let entries = COLUMNS + 12 * r;
@@ -67,6 +71,7 @@ impl Blocks {
             let (rest, gradients) = match elements.get(slot) {
                 Some(e) => {
                     assert_eq!(e.rows.len(), 12 * r, "elements of different orders");
+                    assert_eq!(e.stiffness.len(), 144, "Kₑ must have 12 × 12 entries");
                     put(WEIGHT, e.weight);
                     for (k, &s) in e.stiffness.iter().enumerate() {
                         put(STIFFNESS + k, s);
@@ -153,7 +158,8 @@ impl Blocks {
                 return unsafe { forces_avx2(self, q, velocity, beta, out, rotations, scratch) };
             }
         }
-        forces::<Lanes8>(self, q, velocity, beta, out, rotations, scratch)
+        // SAFETY: the portable lanes use no CPU feature.
+        unsafe { forces::<Lanes8>(self, q, velocity, beta, out, rotations, scratch) }
     }
 
     /// Length of the scratch [`Blocks::add_warped_tangent`] needs:
@@ -194,7 +200,8 @@ impl Blocks {
                 return unsafe { tangent_avx2(self, rotations, scale, out, scratch) };
             }
         }
-        tangent::<Lanes8>(self, rotations, scale, out, scratch)
+        // SAFETY: the portable lanes use no CPU feature.
+        unsafe { tangent::<Lanes8>(self, rotations, scale, out, scratch) }
     }
 }
 
@@ -207,17 +214,26 @@ fn tangent_avx512(
     out: &mut [f64],
     scratch: &mut [f64],
 ) {
-    tangent::<crate::simd::Avx512>(b, rotations, scale, out, scratch)
+    // SAFETY: this function is compiled with AVX-512F, AVX2 and FMA enabled and called only
+    // after they were detected.
+    unsafe { tangent::<crate::simd::Avx512>(b, rotations, scale, out, scratch) }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn tangent_avx2(b: &Blocks, rotations: &[Mat3], scale: f64, out: &mut [f64], scratch: &mut [f64]) {
-    tangent::<crate::simd::Avx2>(b, rotations, scale, out, scratch)
+    // SAFETY: compiled with AVX2 and FMA, called only after they were detected.
+    unsafe { tangent::<crate::simd::Avx2>(b, rotations, scale, out, scratch) }
 }
 
+/// The tangent of [`Blocks::add_warped_tangent`] on lanes `S`.
+///
+/// # Safety
+/// The CPU must support the instructions of `S` (`Avx512`: AVX-512F; `Avx2`: AVX2 and FMA;
+/// `Lanes8`: none), e.g. called from a function compiled with those features after
+/// detecting them.
 #[inline(always)]
-fn tangent<S: Simd>(
+unsafe fn tangent<S: Simd>(
     b: &Blocks,
     rotations: &[Mat3],
     scale: f64,
@@ -329,7 +345,9 @@ fn forces_avx512(
     rotations: &mut [Mat3],
     scratch: &mut [f64],
 ) -> Result<(), (usize, PolarError)> {
-    forces::<crate::simd::Avx512>(b, q, velocity, beta, out, rotations, scratch)
+    // SAFETY: this function is compiled with AVX-512F, AVX2 and FMA enabled and called only
+    // after they were detected.
+    unsafe { forces::<crate::simd::Avx512>(b, q, velocity, beta, out, rotations, scratch) }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -343,11 +361,16 @@ fn forces_avx2(
     rotations: &mut [Mat3],
     scratch: &mut [f64],
 ) -> Result<(), (usize, PolarError)> {
-    forces::<crate::simd::Avx2>(b, q, velocity, beta, out, rotations, scratch)
+    // SAFETY: compiled with AVX2 and FMA, called only after they were detected.
+    unsafe { forces::<crate::simd::Avx2>(b, q, velocity, beta, out, rotations, scratch) }
 }
 
+/// The force of [`Blocks::reduced_force`] on lanes `S`.
+///
+/// # Safety
+/// As [`tangent`]: the CPU must support the instructions of `S`.
 #[inline(always)]
-fn forces<S: Simd>(
+unsafe fn forces<S: Simd>(
     b: &Blocks,
     q: &[f64],
     velocity: &[f64],
@@ -356,7 +379,7 @@ fn forces<S: Simd>(
     rotations: &mut [Mat3],
     scratch: &mut [f64],
 ) -> Result<(), (usize, PolarError)> {
-    debug_assert_eq!(S::LANES, LANES);
+    const { assert!(S::LANES == LANES) };
     let r = b.r;
     let acc = &mut scratch[..LANES * r];
     acc.iter_mut().for_each(|v| *v = 0.0);
@@ -764,7 +787,8 @@ mod tests {
     /// Every force path this CPU can run, by name.
     fn force_paths() -> Vec<(&'static str, ForceFn)> {
         let mut paths: Vec<(&'static str, ForceFn)> =
-            vec![("portable", |b, q, v, beta, o, r, s| {
+            // SAFETY: the portable lanes use no CPU feature.
+            vec![("portable", |b, q, v, beta, o, r, s| unsafe {
                 forces::<Lanes8>(b, q, v, beta, o, r, s)
             })];
         #[cfg(target_arch = "x86_64")]
@@ -789,9 +813,11 @@ mod tests {
 
     /// Every tangent path this CPU can run, by name.
     fn tangent_paths() -> Vec<(&'static str, TangentFn)> {
-        let mut paths: Vec<(&'static str, TangentFn)> = vec![("portable", |b, r, sc, o, s| {
-            tangent::<Lanes8>(b, r, sc, o, s)
-        })];
+        // SAFETY: the portable lanes use no CPU feature.
+        let mut paths: Vec<(&'static str, TangentFn)> =
+            vec![("portable", |b, r, sc, o, s| unsafe {
+                tangent::<Lanes8>(b, r, sc, o, s)
+            })];
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx2")

@@ -58,6 +58,7 @@ fn cofactors<S: Simd>(m: &Mat3S<S>, inv: S) -> Mat3S<S> {
 /// skips γ (it is 1, so a = b = ½ exactly as the scalar iteration has them).
 #[inline(always)]
 pub(crate) fn polar_rotations<S: Simd>(f: &mut Mat3S<S>) -> [Result<(), PolarError>; 8] {
+    const { assert!(S::LANES <= 8) };
     let all = (((1u16 << S::LANES) - 1) & 0xff) as u8;
     let n = norm(f);
     let d0 = det(f);

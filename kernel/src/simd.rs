@@ -23,7 +23,8 @@ pub trait Simd:
     fn lane(self, l: usize) -> f64;
     /// √ per lane (correctly rounded).
     fn sqrt(self) -> Self;
-    /// self · b + c (rounded once when `FUSED`, else twice).
+    /// self · b + c: rounded once on the fused lane types (AVX2 + FMA, AVX-512), twice on the
+    /// portable lanes.
     fn mul_add(self, b: Self, c: Self) -> Self;
     /// Lanes of `a` where bit l of `mask` is set, of `b` elsewhere.
     fn blend(mask: u8, a: Self, b: Self) -> Self;
