@@ -96,12 +96,25 @@ fn corotational_tier(
     report.notes.push(format!(
         "co-rotational tier filter (linearised at rest, state (q, q̇, q̈, f) = {}, {} force \
          states): closed-loop spectral radius {:.6}, Riccati residual {:.1e}, static residual \
-         of the force channels at the markers {:.1e}",
+         of the force channels at the markers {:.1e}; gain schedule: {} of {} operating points \
+         (training states, ‖q*‖ {:.3e} … {:.3e})",
         3 * r + 3 * filter.force_loads.len(),
         3 * filter.force_loads.len(),
         filter.schedule.closed_loop_spectral_radius,
         filter.schedule.worst_relative_residual,
-        filter.static_residual
+        filter.static_residual,
+        filter.scheduled.len(),
+        tier::SCHEDULE_POINTS,
+        filter
+            .scheduled
+            .iter()
+            .map(|(q, _)| q.norm())
+            .fold(f64::INFINITY, f64::min),
+        filter
+            .scheduled
+            .iter()
+            .map(|(q, _)| q.norm())
+            .fold(0.0, f64::max)
     ));
     let section = tier::tier_section(
         full,

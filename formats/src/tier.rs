@@ -1,4 +1,4 @@
-//! The co-rotational tier section of a model file (format v4; docs/model-format.md,
+//! The co-rotational tier section of a model file (format v5; docs/model-format.md,
 //! docs/design.md §10): a hyper-reduced co-rotational model on the reduced coordinates q (r)
 //! with u ≈ V q (world-frame displacements of the free DOFs, m per unit q).
 //!
@@ -59,6 +59,23 @@ pub struct CorotationalTier {
     /// Constant-gain filter on s = (q, q̇, q̈, f) (state dimension [`Self::state_dim`]): gains
     /// (state × measured), prior/posterior covariances and process noise (state × state) of the
     /// model linearised at rest; `measurement_variance` as `Model::kalman`.
+    pub kalman: KalmanGains,
+    /// Gain schedule (format v5; docs/design.md §11.5): the same filter designed on the tier
+    /// linearised at deformed states q* (consistent reduced tangent K_N,r(q*)), picked by the
+    /// runtime when q is nearer to q* than to rest and to every other point. Empty: the
+    /// constant gain `kalman` everywhere (as v4).
+    #[serde(default)]
+    pub scheduled: Vec<ScheduledFilter>,
+}
+
+/// One operating point of the tier's gain schedule (format v5).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScheduledFilter {
+    /// The operating point q* (r reduced coordinates).
+    pub point: Vec<f64>,
+    /// The filter linearised at q*: same period, phases, measured channels, process noise and
+    /// measurement variance as the tier's `kalman`; its own gains and covariances.
     pub kalman: KalmanGains,
 }
 

@@ -161,17 +161,29 @@ pub struct TierModel {
     pub(crate) node_rows: Vec<Vec<f64>>,
     /// Per measurement channel: (sensor, component).
     channel: Vec<(usize, usize)>,
-    /// Per phase: gain (n × measured, row-major), measured channel indices.
-    gains: Vec<Vec<f64>>,
+    /// Per phase: measured channel indices.
     measured: Vec<Vec<u32>>,
+    /// The gain schedule (docs/design.md §11.5): filter 0 is the tier's `kalman` (rest),
+    /// filter i ≥ 1 the `scheduled[i − 1]` one, designed at `points[i − 1]`.
+    filters: Vec<PointFilter>,
+    /// Operating points of filters 1.., r each, row-major.
+    points: Vec<f64>,
+    /// Per measurement channel: (H Q Hᵀ)_jj, m² per step (the gate's growth g_j).
+    variance_growth: Vec<f64>,
+}
+
+/// One filter of the tier's gain schedule: its gains and what the read-outs and the gate need
+/// of its covariances.
+#[derive(Clone, Debug)]
+struct PointFilter {
+    /// Per phase: gain (n × measured, row-major).
+    gains: Vec<Vec<f64>>,
     /// Per phase, per active channel: the innovation variance (H P⁻ Hᵀ)_jj + R_jj, m² (the
     /// gate's s_j, runtime/src/estimator.rs).
     innovation_variance: Vec<Vec<f64>>,
-    /// Per measurement channel: (H Q Hᵀ)_jj, m² per step (the gate's growth g_j).
-    variance_growth: Vec<f64>,
-    /// Per phase and kind (prior, posterior): sensor std (3 per sensor), node std per set.
-    pub(crate) sensor_std: [Vec<Vec<f64>>; 2],
-    pub(crate) node_std: [Vec<Vec<Vec<f64>>>; 2],
+    /// Per kind (prior, posterior) and phase: sensor std (3 per sensor), node std per set.
+    sensor_std: [Vec<Vec<f64>>; 2],
+    node_std: [Vec<Vec<Vec<f64>>>; 2],
 }
 
 /// sqrt(diag(C P_qq Cᵀ)) for the rows C (k × r, row-major).
@@ -223,28 +235,50 @@ impl TierModel {
             .collect();
         let sensor_rows: Vec<Vec<f64>> = tier.sensor_rows.iter().map(|m| m.data.clone()).collect();
         let node_rows: Vec<Vec<f64>> = tier.node_set_rows.iter().map(|m| m.data.clone()).collect();
-        let k = &tier.kalman;
-        let cov = |post: bool| -> (Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>) {
-            let mut s_out = Vec::new();
-            let mut n_out = Vec::new();
-            for ph in &k.phases {
-                let p = if post {
-                    &ph.posterior_covariance
-                } else {
-                    &ph.prior_covariance
-                };
-                s_out.push(
-                    sensor_rows
-                        .iter()
-                        .flat_map(|rows| std_rows(rows, r, p))
-                        .collect(),
-                );
-                n_out.push(node_rows.iter().map(|rows| std_rows(rows, r, p)).collect());
-            }
-            (s_out, n_out)
+        let h_row = |j: usize| {
+            let (s, c) = channel[j];
+            &sensor_rows[s][c * r..(c + 1) * r]
         };
-        let (s_prior, n_prior) = cov(false);
-        let (s_post, n_post) = cov(true);
+        let k = &tier.kalman;
+        let (_, variance_growth) = gate_variances(k, channel.len(), h_row);
+        let filter = |k: &crokf_formats::KalmanGains| {
+            let cov = |post: bool| -> (Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>) {
+                let mut s_out = Vec::new();
+                let mut n_out = Vec::new();
+                for ph in &k.phases {
+                    let p = if post {
+                        &ph.posterior_covariance
+                    } else {
+                        &ph.prior_covariance
+                    };
+                    s_out.push(
+                        sensor_rows
+                            .iter()
+                            .flat_map(|rows| std_rows(rows, r, p))
+                            .collect(),
+                    );
+                    n_out.push(node_rows.iter().map(|rows| std_rows(rows, r, p)).collect());
+                }
+                (s_out, n_out)
+            };
+            let (s_prior, n_prior) = cov(false);
+            let (s_post, n_post) = cov(true);
+            PointFilter {
+                gains: k.phases.iter().map(|p| p.gain.data.clone()).collect(),
+                innovation_variance: gate_variances(k, channel.len(), h_row).0,
+                sensor_std: [s_prior, s_post],
+                node_std: [n_prior, n_post],
+            }
+        };
+        let filters: Vec<PointFilter> = std::iter::once(k)
+            .chain(tier.scheduled.iter().map(|s| &s.kalman))
+            .map(filter)
+            .collect();
+        let points = tier
+            .scheduled
+            .iter()
+            .flat_map(|s| s.point.iter().copied())
+            .collect();
         let force_channels: Vec<usize> = tier
             .force_loads
             .iter()
@@ -260,11 +294,6 @@ impl TierModel {
                 })
             })
             .collect();
-        let h_row = |j: usize| {
-            let (s, c) = channel[j];
-            &sensor_rows[s][c * r..(c + 1) * r]
-        };
-        let (innovation_variance, variance_growth) = gate_variances(k, channel.len(), h_row);
         TierModel {
             r,
             elements,
@@ -286,12 +315,10 @@ impl TierModel {
             sensor_rows,
             node_rows,
             channel,
-            gains: k.phases.iter().map(|p| p.gain.data.clone()).collect(),
             measured: k.phases.iter().map(|p| p.measured.clone()).collect(),
-            innovation_variance,
+            filters,
+            points,
             variance_growth,
-            sensor_std: [s_prior, s_post],
-            node_std: [n_prior, n_post],
         }
     }
 
@@ -319,6 +346,33 @@ impl TierModel {
     /// of its gain's columns.
     pub fn measured(&self, phase: usize) -> &[u32] {
         &self.measured[phase]
+    }
+
+    /// Number of filters of the gain schedule (1: the constant gain designed at rest).
+    pub fn filter_count(&self) -> usize {
+        self.filters.len()
+    }
+
+    /// The filter of the gain schedule for the state q (r): 0 (rest) or i ≥ 1 (operating point
+    /// i − 1), whichever point is nearest to q in the Euclidean norm of q (the M-norm of the
+    /// displacement, docs/design.md §11.5); ties go to the lower index.
+    pub fn nearest_filter(&self, q: &[f64]) -> usize {
+        let r = self.r;
+        let mut best = (0, dot(&q[..r], &q[..r]));
+        for (i, p) in self.points.chunks_exact(r).enumerate() {
+            let d: f64 = p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+            if d < best.1 {
+                best = (i + 1, d);
+            }
+        }
+        best.0
+    }
+
+    /// Precomputed std of filter `filter`, covariance kind (0 prior, 1 posterior) and phase:
+    /// (sensors, 3 each; node sets, 3 per node), m.
+    pub(crate) fn std(&self, filter: usize, kind: usize, phase: usize) -> (&[f64], &[Vec<f64>]) {
+        let f = &self.filters[filter];
+        (&f.sensor_std[kind][phase], &f.node_std[kind][phase])
     }
 
     /// Largest number of measured channels in a phase of the tier's filter.
@@ -374,6 +428,11 @@ pub struct TierState {
     rotations: Vec<Mat3>,
     scratch: Vec<f64>,
     group_force: Vec<[f64; 3]>,
+    /// The filter of the gain schedule in use ([`TierModel::nearest_filter`] of the last
+    /// step's q).
+    pub(crate) filter: usize,
+    /// `filter` before the last step (restored with `s_prev` by [`TierState::rollback`]).
+    filter_prev: usize,
     /// Innovation scratch.
     pub(crate) innovation: Vec<f64>,
     /// The update's result before it is committed.
@@ -401,6 +460,8 @@ impl TierState {
             rotations: vec![kernel::IDENTITY; model.elements.len()],
             scratch: vec![0.0; 24 * r],
             group_force: vec![[0.0; 3]; loads],
+            filter: 0,
+            filter_prev: 0,
             innovation: vec![0.0; q],
             s_upd: vec![0.0; model.n],
         }
@@ -409,6 +470,8 @@ impl TierState {
     /// Back to rest (the cached Newton matrix is kept).
     pub fn reset(&mut self) {
         self.s.iter_mut().for_each(|v| *v = 0.0);
+        self.filter = 0;
+        self.filter_prev = 0;
         self.slow = true;
         self.eta = 1.0;
     }
@@ -605,6 +668,8 @@ impl TierState {
             self.s[2 * r + i] = a1;
             qn += q1 * q1;
         }
+        self.filter_prev = self.filter;
+        self.filter = model.nearest_filter(&self.s[..r]);
         Ok(TierStatus {
             iterations,
             refreshed,
@@ -641,6 +706,19 @@ impl TierState {
         get: &impl Fn(usize) -> Option<f64>,
     ) -> usize {
         self.update_gated(model, phase, get, &Gate::OFF, &mut [])
+    }
+
+    /// Undoes the last step (s ← its value before the step, the filter of the schedule with
+    /// it); what the estimator does when the update of a combined step fails.
+    pub(crate) fn rollback(&mut self) {
+        std::mem::swap(&mut self.s, &mut self.s_prev);
+        self.filter = self.filter_prev;
+    }
+
+    /// The filter of the gain schedule in use (0: the one designed at rest; docs/design.md
+    /// §11.5).
+    pub fn filter(&self) -> usize {
+        self.filter
     }
 
     /// Commits the last [`TierState::update`] / [`TierState::update_gated`]: s ← `s_upd`
@@ -685,7 +763,7 @@ impl TierState {
                 (Some(nu), Some(g)) => gate_rejects(
                     nu,
                     g,
-                    model.innovation_variance[phase][a],
+                    model.filters[self.filter].innovation_variance[phase][a],
                     gate.missed(j),
                     model.variance_growth[j],
                 ),
@@ -702,7 +780,7 @@ impl TierState {
                 _ => 0.0,
             };
         }
-        let gain = &model.gains[phase];
+        let gain = &model.filters[self.filter].gains[phase];
         for (i, si) in self.s_upd.iter_mut().enumerate() {
             *si = self.s[i] + dot(&gain[i * nm..(i + 1) * nm], &self.innovation[..nm]);
         }

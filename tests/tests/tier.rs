@@ -523,18 +523,18 @@ fn the_gate_skips_a_one_metre_outlier_and_none_of_the_scenes_noise() {
     assert_eq!(est.state(), without.state());
 }
 
-/// A model file of the previous format (v3: no force states in the tier) is refused with a
+/// A model file of the previous format (v4: no gain schedule in the tier) is refused with a
 /// message that says to recompile.
 #[test]
-fn a_v3_model_file_is_refused_with_recompile() {
+fn a_v4_model_file_is_refused_with_recompile() {
     let (bytes, _) = compiled();
     let mut old = bytes.clone();
-    old[8..12].copy_from_slice(&3u32.to_le_bytes());
+    old[8..12].copy_from_slice(&4u32.to_le_bytes());
     let err = crokf_runtime::model_from_bytes(&old)
         .unwrap_err()
         .to_string();
     assert!(
-        err.contains("model format v3, this runtime reads v4") && err.contains("recompile"),
+        err.contains("model format v4, this runtime reads v5") && err.contains("recompile"),
         "{err}"
     );
 }

@@ -242,7 +242,66 @@ pub fn linearised_filter(
     let mut filter = filter_of(&lin, measurements)?;
     filter.force_loads = full.random_walk_loads().iter().map(|&(g, _)| g).collect();
     filter.static_residual = residual;
+    let projected: Vec<DVector<f64>> = tier
+        .training
+        .snapshots
+        .iter()
+        .map(|u| tier.basis.project(u))
+        .collect();
+    let points = schedule_points(&projected, SCHEDULE_POINTS);
+    filter.scheduled = scheduled_filters(&lin, model, &points, measurements);
     Ok(filter)
+}
+
+/// Operating points of the tier's gain schedule besides rest (docs/design.md §11.5).
+pub const SCHEDULE_POINTS: usize = 8;
+
+/// Up to `count` operating points among the training states `states` (projected snapshots,
+/// r each): greedy farthest-point (k-centre) selection in the M-norm of q (= ‖q‖ for an
+/// M-orthonormal basis), starting from rest (not returned): each point is the state farthest
+/// from rest and the points already chosen; deterministic (the first of equal distances).
+/// Fewer when the states run out or coincide with chosen points.
+pub fn schedule_points(states: &[DVector<f64>], count: usize) -> Vec<DVector<f64>> {
+    let mut distance: Vec<f64> = states.iter().map(|q| q.norm()).collect();
+    let mut points: Vec<DVector<f64>> = Vec::with_capacity(count);
+    while points.len() < count {
+        let Some((far, &d)) = distance.iter().enumerate().fold(
+            None,
+            |best: Option<(usize, &f64)>, (i, d)| match best {
+                Some((_, b)) if *b >= *d => best,
+                _ => Some((i, d)),
+            },
+        ) else {
+            break;
+        };
+        if d.is_nan() || d <= 0.0 {
+            break;
+        }
+        let point = states[far].clone();
+        for (dist, q) in distance.iter_mut().zip(states) {
+            *dist = dist.min((q - &point).norm());
+        }
+        points.push(point);
+    }
+    points
+}
+
+/// The filter of `lin` re-linearised at each of `points` ([`LinearisedTier::at`] on `model`);
+/// a point whose tangent or DARE fails is left out (the runtime then uses its neighbours).
+fn scheduled_filters(
+    lin: &LinearisedTier,
+    model: &ReducedModel,
+    points: &[DVector<f64>],
+    measurements: &Measurements,
+) -> Vec<(DVector<f64>, PeriodicSchedule)> {
+    points
+        .iter()
+        .filter_map(|q| {
+            filter_of(&lin.at(model, q), measurements)
+                .ok()
+                .map(|f| (q.clone(), f.schedule))
+        })
+        .collect()
 }
 
 /// H V (channels × r) from each sensor's 3 × r rows.
@@ -389,16 +448,19 @@ pub fn filter_of(
         schedule,
         force_loads: Vec::new(),
         static_residual: 0.0,
+        scheduled: Vec::new(),
     })
 }
 
-/// Recomputes the tier filter of a model file for the scene `full` (same mesh, loads and
-/// training; other sensors' noise, rates or force-noise σ): the [`LinearisedTier`] is read
-/// from the file's tier section (M_r, K_r at rest = Σ wₑ V_eᵀ Kₑ V_e over the sampled
-/// elements, VᵀB, the sensor rows), the noise model from the scene, and the section's
-/// `force_loads` and `kalman` are replaced. The scene's distributed force noise is not in the
-/// file (no VᵀB_w): refused. Returns the new filter's closed-loop spectral radius.
-pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, NonlinearError> {
+/// The [`LinearisedTier`] of a model file's tier at rest for the scene `full` (same mesh and
+/// loads; the scene gives the sensors' noise and rates and the force-noise σ) and the scene's
+/// [`Measurements`]: K_r at rest = Σ wₑ V_eᵀ Kₑ V_e over the sampled elements, M_r, VᵀB and the
+/// sensor rows from the file, the noise model from the scene. The scene's distributed force
+/// noise is not in the file (no VᵀB_w): refused.
+pub fn linearised_of_file(
+    full: &FullOrder,
+    model: &fmt::Model,
+) -> Result<(LinearisedTier, Measurements), NonlinearError> {
     let measurements = Measurements::new(&full.operators);
     let inputs = &full.operators.inputs;
     if model.inputs.len() != inputs.len()
@@ -409,23 +471,18 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
             "refilter: the scene's inputs, measurements or Δt differ from the model's".into(),
         ));
     }
-    let Some(t) = model.tier.as_mut() else {
+    let Some(t) = model.tier.as_ref() else {
         return Err(NonlinearError::Invalid(
             "refilter: the model has no tier".into(),
         ));
     };
     let r = t.order as usize;
-    let matrix = |m: &fmt::Matrix| {
-        DMatrix::from_fn(m.rows as usize, m.cols as usize, |i, j| {
-            m.data[i * m.cols as usize + j]
-        })
-    };
     let mut stiffness = DMatrix::<f64>::zeros(r, r);
     for e in &t.elements {
-        let rows = matrix(&e.rows);
-        stiffness += e.weight * rows.transpose() * matrix(&e.stiffness) * &rows;
+        let rows = file_matrix(&e.rows);
+        stiffness += e.weight * rows.transpose() * file_matrix(&e.stiffness) * &rows;
     }
-    let input = matrix(&t.input);
+    let input = file_matrix(&t.input);
     let NoiseModel { force, white } = noise_model(full)?;
     let mut noise_columns = Vec::with_capacity(white.len());
     for &j in &white {
@@ -449,7 +506,7 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
         })?);
     }
     let lin = LinearisedTier {
-        mass: matrix(&t.mass),
+        mass: file_matrix(&t.mass),
         stiffness,
         alpha: t.alpha,
         beta: t.beta,
@@ -460,18 +517,164 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
             .collect(),
         force_sigma: force.iter().map(|&(_, s)| s).collect(),
         noise_columns,
-        measured_rows: measured_rows(&measurements, |s| matrix(&t.sensor_rows[s])),
+        measured_rows: measured_rows(&measurements, |s| file_matrix(&t.sensor_rows[s])),
+    };
+    Ok((lin, measurements))
+}
+
+/// A model file's matrix as a DMatrix.
+fn file_matrix(m: &fmt::Matrix) -> DMatrix<f64> {
+    DMatrix::from_fn(m.rows as usize, m.cols as usize, |i, j| {
+        m.data[i * m.cols as usize + j]
+    })
+}
+
+/// The reduced co-rotational model of a model file's tier on the scene's mesh `full` (the
+/// sampled elements' rest geometry, Kₑ, weights and basis rows from the file, their shape
+/// gradients from the mesh): what the compiler's [`ReducedModel`] was when the file was written,
+/// for the consistent tangent K_N,r(q) of [`LinearisedTier::at`].
+pub fn reduced_model_of_file(
+    full: &FullOrder,
+    t: &fmt::CorotationalTier,
+) -> Result<ReducedModel, NonlinearError> {
+    let fem = &full.fem;
+    let mut elements = Vec::with_capacity(t.elements.len());
+    for e in &t.elements {
+        let index = e.element as usize;
+        let Some(el) = fem.elements.get(index) else {
+            return Err(NonlinearError::Invalid(format!(
+                "tier element {index} is not in the scene's mesh ({} elements)",
+                fem.elements.len()
+            )));
+        };
+        let rows = file_matrix(&e.rows);
+        let flat = e.rows.data.clone();
+        elements.push(super::reduced::SampledElement {
+            element: index,
+            weight: e.weight,
+            geometry: el.geometry,
+            stiffness: std::array::from_fn(|i| {
+                std::array::from_fn(|j| e.stiffness.data[12 * i + j])
+            }),
+            rest: e.rest,
+            flat_t: crokf_kernel::transpose_rows(&flat),
+            flat,
+            rows,
+        });
+    }
+    Ok(ReducedModel {
+        elements,
+        mass: file_matrix(&t.mass),
+        alpha: t.alpha,
+        beta: t.beta,
+        wilson: full.wilson,
+    })
+}
+
+impl LinearisedTier {
+    /// The same tier linearised at q (r) instead of rest: K_r ← K_N,r(q), the consistent
+    /// reduced tangent of `model` (docs/design.md §11.5).
+    pub fn at(&self, model: &ReducedModel, q: &DVector<f64>) -> LinearisedTier {
+        LinearisedTier {
+            stiffness: model.tangent(q, 0.0, true),
+            ..self.clone()
+        }
+    }
+
+    /// The linearised step in s = (q, q̇, q̈, f) coordinates (n = 3r + force states):
+    /// s_{k+1} = F s_k (+ inputs), F = [[A, Γ_f], [0, I]], and the measured rows
+    /// H = [H V, 0, 0, 0] (channels × n). A is the Wilson-θ recursion of
+    /// M q̈ + (αM + βK) q̇ + K q = f_r with f_r held over the step (module docs of
+    /// `crokf_runtime::tier`): q̂ = J⁻¹ (M(a₀q + (6/τ)q̇ + 2q̈) + C(a₂q + 2q̇ + (τ/2)q̈) + f_r),
+    /// J = K + a₂C + a₀M, then [`crate::dynamics::WilsonTheta::advance`] per coordinate.
+    pub fn transition(&self) -> Result<(DMatrix<f64>, DMatrix<f64>), NonlinearError> {
+        let r = self.mass.nrows();
+        let nf = self.force_columns.len();
+        let n = 3 * r + nf;
+        let w = self.wilson;
+        let (tau, a0, a2) = (w.tau(), w.mass_coefficient(), w.damping_coefficient());
+        let m = &self.mass;
+        let c = m * self.alpha + &self.stiffness * self.beta;
+        let j = &self.stiffness + &c * a2 + m * a0;
+        let chol = j.cholesky().ok_or_else(|| {
+            NonlinearError::Invalid("tier transition: J is not positive definite".into())
+        })?;
+        // q̂ = G s, G = J⁻¹ [M a₀ + C a₂, M 6/τ + 2C, 2M + C τ/2, VᵀB_f].
+        let mut rhs = DMatrix::zeros(r, n);
+        rhs.view_mut((0, 0), (r, r)).copy_from(&(m * a0 + &c * a2));
+        rhs.view_mut((0, r), (r, r))
+            .copy_from(&(m * (6.0 / tau) + &c * 2.0));
+        rhs.view_mut((0, 2 * r), (r, r))
+            .copy_from(&(m * 2.0 + &c * (0.5 * tau)));
+        for (k, col) in self.force_columns.iter().enumerate() {
+            rhs.column_mut(3 * r + k).copy_from(col);
+        }
+        let g = chol.solve(&rhs);
+        // advance(u, v, a, û) is linear: its coefficients from unit arguments.
+        let unit = |k: usize| {
+            let mut x = [0.0; 4];
+            x[k] = 1.0;
+            crokf_kernel::wilson::advance(w.dt, w.theta, x[0], x[1], x[2], x[3])
+        };
+        let coeff: Vec<(f64, f64, f64)> = (0..4).map(unit).collect();
+        let mut f = DMatrix::zeros(n, n);
+        for blk in 0..3 {
+            let pick = |t: (f64, f64, f64)| [t.0, t.1, t.2][blk];
+            for i in 0..r {
+                for src in 0..3 {
+                    f[(blk * r + i, src * r + i)] += pick(coeff[src]);
+                }
+                for col in 0..n {
+                    f[(blk * r + i, col)] += pick(coeff[3]) * g[(i, col)];
+                }
+            }
+        }
+        for k in 0..nf {
+            f[(3 * r + k, 3 * r + k)] = 1.0;
+        }
+        let mut h = DMatrix::zeros(self.measured_rows.nrows(), n);
+        h.view_mut((0, 0), (self.measured_rows.nrows(), r))
+            .copy_from(&self.measured_rows);
+        Ok((f, h))
+    }
+}
+
+/// Recomputes the tier filter of a model file for the scene `full` (same mesh, loads and
+/// training; other sensors' noise, rates or force-noise σ): the [`LinearisedTier`] is read
+/// from the file's tier section (M_r, K_r at rest = Σ wₑ V_eᵀ Kₑ V_e over the sampled
+/// elements, VᵀB, the sensor rows), the noise model from the scene, and the section's
+/// `force_loads` and `kalman` are replaced. The scene's distributed force noise is not in the
+/// file (no VᵀB_w): refused. Returns the new filter's closed-loop spectral radius.
+pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, NonlinearError> {
+    let (lin, measurements) = linearised_of_file(full, model)?;
+    let Some(t) = model.tier.as_mut() else {
+        return Err(NonlinearError::Invalid(
+            "refilter: the model has no tier".into(),
+        ));
     };
     let mut filter = filter_of(&lin, &measurements)?;
     filter.force_loads = full.random_walk_loads().iter().map(|&(g, _)| g).collect();
+    let points: Vec<DVector<f64>> = t
+        .scheduled
+        .iter()
+        .map(|s| DVector::from_column_slice(&s.point))
+        .collect();
+    if !points.is_empty() {
+        let reduced = reduced_model_of_file(full, t)?;
+        filter.scheduled = scheduled_filters(&lin, &reduced, &points, &measurements);
+    }
     t.force_loads = filter.force_loads.iter().map(|&g| g as u32).collect();
-    t.kalman = kalman_section(&filter, &measurements);
+    t.kalman = kalman_section(&filter.schedule, &filter.process_noise, &measurements);
+    t.scheduled = scheduled_section(&filter, &measurements);
     Ok(filter.schedule.closed_loop_spectral_radius)
 }
 
-/// The section's `kalman` of a filter.
-fn kalman_section(filter: &TierFilter, measurements: &Measurements) -> fmt::KalmanGains {
-    let schedule = &filter.schedule;
+/// The section's `kalman` of a periodic schedule with process noise `process_noise`.
+fn kalman_section(
+    schedule: &PeriodicSchedule,
+    process_noise: &Mat<f64>,
+    measurements: &Measurements,
+) -> fmt::KalmanGains {
     fmt::KalmanGains {
         period: schedule.period as u32,
         phases: schedule
@@ -484,9 +687,24 @@ fn kalman_section(filter: &TierFilter, measurements: &Measurements) -> fmt::Kalm
                 posterior_covariance: crate::model_file::to_matrix(p.posterior_covariance.as_ref()),
             })
             .collect(),
-        process_noise: crate::model_file::to_matrix(filter.process_noise.as_ref()),
+        process_noise: crate::model_file::to_matrix(process_noise.as_ref()),
         measurement_variance: measurements.variance.clone(),
     }
+}
+
+/// The section's `scheduled` of a filter.
+fn scheduled_section(
+    filter: &TierFilter,
+    measurements: &Measurements,
+) -> Vec<fmt::ScheduledFilter> {
+    filter
+        .scheduled
+        .iter()
+        .map(|(q, schedule)| fmt::ScheduledFilter {
+            point: q.iter().copied().collect(),
+            kalman: kalman_section(schedule, &filter.process_noise, measurements),
+        })
+        .collect()
 }
 
 /// Worst relative static residual of the linearised tier's measured response to the force
@@ -555,6 +773,9 @@ pub struct TierFilter {
     /// Worst relative static residual of the measured response to a force channel
     /// ([`static_residual`]; 0 without force states).
     pub static_residual: f64,
+    /// The gain schedule (docs/design.md §11.5): per operating point q* (r), the same filter
+    /// on the tier linearised at q* ([`LinearisedTier::at`]); `schedule` is the point q = 0.
+    pub scheduled: Vec<(DVector<f64>, PeriodicSchedule)>,
 }
 
 fn to_matrix(m: &DMatrix<f64>) -> fmt::Matrix {
@@ -677,6 +898,7 @@ pub fn tier_section(
             state_margin: newton.state_margin,
         },
         force_loads: filter.force_loads.iter().map(|&g| g as u32).collect(),
-        kalman: kalman_section(filter, measurements),
+        kalman: kalman_section(&filter.schedule, &filter.process_noise, measurements),
+        scheduled: scheduled_section(filter, measurements),
     }
 }
