@@ -472,7 +472,7 @@ impl Estimator {
                     index,
                 });
             }
-            std::mem::swap(&mut t.s, &mut t.s_upd);
+            t.commit_update();
             let mut gated = 0;
             for (&j, &rejected) in tm.measured(self.phase).iter().zip(&self.tier_gated) {
                 let j = j as usize;

@@ -28,8 +28,16 @@
 
 //! J (warped tangent K_t,r = Σ wₑ V_eᵀ Rₑ Kₑ Rₑᵀ V_e) is refreshed at the first step, at the
 //! first iteration of a step after a step that needed more than [`SLOW_ITERATIONS`]
-//! iterations, and once within a step at iteration [`SLOW_ITERATIONS`]: a modified Newton
-//! iteration converging to the same root. Nothing allocates per step.
+//! iterations or after an update that moved q to another operating point of the gain schedule
+//! (docs/design.md §11.5), at the iteration after an increment that did not shrink
+//! (‖δₖ‖ ≥ ‖δₖ₋₁‖: the frozen J no longer contracts), and once within a step at iteration
+//! [`SLOW_ITERATIONS`]: a modified Newton iteration converging to the same root. Nothing
+//! allocates per step.
+//!
+//! Filter (docs/design.md §11.4–11.5): the gains of the filter of the schedule whose operating
+//! point is nearest to q ([`TierModel::nearest_filter`]; filter 0 is the one designed at rest),
+//! chosen after each step; an update s⁺ = s⁻ + K_i ν is iterated to the filter i nearest to
+//! its own result s⁺ (at most one pass per filter).
 
 use crate::prepared::{gate_variances, row_std};
 use crokf_formats::{CorotationalTier, InputKind, Model};
@@ -433,6 +441,8 @@ pub struct TierState {
     pub(crate) filter: usize,
     /// `filter` before the last step (restored with `s_prev` by [`TierState::rollback`]).
     filter_prev: usize,
+    /// The filter whose gain gave `s_upd` (committed with it).
+    pub(crate) filter_upd: usize,
     /// Innovation scratch.
     pub(crate) innovation: Vec<f64>,
     /// The update's result before it is committed.
@@ -462,6 +472,7 @@ impl TierState {
             group_force: vec![[0.0; 3]; loads],
             filter: 0,
             filter_prev: 0,
+            filter_upd: 0,
             innovation: vec![0.0; q],
             s_upd: vec![0.0; model.n],
         }
@@ -608,10 +619,14 @@ impl TierState {
         let mut increment = f64::INFINITY;
         let mut converged = false;
         let mut previous = f64::INFINITY;
+        // The last increment grew (ρ ≥ 1): J is refreshed at the next iteration.
+        let mut growing = false;
         while iterations < model.max_iterations {
             self.residual(model, step)?;
-            let refresh_now =
-                !self.has_factor || (iterations == 0 && self.slow) || iterations == SLOW_ITERATIONS;
+            let refresh_now = !self.has_factor
+                || (iterations == 0 && self.slow)
+                || iterations == SLOW_ITERATIONS
+                || growing;
             if refresh_now {
                 self.refresh(model, step)?;
                 refreshed = true;
@@ -637,6 +652,7 @@ impl TierState {
                 let rho = dn / previous;
                 self.eta = if rho < 0.5 { rho / (1.0 - rho) } else { 1.0 };
             }
+            growing = iterations > 1 && dn >= previous;
             previous = dn;
             if self.eta * dn <= model.tolerance * qn {
                 converged = true;
@@ -725,6 +741,12 @@ impl TierState {
     /// (what the estimator does after its checks).
     pub fn commit_update(&mut self) {
         std::mem::swap(&mut self.s, &mut self.s_upd);
+        if self.filter_upd != self.filter {
+            // The update moved q to another operating point of the schedule: the Newton matrix
+            // of the previous state is refreshed at the next step's first iteration.
+            self.slow = true;
+        }
+        self.filter = self.filter_upd;
     }
 
     /// The filter state s = (q, q̇, q̈, f) (length [`TierModel::state_dim`]).
@@ -780,10 +802,21 @@ impl TierState {
                 _ => 0.0,
             };
         }
-        let gain = &model.filters[self.filter].gains[phase];
-        for (i, si) in self.s_upd.iter_mut().enumerate() {
-            *si = self.s[i] + dot(&gain[i * nm..(i + 1) * nm], &self.innovation[..nm]);
+        // Iterated scheduled update (docs/design.md §11.5): the gain of the filter whose point
+        // is nearest to the result, starting from the prior's; at most one pass per filter.
+        let mut filter = self.filter;
+        for _ in 0..model.filters.len() {
+            let gain = &model.filters[filter].gains[phase];
+            for (i, si) in self.s_upd.iter_mut().enumerate() {
+                *si = self.s[i] + dot(&gain[i * nm..(i + 1) * nm], &self.innovation[..nm]);
+            }
+            let next = model.nearest_filter(&self.s_upd[..model.r]);
+            if next == filter {
+                break;
+            }
+            filter = next;
         }
+        self.filter_upd = filter;
         used
     }
 }

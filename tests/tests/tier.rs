@@ -538,3 +538,91 @@ fn a_v4_model_file_is_refused_with_recompile() {
         "{err}"
     );
 }
+
+/// Matrix of a model file as nalgebra.
+fn file_matrix(m: &crokf_formats::Matrix) -> nalgebra::DMatrix<f64> {
+    nalgebra::DMatrix::from_fn(m.rows as usize, m.cols as usize, |i, j| {
+        m.data[i * m.cols as usize + j]
+    })
+}
+
+/// The gain schedule (docs/design.md §11.5) of the force-state tier: its operating points are
+/// training states picked farthest-first (the first is the training state of largest ‖q‖,
+/// which the envelope records independently), each stored filter solves the Riccati equation
+/// of the tier linearised at its point (F from `LinearisedTier::transition`, assembled in s
+/// coordinates, not the compiler's scaled modal route) and is stable there, the runtime picks
+/// each point's own filter at that point and the rest filter at rest, and `tier::refilter`
+/// recomputes the same schedule from the file.
+#[test]
+fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
+    let model = compiled_random_walk();
+    let t = model.tier.as_ref().unwrap();
+    let r = t.order as usize;
+    assert!(
+        !t.scheduled.is_empty() && t.scheduled.len() <= tier::SCHEDULE_POINTS,
+        "{} points",
+        t.scheduled.len()
+    );
+    let norms: Vec<f64> = t
+        .scheduled
+        .iter()
+        .map(|s| s.point.iter().map(|v| v * v).sum::<f64>().sqrt())
+        .collect();
+    let largest = t.envelope.max_coordinate_norm;
+    assert!(
+        (norms[0] - largest).abs() <= 1e-12 * largest,
+        "first point ‖q‖ {} vs training max {largest}",
+        norms[0]
+    );
+    assert!(norms
+        .iter()
+        .all(|&n| n > 0.0 && n <= largest * (1.0 + 1e-12)));
+    let full = FullOrder::build(random_walk_scene(), &mut StageTimer::default()).unwrap();
+    let (lin, _) = tier::linearised_of_file(&full, model).unwrap();
+    let reduced = tier::reduced_model_of_file(&full, t).unwrap();
+    let prepared = TierModel::new(model, t);
+    assert_eq!(prepared.filter_count(), 1 + t.scheduled.len());
+    assert_eq!(prepared.nearest_filter(&vec![0.0; r]), 0);
+    let q_noise = file_matrix(&t.kalman.process_noise);
+    let mut rest_radius_at_points = Vec::new();
+    for (i, s) in t.scheduled.iter().enumerate() {
+        assert_eq!(prepared.nearest_filter(&s.point), i + 1);
+        let q = DVector::from_column_slice(&s.point);
+        let (f, h) = lin.at(&reduced, &q).transition().unwrap();
+        let phase = &s.kalman.phases[0];
+        assert_eq!(s.kalman.period, 1);
+        let prior = file_matrix(&phase.prior_covariance);
+        let posterior = file_matrix(&phase.posterior_covariance);
+        let riccati = &f * &posterior * f.transpose() + &q_noise;
+        let residual = (&riccati - &prior).norm() / prior.norm();
+        assert!(residual < 1e-6, "point {i}: Riccati residual {residual:e}");
+        let radius = |gain: &nalgebra::DMatrix<f64>| {
+            let n = f.nrows();
+            let closed = (nalgebra::DMatrix::identity(n, n) - gain * &h) * &f;
+            closed
+                .complex_eigenvalues()
+                .iter()
+                .map(|z| z.norm())
+                .fold(0.0, f64::max)
+        };
+        let own = radius(&file_matrix(&phase.gain));
+        assert!(own < 1.0, "point {i}: closed-loop spectral radius {own}");
+        rest_radius_at_points.push((own, radius(&file_matrix(&t.kalman.phases[0].gain))));
+    }
+    eprintln!(
+        "schedule: {} points, ‖q*‖ = {norms:.3?}; closed-loop spectral radius at each point \
+         (own gain, rest gain) = {rest_radius_at_points:.4?}",
+        t.scheduled.len()
+    );
+    let mut again = model.clone();
+    tier::refilter(&full, &mut again).unwrap();
+    let again = again.tier.unwrap();
+    for (a, b) in again.scheduled.iter().zip(&t.scheduled) {
+        assert_eq!(a.point, b.point);
+        let (ga, gb) = (
+            file_matrix(&a.kalman.phases[0].gain),
+            file_matrix(&b.kalman.phases[0].gain),
+        );
+        assert!((&ga - &gb).norm() <= 1e-9 * gb.norm());
+    }
+}
