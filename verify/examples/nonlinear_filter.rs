@@ -18,6 +18,13 @@
 //! MODEL is a model file or `FILE@SCENE2` (FILE's tier with its filter recomputed for SCENE2,
 //! see `read_model`).
 //! SCENE is the scene of the reference (either tier's scene: same mesh and material).
+//!
+//! Measuring aids (environment): `CROKF_REFERENCE_CACHE=FILE` keeps the reference run in FILE
+//! (written once, read while the step count matches: use one file per scene and scenario);
+//! `CROKF_RUNS=open,given,withheld` runs only those; `CROKF_NOISE_SCALE=c` scales the markers'
+//! noise (0: noise-free, the filter unchanged); `CROKF_NO_SCHEDULE=1` drops the tier's gain
+//! schedule (the filter designed at rest only, docs/design.md §11.5); `CROKF_TRACE=1` prints
+//! ‖q‖, ‖q̇‖, ‖q̈‖ and f before and after every update on stderr.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -94,7 +101,14 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         "| model | tier | run | nodes | sensors | tip | ANIS [95 % bounds] | tip ANEES [95 % bounds] | 2σ coverage | > 5σ innovations | final f (N) | median step (µs) |\n|---|---|---|---:|---:|---:|---|---|---:|---:|---|---:|"
     );
     for path in &args[2..] {
-        let model = read_model(path)?;
+        let mut model = read_model(path)?;
+        // CROKF_NO_SCHEDULE=1 (a measuring aid): the tier's filter designed at rest only, as
+        // before the gain schedule (docs/design.md §11.5).
+        if std::env::var_os("CROKF_NO_SCHEDULE").is_some() {
+            if let Some(t) = model.tier.as_mut() {
+                t.scheduled.clear();
+            }
+        }
         let tier = if model.tier.is_some() {
             "co-rotational"
         } else {
@@ -241,8 +255,8 @@ fn read_cache(path: &std::path::Path, steps: usize) -> Option<Reference> {
 
 /// A model file, or `FILE@SCENE`: FILE's co-rotational tier with its filter recomputed for
 /// SCENE's sensors and noise model (`crokf_compile::nonlinear::tier::refilter`: same training,
-/// e.g. the scene's 30 Hz or 1 mm variant). FILE may then be a format-v3 tier file (read past
-/// its header; its tier gets the force states of SCENE).
+/// e.g. the scene's 30 Hz or 1 mm variant). FILE may then be a format-v3 or v4 tier file (read
+/// past its header; its tier gets the force states of SCENE, and no gain schedule).
 fn read_model(arg: &str) -> Result<crokf_formats::Model, Box<dyn std::error::Error>> {
     let Some((file, scene)) = arg.split_once('@') else {
         return Ok(load_model(arg)?);
@@ -337,6 +351,12 @@ fn run_model(
     let mut est = Estimator::new(model)?;
     est.set_innovation_gate(None);
     let mut rng = Gaussian::new(7);
+    // CROKF_NOISE_SCALE=c (a measuring aid): markers with c times the model's σ (0: noise-free),
+    // the filter unchanged; separates the noise-driven part of the error from the rest.
+    let noise_scale: f64 = std::env::var("CROKF_NOISE_SCALE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1.0);
     let (mut e2, mut r2, mut se2, mut sr2, mut te2, mut tr2) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     let mut shown = vec![0.0; shown_ref[0].len()];
     let mut sigma = vec![0.0; shown_ref[0].len()];
@@ -367,7 +387,7 @@ fn run_model(
                     .sqrt();
                 Some(
                     sensors_ref[k][3 * m.sensor as usize + m.component as usize]
-                        + sigma * rng.normal(),
+                        + noise_scale * sigma * rng.normal(),
                 )
             })
             .collect();
