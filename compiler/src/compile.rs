@@ -94,12 +94,12 @@ fn corotational_tier(
             .join(", ")
     ));
     report.notes.push(format!(
-        "co-rotational tier filter (linearised at rest, state (q, q̇, q̈, f) = {}, {} force \
-         states): closed-loop spectral radius {:.6}, Riccati residual {:.1e}, static residual \
+        "co-rotational tier filter (linearised at rest, state (q, q̇, q̈, f[, ḟ]) = {}, {} force \
+         (and rate) states): closed-loop spectral radius {:.6}, Riccati residual {:.1e}, static residual \
          of the force channels at the markers {:.1e}; gain schedule: {} of {} operating points \
          (training states, ‖q*‖ {:.3e} … {:.3e})",
-        3 * r + 3 * filter.force_loads.len(),
-        3 * filter.force_loads.len(),
+        filter.schedule.phases[0].gain.nrows(),
+        filter.schedule.phases[0].gain.nrows() - 3 * r,
         filter.schedule.closed_loop_spectral_radius,
         filter.schedule.worst_relative_residual,
         filter.static_residual,

@@ -56,6 +56,11 @@ pub struct CorotationalTier {
     /// force model, s = (q, q̇, q̈).
     #[serde(default)]
     pub force_loads: Vec<u32>,
+    /// Force-rate states (format v5; docs/design.md §11.5): when true each force state also has
+    /// its rate ḟ (N/s), state 3r + 3g + 3k + c for group `force_loads[k]` (g groups), and the
+    /// prediction carries f⁺ = f + Δt ḟ, ḟ⁺ = ḟ (an integrated random walk).
+    #[serde(default)]
+    pub force_rates: bool,
     /// Constant-gain filter on s = (q, q̇, q̈, f) (state dimension [`Self::state_dim`]): gains
     /// (state × measured), prior/posterior covariances and process noise (state × state) of the
     /// model linearised at rest; `measurement_variance` as `Model::kalman`.
@@ -80,9 +85,11 @@ pub struct ScheduledFilter {
 }
 
 impl CorotationalTier {
-    /// Dimension of the filter's state s = (q, q̇, q̈, f): 3r + 3·`force_loads.len()`.
+    /// Dimension of the filter's state s = (q, q̇, q̈, f[, ḟ]): 3r + 3·`force_loads.len()`,
+    /// twice that many force states with `force_rates`.
     pub fn state_dim(&self) -> usize {
-        3 * self.order as usize + 3 * self.force_loads.len()
+        let per_group = if self.force_rates { 6 } else { 3 };
+        3 * self.order as usize + per_group * self.force_loads.len()
     }
 }
 

@@ -378,6 +378,12 @@ fn check_tier(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatEr
         ));
     }
     check_increasing("tier.force_loads", &t.force_loads)?;
+    if t.force_rates && t.force_loads.is_empty() {
+        return Err(invalid(
+            "tier.force_rates",
+            "force-rate states need force states (force_loads is empty)",
+        ));
+    }
     for &g in &t.force_loads {
         let channels = model
             .inputs

@@ -344,6 +344,7 @@ fn small_tier(model: &Model) -> CorotationalTier {
             state_margin: 1.5,
         },
         force_loads: vec![0],
+        force_rates: false,
         kalman: KalmanGains {
             period: 2,
             phases: phases.clone(),

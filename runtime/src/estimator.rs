@@ -214,7 +214,8 @@ impl Estimator {
     }
 
     /// The state: x (length r) for the warped tier, s = (q, q̇, q̈, f) for the tier (3r + 3 per
-    /// random-walk load group, docs/design.md §11.4).
+    /// random-walk load group, docs/design.md §11.4; s = (q, q̇, q̈, f, ḟ), 6 per group, with
+    /// force rates, §11.5).
     pub fn state(&self) -> &[f64] {
         match &self.tier {
             Some(t) => &t.s,

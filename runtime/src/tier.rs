@@ -2,7 +2,9 @@
 //! reduced co-rotational Wilson-θ step on q with a bounded Newton iteration, and the
 //! constant-gain filter on s = (q, q̇, q̈, f) (docs/design.md §11.4): f holds the world force of
 //! each random-walk load group (3 per group, N), carried unchanged by the prediction (random
-//! walk) and corrected by the update; it adds to the group's inputs, f_r = VᵀB (u + f).
+//! walk) and corrected by the update; it adds to the group's inputs, f_r = VᵀB (u + f). With
+//! force rates (`force_rates`, §11.5) s = (q, q̇, q̈, f, ḟ) and the prediction carries
+//! f⁺ = f + Δt ḟ after the step (f held over it), ḟ⁺ = ḟ.
 //!
 //! Per step (τ = θΔt, a₀ = 6/τ², a₂ = 3/τ, f_r = VᵀB (u + f) held over the step; the equations
 //! of `crokf_formats::CorotationalTier`):
@@ -155,6 +157,8 @@ pub struct TierModel {
     m: usize,
     /// Per force state (3r + k): its input channel (the group's world component).
     force_channels: Vec<usize>,
+    /// Whether each force state's rate follows the force states (3r + nf + k, N/s).
+    force_rates: bool,
     /// Filter state dimension n = 3r + force_channels.len().
     n: usize,
     /// Per model load group: max trained force (None: never trained).
@@ -314,7 +318,8 @@ impl TierModel {
             max_iterations: tier.newton_iterations as usize,
             input: tier.input.data.clone(),
             m: model.inputs.len(),
-            n: 3 * r + force_channels.len(),
+            n: 3 * r + force_channels.len() * if tier.force_rates { 2 } else { 1 },
+            force_rates: tier.force_rates,
             force_channels,
             max_force,
             channel_load,
@@ -495,7 +500,7 @@ impl TierState {
     /// The estimated forces f (3 per random-walk load group, world frame, N; empty without
     /// force states), in the order of the tier's `force_loads`.
     pub fn forces<'a>(&'a self, model: &TierModel) -> &'a [f64] {
-        &self.s[3 * model.r..]
+        &self.s[3 * model.r..3 * model.r + model.force_channels.len()]
     }
 
     /// Residual and rotations at q̂ (`self.force` ← f_int + β K_t q̇_θ, then `self.res`).
@@ -683,6 +688,13 @@ impl TierState {
             self.s[r + i] = v1;
             self.s[2 * r + i] = a1;
             qn += q1 * q1;
+        }
+        // Force rates (docs/design.md §11.5): f⁺ = f + Δt ḟ (f was held over the step).
+        if model.force_rates {
+            let nf = model.force_channels.len();
+            for k in 0..nf {
+                self.s[3 * r + k] += model.dt * self.s[3 * r + nf + k];
+            }
         }
         self.filter_prev = self.filter;
         self.filter = model.nearest_filter(&self.s[..r]);

@@ -626,3 +626,122 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
         assert!((&ga - &gb).norm() <= 1e-9 * gb.norm());
     }
 }
+
+/// σ of the tip force's rate random walk in the force-rate scene, N/s per 5 ms step.
+const RATE_SIGMA: f64 = 20.0;
+
+/// The random-walk beam scene with force-rate states (docs/design.md §11.5), compiled once.
+fn compiled_force_rate() -> &'static crokf_formats::Model {
+    static C: OnceLock<crokf_formats::Model> = OnceLock::new();
+    C.get_or_init(|| {
+        let text = std::fs::read_to_string(random_walk_scene())
+            .unwrap()
+            .replace(
+                "force_model = \"random_walk\"",
+                &format!("force_model = \"random_walk\"\nforce_rate_noise_std = {RATE_SIGMA:e}"),
+            );
+        let path = random_walk_scene().with_file_name("scene_force_rate.toml");
+        std::fs::write(&path, text).unwrap();
+        compile(&path, &options()).unwrap().model
+    })
+}
+
+/// Runs the withheld-load case of `a_withheld_load_is_recovered_by_the_tier_filter` (20 N
+/// ramped in over 20 steps, noise-free markers from the same model, u = 0) on `model`; returns
+/// the filter's force states after step 20 (end of the ramp) and after step 300.
+fn withheld_ramp(model: &crokf_formats::Model) -> (Vec<f64>, Vec<f64>) {
+    let zi = model
+        .inputs
+        .iter()
+        .position(|c| c.label == "tip.z")
+        .unwrap();
+    let r = model.tier.as_ref().unwrap().order as usize;
+    let mut truth = Estimator::new(compiled_random_walk()).unwrap();
+    let mut est = Estimator::new(model).unwrap();
+    est.set_innovation_gate(None);
+    let mut u = vec![0.0; model.inputs.len()];
+    let zero = vec![0.0; model.inputs.len()];
+    let mut y = vec![0.0; model.measurements.len()];
+    let mut at_ramp_end = Vec::new();
+    for k in 0..300 {
+        u[zi] = tip_load(k, 20.0);
+        truth.predict(&u).unwrap();
+        truth.measurement_estimates(&mut y).unwrap();
+        let measured: Vec<Option<f64>> = y.iter().map(|&v| Some(v)).collect();
+        est.step(&zero, &measured).unwrap();
+        if k == 19 {
+            at_ramp_end = est.state()[3 * r..].to_vec();
+        }
+    }
+    (at_ramp_end, est.state()[3 * r..].to_vec())
+}
+
+/// Force-rate states (docs/design.md §11.5): the state grows by 3 rates per group, the rate of
+/// a withheld 20 N ramp over 0.1 s (−200 N/s) is estimated during the ramp, the force lags the
+/// ramp less than without rates at its end, and both settle on the applied force; a rate σ on
+/// a white load or on the warped tier is refused, naming the field.
+#[test]
+fn force_rate_states_follow_a_withheld_ramp() {
+    let model = compiled_force_rate();
+    let t = model.tier.as_ref().unwrap();
+    let r = t.order as usize;
+    assert!(t.force_rates);
+    assert_eq!(t.state_dim(), 3 * r + 6);
+    assert_eq!(Estimator::new(model).unwrap().state().len(), 3 * r + 6);
+    let (ramp_end, settled) = withheld_ramp(model);
+    let (ramp_end_rw, settled_rw) = withheld_ramp(compiled_random_walk());
+    eprintln!(
+        "withheld 20 N ramp: at its end f_z = {:.3} N, ḟ_z = {:.1} N/s with rates; f_z = {:.3} N \
+         without; after 300 steps f = {:.3?} (rates), {:.3?} (random walk)",
+        ramp_end[2], ramp_end[5], ramp_end_rw[2], settled, settled_rw
+    );
+    // The applied force at the end of the ramp is −20 N; its rate −200 N/s.
+    assert!(
+        (ramp_end[2] + 20.0).abs() < (ramp_end_rw[2] + 20.0).abs(),
+        "lag with rates {} vs without {}",
+        ramp_end[2] + 20.0,
+        ramp_end_rw[2] + 20.0
+    );
+    assert!(
+        ramp_end[5] < -50.0,
+        "rate at the ramp's end {}",
+        ramp_end[5]
+    );
+    assert!((settled[2] + 20.0).abs() < 0.2, "f = {settled:?}");
+    assert!(
+        settled[5].abs() < 5.0,
+        "rate after 300 steps {}",
+        settled[5]
+    );
+    // Refused: a rate σ without random-walk force states, or on the warped tier.
+    let dir = scene().parent().unwrap();
+    let base = std::fs::read_to_string(scene()).unwrap();
+    for (text, why) in [
+        (
+            base.replace(
+                "force_noise_std = 1e-2",
+                "force_noise_std = 1e-2\nforce_rate_noise_std = 1.0",
+            ),
+            "white load",
+        ),
+        (
+            std::fs::read_to_string(random_walk_scene())
+                .unwrap()
+                .replace(TIER, "")
+                .replace(
+                    "force_model = \"random_walk\"",
+                    "force_model = \"random_walk\"\nforce_rate_noise_std = 1.0",
+                ),
+            "warped tier",
+        ),
+    ] {
+        assert!(text.contains("force_rate_noise_std"), "{why}: not inserted");
+        let path = dir.join("bad_rate.toml");
+        std::fs::write(&path, text).unwrap();
+        let err = match compile(&path, &options()) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("{why}: accepted"),
+        };
+        assert!(err.contains("force_rate_noise_std"), "{why}: {err}");
+    }
+}

@@ -146,6 +146,9 @@ pub struct LinearisedTier {
     pub force_columns: Vec<DVector<f64>>,
     /// σ per force state, N per step.
     pub force_sigma: Vec<f64>,
+    /// σ of each force state's rate random walk, N/s per step (docs/design.md §11.5); empty:
+    /// no rate states.
+    pub rate_sigma: Vec<f64>,
     /// VᵀB_w of each white process-noise channel (r each; σ included).
     pub noise_columns: Vec<DVector<f64>>,
     /// H V: the measured channels' rows of V (channels × r).
@@ -159,6 +162,8 @@ struct NoiseModel {
     force: Vec<(usize, f64)>,
     /// White noise channels (indices into `full.operators.noise`).
     white: Vec<usize>,
+    /// Per force state: σ of its rate's random walk, N/s per step; empty without rate states.
+    rate: Vec<f64>,
 }
 
 /// The scene's [`NoiseModel`] (docs/design.md §11.4).
@@ -175,13 +180,24 @@ fn noise_model(full: &FullOrder) -> Result<NoiseModel, NonlinearError> {
             force.push((ch, sigma));
         }
     }
+    let rates = full.force_rate_sigmas();
+    let rate = if rates.iter().all(|&r| r == 0.0) {
+        Vec::new()
+    } else if rates.iter().all(|&r| r > 0.0) {
+        rates.iter().flat_map(|&r| [r; 3]).collect()
+    } else {
+        return Err(NonlinearError::Invalid(
+            "tier filter: force_rate_noise_std must be set on every random-walk load or on none"
+                .into(),
+        ));
+    };
     let white = (0..full.operators.noise.len())
         .filter(|&j| match full.operators.noise[j].kind {
             InputKind::Noise { load: Some(g) } => !force_loads.iter().any(|&(l, _)| l == g),
             _ => true,
         })
         .collect();
-    Ok(NoiseModel { force, white })
+    Ok(NoiseModel { force, white, rate })
 }
 
 /// The tier's filter (docs/design.md §11.4): the reduced model linearised at rest
@@ -208,7 +224,7 @@ pub fn linearised_filter(
     let model = &tier.model;
     let r = model.order();
     let v = &tier.basis.vectors;
-    let NoiseModel { force, white } = noise_model(full)?;
+    let NoiseModel { force, white, rate } = noise_model(full)?;
     let project = |column: &[f64]| v.tr_mul(&DVector::from_column_slice(column));
     let ops = &full.operators;
     let lin = LinearisedTier {
@@ -222,6 +238,7 @@ pub fn linearised_filter(
             .map(|&(ch, _)| project(&ops.inputs[ch].column))
             .collect(),
         force_sigma: force.iter().map(|&(_, s)| s).collect(),
+        rate_sigma: rate,
         noise_columns: white
             .iter()
             .map(|&j| project(&ops.noise[j].column))
@@ -355,7 +372,8 @@ pub fn filter_of(
     let w = lin.wilson;
     let n3 = 3 * r;
     let nf = lin.force_columns.len();
-    let n = n3 + nf;
+    let nr = lin.rate_sigma.len();
+    let n = n3 + nf + nr;
     let mut f = Mat::<f64>::zeros(n, n);
     let mut gamma = vec![[0.0; 3]; r];
     for i in 0..r {
@@ -380,13 +398,21 @@ pub fn filter_of(
         modal_load(column, &mut f, n3 + j);
         f[(n3 + j, n3 + j)] = 1.0;
     }
+    // Force rates (§11.5): f⁺ = f + Δt ḟ, ḟ⁺ = ḟ.
+    for j in 0..nr {
+        f[(n3 + j, n3 + nf + j)] = w.dt;
+        f[(n3 + nf + j, n3 + nf + j)] = 1.0;
+    }
     let nw = lin.noise_columns.len();
-    let mut gw = Mat::<f64>::zeros(n, nw + nf);
+    let mut gw = Mat::<f64>::zeros(n, nw + nf + nr);
     for (c, column) in lin.noise_columns.iter().enumerate() {
         modal_load(column, &mut gw, c);
     }
     for (j, &sigma) in lin.force_sigma.iter().enumerate() {
         gw[(n3 + j, nw + j)] = sigma;
+    }
+    for (j, &sigma) in lin.rate_sigma.iter().enumerate() {
+        gw[(n3 + nf + j, nw + nf + j)] = sigma;
     }
     // Diagonal scaling D (x_m = D x̃) so that F's entries are O(1) and the PBH tests of the
     // DARE are meaningful: (1, ω_i, ω_i²) for mode i's (η, η̇, η̈), and for a force state the
@@ -404,6 +430,10 @@ pub fn filter_of(
         if response > 0.0 {
             d[n3 + j] = 1.0 / response;
         }
+    }
+    // A rate's unit: the rate that changes its force by one unit of d in one step.
+    for j in 0..nr {
+        d[n3 + nf + j] = d[n3 + j] / w.dt;
     }
     let f = Mat::<f64>::from_fn(n, n, |i, j| f[(i, j)] * d[j] / d[i]);
     let gw = Mat::<f64>::from_fn(n, gw.ncols(), |i, j| gw[(i, j)] / d[i]);
@@ -447,6 +477,7 @@ pub fn filter_of(
         process_noise: back(&q),
         schedule,
         force_loads: Vec::new(),
+        force_rates: nr > 0,
         static_residual: 0.0,
         scheduled: Vec::new(),
     })
@@ -483,7 +514,7 @@ pub fn linearised_of_file(
         stiffness += e.weight * rows.transpose() * file_matrix(&e.stiffness) * &rows;
     }
     let input = file_matrix(&t.input);
-    let NoiseModel { force, white } = noise_model(full)?;
+    let NoiseModel { force, white, rate } = noise_model(full)?;
     let mut noise_columns = Vec::with_capacity(white.len());
     for &j in &white {
         // A load's white noise channel is σ times its load channel (fem::operators), whose VᵀB
@@ -516,6 +547,7 @@ pub fn linearised_of_file(
             .map(|&(ch, _)| input.column(ch).into())
             .collect(),
         force_sigma: force.iter().map(|&(_, s)| s).collect(),
+        rate_sigma: rate,
         noise_columns,
         measured_rows: measured_rows(&measurements, |s| file_matrix(&t.sensor_rows[s])),
     };
@@ -590,7 +622,8 @@ impl LinearisedTier {
     pub fn transition(&self) -> Result<(DMatrix<f64>, DMatrix<f64>), NonlinearError> {
         let r = self.mass.nrows();
         let nf = self.force_columns.len();
-        let n = 3 * r + nf;
+        let nr = self.rate_sigma.len();
+        let n = 3 * r + nf + nr;
         let w = self.wilson;
         let (tau, a0, a2) = (w.tau(), w.mass_coefficient(), w.damping_coefficient());
         let m = &self.mass;
@@ -632,6 +665,10 @@ impl LinearisedTier {
         for k in 0..nf {
             f[(3 * r + k, 3 * r + k)] = 1.0;
         }
+        for k in 0..nr {
+            f[(3 * r + k, 3 * r + nf + k)] = w.dt;
+            f[(3 * r + nf + k, 3 * r + nf + k)] = 1.0;
+        }
         let mut h = DMatrix::zeros(self.measured_rows.nrows(), n);
         h.view_mut((0, 0), (self.measured_rows.nrows(), r))
             .copy_from(&self.measured_rows);
@@ -664,6 +701,7 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
         filter.scheduled = scheduled_filters(&lin, &reduced, &points, &measurements);
     }
     t.force_loads = filter.force_loads.iter().map(|&g| g as u32).collect();
+    t.force_rates = filter.force_rates;
     t.kalman = kalman_section(&filter.schedule, &filter.process_noise, &measurements);
     t.scheduled = scheduled_section(&filter, &measurements);
     Ok(filter.schedule.closed_loop_spectral_radius)
@@ -770,6 +808,8 @@ pub struct TierFilter {
     /// The random-walk load groups (indices into the scene's loads) whose force states follow
     /// the 3r kinematic states, 3 each.
     pub force_loads: Vec<usize>,
+    /// Whether the force states' rates follow them (3 more per group, docs/design.md §11.5).
+    pub force_rates: bool,
     /// Worst relative static residual of the measured response to a force channel
     /// ([`static_residual`]; 0 without force states).
     pub static_residual: f64,
@@ -898,6 +938,7 @@ pub fn tier_section(
             state_margin: newton.state_margin,
         },
         force_loads: filter.force_loads.iter().map(|&g| g as u32).collect(),
+        force_rates: filter.force_rates,
         kalman: kalman_section(&filter.schedule, &filter.process_noise, measurements),
         scheduled: scheduled_section(filter, measurements),
     }
