@@ -159,7 +159,7 @@ pub struct TierModel {
     force_channels: Vec<usize>,
     /// Whether each force state's rate follows the force states (3r + nf + k, N/s).
     force_rates: bool,
-    /// Filter state dimension n = 3r + force_channels.len().
+    /// Filter state dimension n = 3r + force_channels.len() (twice that many with rates).
     n: usize,
     /// Per model load group: max trained force (None: never trained).
     max_force: Vec<Option<f64>>,

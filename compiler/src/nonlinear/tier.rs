@@ -1,7 +1,8 @@
 //! The co-rotational tier assembled from training (docs/design.md §10): training → POD basis →
-//! ECSW sampling → reduced model ([`from_training`], [`build`]); its constant-gain filter from
-//! the DARE of the model linearised at rest ([`linearised_filter`]); and the model file's tier
-//! section ([`tier_section`], docs/model-format.md).
+//! ECSW sampling → reduced model ([`from_training`], [`build`]); its filter from the DARE of
+//! the model linearised at rest and at training states, a gain schedule ([`linearised_filter`],
+//! docs/design.md §11.4–11.5); and the model file's tier section ([`tier_section`],
+//! docs/model-format.md).
 
 use faer::linalg::solvers::Solve as _;
 use faer::Mat;
@@ -216,6 +217,12 @@ fn noise_model(full: &FullOrder) -> Result<NoiseModel, NonlinearError> {
 /// response of the linearised tier to each force channel, H V K_r⁻¹ Vᵀ b, is compared with the
 /// full-order H K⁻¹ b and the worst relative residual returned (`static_residual`), so that
 /// the choice is measured on every compile.
+///
+/// With force rates (a load's `force_rate_noise_std` σ_ḟ > 0, docs/design.md §11.5) each force
+/// state also has its rate: f_{k+1} = f_k + Δt ḟ_k + w_f,k, ḟ_{k+1} = ḟ_k + w_ḟ,k,
+/// w_ḟ ~ N(0, σ_ḟ² I₃) (N/s). Gain schedule (§11.5): the same filter is also designed on the
+/// tier linearised at up to [`SCHEDULE_POINTS`] training states ([`schedule_points`],
+/// [`LinearisedTier::at`]), returned in `scheduled`.
 pub fn linearised_filter(
     full: &FullOrder,
     tier: &Tier,
@@ -797,7 +804,8 @@ fn static_residual(
     Ok(worst)
 }
 
-/// The tier's constant-gain filter in s = (q, q̇, q̈, f) coordinates.
+/// The tier's filter in s = (q, q̇, q̈, f[, ḟ]) coordinates: the one designed at rest and its
+/// gain schedule.
 #[derive(Clone, Debug)]
 pub struct TierFilter {
     /// Periodic steady-state gains (n × measured) and covariances (n × n), n = 3r + 3 per
