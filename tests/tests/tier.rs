@@ -745,3 +745,65 @@ fn force_rate_states_follow_a_withheld_ramp() {
         assert!(err.contains("force_rate_noise_std"), "{why}: {err}");
     }
 }
+
+/// The iterated scheduled update (docs/design.md §11.5): from rest, markers placed at c times
+/// the displacement of the scheduled operating point farthest from rest (c = 1, 10, 50) move the
+/// state away from rest; in every case the committed state is s⁻ + K_i ν with ν the innovation
+/// and K_i the stored gain of the filter i that the runtime reports, i is the filter nearest
+/// to that state (the fixed point the iteration looks for), and for the larger c it is not the
+/// rest filter that the prior would pick.
+#[test]
+fn the_update_uses_the_gain_of_the_filter_nearest_to_its_result() {
+    let model = compiled_random_walk();
+    let t = model.tier.as_ref().unwrap();
+    let r = t.order as usize;
+    let prepared = TierModel::new(model, t);
+    let far = &t.scheduled[0].point;
+    let mut switched = 0;
+    for c in [1.0, 10.0, 50.0] {
+        let mut est = Estimator::new(model).unwrap();
+        est.set_innovation_gate(None);
+        est.predict(&vec![0.0; model.inputs.len()]).unwrap();
+        assert_eq!(est.tier_filter(), Some(0));
+        let prior = est.state().to_vec();
+        let mut predicted = vec![0.0; model.measurements.len()];
+        est.measurement_estimates(&mut predicted).unwrap();
+        // Markers at c times the point's displacement: y = c H V q*.
+        let y: Vec<f64> = model
+            .measurements
+            .iter()
+            .map(|m| {
+                let rows = &t.sensor_rows[m.sensor as usize];
+                let k = m.component as usize;
+                c * (0..r).map(|j| rows.data[k * r + j] * far[j]).sum::<f64>()
+            })
+            .collect();
+        let measured: Vec<Option<f64>> = y.iter().map(|&v| Some(v)).collect();
+        est.update(&measured).unwrap();
+        let used = est.tier_filter().unwrap();
+        let posterior = est.state().to_vec();
+        assert_eq!(used, prepared.nearest_filter(&posterior[..r]), "c = {c}");
+        let kalman = if used == 0 {
+            &t.kalman
+        } else {
+            switched += 1;
+            &t.scheduled[used - 1].kalman
+        };
+        let phase = &kalman.phases[est.phase()];
+        let nu = DVector::from_iterator(
+            phase.measured.len(),
+            phase
+                .measured
+                .iter()
+                .map(|&j| y[j as usize] - predicted[j as usize]),
+        );
+        let expected = DVector::from_column_slice(&prior) + file_matrix(&phase.gain) * nu;
+        let error = (&expected - DVector::from_column_slice(&posterior)).norm() / expected.norm();
+        eprintln!(
+            "iterated update, markers × {c}: filter {used} of {}, relative difference {error:.1e}",
+            prepared.filter_count()
+        );
+        assert!(error < 1e-12, "c = {c}: {error:e}");
+    }
+    assert!(switched > 0, "no update left the rest filter");
+}
