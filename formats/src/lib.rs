@@ -36,8 +36,8 @@ use sha2::{Digest, Sha256};
 pub const MAGIC: [u8; 8] = *b"CROKF\0\r\n";
 /// The format version this crate writes and the only one it reads.
 ///
-/// Version 5 adds the gain schedule of the tier's filter (`CorotationalTier::scheduled`,
-/// docs/design.md §11.5). Version 4 adds the random-walk force states to the tier's filter (`CorotationalTier::
+/// Version 5 adds the gain schedule of the tier's filter (`CorotationalTier::scheduled`) and its
+/// optional force-rate states (`CorotationalTier::force_rates`, docs/design.md §11.5). Version 4 adds the random-walk force states to the tier's filter (`CorotationalTier::
 /// force_loads`, docs/design.md §11.4; the tier's Kalman state grows from 3r to 3r + 3 per
 /// group). Version 3 adds the optional co-rotational tier section (`Model::tier`, docs/design.md §10).
 /// Version 2 stores the measurement noise once per channel (`kalman.measurement_variance`);
