@@ -116,6 +116,21 @@ fn corotational_tier(
             .map(|(q, _)| q.norm())
             .fold(0.0, f64::max)
     ));
+    report.notes.push(format!(
+        "co-rotational tier model error at the markers (basis projection of the training \
+         snapshots, RMS per channel in units of the channel's σ): largest {:.2e}, median {:.2e} \
+         (not added to R: against the markers' own noise it is negligible below ≈ 0.1)",
+        filter
+            .marker_model_error
+            .iter()
+            .copied()
+            .fold(0.0, f64::max),
+        {
+            let mut e = filter.marker_model_error.clone();
+            e.sort_by(f64::total_cmp);
+            e.get(e.len() / 2).copied().unwrap_or(0.0)
+        }
+    ));
     let section = tier::tier_section(
         full,
         &built,

@@ -272,9 +272,50 @@ pub fn linearised_filter(
         .iter()
         .map(|u| tier.basis.project(u))
         .collect();
+    filter.marker_model_error = marker_model_error(full, tier, &projected, measurements);
     let points = schedule_points(&projected, SCHEDULE_POINTS);
     filter.scheduled = scheduled_filters(&lin, model, &points, measurements);
     Ok(filter)
+}
+
+/// The model error of the tier at the markers that its basis alone makes (docs/design.md
+/// §11.5, a check of the noise model against the training runs): per measurement channel j,
+/// sqrt(mean over the training snapshots u of (h_j (u − V q))²) / σ_j, q = VᵀM u the snapshot's
+/// projection (`projected`), h_j the channel's row of the sensor interpolation, σ_j its noise.
+/// Small against 1: the markers' noise, not the basis, dominates their error budget.
+pub fn marker_model_error(
+    full: &FullOrder,
+    tier: &Tier,
+    projected: &[DVector<f64>],
+    measurements: &Measurements,
+) -> Vec<f64> {
+    let ops = &full.operators;
+    let v = &tier.basis.vectors;
+    let count = tier.training.snapshots.len().max(1) as f64;
+    measurements
+        .channels
+        .iter()
+        .zip(&measurements.variance)
+        .map(|(&(s, c), &variance)| {
+            let rows = point_rows(full, v, &ops.sensors[s].weights);
+            let row = rows.row(c);
+            let sum: f64 = tier
+                .training
+                .snapshots
+                .iter()
+                .zip(projected)
+                .map(|(u, q)| {
+                    let exact: f64 = ops.sensors[s]
+                        .weights
+                        .iter()
+                        .filter_map(|&(node, w)| full.fem.dofs.index[node][c].map(|d| w * u[d]))
+                        .sum();
+                    (exact - row.dot(&q.transpose())).powi(2)
+                })
+                .sum();
+            (sum / count / variance).sqrt()
+        })
+        .collect()
 }
 
 /// Operating points of the tier's gain schedule besides rest (docs/design.md §11.5).
@@ -486,6 +527,7 @@ pub fn filter_of(
         force_loads: Vec::new(),
         force_rates: nr > 0,
         static_residual: 0.0,
+        marker_model_error: Vec::new(),
         scheduled: Vec::new(),
     })
 }
@@ -821,6 +863,9 @@ pub struct TierFilter {
     /// Worst relative static residual of the measured response to a force channel
     /// ([`static_residual`]; 0 without force states).
     pub static_residual: f64,
+    /// The basis's error at the markers over the training snapshots, per measurement channel:
+    /// RMS of H(u − V VᵀM u) divided by the channel's σ ([`marker_model_error`]).
+    pub marker_model_error: Vec<f64>,
     /// The gain schedule (docs/design.md §11.5): per operating point q* (r), the same filter
     /// on the tier linearised at q* ([`LinearisedTier::at`]); `schedule` is the point q = 0.
     pub scheduled: Vec<(DVector<f64>, PeriodicSchedule)>,
