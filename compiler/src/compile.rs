@@ -94,14 +94,42 @@ fn corotational_tier(
             .join(", ")
     ));
     report.notes.push(format!(
-        "co-rotational tier filter (linearised at rest, state (q, q̇, q̈, f) = {}, {} force \
-         states): closed-loop spectral radius {:.6}, Riccati residual {:.1e}, static residual \
-         of the force channels at the markers {:.1e}",
-        3 * r + 3 * filter.force_loads.len(),
-        3 * filter.force_loads.len(),
+        "co-rotational tier filter (linearised at rest, state (q, q̇, q̈, f[, ḟ]) = {}, {} force \
+         (and rate) states): closed-loop spectral radius {:.6}, Riccati residual {:.1e}, static residual \
+         of the force channels at the markers {:.1e}; gain schedule: {} of {} operating points \
+         (training states, ‖q*‖ {:.3e} … {:.3e})",
+        filter.schedule.phases[0].gain.nrows(),
+        filter.schedule.phases[0].gain.nrows() - 3 * r,
         filter.schedule.closed_loop_spectral_radius,
         filter.schedule.worst_relative_residual,
-        filter.static_residual
+        filter.static_residual,
+        filter.scheduled.len(),
+        tier::SCHEDULE_POINTS,
+        filter
+            .scheduled
+            .iter()
+            .map(|(q, _)| q.norm())
+            .fold(f64::INFINITY, f64::min),
+        filter
+            .scheduled
+            .iter()
+            .map(|(q, _)| q.norm())
+            .fold(0.0, f64::max)
+    ));
+    report.notes.push(format!(
+        "co-rotational tier model error at the markers (basis projection of the training \
+         snapshots, RMS per channel in units of the channel's σ): largest {:.2e}, median {:.2e} \
+         (not added to R: against the markers' own noise it is negligible below ≈ 0.1)",
+        filter
+            .marker_model_error
+            .iter()
+            .copied()
+            .fold(0.0, f64::max),
+        {
+            let mut e = filter.marker_model_error.clone();
+            e.sort_by(f64::total_cmp);
+            e.get(e.len() / 2).copied().unwrap_or(0.0)
+        }
     ));
     let section = tier::tier_section(
         full,

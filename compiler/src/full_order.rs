@@ -50,6 +50,16 @@ impl FullOrder {
             .collect()
     }
 
+    /// The σ of the force rates' random walk of the random-walk load groups, N/s per step, in
+    /// the order of [`FullOrder::random_walk_loads`] (0: no rate states for that group;
+    /// co-rotational tier only, docs/design.md §11.5).
+    pub fn force_rate_sigmas(&self) -> Vec<f64> {
+        self.random_walk_loads()
+            .iter()
+            .map(|&(g, _)| self.scene.scene.loads[g].force_rate_noise_std)
+            .collect()
+    }
+
     /// Reads the scene and mesh, assembles K and M and builds the operators; stage costs go to
     /// `timer` ("mesh", "assembly", "operators").
     pub fn build(scene_path: &Path, timer: &mut StageTimer) -> Result<Self, CompileError> {

@@ -65,6 +65,7 @@
 //! distribution = "area"         # "area" (by surface triangle area) or "uniform" (equal shares)
 //! force_noise_std = 0.01        # N per world component, process noise
 //! force_model = "white"         # or "random_walk": the filter estimates a persistent force
+//! force_rate_noise_std = 0.0    # N/s per step: random walk of the force's rate (tier only)
 //!
 //! [[sensor]]
 //! name = "marker_1"
@@ -278,6 +279,12 @@ pub struct Load {
     /// How the Kalman filter models the unknown part of this load.
     #[serde(default)]
     pub force_model: ForceModel,
+    /// Co-rotational tier with `force_model = "random_walk"` only: standard deviation of the
+    /// change per step of the force's rate, N/s per world component (0: none). The tier's
+    /// filter then also carries the rate ḟ, f⁺ = f + Δt ḟ + w, ḟ⁺ = ḟ + w_ḟ (an integrated
+    /// random walk: a ramp is extrapolated between markers; docs/design.md §11.5).
+    #[serde(default)]
+    pub force_rate_noise_std: f64,
 }
 
 /// Process-noise model of a load group's unknown force.
@@ -1109,6 +1116,24 @@ impl Scene {
                 limits::FORCE_NOISE,
                 "N",
             )?;
+            in_range(
+                &format!("load '{}': force_rate_noise_std", l.name),
+                l.force_rate_noise_std,
+                limits::FORCE_NOISE,
+                "N/s",
+            )?;
+            if l.force_rate_noise_std > 0.0
+                && (l.force_model != ForceModel::RandomWalk
+                    || l.force_noise_std <= 0.0
+                    || self.reduction.model != ModelTier::Corotational)
+            {
+                return Err(format!(
+                    "load '{}': force_rate_noise_std needs force_model = \"random_walk\" with \
+                     force_noise_std > 0 and reduction.model = \"corotational\" (the rate \
+                     states are the co-rotational tier's)",
+                    l.name
+                ));
+            }
         }
         for n in &self.force_noise {
             if !names.insert(n.name.as_str()) {

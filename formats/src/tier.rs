@@ -1,4 +1,4 @@
-//! The co-rotational tier section of a model file (format v4; docs/model-format.md,
+//! The co-rotational tier section of a model file (format v5; docs/model-format.md,
 //! docs/design.md §10): a hyper-reduced co-rotational model on the reduced coordinates q (r)
 //! with u ≈ V q (world-frame displacements of the free DOFs, m per unit q).
 //!
@@ -9,9 +9,10 @@
 //! res(q̂) = f_r − M_r(q̈_θ + α q̇_θ) − f_r,int(q̂) − β Σ_e wₑ V_eᵀ Rₑ Kₑ Rₑᵀ V_e q̇_θ
 //! J = K_t,r(q̂)(1 + a₂β) + (a₀ + a₂α) M_r,   q̂ ← q̂ + J⁻¹ res
 //! ```
-//! then the Wilson-θ update of (q, q̇, q̈). The filter (constant-gain extended Kalman filter
-//! from the DARE of the model linearised at rest, docs/design.md §11.4) has the state
-//! s = (q, q̇, q̈, f) (3r + 3·`force_loads.len()`) and the linear measurement map y = H V q.
+//! then the Wilson-θ update of (q, q̇, q̈). The filter (extended Kalman filter with gains from
+//! the DARE of the model linearised at rest and, as a gain schedule, at training states,
+//! docs/design.md §11.4–11.5) has the state s = (q, q̇, q̈, f[, ḟ]) (3r + 3·`force_loads.len()`,
+//! twice the force states with `force_rates`) and the linear measurement map y = H V q.
 //! f holds the world force of each random-walk load group (3 components, N, f_{k+1} = f_k + w);
 //! it enters the step as an input: f_r = VᵀB (u + f) (a load channel's column of `input`).
 
@@ -56,16 +57,41 @@ pub struct CorotationalTier {
     /// force model, s = (q, q̇, q̈).
     #[serde(default)]
     pub force_loads: Vec<u32>,
-    /// Constant-gain filter on s = (q, q̇, q̈, f) (state dimension [`Self::state_dim`]): gains
-    /// (state × measured), prior/posterior covariances and process noise (state × state) of the
-    /// model linearised at rest; `measurement_variance` as `Model::kalman`.
+    /// Force-rate states (format v5; docs/design.md §11.5): when true each force state also has
+    /// its rate ḟ (N/s), state 3r + 3g + 3k + c for group `force_loads[k]` (g groups), and the
+    /// prediction carries f⁺ = f + Δt ḟ, ḟ⁺ = ḟ (an integrated random walk).
+    #[serde(default)]
+    pub force_rates: bool,
+    /// The filter on s = (q, q̇, q̈, f[, ḟ]) (state dimension [`Self::state_dim`]) designed on
+    /// the model linearised at rest: gains (state × measured), prior/posterior covariances and
+    /// process noise (state × state); `measurement_variance` as `Model::kalman`. Used near rest,
+    /// and everywhere when `scheduled` is empty.
+    pub kalman: KalmanGains,
+    /// Gain schedule (format v5; docs/design.md §11.5): the same filter designed on the tier
+    /// linearised at deformed states q* (consistent reduced tangent K_N,r(q*)), picked by the
+    /// runtime when q is nearer to q* than to rest and to every other point. Empty: the
+    /// constant gain `kalman` everywhere (as v4).
+    #[serde(default)]
+    pub scheduled: Vec<ScheduledFilter>,
+}
+
+/// One operating point of the tier's gain schedule (format v5).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScheduledFilter {
+    /// The operating point q* (r reduced coordinates).
+    pub point: Vec<f64>,
+    /// The filter linearised at q*: same period, phases, measured channels, process noise and
+    /// measurement variance as the tier's `kalman`; its own gains and covariances.
     pub kalman: KalmanGains,
 }
 
 impl CorotationalTier {
-    /// Dimension of the filter's state s = (q, q̇, q̈, f): 3r + 3·`force_loads.len()`.
+    /// Dimension of the filter's state s = (q, q̇, q̈, f[, ḟ]): 3r + 3·`force_loads.len()`,
+    /// twice that many force states with `force_rates`.
     pub fn state_dim(&self) -> usize {
-        3 * self.order as usize + 3 * self.force_loads.len()
+        let per_group = if self.force_rates { 6 } else { 3 };
+        3 * self.order as usize + per_group * self.force_loads.len()
     }
 }
 

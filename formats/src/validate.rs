@@ -305,7 +305,7 @@ fn check_kalman(prefix: &str, k: &crate::KalmanGains, r: u64, q: usize) -> Resul
     Ok(())
 }
 
-/// The co-rotational tier section (format v4): shapes against r = `tier.order`, m inputs,
+/// The co-rotational tier section (format v5): shapes against r = `tier.order`, m inputs,
 /// the model's sensors and node sets, q measurements; finite values; weights ≥ 0; force
 /// states on existing load groups with three load channels, increasing.
 fn check_tier(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatError> {
@@ -399,6 +399,12 @@ fn check_tier(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatEr
         ));
     }
     check_increasing("tier.force_loads", &t.force_loads)?;
+    if t.force_rates && t.force_loads.is_empty() {
+        return Err(invalid(
+            "tier.force_rates",
+            "force-rate states need force states (force_loads is empty)",
+        ));
+    }
     for &g in &t.force_loads {
         let channels = model
             .inputs
@@ -420,5 +426,34 @@ fn check_tier(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatEr
         &t.kalman,
         t.state_dim() as u64,
         model.measurements.len(),
-    )
+    )?;
+    for (i, s) in t.scheduled.iter().enumerate() {
+        let path = format!("tier.scheduled[{i}]");
+        if s.point.len() != t.order as usize {
+            return Err(invalid(
+                format!("{path}.point"),
+                format!("{} values for r = {}", s.point.len(), t.order),
+            ));
+        }
+        check_finite(&format!("{path}.point"), &s.point, 0)?;
+        check_kalman(
+            &format!("{path}.kalman"),
+            &s.kalman,
+            t.state_dim() as u64,
+            model.measurements.len(),
+        )?;
+        let same_phases = s.kalman.period == t.kalman.period
+            && s.kalman
+                .phases
+                .iter()
+                .zip(&t.kalman.phases)
+                .all(|(a, b)| a.measured == b.measured);
+        if !same_phases {
+            return Err(invalid(
+                format!("{path}.kalman"),
+                "period or measured channels differ from tier.kalman",
+            ));
+        }
+    }
+    Ok(())
 }

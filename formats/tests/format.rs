@@ -14,7 +14,7 @@ fn round_trip_and_determinism() {
     let bytes = encode(&model);
     assert_eq!(bytes, encode(&model), "encoding must be deterministic");
     assert_eq!(&bytes[..8], b"CROKF\0\r\n");
-    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 4);
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 5);
     let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
     assert_eq!(len as usize, bytes.len() - HEADER_LEN);
     assert_eq!(hex(&bytes[20..52]), sha256_hex(&bytes[HEADER_LEN..]));
@@ -83,10 +83,10 @@ fn every_truncation_is_an_error() {
 
 #[test]
 fn other_versions_and_wrong_magic() {
-    assert_eq!(FORMAT_VERSION, 4);
-    // Version-1 to version-3 files (before the tier's force states) are refused before their
+    assert_eq!(FORMAT_VERSION, 5);
+    // Version-1 to version-4 files (before the tier's gain schedule) are refused before their
     // payload is read, with both versions and the remedy in the message.
-    for old in [1u32, 2, 3] {
+    for old in [1u32, 2, 3, 4] {
         let mut bytes = encode(&small_model());
         bytes[8..12].copy_from_slice(&old.to_le_bytes());
         let err = decode(&bytes).unwrap_err();
@@ -94,20 +94,20 @@ fn other_versions_and_wrong_magic() {
             err,
             FormatError::UnsupportedVersion {
                 found: old,
-                supported: 4
+                supported: 5
             }
         );
         assert_eq!(
             err.to_string(),
-            format!("model format v{old}, this runtime reads v4: recompile the model with crokf-compile")
+            format!("model format v{old}, this runtime reads v5: recompile the model with crokf-compile")
         );
     }
     let mut bytes = encode(&small_model());
-    bytes[8..12].copy_from_slice(&5u32.to_le_bytes());
+    bytes[8..12].copy_from_slice(&6u32.to_le_bytes());
     let err = decode(&bytes).unwrap_err();
     assert!(
         err.to_string()
-            .starts_with("model format v5, this runtime reads v4: "),
+            .starts_with("model format v6, this runtime reads v5: "),
         "{err}"
     );
     let mut bytes = encode(&small_model());
@@ -344,12 +344,22 @@ fn small_tier(model: &Model) -> CorotationalTier {
             state_margin: 1.5,
         },
         force_loads: vec![0],
+        force_rates: false,
         kalman: KalmanGains {
             period: 2,
-            phases,
+            phases: phases.clone(),
             process_noise: Matrix::identity(n as u32),
             measurement_variance: model.kalman.measurement_variance.clone(),
         },
+        scheduled: vec![ScheduledFilter {
+            point: vec![0.5; r],
+            kalman: KalmanGains {
+                period: 2,
+                phases,
+                process_noise: Matrix::identity(n as u32),
+                measurement_variance: model.kalman.measurement_variance.clone(),
+            },
+        }],
     }
 }
 
@@ -408,4 +418,16 @@ fn tier_section_round_trip_and_validation() {
     assert!(e.contains("tier.envelope.loads[0] 'nowhere'"), "{e}");
     let e = bad(&|t| t.newton_iterations = 0);
     assert!(e.contains("tier.newton_iterations"), "{e}");
+    // The gain schedule (v5): a point of r values, the same phases as `kalman`.
+    let e = bad(&|t| t.scheduled[0].point.pop().map_or((), |_| ()));
+    assert!(
+        e.contains("tier.scheduled[0].point") && e.contains("for r = 2"),
+        "{e}"
+    );
+    let e = bad(&|t| t.scheduled[0].point[1] = f64::INFINITY);
+    assert!(e.contains("tier.scheduled[0].point"), "{e}");
+    let e = bad(&|t| t.scheduled[0].kalman.phases[1].measured = vec![0, 1]);
+    assert!(e.contains("tier.scheduled[0].kalman"), "{e}");
+    let e = bad(&|t| t.scheduled[0].kalman.phases[0].gain = Matrix::zeros(2, 4));
+    assert!(e.contains("tier.scheduled[0].kalman.phases[0].gain"), "{e}");
 }

@@ -32,7 +32,7 @@ void crokf_model_free(CrokfModel *model); /* NULL is a no-op */
 size_t crokf_model_num_inputs(const CrokfModel *model);       /* m */
 size_t crokf_model_num_measurements(const CrokfModel *model); /* q */
 size_t crokf_model_num_sensors(const CrokfModel *model);
-size_t crokf_model_state_dim(const CrokfModel *model);        /* r, or 3 r_tier + 3 per force group (q, q', q'', f) */
+size_t crokf_model_state_dim(const CrokfModel *model);        /* r, or 3 r_tier + 3 per force group (q, q', q'', f), 6 with force rates (f') */
 size_t crokf_model_is_corotational(const CrokfModel *model);  /* 1: co-rotational tier */
 size_t crokf_model_num_node_sets(const CrokfModel *model);
 size_t crokf_model_node_set_len(const CrokfModel *model, size_t set); /* nodes */

@@ -173,7 +173,8 @@ model_count!(
     crokf_model_num_sensors, |m| m.sensors.len());
 model_count!(
     /// State length (of `crokf_state`): r for the warped tier; 3·r_tier + 3 per random-walk
-    /// load group, s = (q, q̇, q̈, f), for the co-rotational tier (docs/design.md §10, §11.4).
+    /// load group, s = (q, q̇, q̈, f), for the co-rotational tier (6 per group with force rates,
+    /// s = (q, q̇, q̈, f, ḟ); docs/design.md §10, §11.4, §11.5).
     crokf_model_state_dim, |m| m.tier.as_ref().map_or(m.r(), |t| t.state_dim()));
 model_count!(
     /// 1 when the model carries the co-rotational tier (docs/design.md §10), else 0.

@@ -201,6 +201,12 @@ impl Estimator {
         self.tier.is_some()
     }
 
+    /// The filter of the co-rotational tier's gain schedule in use: 0 for the filter designed
+    /// at rest, i ≥ 1 for `tier.scheduled[i − 1]` (docs/design.md §11.5); `None` without a tier.
+    pub fn tier_filter(&self) -> Option<usize> {
+        self.tier.as_ref().map(|t| t.filter())
+    }
+
     /// Status of the co-rotational tier's last completed step (Newton iterations, envelope);
     /// the default for the warped tier.
     pub fn tier_status(&self) -> crate::tier::TierStatus {
@@ -208,7 +214,8 @@ impl Estimator {
     }
 
     /// The state: x (length r) for the warped tier, s = (q, q̇, q̈, f) for the tier (3r + 3 per
-    /// random-walk load group, docs/design.md §11.4).
+    /// random-walk load group, docs/design.md §11.4; s = (q, q̇, q̈, f, ḟ), 6 per group, with
+    /// force rates, §11.5).
     pub fn state(&self) -> &[f64] {
         match &self.tier {
             Some(t) => &t.s,
@@ -466,7 +473,7 @@ impl Estimator {
                     index,
                 });
             }
-            std::mem::swap(&mut t.s, &mut t.s_upd);
+            t.commit_update();
             let mut gated = 0;
             for (&j, &rejected) in tm.measured(self.phase).iter().zip(&self.tier_gated) {
                 let j = j as usize;
@@ -612,7 +619,7 @@ impl Estimator {
             Err(e) => {
                 // predict_checked left the previous state in x_next (s_prev for the tier).
                 if let Some(t) = &mut self.tier {
-                    std::mem::swap(&mut t.s, &mut t.s_prev);
+                    t.rollback();
                 }
                 std::mem::swap(&mut self.x, &mut self.x_next);
                 (self.k, self.phase, self.cov, self.awaiting_update) = saved;
@@ -634,14 +641,12 @@ impl Estimator {
     /// The tier's precomputed std of the current phase: (sensors, node sets).
     fn tier_std(&self) -> Option<(&[f64], &[Vec<f64>])> {
         let tm = self.shared.tier.as_ref()?;
+        let filter = self.tier.as_ref().map_or(0, |t| t.filter);
         let kind = match self.cov {
             CovarianceKind::Prior => 0,
             CovarianceKind::Posterior => 1,
         };
-        Some((
-            &tm.sensor_std[kind][self.phase],
-            &tm.node_std[kind][self.phase],
-        ))
+        Some(tm.std(filter, kind, self.phase))
     }
 
     fn current_std(&self) -> &crate::prepared::PhaseStd {

@@ -2,7 +2,9 @@
 //! reduced co-rotational Wilson-θ step on q with a bounded Newton iteration, and the
 //! constant-gain filter on s = (q, q̇, q̈, f) (docs/design.md §11.4): f holds the world force of
 //! each random-walk load group (3 per group, N), carried unchanged by the prediction (random
-//! walk) and corrected by the update; it adds to the group's inputs, f_r = VᵀB (u + f).
+//! walk) and corrected by the update; it adds to the group's inputs, f_r = VᵀB (u + f). With
+//! force rates (`force_rates`, §11.5) s = (q, q̇, q̈, f, ḟ) and the prediction carries
+//! f⁺ = f + Δt ḟ after the step (f held over it), ḟ⁺ = ḟ.
 //!
 //! Per step (τ = θΔt, a₀ = 6/τ², a₂ = 3/τ, f_r = VᵀB (u + f) held over the step; the equations
 //! of `crokf_formats::CorotationalTier`):
@@ -28,8 +30,16 @@
 
 //! J (warped tangent K_t,r = Σ wₑ V_eᵀ Rₑ Kₑ Rₑᵀ V_e) is refreshed at the first step, at the
 //! first iteration of a step after a step that needed more than [`SLOW_ITERATIONS`]
-//! iterations, and once within a step at iteration [`SLOW_ITERATIONS`]: a modified Newton
-//! iteration converging to the same root. Nothing allocates per step.
+//! iterations or after an update that moved q to another operating point of the gain schedule
+//! (docs/design.md §11.5), at the iteration after an increment that did not shrink
+//! (‖δₖ‖ ≥ ‖δₖ₋₁‖: the frozen J no longer contracts), and once within a step at iteration
+//! [`SLOW_ITERATIONS`]: a modified Newton iteration converging to the same root. Nothing
+//! allocates per step.
+//!
+//! Filter (docs/design.md §11.4–11.5): the gains of the filter of the schedule whose operating
+//! point is nearest to q ([`TierModel::nearest_filter`]; filter 0 is the one designed at rest),
+//! chosen after each step; an update s⁺ = s⁻ + K_i ν is iterated to the filter i nearest to
+//! its own result s⁺ (at most one pass per filter).
 
 use crate::prepared::{gate_variances, row_std};
 use crokf_formats::{CorotationalTier, InputKind, Model};
@@ -137,7 +147,9 @@ pub struct TierModel {
     m: usize,
     /// Per force state (3r + k): its input channel (the group's world component).
     force_channels: Vec<usize>,
-    /// Filter state dimension n = 3r + force_channels.len().
+    /// Whether each force state's rate follows the force states (3r + nf + k, N/s).
+    force_rates: bool,
+    /// Filter state dimension n = 3r + force_channels.len() (twice that many with rates).
     n: usize,
     /// Per model load group: max trained force (None: never trained).
     max_force: Vec<Option<f64>>,
@@ -151,18 +163,42 @@ pub struct TierModel {
     pub(crate) node_rows: Vec<Vec<f64>>,
     /// Per measurement channel: (sensor, component).
     channel: Vec<(usize, usize)>,
-    /// Per phase: the gain transposed (measured × n, row-major: column a of K_p is
-    /// `gains_t[p][a n ..]`), measured channel indices.
-    gains_t: Vec<Vec<f64>>,
+    /// Per phase: measured channel indices.
     measured: Vec<Vec<u32>>,
+    /// The gain schedule (docs/design.md §11.5): filter 0 is the tier's `kalman` (rest),
+    /// filter i ≥ 1 the `scheduled[i − 1]` one, designed at `points[i − 1]`.
+    filters: Vec<PointFilter>,
+    /// Operating points of filters 1.., r each, row-major.
+    points: Vec<f64>,
+    /// Per measurement channel: (H Q Hᵀ)_jj, m² per step (the gate's growth g_j).
+    variance_growth: Vec<f64>,
+}
+
+/// One filter of the tier's gain schedule: its gains and what the read-outs and the gate need
+/// of its covariances.
+#[derive(Clone, Debug)]
+struct PointFilter {
+    /// Per phase: the gain transposed (measured × n, row-major: column a of K_p is
+    /// `gains_t[p][a n ..]`), so that K_p ν runs over contiguous columns.
+    gains_t: Vec<Vec<f64>>,
     /// Per phase, per active channel: the innovation variance (H P⁻ Hᵀ)_jj + R_jj, m² (the
     /// gate's s_j, runtime/src/estimator.rs).
     innovation_variance: Vec<Vec<f64>>,
-    /// Per measurement channel: (H Q Hᵀ)_jj, m² per step (the gate's growth g_j).
-    variance_growth: Vec<f64>,
-    /// Per phase and kind (prior, posterior): sensor std (3 per sensor), node std per set.
-    pub(crate) sensor_std: [Vec<Vec<f64>>; 2],
-    pub(crate) node_std: [Vec<Vec<Vec<f64>>>; 2],
+    /// Per kind (prior, posterior) and phase: sensor std (3 per sensor), node std per set.
+    sensor_std: [Vec<Vec<f64>>; 2],
+    node_std: [Vec<Vec<Vec<f64>>>; 2],
+}
+
+/// Aᵀ (cols × rows, row-major) of A.
+fn transposed(a: &crokf_formats::Matrix) -> Vec<f64> {
+    let (n, m) = (a.rows as usize, a.cols as usize);
+    let mut t = vec![0.0; n * m];
+    for i in 0..n {
+        for j in 0..m {
+            t[j * n + i] = a.data[i * m + j];
+        }
+    }
+    t
 }
 
 /// sqrt(diag(C P_qq Cᵀ)) for the rows C (k × r, row-major).
@@ -216,28 +252,50 @@ impl TierModel {
             .collect();
         let sensor_rows: Vec<Vec<f64>> = tier.sensor_rows.iter().map(|m| m.data.clone()).collect();
         let node_rows: Vec<Vec<f64>> = tier.node_set_rows.iter().map(|m| m.data.clone()).collect();
-        let k = &tier.kalman;
-        let cov = |post: bool| -> (Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>) {
-            let mut s_out = Vec::new();
-            let mut n_out = Vec::new();
-            for ph in &k.phases {
-                let p = if post {
-                    &ph.posterior_covariance
-                } else {
-                    &ph.prior_covariance
-                };
-                s_out.push(
-                    sensor_rows
-                        .iter()
-                        .flat_map(|rows| std_rows(rows, r, p))
-                        .collect(),
-                );
-                n_out.push(node_rows.iter().map(|rows| std_rows(rows, r, p)).collect());
-            }
-            (s_out, n_out)
+        let h_row = |j: usize| {
+            let (s, c) = channel[j];
+            &sensor_rows[s][c * r..(c + 1) * r]
         };
-        let (s_prior, n_prior) = cov(false);
-        let (s_post, n_post) = cov(true);
+        let k = &tier.kalman;
+        let (_, variance_growth) = gate_variances(k, channel.len(), h_row);
+        let filter = |k: &crokf_formats::KalmanGains| {
+            let cov = |post: bool| -> (Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>) {
+                let mut s_out = Vec::new();
+                let mut n_out = Vec::new();
+                for ph in &k.phases {
+                    let p = if post {
+                        &ph.posterior_covariance
+                    } else {
+                        &ph.prior_covariance
+                    };
+                    s_out.push(
+                        sensor_rows
+                            .iter()
+                            .flat_map(|rows| std_rows(rows, r, p))
+                            .collect(),
+                    );
+                    n_out.push(node_rows.iter().map(|rows| std_rows(rows, r, p)).collect());
+                }
+                (s_out, n_out)
+            };
+            let (s_prior, n_prior) = cov(false);
+            let (s_post, n_post) = cov(true);
+            PointFilter {
+                gains_t: k.phases.iter().map(|p| transposed(&p.gain)).collect(),
+                innovation_variance: gate_variances(k, channel.len(), h_row).0,
+                sensor_std: [s_prior, s_post],
+                node_std: [n_prior, n_post],
+            }
+        };
+        let filters: Vec<PointFilter> = std::iter::once(k)
+            .chain(tier.scheduled.iter().map(|s| &s.kalman))
+            .map(filter)
+            .collect();
+        let points = tier
+            .scheduled
+            .iter()
+            .flat_map(|s| s.point.iter().copied())
+            .collect();
         let force_channels: Vec<usize> = tier
             .force_loads
             .iter()
@@ -253,11 +311,6 @@ impl TierModel {
                 })
             })
             .collect();
-        let h_row = |j: usize| {
-            let (s, c) = channel[j];
-            &sensor_rows[s][c * r..(c + 1) * r]
-        };
-        let (innovation_variance, variance_growth) = gate_variances(k, channel.len(), h_row);
         TierModel {
             r,
             blocks,
@@ -270,7 +323,8 @@ impl TierModel {
             max_iterations: tier.newton_iterations as usize,
             input: tier.input.data.clone(),
             m: model.inputs.len(),
-            n: 3 * r + force_channels.len(),
+            n: 3 * r + force_channels.len() * if tier.force_rates { 2 } else { 1 },
+            force_rates: tier.force_rates,
             force_channels,
             max_force,
             channel_load,
@@ -279,25 +333,10 @@ impl TierModel {
             sensor_rows,
             node_rows,
             channel,
-            gains_t: k
-                .phases
-                .iter()
-                .map(|p| {
-                    let (n, m) = (p.gain.rows as usize, p.gain.cols as usize);
-                    let mut t = vec![0.0; n * m];
-                    for i in 0..n {
-                        for a in 0..m {
-                            t[a * n + i] = p.gain.data[i * m + a];
-                        }
-                    }
-                    t
-                })
-                .collect(),
             measured: k.phases.iter().map(|p| p.measured.clone()).collect(),
-            innovation_variance,
+            filters,
+            points,
             variance_growth,
-            sensor_std: [s_prior, s_post],
-            node_std: [n_prior, n_post],
         }
     }
 
@@ -325,6 +364,33 @@ impl TierModel {
     /// of its gain's columns.
     pub fn measured(&self, phase: usize) -> &[u32] {
         &self.measured[phase]
+    }
+
+    /// Number of filters of the gain schedule (1: the constant gain designed at rest).
+    pub fn filter_count(&self) -> usize {
+        self.filters.len()
+    }
+
+    /// The filter of the gain schedule for the state q (r): 0 (rest) or i ≥ 1 (operating point
+    /// i − 1), whichever point is nearest to q in the Euclidean norm of q (the M-norm of the
+    /// displacement, docs/design.md §11.5); ties go to the lower index.
+    pub fn nearest_filter(&self, q: &[f64]) -> usize {
+        let r = self.r;
+        let mut best = (0, dot(&q[..r], &q[..r]));
+        for (i, p) in self.points.chunks_exact(r).enumerate() {
+            let d: f64 = p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+            if d < best.1 {
+                best = (i + 1, d);
+            }
+        }
+        best.0
+    }
+
+    /// Precomputed std of filter `filter`, covariance kind (0 prior, 1 posterior) and phase:
+    /// (sensors, 3 each; node sets, 3 per node), m.
+    pub(crate) fn std(&self, filter: usize, kind: usize, phase: usize) -> (&[f64], &[Vec<f64>]) {
+        let f = &self.filters[filter];
+        (&f.sensor_std[kind][phase], &f.node_std[kind][phase])
     }
 
     /// Largest number of measured channels in a phase of the tier's filter.
@@ -379,6 +445,13 @@ pub struct TierState {
     /// The force evaluation's per-lane sums ([`kernel::Blocks::scratch_len`]).
     force_scratch: Vec<f64>,
     group_force: Vec<[f64; 3]>,
+    /// The filter of the gain schedule in use ([`TierModel::nearest_filter`] of the last
+    /// step's q).
+    pub(crate) filter: usize,
+    /// `filter` before the last step (restored with `s_prev` by [`TierState::rollback`]).
+    filter_prev: usize,
+    /// The filter whose gain gave `s_upd` (committed with it).
+    pub(crate) filter_upd: usize,
     /// Innovation scratch.
     pub(crate) innovation: Vec<f64>,
     /// The update's result before it is committed.
@@ -407,6 +480,9 @@ impl TierState {
             scratch: vec![0.0; model.blocks.tangent_scratch_len()],
             force_scratch: vec![0.0; model.force_scratch_len()],
             group_force: vec![[0.0; 3]; loads],
+            filter: 0,
+            filter_prev: 0,
+            filter_upd: 0,
             innovation: vec![0.0; q],
             s_upd: vec![0.0; model.n],
         }
@@ -415,6 +491,8 @@ impl TierState {
     /// Back to rest (the cached Newton matrix is kept).
     pub fn reset(&mut self) {
         self.s.iter_mut().for_each(|v| *v = 0.0);
+        self.filter = 0;
+        self.filter_prev = 0;
         self.slow = true;
         self.eta = 1.0;
     }
@@ -427,7 +505,7 @@ impl TierState {
     /// The estimated forces f (3 per random-walk load group, world frame, N; empty without
     /// force states), in the order of the tier's `force_loads`.
     pub fn forces<'a>(&'a self, model: &TierModel) -> &'a [f64] {
-        &self.s[3 * model.r..]
+        &self.s[3 * model.r..3 * model.r + model.force_channels.len()]
     }
 
     /// Residual and rotations at q̂ (`self.force` ← f_int + β K_t q̇_θ, then `self.res`).
@@ -546,10 +624,14 @@ impl TierState {
         let mut increment = f64::INFINITY;
         let mut converged = false;
         let mut previous = f64::INFINITY;
+        // The last increment grew (ρ ≥ 1): J is refreshed at the next iteration.
+        let mut growing = false;
         while iterations < model.max_iterations {
             self.residual(model, step)?;
-            let refresh_now =
-                !self.has_factor || (iterations == 0 && self.slow) || iterations == SLOW_ITERATIONS;
+            let refresh_now = !self.has_factor
+                || (iterations == 0 && self.slow)
+                || iterations == SLOW_ITERATIONS
+                || growing;
             if refresh_now {
                 self.refresh(model, step)?;
                 refreshed = true;
@@ -575,6 +657,7 @@ impl TierState {
                 let rho = dn / previous;
                 self.eta = if rho < 0.5 { rho / (1.0 - rho) } else { 1.0 };
             }
+            growing = iterations > 1 && dn >= previous;
             previous = dn;
             if self.eta * dn <= model.tolerance * qn {
                 converged = true;
@@ -606,6 +689,15 @@ impl TierState {
             self.s[2 * r + i] = a1;
             qn += q1 * q1;
         }
+        // Force rates (docs/design.md §11.5): f⁺ = f + Δt ḟ (f was held over the step).
+        if model.force_rates {
+            let nf = model.force_channels.len();
+            for k in 0..nf {
+                self.s[3 * r + k] += model.dt * self.s[3 * r + nf + k];
+            }
+        }
+        self.filter_prev = self.filter;
+        self.filter = model.nearest_filter(&self.s[..r]);
         Ok(TierStatus {
             iterations,
             refreshed,
@@ -644,10 +736,29 @@ impl TierState {
         self.update_gated(model, phase, get, &Gate::OFF, &mut [])
     }
 
+    /// Undoes the last step (s ← its value before the step, the filter of the schedule with
+    /// it); what the estimator does when the update of a combined step fails.
+    pub(crate) fn rollback(&mut self) {
+        std::mem::swap(&mut self.s, &mut self.s_prev);
+        self.filter = self.filter_prev;
+    }
+
+    /// The filter of the gain schedule in use (0: the one designed at rest; docs/design.md
+    /// §11.5).
+    pub fn filter(&self) -> usize {
+        self.filter
+    }
+
     /// Commits the last [`TierState::update`] / [`TierState::update_gated`]: s ← `s_upd`
     /// (what the estimator does after its checks).
     pub fn commit_update(&mut self) {
         std::mem::swap(&mut self.s, &mut self.s_upd);
+        if self.filter_upd != self.filter {
+            // The update moved q to another operating point of the schedule: the Newton matrix
+            // of the previous state is refreshed at the next step's first iteration.
+            self.slow = true;
+        }
+        self.filter = self.filter_upd;
     }
 
     /// The filter state s = (q, q̇, q̈, f) (length [`TierModel::state_dim`]).
@@ -689,7 +800,7 @@ impl TierState {
                 (Some(nu), Some(g)) => gate_rejects(
                     nu,
                     g,
-                    model.innovation_variance[phase][a],
+                    model.filters[self.filter].innovation_variance[phase][a],
                     gate.missed(j),
                     model.variance_growth[j],
                 ),
@@ -706,19 +817,30 @@ impl TierState {
                 _ => 0.0,
             };
         }
+        // Iterated scheduled update (docs/design.md §11.5): the gain of the filter whose point
+        // is nearest to the result, starting from the prior's; at most one pass per filter.
         // s_upd = s + K_p ν as Σ_a ν_a K_p[·, a] (contiguous columns: vector operations), each
         // entry summed over a in order, so s_i + (K_p ν)_i as the row-by-row product has it.
-        let gain_t = &model.gains_t[phase];
         let n = self.s_upd.len();
-        self.s_upd.iter_mut().for_each(|v| *v = 0.0);
-        for (column, &nu) in gain_t.chunks_exact(n).zip(&self.innovation[..nm]) {
-            for (o, g) in self.s_upd.iter_mut().zip(column) {
-                *o += g * nu;
+        let mut filter = self.filter;
+        for _ in 0..model.filters.len() {
+            let gain_t = &model.filters[filter].gains_t[phase];
+            self.s_upd.iter_mut().for_each(|v| *v = 0.0);
+            for (column, &nu) in gain_t.chunks_exact(n).zip(&self.innovation[..nm]) {
+                for (o, g) in self.s_upd.iter_mut().zip(column) {
+                    *o += g * nu;
+                }
             }
+            for (o, si) in self.s_upd.iter_mut().zip(&self.s) {
+                *o += si;
+            }
+            let next = model.nearest_filter(&self.s_upd[..model.r]);
+            if next == filter {
+                break;
+            }
+            filter = next;
         }
-        for (o, si) in self.s_upd.iter_mut().zip(&self.s) {
-            *o += si;
-        }
+        self.filter_upd = filter;
         used
     }
 }

@@ -523,18 +523,287 @@ fn the_gate_skips_a_one_metre_outlier_and_none_of_the_scenes_noise() {
     assert_eq!(est.state(), without.state());
 }
 
-/// A model file of the previous format (v3: no force states in the tier) is refused with a
+/// A model file of the previous format (v4: no gain schedule in the tier) is refused with a
 /// message that says to recompile.
 #[test]
-fn a_v3_model_file_is_refused_with_recompile() {
+fn a_v4_model_file_is_refused_with_recompile() {
     let (bytes, _) = compiled();
     let mut old = bytes.clone();
-    old[8..12].copy_from_slice(&3u32.to_le_bytes());
+    old[8..12].copy_from_slice(&4u32.to_le_bytes());
     let err = crokf_runtime::model_from_bytes(&old)
         .unwrap_err()
         .to_string();
     assert!(
-        err.contains("model format v3, this runtime reads v4") && err.contains("recompile"),
+        err.contains("model format v4, this runtime reads v5") && err.contains("recompile"),
         "{err}"
     );
+}
+
+/// Matrix of a model file as nalgebra.
+fn file_matrix(m: &crokf_formats::Matrix) -> nalgebra::DMatrix<f64> {
+    nalgebra::DMatrix::from_fn(m.rows as usize, m.cols as usize, |i, j| {
+        m.data[i * m.cols as usize + j]
+    })
+}
+
+/// The gain schedule (docs/design.md §11.5) of the force-state tier: its operating points are
+/// training states picked farthest-first (the first is the training state of largest ‖q‖,
+/// which the envelope records independently), each stored filter solves the Riccati equation
+/// of the tier linearised at its point (F from `LinearisedTier::transition`, assembled in s
+/// coordinates, not the compiler's scaled modal route) and is stable there, the runtime picks
+/// each point's own filter at that point and the rest filter at rest, and `tier::refilter`
+/// recomputes the same schedule from the file.
+#[test]
+fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
+    let model = compiled_random_walk();
+    let t = model.tier.as_ref().unwrap();
+    let r = t.order as usize;
+    assert!(
+        !t.scheduled.is_empty() && t.scheduled.len() <= tier::SCHEDULE_POINTS,
+        "{} points",
+        t.scheduled.len()
+    );
+    let norms: Vec<f64> = t
+        .scheduled
+        .iter()
+        .map(|s| s.point.iter().map(|v| v * v).sum::<f64>().sqrt())
+        .collect();
+    let largest = t.envelope.max_coordinate_norm;
+    assert!(
+        (norms[0] - largest).abs() <= 1e-12 * largest,
+        "first point ‖q‖ {} vs training max {largest}",
+        norms[0]
+    );
+    assert!(norms
+        .iter()
+        .all(|&n| n > 0.0 && n <= largest * (1.0 + 1e-12)));
+    let full = FullOrder::build(random_walk_scene(), &mut StageTimer::default()).unwrap();
+    let (lin, _) = tier::linearised_of_file(&full, model).unwrap();
+    let reduced = tier::reduced_model_of_file(&full, t).unwrap();
+    let prepared = TierModel::new(model, t);
+    assert_eq!(prepared.filter_count(), 1 + t.scheduled.len());
+    assert_eq!(prepared.nearest_filter(&vec![0.0; r]), 0);
+    let q_noise = file_matrix(&t.kalman.process_noise);
+    let mut rest_radius_at_points = Vec::new();
+    for (i, s) in t.scheduled.iter().enumerate() {
+        assert_eq!(prepared.nearest_filter(&s.point), i + 1);
+        let q = DVector::from_column_slice(&s.point);
+        let (f, h) = lin.at(&reduced, &q).transition().unwrap();
+        let phase = &s.kalman.phases[0];
+        assert_eq!(s.kalman.period, 1);
+        let prior = file_matrix(&phase.prior_covariance);
+        let posterior = file_matrix(&phase.posterior_covariance);
+        let riccati = &f * &posterior * f.transpose() + &q_noise;
+        let residual = (&riccati - &prior).norm() / prior.norm();
+        assert!(residual < 1e-6, "point {i}: Riccati residual {residual:e}");
+        let radius = |gain: &nalgebra::DMatrix<f64>| {
+            let n = f.nrows();
+            let closed = (nalgebra::DMatrix::identity(n, n) - gain * &h) * &f;
+            closed
+                .complex_eigenvalues()
+                .iter()
+                .map(|z| z.norm())
+                .fold(0.0, f64::max)
+        };
+        let own = radius(&file_matrix(&phase.gain));
+        assert!(own < 1.0, "point {i}: closed-loop spectral radius {own}");
+        rest_radius_at_points.push((own, radius(&file_matrix(&t.kalman.phases[0].gain))));
+    }
+    eprintln!(
+        "schedule: {} points, ‖q*‖ = {norms:.3?}; closed-loop spectral radius at each point \
+         (own gain, rest gain) = {rest_radius_at_points:.4?}",
+        t.scheduled.len()
+    );
+    let mut again = model.clone();
+    tier::refilter(&full, &mut again).unwrap();
+    let again = again.tier.unwrap();
+    for (a, b) in again.scheduled.iter().zip(&t.scheduled) {
+        assert_eq!(a.point, b.point);
+        let (ga, gb) = (
+            file_matrix(&a.kalman.phases[0].gain),
+            file_matrix(&b.kalman.phases[0].gain),
+        );
+        assert!((&ga - &gb).norm() <= 1e-9 * gb.norm());
+    }
+}
+
+/// σ of the tip force's rate random walk in the force-rate scene, N/s per 5 ms step.
+const RATE_SIGMA: f64 = 20.0;
+
+/// The random-walk beam scene with force-rate states (docs/design.md §11.5), compiled once.
+fn compiled_force_rate() -> &'static crokf_formats::Model {
+    static C: OnceLock<crokf_formats::Model> = OnceLock::new();
+    C.get_or_init(|| {
+        let text = std::fs::read_to_string(random_walk_scene())
+            .unwrap()
+            .replace(
+                "force_model = \"random_walk\"",
+                &format!("force_model = \"random_walk\"\nforce_rate_noise_std = {RATE_SIGMA:e}"),
+            );
+        let path = random_walk_scene().with_file_name("scene_force_rate.toml");
+        std::fs::write(&path, text).unwrap();
+        compile(&path, &options()).unwrap().model
+    })
+}
+
+/// Runs the withheld-load case of `a_withheld_load_is_recovered_by_the_tier_filter` (20 N
+/// ramped in over 20 steps, noise-free markers from the same model, u = 0) on `model`; returns
+/// the filter's force states after step 20 (end of the ramp) and after step 300.
+fn withheld_ramp(model: &crokf_formats::Model) -> (Vec<f64>, Vec<f64>) {
+    let zi = model
+        .inputs
+        .iter()
+        .position(|c| c.label == "tip.z")
+        .unwrap();
+    let r = model.tier.as_ref().unwrap().order as usize;
+    let mut truth = Estimator::new(compiled_random_walk()).unwrap();
+    let mut est = Estimator::new(model).unwrap();
+    est.set_innovation_gate(None);
+    let mut u = vec![0.0; model.inputs.len()];
+    let zero = vec![0.0; model.inputs.len()];
+    let mut y = vec![0.0; model.measurements.len()];
+    let mut at_ramp_end = Vec::new();
+    for k in 0..300 {
+        u[zi] = tip_load(k, 20.0);
+        truth.predict(&u).unwrap();
+        truth.measurement_estimates(&mut y).unwrap();
+        let measured: Vec<Option<f64>> = y.iter().map(|&v| Some(v)).collect();
+        est.step(&zero, &measured).unwrap();
+        if k == 19 {
+            at_ramp_end = est.state()[3 * r..].to_vec();
+        }
+    }
+    (at_ramp_end, est.state()[3 * r..].to_vec())
+}
+
+/// Force-rate states (docs/design.md §11.5): the state grows by 3 rates per group, the rate of
+/// a withheld 20 N ramp over 0.1 s (−200 N/s) is estimated during the ramp, the force lags the
+/// ramp less than without rates at its end, and both settle on the applied force; a rate σ on
+/// a white load or on the warped tier is refused, naming the field.
+#[test]
+fn force_rate_states_follow_a_withheld_ramp() {
+    let model = compiled_force_rate();
+    let t = model.tier.as_ref().unwrap();
+    let r = t.order as usize;
+    assert!(t.force_rates);
+    assert_eq!(t.state_dim(), 3 * r + 6);
+    assert_eq!(Estimator::new(model).unwrap().state().len(), 3 * r + 6);
+    let (ramp_end, settled) = withheld_ramp(model);
+    let (ramp_end_rw, settled_rw) = withheld_ramp(compiled_random_walk());
+    eprintln!(
+        "withheld 20 N ramp: at its end f_z = {:.3} N, ḟ_z = {:.1} N/s with rates; f_z = {:.3} N \
+         without; after 300 steps f = {:.3?} (rates), {:.3?} (random walk)",
+        ramp_end[2], ramp_end[5], ramp_end_rw[2], settled, settled_rw
+    );
+    // The applied force at the end of the ramp is −20 N; its rate −200 N/s.
+    assert!(
+        (ramp_end[2] + 20.0).abs() < (ramp_end_rw[2] + 20.0).abs(),
+        "lag with rates {} vs without {}",
+        ramp_end[2] + 20.0,
+        ramp_end_rw[2] + 20.0
+    );
+    assert!(
+        ramp_end[5] < -50.0,
+        "rate at the ramp's end {}",
+        ramp_end[5]
+    );
+    assert!((settled[2] + 20.0).abs() < 0.2, "f = {settled:?}");
+    assert!(
+        settled[5].abs() < 5.0,
+        "rate after 300 steps {}",
+        settled[5]
+    );
+    // Refused: a rate σ without random-walk force states, or on the warped tier.
+    let dir = scene().parent().unwrap();
+    let base = std::fs::read_to_string(scene()).unwrap();
+    for (text, why) in [
+        (
+            base.replace(
+                "force_noise_std = 1e-2",
+                "force_noise_std = 1e-2\nforce_rate_noise_std = 1.0",
+            ),
+            "white load",
+        ),
+        (
+            std::fs::read_to_string(random_walk_scene())
+                .unwrap()
+                .replace(TIER, "")
+                .replace(
+                    "force_model = \"random_walk\"",
+                    "force_model = \"random_walk\"\nforce_rate_noise_std = 1.0",
+                ),
+            "warped tier",
+        ),
+    ] {
+        assert!(text.contains("force_rate_noise_std"), "{why}: not inserted");
+        let path = dir.join("bad_rate.toml");
+        std::fs::write(&path, text).unwrap();
+        let err = match compile(&path, &options()) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("{why}: accepted"),
+        };
+        assert!(err.contains("force_rate_noise_std"), "{why}: {err}");
+    }
+}
+
+/// The iterated scheduled update (docs/design.md §11.5): from rest, markers placed at c times
+/// the displacement of the scheduled operating point farthest from rest (c = 1, 10, 50) move the
+/// state away from rest; in every case the committed state is s⁻ + K_i ν with ν the innovation
+/// and K_i the stored gain of the filter i that the runtime reports, i is the filter nearest
+/// to that state (the fixed point the iteration looks for), and for the larger c it is not the
+/// rest filter that the prior would pick.
+#[test]
+fn the_update_uses_the_gain_of_the_filter_nearest_to_its_result() {
+    let model = compiled_random_walk();
+    let t = model.tier.as_ref().unwrap();
+    let r = t.order as usize;
+    let prepared = TierModel::new(model, t);
+    let far = &t.scheduled[0].point;
+    let mut switched = 0;
+    for c in [1.0, 10.0, 50.0] {
+        let mut est = Estimator::new(model).unwrap();
+        est.set_innovation_gate(None);
+        est.predict(&vec![0.0; model.inputs.len()]).unwrap();
+        assert_eq!(est.tier_filter(), Some(0));
+        let prior = est.state().to_vec();
+        let mut predicted = vec![0.0; model.measurements.len()];
+        est.measurement_estimates(&mut predicted).unwrap();
+        // Markers at c times the point's displacement: y = c H V q*.
+        let y: Vec<f64> = model
+            .measurements
+            .iter()
+            .map(|m| {
+                let rows = &t.sensor_rows[m.sensor as usize];
+                let k = m.component as usize;
+                c * (0..r).map(|j| rows.data[k * r + j] * far[j]).sum::<f64>()
+            })
+            .collect();
+        let measured: Vec<Option<f64>> = y.iter().map(|&v| Some(v)).collect();
+        est.update(&measured).unwrap();
+        let used = est.tier_filter().unwrap();
+        let posterior = est.state().to_vec();
+        assert_eq!(used, prepared.nearest_filter(&posterior[..r]), "c = {c}");
+        let kalman = if used == 0 {
+            &t.kalman
+        } else {
+            switched += 1;
+            &t.scheduled[used - 1].kalman
+        };
+        let phase = &kalman.phases[est.phase()];
+        let nu = DVector::from_iterator(
+            phase.measured.len(),
+            phase
+                .measured
+                .iter()
+                .map(|&j| y[j as usize] - predicted[j as usize]),
+        );
+        let expected = DVector::from_column_slice(&prior) + file_matrix(&phase.gain) * nu;
+        let error = (&expected - DVector::from_column_slice(&posterior)).norm() / expected.norm();
+        eprintln!(
+            "iterated update, markers × {c}: filter {used} of {}, relative difference {error:.1e}",
+            prepared.filter_count()
+        );
+        assert!(error < 1e-12, "c = {c}: {error:e}");
+    }
+    assert!(switched > 0, "no update left the rest filter");
 }

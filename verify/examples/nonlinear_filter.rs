@@ -18,6 +18,13 @@
 //! MODEL is a model file or `FILE@SCENE2` (FILE's tier with its filter recomputed for SCENE2,
 //! see `read_model`).
 //! SCENE is the scene of the reference (either tier's scene: same mesh and material).
+//!
+//! Measuring aids (environment): `CROKF_REFERENCE_CACHE=FILE` keeps the reference run in FILE
+//! (written once, read while the step count matches: use one file per scene and scenario);
+//! `CROKF_RUNS=open,given,withheld` runs only those; `CROKF_NOISE_SCALE=c` scales the markers'
+//! noise (0: noise-free, the filter unchanged); `CROKF_NO_SCHEDULE=1` drops the tier's gain
+//! schedule (the filter designed at rest only, docs/design.md §11.5); `CROKF_TRACE=1` prints
+//! ‖q‖, ‖q̇‖, ‖q̈‖ and f before and after every update on stderr.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -47,49 +54,25 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     }
     let full = FullOrder::build(&PathBuf::from(&args[0]), &mut StageTimer::default())?;
     let scenario = Scenario::read(&PathBuf::from(&args[1]))?;
-    let fem = &full.fem;
     let ops = &full.operators;
-    let dt = full.wilson.dt;
-    let steps = match scenario.horizon(dt) {
+    let steps = match scenario.horizon(full.wilson.dt) {
         Horizon::Steps(k) => k,
         Horizon::Steady(_) => return Err("the scenario needs a fixed horizon".into()),
     };
-    let n = fem.dof_count();
-    // Reference: displayed nodes (node sets in order, world displacement) and sensors.
-    let mut reference = CorotationalSimulator::new(fem, full.wilson, NewtonOptions::default())?;
-    let mut shown_ref: Vec<Vec<f64>> = Vec::with_capacity(steps);
-    let mut sensors_ref: Vec<Vec<f64>> = Vec::with_capacity(steps);
-    let mut inputs = Vec::with_capacity(steps);
-    let nodal = |u: &[f64], node: usize, c: usize| fem.dofs.index[node][c].map_or(0.0, |d| u[d]);
-    for k in 0..steps {
-        let t = k as f64 * dt;
-        let f = scenario.load_vector(ops, n, t);
-        inputs.push(scenario.inputs_at(ops, t));
-        reference.step(&f)?;
-        let u = reference.displacement();
-        let mut shown = Vec::new();
-        for set in &ops.node_sets {
-            for &node in &set.nodes {
-                for c in 0..3 {
-                    shown.push(nodal(u, node, c));
-                }
+    let (shown_ref, sensors_ref, inputs) = match std::env::var_os("CROKF_REFERENCE_CACHE") {
+        Some(path) => match read_cache(&PathBuf::from(&path), steps) {
+            Some(cached) => {
+                eprintln!("reference read from {}", PathBuf::from(&path).display());
+                cached
             }
-        }
-        shown_ref.push(shown);
-        let mut s = Vec::new();
-        for sensor in &ops.sensors {
-            for c in 0..3 {
-                s.push(
-                    sensor
-                        .weights
-                        .iter()
-                        .map(|&(node, w)| w * nodal(u, node, c))
-                        .sum::<f64>(),
-                );
+            None => {
+                let computed = reference_run(&full, &scenario, steps)?;
+                write_cache(&PathBuf::from(&path), &computed)?;
+                computed
             }
-        }
-        sensors_ref.push(s);
-    }
+        },
+        None => reference_run(&full, &scenario, steps)?,
+    };
     // Tip marker: the sensor named `tip`, else the one with the largest peak displacement
     // (as `crokf-verify report`).
     let tip = ops
@@ -118,13 +101,28 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         "| model | tier | run | nodes | sensors | tip | ANIS [95 % bounds] | tip ANEES [95 % bounds] | 2σ coverage | > 5σ innovations | final f (N) | median step (µs) |\n|---|---|---|---:|---:|---:|---|---|---:|---:|---|---:|"
     );
     for path in &args[2..] {
-        let model = read_model(path)?;
+        let mut model = read_model(path)?;
+        // CROKF_NO_SCHEDULE=1 (a measuring aid): the tier's filter designed at rest only, as
+        // before the gain schedule (docs/design.md §11.5).
+        if std::env::var_os("CROKF_NO_SCHEDULE").is_some() {
+            if let Some(t) = model.tier.as_mut() {
+                t.scheduled.clear();
+            }
+        }
         let tier = if model.tier.is_some() {
             "co-rotational"
         } else {
             "warped"
         };
+        // CROKF_RUNS=open,given,withheld (a measuring aid): only the runs named.
+        let only = std::env::var("CROKF_RUNS").ok();
         for run in [Run::OpenLoop, Run::Given, Run::Withheld] {
+            if only
+                .as_deref()
+                .is_some_and(|o| !o.split(',').any(|w| run.label().contains(w)))
+            {
+                continue;
+            }
             let out = match run_model(&model, run, &inputs, &sensors_ref, &shown_ref, tip) {
                 Ok(out) => out,
                 Err(e) => {
@@ -169,10 +167,96 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
+/// Displayed nodes, sensors (world displacement, m) and inputs per step.
+type Reference = (Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<Vec<f64>>);
+
+/// The full-order co-rotational reference run of the scenario (Newton to 1e-8).
+fn reference_run(
+    full: &FullOrder,
+    scenario: &Scenario,
+    steps: usize,
+) -> Result<Reference, Box<dyn std::error::Error>> {
+    let fem = &full.fem;
+    let ops = &full.operators;
+    let dt = full.wilson.dt;
+    let n = fem.dof_count();
+    // Reference: displayed nodes (node sets in order, world displacement) and sensors.
+    let mut reference = CorotationalSimulator::new(fem, full.wilson, NewtonOptions::default())?;
+    let mut shown_ref: Vec<Vec<f64>> = Vec::with_capacity(steps);
+    let mut sensors_ref: Vec<Vec<f64>> = Vec::with_capacity(steps);
+    let mut inputs = Vec::with_capacity(steps);
+    let nodal = |u: &[f64], node: usize, c: usize| fem.dofs.index[node][c].map_or(0.0, |d| u[d]);
+    for k in 0..steps {
+        let t = k as f64 * dt;
+        let f = scenario.load_vector(ops, n, t);
+        inputs.push(scenario.inputs_at(ops, t));
+        reference.step(&f)?;
+        let u = reference.displacement();
+        let mut shown = Vec::new();
+        for set in &ops.node_sets {
+            for &node in &set.nodes {
+                for c in 0..3 {
+                    shown.push(nodal(u, node, c));
+                }
+            }
+        }
+        shown_ref.push(shown);
+        let mut s = Vec::new();
+        for sensor in &ops.sensors {
+            for c in 0..3 {
+                s.push(
+                    sensor
+                        .weights
+                        .iter()
+                        .map(|&(node, w)| w * nodal(u, node, c))
+                        .sum::<f64>(),
+                );
+            }
+        }
+        sensors_ref.push(s);
+    }
+    Ok((shown_ref, sensors_ref, inputs))
+}
+
+/// The reference as little-endian f64 rows (`CROKF_REFERENCE_CACHE=FILE`: written on the first
+/// run, read on the next ones with the same scene, scenario and step count; a measuring aid).
+fn write_cache(path: &std::path::Path, r: &Reference) -> std::io::Result<()> {
+    let mut bytes = Vec::new();
+    for part in [&r.0, &r.1, &r.2] {
+        bytes.extend_from_slice(&(part.len() as u64).to_le_bytes());
+        bytes.extend_from_slice(&(part.first().map_or(0, Vec::len) as u64).to_le_bytes());
+        for row in part {
+            for v in row {
+                bytes.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+    }
+    std::fs::write(path, bytes)
+}
+
+fn read_cache(path: &std::path::Path, steps: usize) -> Option<Reference> {
+    let bytes = std::fs::read(path).ok()?;
+    let mut at = 0;
+    let mut word = || -> Option<[u8; 8]> {
+        let w = bytes.get(at..at + 8)?.try_into().ok()?;
+        at += 8;
+        Some(w)
+    };
+    let mut part = || -> Option<Vec<Vec<f64>>> {
+        let rows = u64::from_le_bytes(word()?) as usize;
+        let cols = u64::from_le_bytes(word()?) as usize;
+        (0..rows)
+            .map(|_| (0..cols).map(|_| word().map(f64::from_le_bytes)).collect())
+            .collect()
+    };
+    let out = (part()?, part()?, part()?);
+    (out.0.len() == steps).then_some(out)
+}
+
 /// A model file, or `FILE@SCENE`: FILE's co-rotational tier with its filter recomputed for
 /// SCENE's sensors and noise model (`crokf_compile::nonlinear::tier::refilter`: same training,
-/// e.g. the scene's 30 Hz or 1 mm variant). FILE may then be a format-v3 tier file (read past
-/// its header; its tier gets the force states of SCENE).
+/// e.g. the scene's 30 Hz or 1 mm variant). FILE may then be a format-v3 or v4 tier file (read
+/// past its header; its tier gets the force states of SCENE, and no gain schedule).
 fn read_model(arg: &str) -> Result<crokf_formats::Model, Box<dyn std::error::Error>> {
     let Some((file, scene)) = arg.split_once('@') else {
         return Ok(load_model(arg)?);
@@ -180,7 +264,7 @@ fn read_model(arg: &str) -> Result<crokf_formats::Model, Box<dyn std::error::Err
     let bytes = std::fs::read(file)?;
     let mut model = match crokf_formats::decode(&bytes) {
         Ok(m) => m,
-        Err(crokf_formats::FormatError::UnsupportedVersion { found: 3, .. }) => {
+        Err(crokf_formats::FormatError::UnsupportedVersion { found: 3 | 4, .. }) => {
             crokf_formats::decode_payload(&bytes[crokf_formats::HEADER_LEN..])?
         }
         Err(e) => return Err(e.into()),
@@ -244,6 +328,17 @@ fn block(a: &[f64], b: &[f64], r: usize, p: &crokf_formats::Matrix) -> DMatrix<f
     })
 }
 
+/// The tier's filter in use (its gain schedule, docs/design.md §11.5).
+fn active_kalman<'a>(
+    t: &'a crokf_formats::CorotationalTier,
+    est: &Estimator,
+) -> &'a crokf_formats::KalmanGains {
+    match est.tier_filter() {
+        Some(i) if i > 0 => &t.scheduled[i - 1].kalman,
+        _ => &t.kalman,
+    }
+}
+
 fn run_model(
     model: &crokf_formats::Model,
     run: Run,
@@ -256,6 +351,12 @@ fn run_model(
     let mut est = Estimator::new(model)?;
     est.set_innovation_gate(None);
     let mut rng = Gaussian::new(7);
+    // CROKF_NOISE_SCALE=c (a measuring aid): markers with c times the model's σ (0: noise-free),
+    // the filter unchanged; separates the noise-driven part of the error from the rest.
+    let noise_scale: f64 = std::env::var("CROKF_NOISE_SCALE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1.0);
     let (mut e2, mut r2, mut se2, mut sr2, mut te2, mut tr2) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     let mut shown = vec![0.0; shown_ref[0].len()];
     let mut sigma = vec![0.0; shown_ref[0].len()];
@@ -286,7 +387,7 @@ fn run_model(
                     .sqrt();
                 Some(
                     sensors_ref[k][3 * m.sensor as usize + m.component as usize]
-                        + sigma * rng.normal(),
+                        + noise_scale * sigma * rng.normal(),
                 )
             })
             .collect();
@@ -302,7 +403,7 @@ fn run_model(
             if let Some(t) = tier {
                 // NIS over the phase's active channels: ν = y − ŷ⁻, S = H P⁻ Hᵀ + R.
                 est.measurement_estimates(&mut estimates)?;
-                let phase = &t.kalman.phases[est.phase()];
+                let phase = &active_kalman(t, &est).phases[est.phase()];
                 let active = &phase.measured;
                 let r = t.order as usize;
                 let mut s_mat = DMatrix::zeros(active.len(), active.len());
@@ -331,8 +432,34 @@ fn run_model(
                 }
             }
             let clock = std::time::Instant::now();
+            let trace = std::env::var_os("CROKF_TRACE").is_some() && tier.is_some();
+            let norms = |s: &[f64], r: usize| {
+                let n = |a: &[f64]| a.iter().map(|x| x * x).sum::<f64>().sqrt();
+                format!(
+                    "|q| {:.3e} |qd| {:.3e} |qdd| {:.3e} f {:?}",
+                    n(&s[..r]),
+                    n(&s[r..2 * r]),
+                    n(&s[2 * r..3 * r]),
+                    s[3 * r..]
+                        .iter()
+                        .map(|v| (v * 1e4).round() / 1e4)
+                        .collect::<Vec<_>>()
+                )
+            };
+            let r = tier.map_or(0, |t| t.order as usize);
+            if trace {
+                eprintln!(
+                    "k {k} phase {} it {} prior  {}",
+                    est.phase(),
+                    est.tier_status().iterations,
+                    norms(est.state(), r)
+                );
+            }
             est.update(&y)?;
             elapsed += clock.elapsed().as_secs_f64();
+            if trace {
+                eprintln!("k {k}          post   {}", norms(est.state(), r));
+            }
         }
         times.push(elapsed);
         let mut at = 0;
@@ -362,7 +489,7 @@ fn run_model(
             }
         }
         if let (true, Some(t)) = (filtered, tier) {
-            let phase = &t.kalman.phases[est.phase()];
+            let phase = &active_kalman(t, &est).phases[est.phase()];
             let rows = &t.sensor_rows[tip].data;
             let sig = block(rows, rows, t.order as usize, &phase.posterior_covariance);
             let e = nalgebra::DVector::from_fn(3, |c, _| {

@@ -1,7 +1,8 @@
 //! The co-rotational tier assembled from training (docs/design.md §10): training → POD basis →
-//! ECSW sampling → reduced model ([`from_training`], [`build`]); its constant-gain filter from
-//! the DARE of the model linearised at rest ([`linearised_filter`]); and the model file's tier
-//! section ([`tier_section`], docs/model-format.md).
+//! ECSW sampling → reduced model ([`from_training`], [`build`]); its filter from the DARE of
+//! the model linearised at rest and at training states, a gain schedule ([`linearised_filter`],
+//! docs/design.md §11.4–11.5); and the model file's tier section ([`tier_section`],
+//! docs/model-format.md).
 
 use faer::linalg::solvers::Solve as _;
 use faer::Mat;
@@ -146,6 +147,9 @@ pub struct LinearisedTier {
     pub force_columns: Vec<DVector<f64>>,
     /// σ per force state, N per step.
     pub force_sigma: Vec<f64>,
+    /// σ of each force state's rate random walk, N/s per step (docs/design.md §11.5); empty:
+    /// no rate states.
+    pub rate_sigma: Vec<f64>,
     /// VᵀB_w of each white process-noise channel (r each; σ included).
     pub noise_columns: Vec<DVector<f64>>,
     /// H V: the measured channels' rows of V (channels × r).
@@ -159,6 +163,8 @@ struct NoiseModel {
     force: Vec<(usize, f64)>,
     /// White noise channels (indices into `full.operators.noise`).
     white: Vec<usize>,
+    /// Per force state: σ of its rate's random walk, N/s per step; empty without rate states.
+    rate: Vec<f64>,
 }
 
 /// The scene's [`NoiseModel`] (docs/design.md §11.4).
@@ -175,13 +181,24 @@ fn noise_model(full: &FullOrder) -> Result<NoiseModel, NonlinearError> {
             force.push((ch, sigma));
         }
     }
+    let rates = full.force_rate_sigmas();
+    let rate = if rates.iter().all(|&r| r == 0.0) {
+        Vec::new()
+    } else if rates.iter().all(|&r| r > 0.0) {
+        rates.iter().flat_map(|&r| [r; 3]).collect()
+    } else {
+        return Err(NonlinearError::Invalid(
+            "tier filter: force_rate_noise_std must be set on every random-walk load or on none"
+                .into(),
+        ));
+    };
     let white = (0..full.operators.noise.len())
         .filter(|&j| match full.operators.noise[j].kind {
             InputKind::Noise { load: Some(g) } => !force_loads.iter().any(|&(l, _)| l == g),
             _ => true,
         })
         .collect();
-    Ok(NoiseModel { force, white })
+    Ok(NoiseModel { force, white, rate })
 }
 
 /// The tier's filter (docs/design.md §11.4): the reduced model linearised at rest
@@ -200,6 +217,12 @@ fn noise_model(full: &FullOrder) -> Result<NoiseModel, NonlinearError> {
 /// response of the linearised tier to each force channel, H V K_r⁻¹ Vᵀ b, is compared with the
 /// full-order H K⁻¹ b and the worst relative residual returned (`static_residual`), so that
 /// the choice is measured on every compile.
+///
+/// With force rates (a load's `force_rate_noise_std` σ_ḟ > 0, docs/design.md §11.5) each force
+/// state also has its rate: f_{k+1} = f_k + Δt ḟ_k + w_f,k, ḟ_{k+1} = ḟ_k + w_ḟ,k,
+/// w_ḟ ~ N(0, σ_ḟ² I₃) (N/s). Gain schedule (§11.5): the same filter is also designed on the
+/// tier linearised at up to [`SCHEDULE_POINTS`] training states ([`schedule_points`],
+/// [`LinearisedTier::at`]), returned in `scheduled`.
 pub fn linearised_filter(
     full: &FullOrder,
     tier: &Tier,
@@ -208,7 +231,7 @@ pub fn linearised_filter(
     let model = &tier.model;
     let r = model.order();
     let v = &tier.basis.vectors;
-    let NoiseModel { force, white } = noise_model(full)?;
+    let NoiseModel { force, white, rate } = noise_model(full)?;
     let project = |column: &[f64]| v.tr_mul(&DVector::from_column_slice(column));
     let ops = &full.operators;
     let lin = LinearisedTier {
@@ -222,6 +245,7 @@ pub fn linearised_filter(
             .map(|&(ch, _)| project(&ops.inputs[ch].column))
             .collect(),
         force_sigma: force.iter().map(|&(_, s)| s).collect(),
+        rate_sigma: rate,
         noise_columns: white
             .iter()
             .map(|&j| project(&ops.noise[j].column))
@@ -242,7 +266,107 @@ pub fn linearised_filter(
     let mut filter = filter_of(&lin, measurements)?;
     filter.force_loads = full.random_walk_loads().iter().map(|&(g, _)| g).collect();
     filter.static_residual = residual;
+    let projected: Vec<DVector<f64>> = tier
+        .training
+        .snapshots
+        .iter()
+        .map(|u| tier.basis.project(u))
+        .collect();
+    filter.marker_model_error = marker_model_error(full, tier, &projected, measurements);
+    let points = schedule_points(&projected, SCHEDULE_POINTS);
+    filter.scheduled = scheduled_filters(&lin, model, &points, measurements);
     Ok(filter)
+}
+
+/// The model error of the tier at the markers that its basis alone makes (docs/design.md
+/// §11.5, a check of the noise model against the training runs): per measurement channel j,
+/// sqrt(mean over the training snapshots u of (h_j (u − V q))²) / σ_j, q = VᵀM u the snapshot's
+/// projection (`projected`), h_j the channel's row of the sensor interpolation, σ_j its noise.
+/// Small against 1: the markers' noise, not the basis, dominates their error budget.
+pub fn marker_model_error(
+    full: &FullOrder,
+    tier: &Tier,
+    projected: &[DVector<f64>],
+    measurements: &Measurements,
+) -> Vec<f64> {
+    let ops = &full.operators;
+    let v = &tier.basis.vectors;
+    let count = tier.training.snapshots.len().max(1) as f64;
+    measurements
+        .channels
+        .iter()
+        .zip(&measurements.variance)
+        .map(|(&(s, c), &variance)| {
+            let rows = point_rows(full, v, &ops.sensors[s].weights);
+            let row = rows.row(c);
+            let sum: f64 = tier
+                .training
+                .snapshots
+                .iter()
+                .zip(projected)
+                .map(|(u, q)| {
+                    let exact: f64 = ops.sensors[s]
+                        .weights
+                        .iter()
+                        .filter_map(|&(node, w)| full.fem.dofs.index[node][c].map(|d| w * u[d]))
+                        .sum();
+                    (exact - row.dot(&q.transpose())).powi(2)
+                })
+                .sum();
+            (sum / count / variance).sqrt()
+        })
+        .collect()
+}
+
+/// Operating points of the tier's gain schedule besides rest (docs/design.md §11.5).
+pub const SCHEDULE_POINTS: usize = 8;
+
+/// Up to `count` operating points among the training states `states` (projected snapshots,
+/// r each): greedy farthest-point (k-centre) selection in the M-norm of q (= ‖q‖ for an
+/// M-orthonormal basis), starting from rest (not returned): each point is the state farthest
+/// from rest and the points already chosen; deterministic (the first of equal distances).
+/// Fewer when the states run out or coincide with chosen points.
+pub fn schedule_points(states: &[DVector<f64>], count: usize) -> Vec<DVector<f64>> {
+    let mut distance: Vec<f64> = states.iter().map(|q| q.norm()).collect();
+    let mut points: Vec<DVector<f64>> = Vec::with_capacity(count);
+    while points.len() < count {
+        let Some((far, &d)) = distance.iter().enumerate().fold(
+            None,
+            |best: Option<(usize, &f64)>, (i, d)| match best {
+                Some((_, b)) if *b >= *d => best,
+                _ => Some((i, d)),
+            },
+        ) else {
+            break;
+        };
+        if d.is_nan() || d <= 0.0 {
+            break;
+        }
+        let point = states[far].clone();
+        for (dist, q) in distance.iter_mut().zip(states) {
+            *dist = dist.min((q - &point).norm());
+        }
+        points.push(point);
+    }
+    points
+}
+
+/// The filter of `lin` re-linearised at each of `points` ([`LinearisedTier::at`] on `model`);
+/// a point whose tangent or DARE fails is left out (the runtime then uses its neighbours).
+fn scheduled_filters(
+    lin: &LinearisedTier,
+    model: &ReducedModel,
+    points: &[DVector<f64>],
+    measurements: &Measurements,
+) -> Vec<(DVector<f64>, PeriodicSchedule)> {
+    points
+        .iter()
+        .filter_map(|q| {
+            filter_of(&lin.at(model, q), measurements)
+                .ok()
+                .map(|f| (q.clone(), f.schedule))
+        })
+        .collect()
 }
 
 /// H V (channels × r) from each sensor's 3 × r rows.
@@ -296,7 +420,8 @@ pub fn filter_of(
     let w = lin.wilson;
     let n3 = 3 * r;
     let nf = lin.force_columns.len();
-    let n = n3 + nf;
+    let nr = lin.rate_sigma.len();
+    let n = n3 + nf + nr;
     let mut f = Mat::<f64>::zeros(n, n);
     let mut gamma = vec![[0.0; 3]; r];
     for i in 0..r {
@@ -321,13 +446,21 @@ pub fn filter_of(
         modal_load(column, &mut f, n3 + j);
         f[(n3 + j, n3 + j)] = 1.0;
     }
+    // Force rates (§11.5): f⁺ = f + Δt ḟ, ḟ⁺ = ḟ.
+    for j in 0..nr {
+        f[(n3 + j, n3 + nf + j)] = w.dt;
+        f[(n3 + nf + j, n3 + nf + j)] = 1.0;
+    }
     let nw = lin.noise_columns.len();
-    let mut gw = Mat::<f64>::zeros(n, nw + nf);
+    let mut gw = Mat::<f64>::zeros(n, nw + nf + nr);
     for (c, column) in lin.noise_columns.iter().enumerate() {
         modal_load(column, &mut gw, c);
     }
     for (j, &sigma) in lin.force_sigma.iter().enumerate() {
         gw[(n3 + j, nw + j)] = sigma;
+    }
+    for (j, &sigma) in lin.rate_sigma.iter().enumerate() {
+        gw[(n3 + nf + j, nw + nf + j)] = sigma;
     }
     // Diagonal scaling D (x_m = D x̃) so that F's entries are O(1) and the PBH tests of the
     // DARE are meaningful: (1, ω_i, ω_i²) for mode i's (η, η̇, η̈), and for a force state the
@@ -345,6 +478,10 @@ pub fn filter_of(
         if response > 0.0 {
             d[n3 + j] = 1.0 / response;
         }
+    }
+    // A rate's unit: the rate that changes its force by one unit of d in one step.
+    for j in 0..nr {
+        d[n3 + nf + j] = d[n3 + j] / w.dt;
     }
     let f = Mat::<f64>::from_fn(n, n, |i, j| f[(i, j)] * d[j] / d[i]);
     let gw = Mat::<f64>::from_fn(n, gw.ncols(), |i, j| gw[(i, j)] / d[i]);
@@ -388,17 +525,22 @@ pub fn filter_of(
         process_noise: back(&q),
         schedule,
         force_loads: Vec::new(),
+        force_rates: nr > 0,
         static_residual: 0.0,
+        marker_model_error: Vec::new(),
+        scheduled: Vec::new(),
     })
 }
 
-/// Recomputes the tier filter of a model file for the scene `full` (same mesh, loads and
-/// training; other sensors' noise, rates or force-noise σ): the [`LinearisedTier`] is read
-/// from the file's tier section (M_r, K_r at rest = Σ wₑ V_eᵀ Kₑ V_e over the sampled
-/// elements, VᵀB, the sensor rows), the noise model from the scene, and the section's
-/// `force_loads` and `kalman` are replaced. The scene's distributed force noise is not in the
-/// file (no VᵀB_w): refused. Returns the new filter's closed-loop spectral radius.
-pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, NonlinearError> {
+/// The [`LinearisedTier`] of a model file's tier at rest for the scene `full` (same mesh and
+/// loads; the scene gives the sensors' noise and rates and the force-noise σ) and the scene's
+/// [`Measurements`]: K_r at rest = Σ wₑ V_eᵀ Kₑ V_e over the sampled elements, M_r, VᵀB and the
+/// sensor rows from the file, the noise model from the scene. The scene's distributed force
+/// noise is not in the file (no VᵀB_w): refused.
+pub fn linearised_of_file(
+    full: &FullOrder,
+    model: &fmt::Model,
+) -> Result<(LinearisedTier, Measurements), NonlinearError> {
     let measurements = Measurements::new(&full.operators);
     let inputs = &full.operators.inputs;
     if model.inputs.len() != inputs.len()
@@ -409,24 +551,19 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
             "refilter: the scene's inputs, measurements or Δt differ from the model's".into(),
         ));
     }
-    let Some(t) = model.tier.as_mut() else {
+    let Some(t) = model.tier.as_ref() else {
         return Err(NonlinearError::Invalid(
             "refilter: the model has no tier".into(),
         ));
     };
     let r = t.order as usize;
-    let matrix = |m: &fmt::Matrix| {
-        DMatrix::from_fn(m.rows as usize, m.cols as usize, |i, j| {
-            m.data[i * m.cols as usize + j]
-        })
-    };
     let mut stiffness = DMatrix::<f64>::zeros(r, r);
     for e in &t.elements {
-        let rows = matrix(&e.rows);
-        stiffness += e.weight * rows.transpose() * matrix(&e.stiffness) * &rows;
+        let rows = file_matrix(&e.rows);
+        stiffness += e.weight * rows.transpose() * file_matrix(&e.stiffness) * &rows;
     }
-    let input = matrix(&t.input);
-    let NoiseModel { force, white } = noise_model(full)?;
+    let input = file_matrix(&t.input);
+    let NoiseModel { force, white, rate } = noise_model(full)?;
     let mut noise_columns = Vec::with_capacity(white.len());
     for &j in &white {
         // A load's white noise channel is σ times its load channel (fem::operators), whose VᵀB
@@ -449,7 +586,7 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
         })?);
     }
     let lin = LinearisedTier {
-        mass: matrix(&t.mass),
+        mass: file_matrix(&t.mass),
         stiffness,
         alpha: t.alpha,
         beta: t.beta,
@@ -459,19 +596,172 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
             .map(|&(ch, _)| input.column(ch).into())
             .collect(),
         force_sigma: force.iter().map(|&(_, s)| s).collect(),
+        rate_sigma: rate,
         noise_columns,
-        measured_rows: measured_rows(&measurements, |s| matrix(&t.sensor_rows[s])),
+        measured_rows: measured_rows(&measurements, |s| file_matrix(&t.sensor_rows[s])),
+    };
+    Ok((lin, measurements))
+}
+
+/// A model file's matrix as a DMatrix.
+fn file_matrix(m: &fmt::Matrix) -> DMatrix<f64> {
+    DMatrix::from_fn(m.rows as usize, m.cols as usize, |i, j| {
+        m.data[i * m.cols as usize + j]
+    })
+}
+
+/// The reduced co-rotational model of a model file's tier on the scene's mesh `full` (the
+/// sampled elements' rest geometry, Kₑ, weights and basis rows from the file, their shape
+/// gradients from the mesh): what the compiler's [`ReducedModel`] was when the file was written,
+/// for the consistent tangent K_N,r(q) of [`LinearisedTier::at`].
+pub fn reduced_model_of_file(
+    full: &FullOrder,
+    t: &fmt::CorotationalTier,
+) -> Result<ReducedModel, NonlinearError> {
+    let fem = &full.fem;
+    let mut elements = Vec::with_capacity(t.elements.len());
+    for e in &t.elements {
+        let index = e.element as usize;
+        let Some(el) = fem.elements.get(index) else {
+            return Err(NonlinearError::Invalid(format!(
+                "tier element {index} is not in the scene's mesh ({} elements)",
+                fem.elements.len()
+            )));
+        };
+        let rows = file_matrix(&e.rows);
+        let flat = e.rows.data.clone();
+        elements.push(super::reduced::SampledElement {
+            element: index,
+            weight: e.weight,
+            geometry: el.geometry,
+            stiffness: std::array::from_fn(|i| {
+                std::array::from_fn(|j| e.stiffness.data[12 * i + j])
+            }),
+            rest: e.rest,
+            flat_t: crokf_kernel::transpose_rows(&flat),
+            flat,
+            rows,
+        });
+    }
+    Ok(ReducedModel {
+        elements,
+        mass: file_matrix(&t.mass),
+        alpha: t.alpha,
+        beta: t.beta,
+        wilson: full.wilson,
+    })
+}
+
+impl LinearisedTier {
+    /// The same tier linearised at q (r) instead of rest: K_r ← K_N,r(q), the consistent
+    /// reduced tangent of `model` (docs/design.md §11.5).
+    pub fn at(&self, model: &ReducedModel, q: &DVector<f64>) -> LinearisedTier {
+        LinearisedTier {
+            stiffness: model.tangent(q, 0.0, true),
+            ..self.clone()
+        }
+    }
+
+    /// The linearised step in s = (q, q̇, q̈, f) coordinates (n = 3r + force states):
+    /// s_{k+1} = F s_k (+ inputs), F = [[A, Γ_f], [0, I]], and the measured rows
+    /// H = [H V, 0, 0, 0] (channels × n). A is the Wilson-θ recursion of
+    /// M q̈ + (αM + βK) q̇ + K q = f_r with f_r held over the step (module docs of
+    /// `crokf_runtime::tier`): q̂ = J⁻¹ (M(a₀q + (6/τ)q̇ + 2q̈) + C(a₂q + 2q̇ + (τ/2)q̈) + f_r),
+    /// J = K + a₂C + a₀M, then [`crate::dynamics::WilsonTheta::advance`] per coordinate.
+    pub fn transition(&self) -> Result<(DMatrix<f64>, DMatrix<f64>), NonlinearError> {
+        let r = self.mass.nrows();
+        let nf = self.force_columns.len();
+        let nr = self.rate_sigma.len();
+        let n = 3 * r + nf + nr;
+        let w = self.wilson;
+        let (tau, a0, a2) = (w.tau(), w.mass_coefficient(), w.damping_coefficient());
+        let m = &self.mass;
+        let c = m * self.alpha + &self.stiffness * self.beta;
+        let j = &self.stiffness + &c * a2 + m * a0;
+        let chol = j.cholesky().ok_or_else(|| {
+            NonlinearError::Invalid("tier transition: J is not positive definite".into())
+        })?;
+        // q̂ = G s, G = J⁻¹ [M a₀ + C a₂, M 6/τ + 2C, 2M + C τ/2, VᵀB_f].
+        let mut rhs = DMatrix::zeros(r, n);
+        rhs.view_mut((0, 0), (r, r)).copy_from(&(m * a0 + &c * a2));
+        rhs.view_mut((0, r), (r, r))
+            .copy_from(&(m * (6.0 / tau) + &c * 2.0));
+        rhs.view_mut((0, 2 * r), (r, r))
+            .copy_from(&(m * 2.0 + &c * (0.5 * tau)));
+        for (k, col) in self.force_columns.iter().enumerate() {
+            rhs.column_mut(3 * r + k).copy_from(col);
+        }
+        let g = chol.solve(&rhs);
+        // advance(u, v, a, û) is linear: its coefficients from unit arguments.
+        let unit = |k: usize| {
+            let mut x = [0.0; 4];
+            x[k] = 1.0;
+            crokf_kernel::wilson::advance(w.dt, w.theta, x[0], x[1], x[2], x[3])
+        };
+        let coeff: Vec<(f64, f64, f64)> = (0..4).map(unit).collect();
+        let mut f = DMatrix::zeros(n, n);
+        for blk in 0..3 {
+            let pick = |t: (f64, f64, f64)| [t.0, t.1, t.2][blk];
+            for i in 0..r {
+                for src in 0..3 {
+                    f[(blk * r + i, src * r + i)] += pick(coeff[src]);
+                }
+                for col in 0..n {
+                    f[(blk * r + i, col)] += pick(coeff[3]) * g[(i, col)];
+                }
+            }
+        }
+        for k in 0..nf {
+            f[(3 * r + k, 3 * r + k)] = 1.0;
+        }
+        for k in 0..nr {
+            f[(3 * r + k, 3 * r + nf + k)] = w.dt;
+            f[(3 * r + nf + k, 3 * r + nf + k)] = 1.0;
+        }
+        let mut h = DMatrix::zeros(self.measured_rows.nrows(), n);
+        h.view_mut((0, 0), (self.measured_rows.nrows(), r))
+            .copy_from(&self.measured_rows);
+        Ok((f, h))
+    }
+}
+
+/// Recomputes the tier filter of a model file for the scene `full` (same mesh, loads and
+/// training; other sensors' noise, rates or force-noise σ): the [`LinearisedTier`] is read
+/// from the file's tier section (M_r, K_r at rest = Σ wₑ V_eᵀ Kₑ V_e over the sampled
+/// elements, VᵀB, the sensor rows), the noise model from the scene, and the section's
+/// `force_loads` and `kalman` are replaced. The scene's distributed force noise is not in the
+/// file (no VᵀB_w): refused. Returns the new filter's closed-loop spectral radius.
+pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, NonlinearError> {
+    let (lin, measurements) = linearised_of_file(full, model)?;
+    let Some(t) = model.tier.as_mut() else {
+        return Err(NonlinearError::Invalid(
+            "refilter: the model has no tier".into(),
+        ));
     };
     let mut filter = filter_of(&lin, &measurements)?;
     filter.force_loads = full.random_walk_loads().iter().map(|&(g, _)| g).collect();
+    let points: Vec<DVector<f64>> = t
+        .scheduled
+        .iter()
+        .map(|s| DVector::from_column_slice(&s.point))
+        .collect();
+    if !points.is_empty() {
+        let reduced = reduced_model_of_file(full, t)?;
+        filter.scheduled = scheduled_filters(&lin, &reduced, &points, &measurements);
+    }
     t.force_loads = filter.force_loads.iter().map(|&g| g as u32).collect();
-    t.kalman = kalman_section(&filter, &measurements);
+    t.force_rates = filter.force_rates;
+    t.kalman = kalman_section(&filter.schedule, &filter.process_noise, &measurements);
+    t.scheduled = scheduled_section(&filter, &measurements);
     Ok(filter.schedule.closed_loop_spectral_radius)
 }
 
-/// The section's `kalman` of a filter.
-fn kalman_section(filter: &TierFilter, measurements: &Measurements) -> fmt::KalmanGains {
-    let schedule = &filter.schedule;
+/// The section's `kalman` of a periodic schedule with process noise `process_noise`.
+fn kalman_section(
+    schedule: &PeriodicSchedule,
+    process_noise: &Mat<f64>,
+    measurements: &Measurements,
+) -> fmt::KalmanGains {
     fmt::KalmanGains {
         period: schedule.period as u32,
         phases: schedule
@@ -484,9 +774,24 @@ fn kalman_section(filter: &TierFilter, measurements: &Measurements) -> fmt::Kalm
                 posterior_covariance: crate::model_file::to_matrix(p.posterior_covariance.as_ref()),
             })
             .collect(),
-        process_noise: crate::model_file::to_matrix(filter.process_noise.as_ref()),
+        process_noise: crate::model_file::to_matrix(process_noise.as_ref()),
         measurement_variance: measurements.variance.clone(),
     }
+}
+
+/// The section's `scheduled` of a filter.
+fn scheduled_section(
+    filter: &TierFilter,
+    measurements: &Measurements,
+) -> Vec<fmt::ScheduledFilter> {
+    filter
+        .scheduled
+        .iter()
+        .map(|(q, schedule)| fmt::ScheduledFilter {
+            point: q.iter().copied().collect(),
+            kalman: kalman_section(schedule, &filter.process_noise, measurements),
+        })
+        .collect()
 }
 
 /// Worst relative static residual of the linearised tier's measured response to the force
@@ -541,7 +846,8 @@ fn static_residual(
     Ok(worst)
 }
 
-/// The tier's constant-gain filter in s = (q, q̇, q̈, f) coordinates.
+/// The tier's filter in s = (q, q̇, q̈, f[, ḟ]) coordinates: the one designed at rest and its
+/// gain schedule.
 #[derive(Clone, Debug)]
 pub struct TierFilter {
     /// Periodic steady-state gains (n × measured) and covariances (n × n), n = 3r + 3 per
@@ -552,9 +858,17 @@ pub struct TierFilter {
     /// The random-walk load groups (indices into the scene's loads) whose force states follow
     /// the 3r kinematic states, 3 each.
     pub force_loads: Vec<usize>,
+    /// Whether the force states' rates follow them (3 more per group, docs/design.md §11.5).
+    pub force_rates: bool,
     /// Worst relative static residual of the measured response to a force channel
     /// ([`static_residual`]; 0 without force states).
     pub static_residual: f64,
+    /// The basis's error at the markers over the training snapshots, per measurement channel:
+    /// RMS of H(u − V VᵀM u) divided by the channel's σ ([`marker_model_error`]).
+    pub marker_model_error: Vec<f64>,
+    /// The gain schedule (docs/design.md §11.5): per operating point q* (r), the same filter
+    /// on the tier linearised at q* ([`LinearisedTier::at`]); `schedule` is the point q = 0.
+    pub scheduled: Vec<(DVector<f64>, PeriodicSchedule)>,
 }
 
 fn to_matrix(m: &DMatrix<f64>) -> fmt::Matrix {
@@ -677,6 +991,8 @@ pub fn tier_section(
             state_margin: newton.state_margin,
         },
         force_loads: filter.force_loads.iter().map(|&g| g as u32).collect(),
-        kalman: kalman_section(filter, measurements),
+        force_rates: filter.force_rates,
+        kalman: kalman_section(&filter.schedule, &filter.process_noise, measurements),
+        scheduled: scheduled_section(filter, measurements),
     }
 }
