@@ -13,7 +13,7 @@
 //!
 //! ```sh
 //! cargo run --release -p crokf-verify --example nonlinear_basis -- SCENE SCENARIO[,SCENARIO…] \
-//!     [--cache FILE] [--pooled R] [--tolerances 1e-1,1e-2] [--max-order N] [--end-to-end] [--exact] [--ecsw-max N]
+//!     [--cache FILE] [--pooled R] [--tolerances 1e-1,1e-2] [--max-order N] [--end-to-end] [--exact] [--ecsw-max N] [--ecsw-snapshots N]
 //! ```
 //!
 //! Candidates: `pod r` (the first r POD vectors of the pooled snapshots, today's basis,
@@ -198,11 +198,14 @@ fn reference(full: &FullOrder, path: &Path, cache: Option<&Path>) -> Result<Refe
     })
 }
 
+/// A read-out row: (free DOF, weight) pairs.
+type Row = [(usize, f64)];
+
 /// Relative L2 over the given DOF rows of `fit(k)` against the reference, whole trajectory.
 fn relative_l2(
     states: &[Vec<f64>],
     rows: &[Vec<(usize, f64)>],
-    fit: &dyn Fn(usize, &[(usize, f64)]) -> f64,
+    fit: &dyn Fn(usize, &Row) -> f64,
 ) -> f64 {
     let (mut e2, mut r2) = (0.0, 0.0);
     for (k, u) in states.iter().enumerate() {
@@ -224,7 +227,7 @@ fn run() -> Result<(), Failure> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let (Some(scene), Some(scenarios)) = (args.first(), args.get(1)) else {
         return Err("usage: nonlinear_basis SCENE SCENARIO[,SCENARIO…] [--cache FILE] \
-                    [--pooled R] [--tolerances a,b] [--max-order N] [--end-to-end] [--exact] [--ecsw-max N]"
+                    [--pooled R] [--tolerances a,b] [--max-order N] [--end-to-end] [--exact] [--ecsw-max N] [--ecsw-snapshots N]"
             .into());
     };
     let full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
@@ -246,6 +249,8 @@ fn run() -> Result<(), Failure> {
         .collect::<Result<_, _>>()?;
     let exact = args.iter().any(|a| a == "--exact");
     let end_to_end = exact || args.iter().any(|a| a == "--end-to-end");
+    let ecsw_snapshots = flag(&args, "--ecsw-snapshots")
+        .map_or(Ok(EcswOptions::default().max_snapshots), |s| s.parse())?;
     let ecsw_max =
         flag(&args, "--ecsw-max").map_or(Ok(EcswOptions::default().max_elements), |s| s.parse())?;
     let training = training(&full, &plan, cache.as_deref())?;
@@ -414,8 +419,8 @@ fn run() -> Result<(), Failure> {
         max_iterations: spec.newton_iterations.max(30),
         tolerance: spec.newton_tolerance,
         refresh: Refresh::WhenSlow { iterations: 4 },
-        consistent: false,
-        predictor: true,
+        consistent: std::env::var_os("CONSISTENT").is_some(),
+        predictor: std::env::var_os("NO_PREDICTOR").is_none(),
     };
     for (name, b, run_errors) in &candidates {
         let (worst, &we) = run_errors
@@ -446,11 +451,15 @@ fn run() -> Result<(), Failure> {
                 &EcswOptions {
                     tolerance: spec.ecsw_tolerance,
                     max_elements: ecsw_max,
-                    ..EcswOptions::default()
+                    max_snapshots: ecsw_snapshots,
                 },
             )?;
+            let (lo, hi) = sampling
+                .weights
+                .iter()
+                .fold((f64::MAX, 0.0f64), |(a, b), &(_, w)| (a.min(w), b.max(w)));
             println!(
-                "  ECSW: {} elements, residual {:.2e} ({:.1} s)",
+                "  ECSW: {} elements (weights {lo:.3}…{hi:.3}), residual {:.2e} ({:.1} s)",
                 sampling.weights.len(),
                 sampling.relative_residual,
                 started.elapsed().as_secs_f64()
@@ -551,7 +560,7 @@ fn run() -> Result<(), Failure> {
                     };
                     if std::env::var_os("TRACE").is_some() {
                         for k in (9..reference.states.len()).step_by(10) {
-                            let at = |fitk: &dyn Fn(&[(usize, f64)]) -> f64| -> [f64; 3] {
+                            let at = |fitk: &dyn Fn(&Row) -> f64| -> [f64; 3] {
                                 std::array::from_fn(|c| fitk(&sensor[c]))
                             };
                             let exact = at(&|row| {
