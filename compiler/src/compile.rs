@@ -83,12 +83,16 @@ fn corotational_tier(
         .map_err(|e| fail(&e))?;
     let env = &built.training.envelope;
     let r = built.model.order();
-    if let Some(eps) = spec.basis_tolerance {
+    if let (Some(eps), Some((added, worst))) = (spec.basis_tolerance, built.enrichment) {
         report.notes.push(format!(
-            "co-rotational tier basis: {} pooled POD vectors + {} added until every training \
-             run is within {eps:e} in the energy norm (bound {})",
-            spec.order.min(r),
-            r.saturating_sub(spec.order),
+            "co-rotational tier basis: {} pooled POD vectors + {added} added for the per-run \
+             tolerance {eps:e} in the energy norm; worst training run {worst:.2e}{} (r ≤ {})",
+            r - added,
+            if worst > eps {
+                ", NOT reached: max_order stopped the enrichment"
+            } else {
+                ""
+            },
             spec.largest_order()
         ));
     }

@@ -709,7 +709,7 @@ impl CorotationalSpec {
             ));
         }
         if let Some(eps) = self.basis_tolerance {
-            in_range(&f("basis_tolerance"), eps, (1e-8, 1.0), "")?;
+            in_range(&f("basis_tolerance"), eps, (1e-6, 1.0), "")?;
             if eps <= 0.0 {
                 return Err(format!("{} must be > 0", f("basis_tolerance")));
             }

@@ -399,7 +399,9 @@ fn per_run_basis_represents_every_run_to_its_tolerance() {
     assert_eq!(enriched.enriched_from, vec![1]);
     for run in 0..2 {
         assert!(run_error(&enriched.basis, run) <= eps);
-        assert!((run_error(&enriched.basis, run) - enriched.run_errors[run]).abs() < 1e-9);
+        // The enrichment's errors come from ‖u‖² − ‖q‖² (cheap, nested): accurate to about
+        // √ε_machine ≈ 1e-8 where a run is represented exactly.
+        assert!((run_error(&enriched.basis, run) - enriched.run_errors[run]).abs() < 1e-7);
     }
     // M-orthonormal, and the pooled columns are kept as they were.
     let v = &enriched.basis.vectors;

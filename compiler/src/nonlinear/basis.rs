@@ -282,7 +282,9 @@ impl PerRunBasis {
 /// `max_columns`. The pooled POD comes first so that a run that dominates the pool (a large
 /// bending motion) keeps the vectors it had; runs that the pool ranks last (a stiff torsion
 /// or an axial pull, millimetres next to metres) are added until they are represented too.
-/// `run_of[t]` is snapshot t's run (< `runs`). Cost: O(S n r) for S snapshots.
+/// `run_of[t]` is snapshot t's run (< `runs`). Cost: O(S n r) for S snapshots. e_k is
+/// evaluated as (‖u‖² − ‖q‖²)^½ per snapshot (nested in r, no residual vectors kept), so it is
+/// accurate to about √ε_machine ≈ 1e-8 relative: tolerances below 1e-6 are not meaningful.
 pub fn per_run_pod(
     mass: &SparseColMat<usize, f64>,
     snapshots: &[Vec<f64>],

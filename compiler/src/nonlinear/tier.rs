@@ -38,6 +38,10 @@ pub struct Tier {
     pub max_coordinate_norm: f64,
     /// Wall time of the POD and of the ECSW, s.
     pub seconds: [f64; 2],
+    /// With a per-run basis tolerance ([`BasisChoice::tolerance`]): the vectors added after the
+    /// pooled POD and the worst per-run relative error in the energy norm reached (above the
+    /// tolerance when `max_order` stopped the enrichment).
+    pub enrichment: Option<(usize, f64)>,
 }
 
 /// Builds the tier from training snapshots: the first `order` POD vectors of the snapshots in
@@ -98,6 +102,7 @@ pub fn from_training_with(
     let (mut modes, pod_values) = basis::pod(&full.fem.mass, &training.snapshots, order, 1e-14);
     basis::normalise_signs(&mut modes);
     let mut basis = basis::m_orthonormalise(&full.fem.mass, &modes, 1e-8, order);
+    let mut enrichment = None;
     if let Some(tolerance) = choice.tolerance {
         let stiffness = &full.fem.stiffness;
         let energy = basis::m_orthonormalise(stiffness, &modes, 1e-8, order);
@@ -129,6 +134,7 @@ pub fn from_training_with(
             })
             .collect();
         all.extend(columns.into_iter().skip(enriched.pooled));
+        enrichment = Some((enriched.enriched_from.len(), enriched.worst()));
         basis = basis::m_orthonormalise(&full.fem.mass, &all, 1e-10, all.len());
     }
     let t_pod = clock.elapsed().as_secs_f64();
@@ -155,6 +161,7 @@ pub fn from_training_with(
         training,
         max_coordinate_norm,
         seconds: [t_pod, t_ecsw],
+        enrichment,
     })
 }
 
