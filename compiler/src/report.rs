@@ -133,6 +133,7 @@ pub fn json(
             "runs": c.runs.iter().map(|run| serde_json::json!({
                 "label": run.label,
                 "error": json_number(run.error),
+                "scale_m_norm": run.scale,
                 "snapshots": run.snapshots,
                 "steps": run.steps,
                 "iterations": run.iterations,

@@ -56,6 +56,9 @@ pub struct RunCheck {
     /// e_k (module docs); +∞ when the reduced run failed, NaN when the run was not checked
     /// (its training run failed: no snapshots).
     pub error: f64,
+    /// The run's displacement scale: RMS of ‖u_t‖_M over its snapshots, kg^½·m (0 when not
+    /// checked); e_k is relative to it.
+    pub scale: f64,
     /// Snapshots compared.
     pub snapshots: usize,
     /// Reduced steps taken.
@@ -123,6 +126,11 @@ impl SelfCheck {
         out
     }
 
+    /// The largest run's displacement scale (RMS ‖u‖_M, kg^½·m).
+    pub fn largest_scale(&self) -> f64 {
+        self.runs.iter().map(|r| r.scale).fold(0.0, f64::max)
+    }
+
     /// Reduced steps that ended unconverged, over all runs.
     pub fn unconverged(&self) -> usize {
         self.runs.iter().map(|r| r.unconverged).sum()
@@ -138,8 +146,9 @@ impl SelfCheck {
         let unconverged = match self.unconverged() {
             0 => String::new(),
             n => format!(
-                "; {n} reduced steps ended unconverged at newton_iterations (the runtime refuses \
-                 such a step)"
+                "; {n} reduced steps ended at newton_iterations without ‖δ‖ ≤ \
+                 newton_tolerance·‖q̂‖ (this stepper's test has no floor near rest, the \
+                 runtime's has)"
             ),
         };
         format!(
@@ -163,9 +172,18 @@ impl SelfCheck {
             n => format!(" (and {} more of the {} runs above it)", n - 1, self.runs.len()),
         };
         let how = worst.failure.as_deref().map_or_else(String::new, |f| format!(": {f}"));
+        let largest = self.largest_scale();
+        let size = if largest > 0.0 && worst.scale > 0.0 {
+            format!(
+                "; its displacement (RMS ‖u‖_M) is {} of the largest training run's",
+                percent(worst.scale / largest)
+            )
+        } else {
+            String::new()
+        };
         Some(format!(
             "WARNING: the co-rotational tier does not reproduce its own training: run '{}' is {} \
-             off the full-order co-rotational FEM (threshold {}){how}{more}. Loads like it will \
+             off the full-order co-rotational FEM (threshold {}){how}{size}{more}. Loads like it will \
              be as wrong at run time, with the envelope status saying \"inside\". Raise `order`, \
              set `basis_tolerance` (per-run energy-norm basis, with `max_order`) or tighten \
              `ecsw_tolerance` in [reduction.corotational]",
@@ -223,6 +241,7 @@ pub fn self_check(
         let mut out = RunCheck {
             label: run.label.clone(),
             error: f64::NAN,
+            scale: 0.0,
             snapshots: of_run[k].len(),
             steps: 0,
             iterations: 0,
@@ -273,6 +292,7 @@ pub fn self_check(
             }
         }
         let stats = stepper.stats();
+        out.scale = (ref2 / of_run[k].len().max(1) as f64).sqrt();
         out.steps = stats.steps;
         out.iterations = stats.iterations;
         out.unconverged = stats.unconverged;
@@ -322,6 +342,7 @@ pub fn self_check(
             c.unwrap_or_else(|| RunCheck {
                 label: run.label.clone(),
                 error: f64::INFINITY,
+                scale: 0.0,
                 snapshots: 0,
                 steps: 0,
                 iterations: 0,
