@@ -953,7 +953,7 @@ fn built_tier(full: &FullOrder) -> (TrainingPlan, tier::Tier) {
 /// ‖V q − u‖_M / ‖u‖_M summed over the stored steps.
 #[test]
 fn self_check_is_small_and_equals_an_independent_recomputation() {
-    use crokf_compile::nonlinear::self_check::{self_check, runtime_newton, SELF_CHECK_THRESHOLD};
+    use crokf_compile::nonlinear::self_check::{runtime_newton, self_check, SELF_CHECK_THRESHOLD};
     use crokf_compile::stepping::{CorotationalSimulator, Simulator};
     let full = FullOrder::build(scene(), &mut StageTimer::default()).unwrap();
     let spec = full.scene.scene.reduction.corotational.clone().unwrap();
@@ -975,7 +975,10 @@ fn self_check_is_small_and_equals_an_independent_recomputation() {
         eprintln!("  {:<32} {:.3e}", r.label, r.error);
     }
     assert_eq!(check.runs.len(), 12);
-    assert!(check.runs.iter().all(|r| r.error.is_finite() && r.steps == 30));
+    assert!(check
+        .runs
+        .iter()
+        .all(|r| r.error.is_finite() && r.steps == 30));
     assert_eq!(check.unconverged(), 0);
     for r in &check.runs {
         if r.label.contains("(+0, ") {
@@ -1054,7 +1057,10 @@ fn self_check_is_small_and_equals_an_independent_recomputation() {
     // The compile's report carries the check and the warning; report.json has every run.
     let compiled = compile(scene(), &options()).unwrap();
     let notes = &compiled.model.report.notes;
-    assert!(notes.iter().any(|n| n.contains("tier self-check")), "{notes:?}");
+    assert!(
+        notes.iter().any(|n| n.contains("tier self-check")),
+        "{notes:?}"
+    );
     let warning = notes.iter().find(|n| n.contains("WARNING")).unwrap();
     assert!(warning.contains(&worst.label), "{warning}");
     let json: serde_json::Value = serde_json::from_str(&compiled.report_json()).unwrap();

@@ -296,8 +296,10 @@ fn the_self_check_flags_the_default_twist_tier() {
     let compiled = compile(&scene, &options).expect("tier compiles");
     let check = compiled.self_check.as_ref().expect("self-check");
     let worst = check.worst().expect("a checked run");
-    let torque = |label: &str| label.contains("(+0, +1, +0) + lower (+0, -1, +0)")
-        || label.contains("(+0, -1, +0) + lower (+0, +1, +0)");
+    let torque = |label: &str| {
+        label.contains("(+0, +1, +0) + lower (+0, -1, +0)")
+            || label.contains("(+0, -1, +0) + lower (+0, +1, +0)")
+    };
     let worst_torque = check
         .runs
         .iter()

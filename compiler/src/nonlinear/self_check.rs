@@ -120,7 +120,7 @@ impl SelfCheck {
         let mut out: Vec<&RunCheck> = self
             .runs
             .iter()
-            .filter(|r| r.checked() && !(r.error <= self.threshold))
+            .filter(|r| r.checked() && r.error > self.threshold)
             .collect();
         out.sort_by(|a, b| b.error.total_cmp(&a.error));
         out
@@ -169,9 +169,16 @@ impl SelfCheck {
         let worst = flagged.first()?;
         let more = match flagged.len() {
             1 => String::new(),
-            n => format!(" (and {} more of the {} runs above it)", n - 1, self.runs.len()),
+            n => format!(
+                " (and {} more of the {} runs above it)",
+                n - 1,
+                self.runs.len()
+            ),
         };
-        let how = worst.failure.as_deref().map_or_else(String::new, |f| format!(": {f}"));
+        let how = worst
+            .failure
+            .as_deref()
+            .map_or_else(String::new, |f| format!(": {f}"));
         let largest = self.largest_scale();
         let size = if largest > 0.0 && worst.scale > 0.0 {
             format!(

@@ -352,7 +352,7 @@ impl TrainingPlan {
     /// Whether the state after step `step` (1-based, of `steps`) is kept as a snapshot: every
     /// `every`-th step and the last.
     pub fn keeps(&self, step: usize, steps: usize) -> bool {
-        step % self.every.max(1) == 0 || step == steps
+        step.is_multiple_of(self.every.max(1)) || step == steps
     }
 }
 
