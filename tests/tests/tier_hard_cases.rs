@@ -284,7 +284,9 @@ fn twist_scene(name: &str, extra: &str) -> PathBuf {
 /// [`twist_by_an_end_torque_follows_the_full_order_corotational_fem`]'s doc comment) does not
 /// reproduce its own torque-like pair runs (`upper (+0, +1, +0) + lower (+0, -1, +0)`), and
 /// the compile warns naming such a run. The failure shows on the training runs themselves, so
-/// the in-sample check catches it.
+/// the in-sample check catches it. Measured: worst 100.2 % (upper −z + lower +z step), median
+/// 89.5 %, all 48 runs above 87 %, the torque pair runs ±y 99.1–99.6 %; 9,600 reduced steps
+/// in 8.5 s (debug build).
 #[test]
 fn the_self_check_flags_the_default_twist_tier() {
     let scene = twist_scene("twist-check", "");
