@@ -10,6 +10,7 @@ use crate::error::CompileError;
 use crate::full_order::FullOrder;
 use crate::model_file::assemble_model;
 use crate::nonlinear::ecsw::EcswOptions;
+use crate::nonlinear::self_check::{self, SelfCheck};
 use crate::nonlinear::tier::{self, RuntimeNewton};
 use crate::nonlinear::training::TrainingPlan;
 use crate::outputs::Measurements;
@@ -23,13 +24,15 @@ pub const TIER_STATE_MARGIN: f64 = 1.5;
 
 /// The co-rotational tier of `[reduction] model = "corotational"` (docs/design.md §10):
 /// training runs generated from `[reduction.corotational]` (progress on stderr), POD basis,
-/// ECSW, the linearised filter and the model file's tier section; figures go into `report`.
+/// ECSW, the linearised filter, the model file's tier section and the self-check of the
+/// compiled tier on its training runs ([`self_check`]: summary and any warning on stderr and in
+/// the report's notes); figures go into `report`.
 fn corotational_tier(
     full: &FullOrder,
     measurements: &Measurements,
     timer: &mut StageTimer,
     report: &mut fmt::CompileReport,
-) -> Result<fmt::CorotationalTier, CompileError> {
+) -> Result<(fmt::CorotationalTier, SelfCheck), CompileError> {
     let path = full.scene_path().to_path_buf();
     let fail = |e: &dyn std::fmt::Display| CompileError::Tier {
         path: path.clone(),
@@ -150,6 +153,29 @@ fn corotational_tier(
             e.get(e.len() / 2).copied().unwrap_or(0.0)
         }
     ));
+    let newton = self_check::runtime_newton(spec.newton_tolerance, spec.newton_iterations);
+    let check = timer
+        .stage("tier_self_check", || {
+            self_check::self_check(
+                full,
+                &plan,
+                &built,
+                newton,
+                self_check::SELF_CHECK_THRESHOLD,
+            )
+        })
+        .map_err(|e| fail(&e))?;
+    let steps: usize = check.runs.iter().map(|r| r.steps).sum();
+    eprintln!(
+        "crokf-compile: co-rotational tier self-check: {} ({steps} reduced steps in {:.2} s)",
+        check.note(),
+        check.seconds
+    );
+    report.notes.push(check.note());
+    if let Some(warning) = check.warning() {
+        eprintln!("crokf-compile: {warning}");
+        report.notes.push(warning);
+    }
     let section = tier::tier_section(
         full,
         &built,
@@ -162,7 +188,7 @@ fn corotational_tier(
             state_margin: TIER_STATE_MARGIN,
         },
     );
-    Ok(section)
+    Ok((section, check))
 }
 
 /// Options of a compile run; `None` falls back to the scene's `[reduction]` table, then defaults.
@@ -188,12 +214,20 @@ pub struct Compiled {
     pub timer: StageTimer,
     /// Problem sizes.
     pub sizes: Sizes,
+    /// The co-rotational tier's self-check (per training run; None without a tier).
+    pub self_check: Option<SelfCheck>,
 }
 
 impl Compiled {
     /// The JSON report: the model's report, sizes and per-stage costs.
     pub fn report_json(&self) -> String {
-        report::json(&self.model, &self.sizes, &self.timer, self.bytes.len())
+        report::json(
+            &self.model,
+            &self.sizes,
+            &self.timer,
+            self.bytes.len(),
+            self.self_check.as_ref(),
+        )
     }
 
     /// A readable summary for stderr.
@@ -274,13 +308,12 @@ pub fn compile_reduced(
         )
     });
     let mut model = model;
+    let mut self_check = None;
     if full.scene.scene.reduction.model == ModelTier::Corotational {
-        model.tier = Some(corotational_tier(
-            full,
-            &reductor.measurements,
-            &mut timer,
-            &mut model.report,
-        )?);
+        let (section, check) =
+            corotational_tier(full, &reductor.measurements, &mut timer, &mut model.report)?;
+        model.tier = Some(section);
+        self_check = Some(check);
         model.validate().map_err(|e| CompileError::Tier {
             path: full.scene_path().to_path_buf(),
             message: format!("model file section: {e}"),
@@ -302,5 +335,6 @@ pub fn compile_reduced(
         bytes,
         timer,
         sizes,
+        self_check,
     })
 }

@@ -10,7 +10,9 @@
 //! - [`training`]: the compiler's training runs (full-order co-rotational, generated from the
 //!   scene's `[reduction.corotational]` envelope);
 //! - [`tier`]: training → POD → ECSW → reduced model, its linearised filter and the model
-//!   file's tier section (wired into `compile` by `[reduction] model = "corotational"`).
+//!   file's tier section (wired into `compile` by `[reduction] model = "corotational"`);
+//! - [`self_check`]: the compiled tier re-run on its own training loads against the training
+//!   snapshots (in-sample error per run, a warning above 5 %).
 //!
 //! The floors of candidate bases and the scenario-driven open-loop comparisons live in
 //! `crokf-verify` (`crokf_verify::nonlinear`), which reuses [`training`] and [`tier`].
@@ -18,6 +20,7 @@
 pub mod basis;
 pub mod ecsw;
 pub mod reduced;
+pub mod self_check;
 pub mod tier;
 pub mod training;
 

@@ -10,6 +10,8 @@ use serde::Serialize;
 
 use crokf_formats as fmt;
 
+use crate::nonlinear::self_check::SelfCheck;
+
 /// Wall-clock time and peak resident memory of one stage.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct StageCost {
@@ -95,12 +97,15 @@ pub struct Sizes {
     pub measurements: usize,
 }
 
-/// The JSON report of a compile: the model's report, sizes and per-stage costs.
+/// The JSON report of a compile: the model's report, sizes, per-stage costs and, for a
+/// co-rotational tier, its self-check per training run (`tier_self_check`: threshold, worst,
+/// median, runs with their error e_k, docs/design.md §10; a failed reduced run's error is null).
 pub fn json(
     model: &fmt::Model,
     sizes: &Sizes,
     timer: &StageTimer,
     model_file_bytes: usize,
+    self_check: Option<&SelfCheck>,
 ) -> String {
     let stages: Vec<serde_json::Value> = timer
         .order
@@ -115,6 +120,28 @@ pub fn json(
         })
         .collect();
     let r = &model.report;
+    let tier_self_check = self_check.map(|c| {
+        serde_json::json!({
+            "definition": "relative L2 error of the displacement in the M-norm over each training run's stored snapshots, the compiled reduced model (runtime Newton settings) re-run on the run's load history; in-sample",
+            "threshold": c.threshold,
+            "worst_run": c.worst().map(|w| w.label.clone()),
+            "worst": c.worst().map(|w| json_number(w.error)),
+            "median": json_number(c.median()),
+            "flagged": c.flagged().len(),
+            "unconverged_steps": c.unconverged(),
+            "seconds": c.seconds,
+            "runs": c.runs.iter().map(|run| serde_json::json!({
+                "label": run.label,
+                "error": json_number(run.error),
+                "scale_m_norm": run.scale,
+                "snapshots": run.snapshots,
+                "steps": run.steps,
+                "iterations": run.iterations,
+                "unconverged": run.unconverged,
+                "failure": run.failure,
+            })).collect::<Vec<_>>(),
+        })
+    });
     let value = serde_json::json!({
         "compiler_version": model.inputs_digest.compiler_version,
         "inputs_digest": {
@@ -143,6 +170,7 @@ pub fn json(
         "total_seconds": timer.total_seconds(),
         "peak_memory_mib": json_number(timer.peak_memory_mib()),
         "notes": r.notes,
+        "tier_self_check": tier_self_check,
     });
     serde_json::to_string_pretty(&value).unwrap_or_default() + "\n"
 }

@@ -306,6 +306,56 @@ pub fn group_load(full: &FullOrder, group: usize, direction: [f64; 3], scale: f6
     f
 }
 
+/// The scene load group (index into `full.operators.loads`) of each of `plan.ranges`, checked:
+/// every name is a load group and every range is finite and > 0 N.
+pub fn plan_groups(full: &FullOrder, plan: &TrainingPlan) -> Result<Vec<usize>, NonlinearError> {
+    let mut groups = Vec::with_capacity(plan.ranges.len());
+    for (name, range) in &plan.ranges {
+        let Some(g) = full.operators.loads.iter().position(|l| &l.name == name) else {
+            return Err(NonlinearError::Invalid(format!(
+                "training plan: '{name}' is not a load group of the scene"
+            )));
+        };
+        if !(range.is_finite() && *range > 0.0) {
+            return Err(NonlinearError::Invalid(format!(
+                "training plan: load range of '{name}' must be > 0 N, got {range}"
+            )));
+        }
+        groups.push(g);
+    }
+    Ok(groups)
+}
+
+/// The load vector of `run` at multiple 1 of its history (n, N): Σ over its loaded groups of
+/// F_g Σ_c d_c b_{g,c} ([`group_load`] with the group's range F_g); step k of the run holds
+/// `run.history.at(kΔt)` times it. `groups` from [`plan_groups`].
+pub fn run_load(
+    full: &FullOrder,
+    plan: &TrainingPlan,
+    groups: &[usize],
+    run: &TrainingRun,
+) -> Vec<f64> {
+    let mut f = vec![0.0; full.fem.dof_count()];
+    for &(g, d) in &run.loads {
+        let column = group_load(full, groups[g], d, plan.ranges[g].1);
+        f.iter_mut().zip(&column).for_each(|(fi, c)| *fi += c);
+    }
+    f
+}
+
+impl TrainingPlan {
+    /// Steps of each run: N = round(duration/Δt), at least 1 (Δt in s).
+    pub fn steps(&self, dt: f64) -> usize {
+        ((self.duration / dt).round() as usize).max(1)
+    }
+
+    /// Whether the state after step `step` (1-based, of `steps`) is kept as a snapshot: every
+    /// `every`-th step and the last.
+    pub fn keeps(&self, step: usize, steps: usize) -> bool {
+        step.is_multiple_of(self.every.max(1)) || step == steps
+    }
+}
+
 /// Runs every training run of `plan` on the full-order co-rotational model, keeping a
 /// snapshot every `plan.every` steps (step 0 excluded). A run that fails (non-finite state,
 /// Newton failure) is reported in [`Training::runs`] and skipped. `progress` receives
@@ -321,20 +371,7 @@ pub fn train(
             plan.every, plan.duration
         )));
     }
-    let mut groups = Vec::new();
-    for (name, range) in &plan.ranges {
-        let Some(g) = full.operators.loads.iter().position(|l| &l.name == name) else {
-            return Err(NonlinearError::Invalid(format!(
-                "training plan: '{name}' is not a load group of the scene"
-            )));
-        };
-        if !(range.is_finite() && *range > 0.0) {
-            return Err(NonlinearError::Invalid(format!(
-                "training plan: load range of '{name}' must be > 0 N, got {range}"
-            )));
-        }
-        groups.push(g);
-    }
+    let groups = plan_groups(full, plan)?;
     if plan.threads == 0 {
         return Err(NonlinearError::Invalid(
             "training plan: threads must be ≥ 1".to_owned(),
@@ -344,14 +381,7 @@ pub fn train(
     let runs = plan.runs();
     let mut out = Training::default();
     let fem = &full.fem;
-    let unit_loads = |run: &TrainingRun| {
-        let mut f = vec![0.0; fem.dof_count()];
-        for &(g, d) in &run.loads {
-            let column = group_load(full, groups[g], d, plan.ranges[g].1);
-            f.iter_mut().zip(&column).for_each(|(fi, c)| *fi += c);
-        }
-        f
-    };
+    let unit_loads = |run: &TrainingRun| run_load(full, plan, &groups, run);
     type RunResult = Result<(Vec<Vec<f64>>, NewtonStats), SteppingError>;
     let mut results: Vec<Option<RunResult>> = (0..runs.len()).map(|_| None).collect();
     let next = std::sync::atomic::AtomicUsize::new(0);
@@ -420,7 +450,7 @@ fn training_run(
     history: &History,
 ) -> Result<(Vec<Vec<f64>>, NewtonStats), SteppingError> {
     let dt = full.wilson.dt;
-    let steps = ((plan.duration / dt).round() as usize).max(1);
+    let steps = plan.steps(dt);
     let mut sim = CorotationalSimulator::new(&full.fem, full.wilson, plan.newton)?;
     sim.set_modified_newton(plan.modified)?;
     sim.set_sequential();
@@ -437,7 +467,7 @@ fn training_run(
                 time: (step + 1) as f64 * dt,
             });
         }
-        if (step + 1) % plan.every == 0 || step + 1 == steps {
+        if plan.keeps(step + 1, steps) {
             frames.push(u.to_vec());
         }
     }
