@@ -167,7 +167,7 @@ fn corotational_tier(
         .map_err(|e| fail(&e))?;
     let steps: usize = check.runs.iter().map(|r| r.steps).sum();
     eprintln!(
-        "crokf-compile: co-rotational tier self-check: {} ({steps} reduced steps in {:.2} s)",
+        "crokf-compile: {} ({steps} reduced steps in {:.2} s)",
         check.note(),
         check.seconds
     );
