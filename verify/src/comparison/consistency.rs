@@ -119,7 +119,6 @@ pub struct Consistency {
     pub tip: Vec<TipSample>,
 }
 
-
 /// The output covariance blocks of one stored filter, per phase (m²).
 #[derive(Clone, Debug)]
 struct Filter {
@@ -238,11 +237,8 @@ impl FilterBlocks {
     pub fn new(model: &fmt::Model, display: &[(usize, usize)]) -> Self {
         match &model.tier {
             None => {
-                let sensors: Vec<&fmt::Matrix> = model
-                    .sensors
-                    .iter()
-                    .map(|s| &s.displacement_rows)
-                    .collect();
+                let sensors: Vec<&fmt::Matrix> =
+                    model.sensors.iter().map(|s| &s.displacement_rows).collect();
                 let sets: Vec<&fmt::Matrix> = model
                     .node_sets
                     .iter()

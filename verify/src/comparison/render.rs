@@ -914,12 +914,7 @@ impl Comparison {
     }
 
     /// The tip plot of one row, `label` naming it in the title.
-    fn tip_plot(
-        &self,
-        label: &str,
-        given: &Consistency,
-        withheld: &Consistency,
-    ) -> Option<String> {
+    fn tip_plot(&self, label: &str, given: &Consistency, withheld: &Consistency) -> Option<String> {
         let given = &given.tip[..];
         if given.is_empty() {
             return None;
