@@ -798,9 +798,9 @@ fn q_block(c: &[f64], d: &[f64], r: usize, p: &crokf_formats::Matrix) -> nalgebr
 
 /// The tier's filtered run on `scene`/`scenario` as `comparison::run` makes it (the same
 /// full-order co-rotational reference, the same seeded noise drawn per channel per step, the
-/// loads given or withheld), with NIS, tip NEES and 2σ coverage computed by hand: S = H P⁻ Hᵀ
-/// + R of the schedule's filter in use after `predict`, Σ_tip = V_tip P V_tipᵀ of the one in
-/// use after `update` (docs/design.md §11.3, §11.5).
+/// loads given or withheld), with NIS, tip NEES and 2σ coverage computed by hand:
+/// S = H P⁻ Hᵀ + R (m²) of the schedule's filter in use after `predict`, Σ_tip = V_tip P V_tipᵀ
+/// of the one in use after `update` (docs/design.md §11.3, §11.5).
 fn hand_consistency(
     scene: &Path,
     scenario: &Path,
