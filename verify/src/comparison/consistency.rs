@@ -355,6 +355,7 @@ impl<'a> ConsistencyAccumulator<'a> {
     pub fn innovation(&mut self, est: &Estimator, y: &[Option<f64>]) -> Result<(), RuntimeError> {
         let model = est.model();
         debug_assert_eq!(est.state().len(), self.blocks.state_dim);
+        debug_assert_eq!(est.is_corotational(), self.blocks.world);
         let used: Vec<usize> = est
             .active_measurements()
             .iter()
