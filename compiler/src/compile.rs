@@ -63,11 +63,17 @@ fn corotational_tier(
     }
     let ecsw = EcswOptions {
         tolerance: spec.ecsw_tolerance,
+        max_elements: spec.ecsw_max_elements,
         ..EcswOptions::default()
+    };
+    let choice = tier::BasisChoice {
+        order: spec.order,
+        tolerance: spec.basis_tolerance,
+        max_order: spec.largest_order(),
     };
     let built = timer
         .stage("tier_reduction", || {
-            tier::from_training(full, training, spec.order, &ecsw)
+            tier::from_training_with(full, training, &choice, &ecsw)
         })
         .map_err(|e| fail(&e))?;
     let filter = timer
@@ -77,6 +83,19 @@ fn corotational_tier(
         .map_err(|e| fail(&e))?;
     let env = &built.training.envelope;
     let r = built.model.order();
+    if let (Some(eps), Some((added, worst))) = (spec.basis_tolerance, built.enrichment) {
+        report.notes.push(format!(
+            "co-rotational tier basis: {} pooled POD vectors + {added} added for the per-run \
+             tolerance {eps:e} in the energy norm; worst training run {worst:.2e}{} (r ≤ {})",
+            r - added,
+            if worst > eps {
+                ", NOT reached: max_order stopped the enrichment"
+            } else {
+                ""
+            },
+            spec.largest_order()
+        ));
+    }
     report.notes.push(format!(
         "co-rotational tier: r = {r} POD vectors of {} training snapshots ({} of {} runs), {} \
          sampled elements of {} (ECSW residual {:.2e}, tolerance {:.0e}); envelope: {}",

@@ -622,6 +622,20 @@ pub struct CorotationalSpec {
     /// Adds 2 × directions × histories runs per pair (docs/corotational-tier.md §6).
     #[serde(default = "default_combinations")]
     pub combinations: bool,
+    /// Per-run basis tolerance ε (optional): after the `order` pooled POD vectors, the basis is
+    /// enriched until every training run's relative projection error in the energy norm
+    /// (K-norm) is ≤ ε, at most `max_order` vectors (docs/corotational-tier.md §8). Without
+    /// it, r = `order`.
+    pub basis_tolerance: Option<f64>,
+    /// Largest r with `basis_tolerance` (≥ `order`; default max(order, 60)).
+    pub max_order: Option<usize>,
+    /// Most ECSW-sampled elements.
+    #[serde(default = "default_ecsw_max_elements")]
+    pub ecsw_max_elements: usize,
+}
+
+fn default_ecsw_max_elements() -> usize {
+    200
 }
 
 fn default_combinations() -> bool {
@@ -651,6 +665,11 @@ fn default_newton_iterations() -> usize {
 }
 
 impl CorotationalSpec {
+    /// The bound on r: `max_order`, or max(order, 60).
+    pub fn largest_order(&self) -> usize {
+        self.max_order.unwrap_or(self.order.max(60))
+    }
+
     /// Range checks; `loads` are the scene's load names. Messages name the field.
     fn check(&self, loads: &[&str]) -> Result<(), String> {
         let f = |name: &str| format!("reduction.corotational.{name}");
@@ -694,6 +713,26 @@ impl CorotationalSpec {
                 "{} = {} is out of range: it must be within [1, 200]",
                 f("order"),
                 self.order
+            ));
+        }
+        if let Some(eps) = self.basis_tolerance {
+            in_range(&f("basis_tolerance"), eps, (1e-6, 1.0), "")?;
+            if eps <= 0.0 {
+                return Err(format!("{} must be > 0", f("basis_tolerance")));
+            }
+        }
+        if let Some(max) = self.max_order.filter(|m| !(self.order..=400).contains(m)) {
+            return Err(format!(
+                "{} = {max} is out of range: it must be within [order = {}, 400]",
+                f("max_order"),
+                self.order
+            ));
+        }
+        if !(1..=100_000).contains(&self.ecsw_max_elements) {
+            return Err(format!(
+                "{} = {} is out of range: it must be within [1, 100000]",
+                f("ecsw_max_elements"),
+                self.ecsw_max_elements
             ));
         }
         in_range(&f("ecsw_tolerance"), self.ecsw_tolerance, (1e-8, 0.5), "")?;

@@ -12,8 +12,8 @@ pub mod linear;
 mod sparse;
 
 pub use corotational::{
-    deformation_gradient, element_force, element_tangent, polar_rotation, CorotationalSimulator,
-    ModifiedNewton, NewtonOptions, NewtonStats,
+    deformation_gradient, element_force, element_tangent, polar_rotation, polar_rotation_svd,
+    CorotationalSimulator, ModifiedNewton, NewtonOptions, NewtonStats,
 };
 pub use linear::{static_solve, LinearSimulator};
 

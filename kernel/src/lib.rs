@@ -133,6 +133,11 @@ pub struct Gathered {
 /// shuffles); each entry is still summed over j in order, so the result is the plain loop's.
 #[inline(always)]
 pub fn gather(e: &Element, q: &[f64], velocity: &[f64]) -> Gathered {
+    debug_assert_eq!(
+        e.cols.len(),
+        e.rows.len(),
+        "gather needs V_eᵀ (Element::cols)"
+    );
     let mut u = [[0.0f64; 4]; 3];
     let mut v = [[0.0f64; 4]; 3];
     for (col, (&qj, &vj)) in e.cols.chunks_exact(12).zip(q.iter().zip(velocity)) {

@@ -135,6 +135,7 @@ pub struct TierModel {
     r: usize,
     /// The sampled elements packed by 8 ([`kernel::Blocks`]): the force and the tangent.
     blocks: kernel::Blocks,
+    /// M_r (r × r, row-major, symmetrised at load).
     mass: Vec<f64>,
     alpha: f64,
     beta: f64,
@@ -314,7 +315,18 @@ impl TierModel {
         TierModel {
             r,
             blocks,
-            mass: tier.mass.data.clone(),
+            // Symmetrised once (the stored M_r is symmetric to round-off; the blocked tangent
+            // is symmetric by construction and the Cholesky factor reads the lower triangle).
+            mass: {
+                let m = &tier.mass.data;
+                let mut sym = m.clone();
+                for i in 0..r {
+                    for j in 0..r {
+                        sym[i * r + j] = 0.5 * (m[i * r + j] + m[j * r + i]);
+                    }
+                }
+                sym
+            },
             alpha: tier.alpha,
             beta: tier.beta,
             dt: model.dt,
@@ -559,14 +571,6 @@ impl TierState {
         model
             .blocks
             .add_warped_tangent(&self.rotations, scale, &mut self.jac, &mut self.scratch);
-        // Symmetrise M_r's part (the tangent's is symmetric; the factor reads the lower
-        // triangle).
-        for i in 0..r {
-            for j in 0..i {
-                let m = 0.5 * (self.jac[i * r + j] + self.jac[j * r + i]);
-                self.jac[i * r + j] = m;
-            }
-        }
         kernel::cholesky(&mut self.jac, r)
             .map_err(|pivot| TierError::NotPositiveDefinite { step, pivot })?;
         self.has_factor = true;

@@ -807,3 +807,120 @@ fn the_update_uses_the_gain_of_the_filter_nearest_to_its_result() {
     }
     assert!(switched > 0, "no update left the rest filter");
 }
+
+/// det F of sampled element `e` of the tier at reduced coordinates `q` (r), computed here from
+/// the model file's data alone (not the kernel): x_a = X_a + (V_e q)_a, F = Σ_a x_a ⊗ ∇N_a.
+fn element_det(t: &crokf_formats::CorotationalTier, e: usize, q: &[f64]) -> f64 {
+    let el = &t.elements[e];
+    let r = t.order as usize;
+    let mut f = [[0.0; 3]; 3];
+    for a in 0..4 {
+        let x: [f64; 3] = std::array::from_fn(|c| {
+            let i = 3 * a + c;
+            el.rest[a][c] + (0..r).map(|j| el.rows.data[r * i + j] * q[j]).sum::<f64>()
+        });
+        for i in 0..3 {
+            for j in 0..3 {
+                f[i][j] += x[i] * el.gradients[a][j];
+            }
+        }
+    }
+    f[0][0] * (f[1][1] * f[2][2] - f[1][2] * f[2][1])
+        - f[0][1] * (f[1][0] * f[2][2] - f[1][2] * f[2][0])
+        + f[0][2] * (f[1][0] * f[2][1] - f[1][1] * f[2][0])
+}
+
+/// Hard case (issue 11 item 4): inverted sampled elements. (1) The runtime's force refuses
+/// exactly where the model file's own geometry says a sampled element is inverted (det F
+/// computed here, not by the kernel): along each basis vector, scaled until elements invert.
+/// (2) Through `Estimator`: the beam crushed by a sudden axial tip load within the input
+/// plausibility bound (20 and 50 kN end in `NotConverged`, 100 kN inverts sampled element 11 in
+/// the first step's Newton iterates); the refusal leaves the estimator exactly as it was (state,
+/// step index), read-outs stay finite, and `reset` brings it back.
+#[test]
+fn inverted_sampled_elements_are_refused_and_leave_the_estimator_unchanged() {
+    let (_, model) = compiled();
+    let t = model.tier.as_ref().unwrap();
+    let r = t.order as usize;
+    let tm = TierModel::new(model, t);
+    let mut out = vec![0.0; r];
+    let mut rotations = vec![[[0.0; 3]; 3]; t.elements.len()];
+    let mut scratch = vec![0.0; tm.force_scratch_len()];
+    let (mut refused, mut accepted) = (0, 0);
+    for j in 0..r {
+        for lambda in [
+            -100.0, -30.0, -10.0, -3.0, -1.0, 1.0, 3.0, 10.0, 30.0, 100.0,
+        ] {
+            let mut q = vec![0.0; r];
+            q[j] = lambda;
+            let dets: Vec<f64> = (0..t.elements.len())
+                .map(|e| element_det(t, e, &q))
+                .collect();
+            let least = dets.iter().cloned().fold(f64::INFINITY, f64::min);
+            let result =
+                tm.reduced_force(&q, &vec![0.0; r], &mut out, &mut rotations, &mut scratch);
+            if least < 0.0 {
+                let e = result.expect_err("an inverted element was not refused");
+                assert!(
+                    dets[e] < 1e-9,
+                    "element {e} refused with det F = {}",
+                    dets[e]
+                );
+                refused += 1;
+            } else if least > 1e-3 {
+                result.expect("no element is inverted, yet the force was refused");
+                accepted += 1;
+            }
+        }
+    }
+    eprintln!("kernel: {refused} inverted states refused, {accepted} valid states accepted");
+    assert!(refused > 0 && accepted > 0, "{refused} {accepted}");
+
+    let xi = model
+        .inputs
+        .iter()
+        .position(|c| c.label == "tip.x")
+        .unwrap();
+    let mut refusal = None;
+    'loads: for load in [2e4, 5e4, 1e5, 2e5, 5e5] {
+        let mut est = Estimator::new(model).unwrap();
+        let mut u = vec![0.0; model.inputs.len()];
+        u[xi] = -load;
+        for _ in 0..50 {
+            let before = est.state().to_vec();
+            let index = est.step_index();
+            match est.predict(&u) {
+                Ok(()) => {}
+                Err(e) => {
+                    eprintln!("probe {load}: {e}");
+                    if matches!(e, RuntimeError::Tier(TierError::InvertedElement { .. })) {
+                        refusal = Some((load, est, before, index, e, u));
+                        break 'loads;
+                    }
+                    continue 'loads;
+                }
+            }
+        }
+    }
+    let (load, mut est, before, index, error, u) =
+        refusal.expect("no axial load up to 1e5 N made the tier refuse a step");
+    eprintln!("axial tip load {load} N: {error}");
+    assert!(
+        matches!(error, RuntimeError::Tier(TierError::InvertedElement { det, .. }) if det <= 0.0),
+        "{error:?}"
+    );
+    assert_eq!(est.state(), &before[..], "a refused step changed the state");
+    assert_eq!(est.step_index(), index);
+    let mut sensors = vec![0.0; 3 * model.sensors.len()];
+    est.sensor_displacements(&mut sensors).unwrap();
+    assert!(sensors.iter().all(|v| v.is_finite()));
+    // The same step is refused again (nothing half-applied), and a reset recovers.
+    assert!(est.predict(&u).is_err());
+    assert_eq!(est.state(), &before[..]);
+    est.reset();
+    est.predict(&vec![0.0; model.inputs.len()]).unwrap();
+    assert!(
+        est.state().iter().all(|v| v.abs() < 1e-12),
+        "rest stays at rest after reset"
+    );
+}

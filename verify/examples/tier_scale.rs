@@ -5,13 +5,14 @@
 //! ```sh
 //! # training only (the scene's [reduction.corotational] plan): runs, steps, Newton solves,
 //! # factorisations, time in assembly / factorisation / triangular solves
-//! cargo run --release -p crokf-verify --example tier_scale -- train SCENE [--full-newton] [--threads N] [--sequential]
+//! cargo run --release -p crokf-verify --example tier_scale -- train SCENE [--full-newton] [--no-predictor] [--threads N] [--sequential]
 //! # step speed: tier step (runtime, MODEL compiled from SCENE) against the full-order
 //! # co-rotational step of SCENE's mesh, medians of the same run
 //! cargo run --release -p crokf-verify --example tier_scale -- bench SCENE MODEL [--steps N]
 //! ```
 //!
-//! `bench` times three steps under the tier-load ramp of the load channel with the largest
+//! `bench` times three steps (medians of this thread's CPU time, and of wall time; pass
+//! `--sequential` so that the full-order factorisations run on the timed thread) under the tier-load ramp of the load channel with the largest
 //! range (to 0.8 × the range over the run, z component): the runtime's tier step
 //! (`Estimator::predict`), the full-order co-rotational step with one Newton solve (assembly +
 //! factorisation + solve: the cheapest full-order step, the one of `crokf-verify bench`), and
@@ -26,6 +27,7 @@ use crokf_compile::report::StageTimer;
 use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, Simulator};
 use crokf_compile::FullOrder;
 use crokf_runtime::{load_model, Estimator};
+use crokf_verify::bench::{step_clock_seconds, STEP_CLOCK};
 
 fn main() -> ExitCode {
     match run() {
@@ -45,7 +47,7 @@ fn flag_value(args: &[String], name: &str) -> Option<String> {
 
 fn run() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let usage = "usage: tier_scale train SCENE [--full-newton] [--threads N] | \
+    let usage = "usage: tier_scale train SCENE [--full-newton] [--no-predictor] [--threads N] | \
                  tier_scale bench SCENE MODEL [--steps N]";
     let (Some(mode), Some(scene)) = (args.first(), args.get(1)) else {
         return Err(usage.into());
@@ -83,6 +85,11 @@ fn train_cost(full: &FullOrder, args: &[String]) -> Result<(), Box<dyn std::erro
     };
     if args.iter().any(|a| a == "--full-newton") {
         plan.modified = None;
+    }
+    if args.iter().any(|a| a == "--no-predictor") {
+        if let Some(m) = plan.modified.as_mut() {
+            m.predictor = false;
+        }
     }
     if let Some(t) = flag_value(args, "--threads") {
         plan.threads = t.parse()?;
@@ -174,16 +181,20 @@ fn bench(
     let force = |k: usize| -0.8 * range * (k as f64 / steps as f64);
     let mut f = vec![0.0; column.len()];
     let mut u = vec![0.0; model.inputs.len()];
+    // Both clocks per step: this thread's CPU time (what the step costs on one core; the
+    // full-order solves run on this thread with `--sequential`) and wall time.
+    let clock = step_clock_seconds;
     // Runtime tier step: 200 × the full-order steps, timed per step.
-    let mut tier = Vec::new();
+    let (mut tier, mut tier_wall) = (Vec::new(), Vec::new());
     for k in 1..=200 * steps {
         u[input] = force(k.div_ceil(200));
-        let started = Instant::now();
+        let (c0, w0) = (clock(), Instant::now());
         estimator.predict(&u)?;
-        tier.push(started.elapsed().as_secs_f64());
+        tier.push(clock() - c0);
+        tier_wall.push(w0.elapsed().as_secs_f64());
     }
-    let mut one_solve = Vec::new();
-    let mut converged = Vec::new();
+    let (mut one_solve, mut one_wall) = (Vec::new(), Vec::new());
+    let (mut converged, mut converged_wall) = (Vec::new(), Vec::new());
     let options = NewtonOptions::default();
     let mut single = CorotationalSimulator::new(
         &full.fem,
@@ -197,32 +208,44 @@ fn bench(
     for k in 1..=steps {
         let m = force(k);
         f.iter_mut().zip(column).for_each(|(fi, b)| *fi = m * b);
-        let started = Instant::now();
+        let (c0, w0) = (clock(), Instant::now());
         single.step(&f)?;
-        one_solve.push(started.elapsed().as_secs_f64());
-        let started = Instant::now();
+        one_solve.push(clock() - c0);
+        one_wall.push(w0.elapsed().as_secs_f64());
+        let (c0, w0) = (clock(), Instant::now());
         reference.step(&f)?;
-        converged.push(started.elapsed().as_secs_f64());
+        converged.push(clock() - c0);
+        converged_wall.push(w0.elapsed().as_secs_f64());
     }
     let (t, s, c) = (median(tier), median(one_solve), median(converged));
+    let (tw, sw, cw) = (median(tier_wall), median(one_wall), median(converged_wall));
     let stats = reference.stats();
     println!(
-        "medians over {steps} full-order steps and {} tier steps (load to {:.3} N on {label}):",
+        "medians over {steps} full-order steps and {} tier steps (load to {:.3} N on {label}); \
+         thread CPU time ({STEP_CLOCK}) / wall time:",
         200 * steps,
         force(steps)
     );
-    println!("  tier step (runtime predict): {:.2} µs", 1e6 * t);
     println!(
-        "  full-order co-rotational step, one Newton solve: {:.1} ms  (ratio {:.2e})",
-        1e3 * s,
-        s / t
+        "  tier step (runtime predict): {:.2} / {:.2} µs",
+        1e6 * t,
+        1e6 * tw
     );
     println!(
-        "  full-order co-rotational step, Newton to 1e-8 ({:.2} solves/step): {:.1} ms  (ratio \
-         {:.2e})",
+        "  full-order co-rotational step, one Newton solve: {:.1} / {:.1} ms  (ratio {:.2e} CPU, {:.2e} wall)",
+        1e3 * s,
+        1e3 * sw,
+        s / t,
+        sw / tw
+    );
+    println!(
+        "  full-order co-rotational step, Newton to 1e-8 ({:.2} solves/step): {:.1} / {:.1} ms  \
+         (ratio {:.2e} CPU, {:.2e} wall)",
         stats.solves as f64 / stats.steps.max(1) as f64,
         1e3 * c,
-        c / t
+        1e3 * cw,
+        c / t,
+        cw / tw
     );
     Ok(())
 }

@@ -228,3 +228,179 @@ pub fn projection_errors(
         .map(|e| if total > 0.0 { (e / total).sqrt() } else { 0.0 })
         .collect()
 }
+
+/// Flips the sign of each vector so that its largest-magnitude entry is positive
+/// (deterministic signs for POD vectors, whose eigenvector signs are arbitrary).
+pub fn normalise_signs(vectors: &mut [(String, Vec<f64>)]) {
+    for (_, v) in vectors {
+        let top = v
+            .iter()
+            .copied()
+            .fold(0.0f64, |m, x| if x.abs() > m.abs() { x } else { m });
+        if top < 0.0 {
+            v.iter_mut().for_each(|x| *x = -*x);
+        }
+    }
+}
+
+/// A basis whose every training run is represented to a relative tolerance, from
+/// [`per_run_pod`].
+#[derive(Clone, Debug)]
+pub struct PerRunBasis {
+    /// V (n × r, VᵀMV = I): the pooled POD vectors first, then the enrichment.
+    pub basis: Basis,
+    /// Columns that came from the pooled POD.
+    pub pooled: usize,
+    /// Per run: its relative projection error e_k on the final basis (module docs of
+    /// [`per_run_pod`]); 0 for a run with no snapshot or only zero snapshots.
+    pub run_errors: Vec<f64>,
+    /// Per added column: the run it was taken from.
+    pub enriched_from: Vec<usize>,
+}
+
+impl PerRunBasis {
+    /// The largest per-run relative projection error.
+    pub fn worst(&self) -> f64 {
+        self.run_errors.iter().copied().fold(0.0, f64::max)
+    }
+}
+
+/// A POD basis in which every training run, not only the pooled snapshot energy, is
+/// represented to the relative tolerance ε = `tolerance` (docs/design.md §10 item 1;
+/// docs/corotational-tier.md §8).
+///
+/// With u_t the snapshots (n each, m), run k's snapshots T_k and P = V Vᵀ M the M-orthogonal
+/// projector on V, run k's relative projection error is
+/// ```text
+/// e_k = sqrt( Σ_{t∈T_k} ‖u_t − P u_t‖²_M / Σ_{t∈T_k} ‖u_t‖²_M ).
+/// ```
+/// V starts with the first `pooled` POD vectors of all snapshots (the energy-optimal basis of
+/// the pool, [`pod`]); then, while the worst run has e_k > ε and r < `max_columns`, the leading
+/// POD vector of that run's residuals (I − P)u_t, t ∈ T_k (M-orthogonal to V by construction,
+/// re-orthogonalised twice) is appended. Each added vector removes the largest share of the worst
+/// run's residual energy, so e_k of that run strictly decreases; r is set by ε, bounded by
+/// `max_columns`. The pooled POD comes first so that a run that dominates the pool (a large
+/// bending motion) keeps the vectors it had; runs that the pool ranks last (a stiff torsion
+/// or an axial pull, millimetres next to metres) are added until they are represented too.
+/// `run_of[t]` is snapshot t's run (< `runs`). Cost: O(S n r) for S snapshots. e_k is
+/// evaluated as (‖u‖² − ‖q‖²)^½ per snapshot (nested in r, no residual vectors kept), so it is
+/// accurate to about √ε_machine ≈ 1e-8 relative: tolerances below 1e-6 are not meaningful.
+pub fn per_run_pod(
+    mass: &SparseColMat<usize, f64>,
+    snapshots: &[Vec<f64>],
+    run_of: &[usize],
+    runs: usize,
+    pooled: usize,
+    tolerance: f64,
+    max_columns: usize,
+) -> PerRunBasis {
+    let (mut modes, _) = pod(mass, snapshots, pooled.min(max_columns), 1e-14);
+    normalise_signs(&mut modes);
+    let start = m_orthonormalise(mass, &modes, 1e-8, pooled.min(max_columns));
+    enrich_per_run(mass, snapshots, run_of, runs, start, tolerance, max_columns)
+}
+
+/// The enrichment of [`per_run_pod`] from a given M-orthonormal `start` basis (e.g. the pooled
+/// POD, computed once for several tolerances): appends the leading POD vector of the worst
+/// run's residuals while that run's e_k > `tolerance` and r < `max_columns`.
+pub fn enrich_per_run(
+    mass: &SparseColMat<usize, f64>,
+    snapshots: &[Vec<f64>],
+    run_of: &[usize],
+    runs: usize,
+    start: Basis,
+    tolerance: f64,
+    max_columns: usize,
+) -> PerRunBasis {
+    let mut basis = start;
+    let pooled = basis.len();
+    let norms2: Vec<f64> = snapshots
+        .iter()
+        .map(|u| dot(u, &sparse_mul(mass, u)))
+        .collect();
+    // Coefficients q_t = (MV)ᵀ u_t, one row per column of V.
+    let mut coefficients: Vec<Vec<f64>> = (0..basis.len())
+        .map(|j| {
+            let mv = basis.mass_vectors.column(j);
+            snapshots
+                .iter()
+                .map(|u| mv.iter().zip(u).map(|(a, b)| a * b).sum())
+                .collect()
+        })
+        .collect();
+    let errors = |coefficients: &[Vec<f64>]| -> Vec<f64> {
+        let mut left = vec![0.0; runs];
+        let mut total = vec![0.0; runs];
+        for (t, &k) in run_of.iter().enumerate() {
+            let kept: f64 = coefficients.iter().map(|row| row[t] * row[t]).sum();
+            left[k] += (norms2[t] - kept).max(0.0);
+            total[k] += norms2[t];
+        }
+        left.iter()
+            .zip(&total)
+            .map(|(l, t)| if *t > 0.0 { (l / t).sqrt() } else { 0.0 })
+            .collect()
+    };
+    let mut run_errors = errors(&coefficients);
+    let mut enriched_from = Vec::new();
+    let mut columns: Vec<(String, Vec<f64>)> = (0..basis.len())
+        .map(|j| {
+            (
+                basis.labels[j].clone(),
+                basis.vectors.column(j).iter().copied().collect(),
+            )
+        })
+        .collect();
+    while basis.len() < max_columns {
+        let Some((worst, &e)) = run_errors
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+        else {
+            break;
+        };
+        if e <= tolerance {
+            break;
+        }
+        let residuals: Vec<Vec<f64>> = run_of
+            .iter()
+            .enumerate()
+            .filter(|&(_, &k)| k == worst)
+            .map(|(t, _)| {
+                let mut r = snapshots[t].clone();
+                for (j, row) in coefficients.iter().enumerate() {
+                    let c = row[t];
+                    r.iter_mut()
+                        .zip(basis.vectors.column(j).iter())
+                        .for_each(|(x, v)| *x -= c * v);
+                }
+                r
+            })
+            .collect();
+        let (mut lead, _) = pod(mass, &residuals, 1, 0.0);
+        normalise_signs(&mut lead);
+        let Some((_, v)) = lead.pop() else { break };
+        columns.push((format!("run {worst} residual"), v));
+        let next = m_orthonormalise(mass, &columns, 1e-8, basis.len() + 1);
+        if next.len() == basis.len() {
+            break; // numerically dependent: the run cannot be improved further
+        }
+        basis = next;
+        let j = basis.len() - 1;
+        let mv = basis.mass_vectors.column(j);
+        coefficients.push(
+            snapshots
+                .iter()
+                .map(|u| mv.iter().zip(u).map(|(a, b)| a * b).sum())
+                .collect(),
+        );
+        enriched_from.push(worst);
+        run_errors = errors(&coefficients);
+    }
+    PerRunBasis {
+        basis,
+        pooled,
+        run_errors,
+        enriched_from,
+    }
+}
