@@ -5,12 +5,14 @@
 //! the markers); filtered runs get the reference's sensor displacements plus Gaussian noise of
 //! the model's σ (seed 7; all channels, the runtime uses those active in the step's phase; gate
 //! off). Errors are relative L2 over the displayed nodes (and the sensors, and the tip marker)
-//! and the whole trajectory, world frame. For a co-rotational tier model the filtered runs also
-//! give ANIS (ν = y − ŷ⁻ over the phase's active channels, S = H P⁻_p Hᵀ + R from the model's
-//! stored covariances), the tip marker's ANEES (posterior P_p), both with their two-sided 95 %
-//! χ² bounds, the fraction of displayed-node error components inside ±2σ (runtime σ,
-//! `Estimator::node_std`), the count of innovations beyond 5σ of their own variance, and the
-//! force states at the end. The step time is that of `predict` + `update` only (wall clock).
+//! and the whole trajectory, world frame. The filtered runs also give ANIS (ν = y − ŷ⁻ over the
+//! phase's active channels, S = H P⁻_p Hᵀ + R from the model's stored covariances: the tier's
+//! gain schedule's filter in use at the step), the tip marker's ANEES (posterior P_p), both with
+//! their two-sided 95 % χ² bounds, the fraction of displayed-node error components inside ±2σ
+//! (runtime σ, `Estimator::node_std`), the count of innovations beyond 5σ of their own variance
+//! (docs/design.md §11.3, §11.5), all from `crokf_verify::comparison::ConsistencyAccumulator`,
+//! the code of `crokf-verify report`; and the tier's force states at the end. The step time is
+//! that of `predict` + `update` only (wall clock).
 //!
 //! ```sh
 //! cargo run --release -p crokf-verify --example nonlinear_filter -- SCENE SCENARIO MODEL...
@@ -33,9 +35,8 @@ use crokf_compile::report::StageTimer;
 use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, Simulator};
 use crokf_compile::FullOrder;
 use crokf_runtime::{load_model, Estimator};
-use crokf_verify::comparison::{ChiSquare, Gaussian};
+use crokf_verify::comparison::{ChiSquare, ConsistencyAccumulator, FilterBlocks, Gaussian};
 use crokf_verify::scenario::{Horizon, Scenario};
-use nalgebra::DMatrix;
 
 fn main() -> ExitCode {
     match run() {
@@ -302,7 +303,7 @@ struct RunFigures {
     nodes: f64,
     sensors: f64,
     tip: f64,
-    /// Co-rotational tier only (its covariances are in the world frame, n × n).
+    /// Filtered runs only.
     nis: Option<ChiSquare>,
     nees: Option<ChiSquare>,
     coverage: Option<f64>,
@@ -312,31 +313,6 @@ struct RunFigures {
     /// The tier's force states at the end (N).
     forces: Vec<f64>,
     median_step: f64,
-}
-
-/// C P_qq Cᵀ (3 × 3) for rows a, b (3 × r each, row-major) and the q-block of P (n × n).
-fn block(a: &[f64], b: &[f64], r: usize, p: &crokf_formats::Matrix) -> DMatrix<f64> {
-    let n = p.cols as usize;
-    DMatrix::from_fn(3, 3, |i, j| {
-        let mut s = 0.0;
-        for k in 0..r {
-            for l in 0..r {
-                s += a[i * r + k] * p.data[k * n + l] * b[j * r + l];
-            }
-        }
-        s
-    })
-}
-
-/// The tier's filter in use (its gain schedule, docs/design.md §11.5).
-fn active_kalman<'a>(
-    t: &'a crokf_formats::CorotationalTier,
-    est: &Estimator,
-) -> &'a crokf_formats::KalmanGains {
-    match est.tier_filter() {
-        Some(i) if i > 0 => &t.scheduled[i - 1].kalman,
-        _ => &t.kalman,
-    }
 }
 
 fn run_model(
@@ -359,35 +335,38 @@ fn run_model(
         .unwrap_or(1.0);
     let (mut e2, mut r2, mut se2, mut sr2, mut te2, mut tr2) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     let mut shown = vec![0.0; shown_ref[0].len()];
-    let mut sigma = vec![0.0; shown_ref[0].len()];
     let mut sens = vec![0.0; 3 * model.sensors.len()];
-    let mut estimates = vec![0.0; model.measurements.len()];
     let mut times = Vec::with_capacity(steps);
     let tier = model.tier.as_ref();
     let filtered = run != Run::OpenLoop;
-    let mut nis = ChiSquare::default();
-    let mut nees = ChiSquare::default();
-    let (mut inside, mut total, mut outliers) = (0usize, 0usize, 0usize);
+    // Consistency (filtered runs): every node of every set in order, as `shown`.
+    let display: Vec<(usize, usize)> = model
+        .node_sets
+        .iter()
+        .enumerate()
+        .flat_map(|(set, ns)| (0..ns.node_tags.len()).map(move |i| (set, i)))
+        .collect();
+    let blocks = FilterBlocks::new(model, &display);
+    let mut acc = ConsistencyAccumulator::new(&blocks, model, Some(tip));
     let is_load: Vec<bool> = model
         .inputs
         .iter()
         .map(|i| matches!(i.kind, crokf_formats::InputKind::Load { .. }))
         .collect();
+    let variance = &model
+        .tier
+        .as_ref()
+        .map_or(&model.kalman, |t| &t.kalman)
+        .measurement_variance;
     for k in 0..steps {
         let y: Vec<Option<f64>> = model
             .measurements
             .iter()
             .enumerate()
             .map(|(j, m)| {
-                let sigma = model
-                    .tier
-                    .as_ref()
-                    .map_or(&model.kalman, |t| &t.kalman)
-                    .measurement_variance[j]
-                    .sqrt();
                 Some(
                     sensors_ref[k][3 * m.sensor as usize + m.component as usize]
-                        + noise_scale * sigma * rng.normal(),
+                        + noise_scale * variance[j].sqrt() * rng.normal(),
                 )
             })
             .collect();
@@ -400,37 +379,7 @@ fn run_model(
         est.predict(&u)?;
         let mut elapsed = clock.elapsed().as_secs_f64();
         if filtered {
-            if let Some(t) = tier {
-                // NIS over the phase's active channels: ν = y − ŷ⁻, S = H P⁻ Hᵀ + R.
-                est.measurement_estimates(&mut estimates)?;
-                let phase = &active_kalman(t, &est).phases[est.phase()];
-                let active = &phase.measured;
-                let r = t.order as usize;
-                let mut s_mat = DMatrix::zeros(active.len(), active.len());
-                let mut nu = nalgebra::DVector::zeros(active.len());
-                for (a, &ja) in active.iter().enumerate() {
-                    let ma = &model.measurements[ja as usize];
-                    nu[a] = y[ja as usize].unwrap_or(0.0) - estimates[ja as usize];
-                    for (b, &jb) in active.iter().enumerate() {
-                        let mb = &model.measurements[jb as usize];
-                        let blk = block(
-                            &t.sensor_rows[ma.sensor as usize].data,
-                            &t.sensor_rows[mb.sensor as usize].data,
-                            r,
-                            &phase.prior_covariance,
-                        );
-                        s_mat[(a, b)] = blk[(ma.component as usize, mb.component as usize)];
-                    }
-                    s_mat[(a, a)] += t.kalman.measurement_variance[ja as usize];
-                    if nu[a] * nu[a] > 25.0 * s_mat[(a, a)] {
-                        outliers += 1;
-                    }
-                }
-                if let Some(chol) = s_mat.clone().cholesky() {
-                    nis.sum += nu.dot(&chol.solve(&nu));
-                    nis.dof += active.len();
-                }
-            }
+            acc.innovation(&est, &y)?;
             let clock = std::time::Instant::now();
             let trace = std::env::var_os("CROKF_TRACE").is_some() && tier.is_some();
             let norms = |s: &[f64], r: usize| {
@@ -466,18 +415,11 @@ fn run_model(
         for set in 0..model.node_sets.len() {
             let len = 3 * model.node_sets[set].node_tags.len();
             est.node_displacements_exact(set, &mut shown[at..at + len])?;
-            if filtered && tier.is_some() {
-                est.node_std(set, &mut sigma[at..at + len])?;
-            }
             at += len;
         }
-        for ((a, b), s) in shown.iter().zip(&shown_ref[k]).zip(&sigma) {
+        for (a, b) in shown.iter().zip(&shown_ref[k]) {
             e2 += (a - b) * (a - b);
             r2 += b * b;
-            if (a - b).abs() <= 2.0 * s {
-                inside += 1;
-            }
-            total += 1;
         }
         est.sensor_displacements(&mut sens)?;
         for (i, (a, b)) in sens.iter().zip(&sensors_ref[k]).enumerate() {
@@ -488,33 +430,30 @@ fn run_model(
                 tr2 += b * b;
             }
         }
-        if let (true, Some(t)) = (filtered, tier) {
-            let phase = &active_kalman(t, &est).phases[est.phase()];
-            let rows = &t.sensor_rows[tip].data;
-            let sig = block(rows, rows, t.order as usize, &phase.posterior_covariance);
-            let e = nalgebra::DVector::from_fn(3, |c, _| {
-                sens[3 * tip + c] - sensors_ref[k][3 * tip + c]
-            });
-            if let Some(chol) = sig.cholesky() {
-                nees.sum += e.dot(&chol.solve(&e));
-                nees.dof += 3;
-            }
+        if filtered {
+            acc.posterior(
+                &est,
+                (k + 1) as f64 * model.dt,
+                &sensors_ref[k][3 * tip..3 * tip + 3],
+                &shown,
+                &shown_ref[k],
+            )?;
         }
     }
     times.sort_by(f64::total_cmp);
-    let tiered = filtered && tier.is_some();
     let forces = match tier {
         Some(t) => est.state()[3 * t.order as usize..].to_vec(),
         None => Vec::new(),
     };
+    let c = acc.finish();
     Ok(RunFigures {
         nodes: (e2 / r2).sqrt(),
         sensors: (se2 / sr2).sqrt(),
         tip: (te2 / tr2).sqrt(),
-        nis: tiered.then_some(nis),
-        nees: tiered.then_some(nees),
-        coverage: tiered.then(|| inside as f64 / total as f64),
-        outliers: tiered.then_some(outliers),
+        nis: filtered.then_some(c.nis),
+        nees: filtered.then_some(c.nees_tip),
+        coverage: filtered.then_some(c.coverage_runtime),
+        outliers: filtered.then_some(c.outliers),
         forces,
         median_step: times[times.len() / 2],
     })

@@ -59,8 +59,9 @@ mod metrics;
 mod render;
 
 use crate::scenario::{Horizon, Scenario, ScenarioError};
-pub use consistency::{chi_square_quantile, ChiSquare, Consistency, TipSample};
-use consistency::{Accumulator, Blocks};
+pub use consistency::{
+    chi_square_quantile, ChiSquare, Consistency, ConsistencyAccumulator, FilterBlocks, TipSample,
+};
 use metrics::ErrorSum;
 pub use metrics::{
     breakdown_rotation, breakdown_rotation_of, relative_l2, rotation_angle, Gaussian,
@@ -461,6 +462,14 @@ pub struct TierRow {
     pub compile_s: f64,
     /// Step times and errors, as for the warped rows.
     pub runtime: RuntimeFigures,
+    /// NIS, NEES, 2σ coverage and the tip trace of the filtered run, from the tier's own
+    /// stored filters (the gain schedule's filter in use at each step; docs/design.md §11.3,
+    /// §11.5), by the same [`ConsistencyAccumulator`] as the warped rows.
+    pub consistency: Consistency,
+    /// The same for the run with the loads withheld.
+    pub withheld_consistency: Consistency,
+    /// Filters of the tier's gain schedule (1: the constant gain designed at rest).
+    pub filters: usize,
     /// Envelope and Newton work of the open-loop run.
     pub envelope: EnvelopeSummary,
 }
@@ -752,7 +761,7 @@ fn run_runtime(
     measurements: &[Vec<Option<f64>>],
     corot: &ReferenceRun,
     linear: Option<&ReferenceRun>,
-    mut consistency: Option<&mut Accumulator>,
+    mut consistency: Option<&mut ConsistencyAccumulator>,
     phase: &str,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<RunErrors, ComparisonError> {
@@ -765,9 +774,6 @@ fn run_runtime(
         sets.iter().map(|s| vec![0.0; 3 * s.nodes.len()]).collect();
     let mut display = vec![0.0; nd];
     let mut sensors = vec![0.0; ns];
-    let mut std_buffers = set_buffers.clone();
-    let mut std_display = vec![0.0; nd];
-    let mut predicted = vec![0.0; est.model().measurements.len()];
     let mut errors = RunErrors::default();
     let steps = setup.steps;
     let report_every = (steps / 20).max(1);
@@ -780,15 +786,8 @@ fn run_runtime(
     for k in 0..steps {
         if let Some(acc) = consistency.as_deref_mut() {
             est.predict(&inputs[k]).map_err(|e| runtime_err(k + 1, e))?;
-            est.measurement_estimates(&mut predicted)
+            acc.innovation(est, &measurements[k])
                 .map_err(|e| runtime_err(k + 1, e))?;
-            acc.innovation(
-                est.phase(),
-                est.active_measurements(),
-                &predicted,
-                &measurements[k],
-                est.state(),
-            );
             est.update(&measurements[k])
                 .map_err(|e| runtime_err(k + 1, e))?;
         } else {
@@ -822,31 +821,18 @@ fn run_runtime(
             );
         }
         if let Some(acc) = consistency.as_deref_mut() {
-            for (s, buf) in std_buffers.iter_mut().enumerate() {
-                est.node_std(s, buf).map_err(|e| runtime_err(k + 1, e))?;
-            }
-            for (j, &(s, i, _)) in setup.display.iter().enumerate() {
-                std_display[3 * j..3 * j + 3].copy_from_slice(&std_buffers[s][3 * i..3 * i + 3]);
-            }
-            let t = setup.tip.unwrap_or(0);
-            let (tip_est, tip_ref) = if setup.tip.is_some() {
-                (
-                    &sensors[3 * t..3 * t + 3],
-                    &corot.sensors[k * ns + 3 * t..k * ns + 3 * t + 3],
-                )
-            } else {
-                (&[][..], &[][..])
+            let tip_ref = match setup.tip {
+                Some(t) => &corot.sensors[k * ns + 3 * t..k * ns + 3 * t + 3],
+                None => &[][..],
             };
             acc.posterior(
-                est.phase(),
+                est,
                 (k + 1) as f64 * setup.dt(),
-                est.state(),
-                tip_est,
                 tip_ref,
                 &display,
                 &corot.display[k * nd..(k + 1) * nd],
-                &std_display,
-            );
+            )
+            .map_err(|e| runtime_err(k + 1, e))?;
         }
         if (k + 1) % report_every == 0 || k + 1 == steps {
             progress(Progress {
@@ -1109,33 +1095,17 @@ fn run_tier(
         progress,
     )?;
     let measurements = synthetic_measurements(model, corot, setup.steps, options.seed);
-    let filtered = run_runtime(
+    let filter = filtered_runs(
         setup,
         &mut est,
+        model,
         &inputs,
         &measurements,
         corot,
-        None,
-        None,
-        "filtered tier",
+        options.withhold_loads,
+        "tier",
         progress,
     )?;
-    let withheld = if options.withhold_loads {
-        filtered
-    } else {
-        let blind = runtime_inputs(setup, &setup.scenario, model, true)?;
-        run_runtime(
-            setup,
-            &mut est,
-            &blind,
-            &measurements,
-            corot,
-            None,
-            None,
-            "withheld tier",
-            progress,
-        )?
-    };
     let times = time_row(
         &mut est,
         &inputs,
@@ -1151,8 +1121,81 @@ fn run_tier(
         sampled_elements: tier.sampled_elements(),
         force_states,
         compile_s: tier.compile_s,
-        runtime: RuntimeFigures::new(times, &open, &filtered, &withheld),
+        runtime: RuntimeFigures::new(times, &open, &filter.given, &filter.withheld),
+        consistency: filter.given_consistency,
+        withheld_consistency: filter.withheld_consistency,
+        filters: model.tier.as_ref().map_or(1, |t| 1 + t.scheduled.len()),
         envelope: open.envelope,
+    })
+}
+
+/// The filtered runs of one row (a warped order or the tier) and their consistency.
+struct FilteredRuns {
+    given: RunErrors,
+    given_consistency: Consistency,
+    withheld: RunErrors,
+    withheld_consistency: Consistency,
+}
+
+/// A row's filtered runs through [`run_runtime`]: with `inputs` (the loads given, or withheld
+/// when the whole comparison withholds them) and, unless `withhold_loads`, with the loads
+/// withheld (the headline case: the runtime gets no load input, only the markers), each with
+/// the same [`ConsistencyAccumulator`] over the model's own stored filters ([`FilterBlocks`]:
+/// the warped model's, or the tier's gain schedule). Progress phases `filtered {label}` and
+/// `withheld {label}`.
+#[allow(clippy::too_many_arguments)]
+fn filtered_runs(
+    setup: &Setup,
+    est: &mut Estimator,
+    model: &fmt::Model,
+    inputs: &[Vec<f64>],
+    measurements: &[Vec<Option<f64>>],
+    corot: &ReferenceRun,
+    withhold_loads: bool,
+    label: &str,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<FilteredRuns, ComparisonError> {
+    let display: Vec<(usize, usize)> = setup.display.iter().map(|&(s, i, _)| (s, i)).collect();
+    let blocks = FilterBlocks::new(model, &display);
+    let mut acc = ConsistencyAccumulator::new(&blocks, model, setup.tip);
+    let given = run_runtime(
+        setup,
+        est,
+        inputs,
+        measurements,
+        corot,
+        None,
+        Some(&mut acc),
+        &format!("filtered {label}"),
+        progress,
+    )?;
+    let given_consistency = acc.finish();
+    if withhold_loads {
+        return Ok(FilteredRuns {
+            given,
+            withheld: given,
+            withheld_consistency: given_consistency.clone(),
+            given_consistency,
+        });
+    }
+    let blind = runtime_inputs(setup, &setup.scenario, model, true)?;
+    let mut acc = ConsistencyAccumulator::new(&blocks, model, setup.tip);
+    let withheld = run_runtime(
+        setup,
+        est,
+        &blind,
+        measurements,
+        corot,
+        None,
+        Some(&mut acc),
+        &format!("withheld {label}"),
+        progress,
+    )?;
+    Ok(FilteredRuns {
+        given,
+        given_consistency,
+        withheld,
+        withheld_consistency: acc.finish(),
     })
 }
 
@@ -1268,41 +1311,17 @@ pub fn run(
                 progress,
             )?;
             let measurements = synthetic_measurements(&model, &corot, setup.steps, options.seed);
-            let display: Vec<(usize, usize)> =
-                setup.display.iter().map(|&(s, i, _)| (s, i)).collect();
-            let blocks = Blocks::new(&model, &display);
-            let mut acc = Accumulator::new(&blocks, &model, setup.tip);
-            let filtered = run_runtime(
+            let filter = filtered_runs(
                 &setup,
                 &mut est,
+                &model,
                 &inputs,
                 &measurements,
                 &corot,
-                None,
-                Some(&mut acc),
-                &format!("filtered r = {order}"),
+                options.withhold_loads,
+                &format!("r = {order}"),
                 progress,
             )?;
-            let consistency = acc.finish();
-            // The headline case: the runtime gets no load input, only the markers.
-            let (withheld, withheld_consistency) = if options.withhold_loads {
-                (filtered, consistency.clone())
-            } else {
-                let blind = runtime_inputs(&setup, &setup.scenario, &model, true)?;
-                let mut acc = Accumulator::new(&blocks, &model, setup.tip);
-                let errors = run_runtime(
-                    &setup,
-                    &mut est,
-                    &blind,
-                    &measurements,
-                    &corot,
-                    None,
-                    Some(&mut acc),
-                    &format!("withheld r = {order}"),
-                    progress,
-                )?;
-                (errors, acc.finish())
-            };
             let times = time_row(
                 &mut est,
                 &inputs,
@@ -1316,9 +1335,9 @@ pub fn run(
                 requested_order: order,
                 order: r,
                 force_states: r.saturating_sub(model.report.order as usize),
-                runtime: RuntimeFigures::new(times, &open, &filtered, &withheld),
-                consistency,
-                withheld_consistency,
+                runtime: RuntimeFigures::new(times, &open, &filter.given, &filter.withheld),
+                consistency: filter.given_consistency,
+                withheld_consistency: filter.withheld_consistency,
                 compile_measured_errors: model.report.measured_errors.clone(),
                 compile_s,
             })

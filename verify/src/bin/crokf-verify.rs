@@ -54,7 +54,8 @@ struct ReportArgs {
     /// Reduced orders r.
     #[arg(long, value_delimiter = ',', default_value = "4,8,16,32,64")]
     orders: Vec<usize>,
-    /// Output directory: report.md, report.csv, report.svg (and sweep.md).
+    /// Output directory: report.md, report.csv, report.svg, tip_sigma_rN.svg per order
+    /// (tip_sigma_tier.svg with --corotational), and sweep.md.
     #[arg(long)]
     out: PathBuf,
     /// Seed of the synthetic measurement noise.
@@ -78,7 +79,9 @@ struct ReportArgs {
     /// Add the co-rotational tier: a scene of the same body with `[reduction] model =
     /// "corotational"` (e.g. models/cantilever/scene_corotational.toml). It is compiled once,
     /// training included (minutes: ~2 on the cantilever, ~9 on the meniscus), and becomes a row
-    /// of the table, two stars on report.svg and a column of the sweep (open-loop error per load
+    /// of the table and of the filter-consistency table (ANIS, tip ANEES, 2σ coverage from its
+    /// own filters), two stars on report.svg, tip_sigma_tier.svg and a column of the sweep
+    /// (open-loop error per load
     /// scale, scales beyond its training envelope marked, and the rotations up to which it
     /// stays under 2 % and 5 %).
     #[arg(long, value_name = "TIER_SCENE")]
@@ -162,7 +165,8 @@ fn report(args: &ReportArgs) -> Result<(), String> {
         .and_then(|()| staged.write("report.csv", result.csv().as_bytes()))
         .and_then(|()| staged.write("report.svg", result.svg().as_bytes()))
         .map_err(|e| e.to_string())?;
-    // Error and ±2σ at the tip marker along the trajectory, one plot per order.
+    // Error and ±2σ at the tip marker along the trajectory, one plot per order and one for the
+    // co-rotational tier.
     let mut tip_plots = Vec::new();
     for (i, row) in result.reduced.iter().enumerate() {
         if let Some(svg) = result.tip_svg(i) {
@@ -172,6 +176,14 @@ fn report(args: &ReportArgs) -> Result<(), String> {
                 .map_err(|e| e.to_string())?;
             tip_plots.push(name);
         }
+    }
+    // The co-rotational tier's, from its own filters.
+    if let Some(svg) = result.tier_tip_svg() {
+        let name = "tip_sigma_tier.svg".to_owned();
+        staged
+            .write(&name, svg.as_bytes())
+            .map_err(|e| e.to_string())?;
+        tip_plots.push(name);
     }
     staged.commit().map_err(|e| e.to_string())?;
     println!("{markdown}");

@@ -1,25 +1,40 @@
-//! Consistency and coverage of a filtered run (docs/design.md §11): normalised innovation
+//! Consistency and coverage of a filtered run (docs/design.md §11.3): normalised innovation
 //! squared (NIS), normalised estimation error squared (NEES) at the tip marker, the fraction of
-//! displayed-node errors inside ±2σ, and the tip's error and σ along the trajectory.
+//! displayed-node errors inside ±2σ, and the tip's error and σ along the trajectory. One
+//! implementation for both tiers: the warped rows of `crokf-verify report`, the co-rotational
+//! tier's row, and the `nonlinear_filter` example all go through [`ConsistencyAccumulator`].
 //!
 //! Covariances come from the model file's stored steady-state (periodic) covariances, P⁻_p and
-//! P_p of phase p (local frame, r×r), mapped to an output block by its rows C (3×r):
-//! Σ_local = C P Cᵀ; to the world frame by the warp at the current estimate,
-//! Σ_world = R̃(ω) Σ_local R̃(ω)ᵀ (first order: the dependence of ω on x is neglected, like the
-//! runtime's gate).
+//! P_p of phase p, of the filter the runtime uses at that step ([`FilterBlocks`]), mapped to an
+//! output block by its rows C (3×r): Σ = C P_qq Cᵀ (P_qq the r×r block of P on the coordinates
+//! the rows read).
+//! - Warped tier (docs/design.md §5–6): one filter, P on the balanced state x (r×r); Σ is in the
+//!   local frame and is rotated to the world frame by the warp at the current estimate,
+//!   Σ_world = R̃(ω) Σ R̃(ω)ᵀ, ω = W x (first order: the dependence of ω on x is neglected,
+//!   like the runtime's gate).
+//! - Co-rotational tier (docs/design.md §10, §11.4–11.5): P on s = (q, q̇, q̈, f[, ḟ]) (n×n),
+//!   C the world-frame rows V_s of q, so Σ is already in the world frame (R̃ = I). The filter
+//!   is the one of the gain schedule in use ([`Estimator::tier_filter`]): after `predict` the
+//!   one nearest to the prior q⁻ (whose P⁻ the runtime's gate reads as the innovation
+//!   variance), after `update` the one whose gain gave the posterior (whose P the runtime's σ
+//!   read-outs use).
 //!
-//! - NIS_k = ν_kᵀ S_k⁻¹ ν_k with ν_k = y_k − ŷ⁻_k (world frame, active channels of the phase)
-//!   and S_k = R̃ (H P⁻_p Hᵀ) R̃ᵀ + R (per-sensor rotation of the 3×3 blocks).
-//!   For a consistent filter Σ_k NIS_k ~ χ²(Σ_k m_k).
-//! - NEES_k = e_kᵀ Σ_k⁻¹ e_k at the tip marker, e_k = û_tip − u_tip,ref (3 per step),
+//! Statistics:
+//! - NIS_k = ν_kᵀ S_k⁻¹ ν_k with ν_k = y_k − ŷ⁻_k (world frame, the present measurements of
+//!   the phase's active channels), S_k = R̃ (H P⁻_p Hᵀ) R̃ᵀ + R (per-sensor rotation of the
+//!   3×3 blocks). For a consistent filter Σ_k NIS_k ~ χ²(Σ_k m_k).
+//! - NEES_k = e_kᵀ Σ_k⁻¹ e_k at the tip marker, e_k = û_tip − u_tip,ref (m, 3 per step),
 //!   Σ_k = R̃ C_tip P_p C_tipᵀ R̃ᵀ. For a consistent filter Σ_k NEES_k ~ χ²(3N).
 //! - Averages ANIS = Σ NIS / Σ m and ANEES = Σ NEES / 3N with two-sided 95 % bounds
 //!   χ²_{0.025}(D)/D, χ²_{0.975}(D)/D (Wilson–Hilferty). The bounds assume independent samples;
 //!   a filter whose model error is coloured in time exceeds them even when its σ cover the
 //!   error, which is why coverage is reported beside them.
+//! - Outliers: active innovations with ν_j² > 25 S_jj (beyond 5σ of their own variance: what
+//!   the runtime's 5σ gate would skip with every channel accepted at its period).
 
 use crokf_formats as fmt;
 use crokf_runtime::warp::Warp;
+use crokf_runtime::{Estimator, RuntimeError};
 use nalgebra::{DMatrix, Matrix3};
 
 /// A χ² statistic accumulated over a run.
@@ -92,36 +107,60 @@ pub struct Consistency {
     /// NEES at the tip marker over the run.
     pub nees_tip: ChiSquare,
     /// Fraction of displayed-node error components with |e| ≤ 2σ, σ the runtime's read-out
-    /// (`Estimator::node_std`, local frame).
+    /// (`Estimator::node_std`: local frame on the warped tier, world frame on the
+    /// co-rotational tier).
     pub coverage_runtime: f64,
-    /// Same with σ rotated to the world frame, sqrt(diag(R̃ Σ_local R̃ᵀ)).
+    /// Same with σ = sqrt(diag(R̃ Σ R̃ᵀ)) in the world frame (on the co-rotational tier R̃ = I
+    /// and this equals `coverage_runtime`).
     pub coverage_world: f64,
+    /// Active innovations beyond 5σ of their own variance, ν_j² > 25 S_jj, over the run.
+    pub outliers: usize,
     /// The tip trace (empty without a tip sensor).
     pub tip: Vec<TipSample>,
 }
 
-/// The model's output covariance blocks per phase, precomputed once per order.
-pub(super) struct Blocks {
-    /// Per phase: prior 3×3 blocks between sensors, `prior[p][s][t]`.
+/// The output covariance blocks of one stored filter, per phase (m²).
+#[derive(Clone, Debug)]
+struct Filter {
+    /// Per phase: prior 3×3 blocks C_s P⁻_p C_tᵀ between sensors, `prior[p][s][t]`.
     prior: Vec<Vec<Vec<Matrix3<f64>>>>,
-    /// Per phase: posterior 3×3 block of each sensor.
+    /// Per phase: posterior 3×3 block C_s P_p C_sᵀ of each sensor.
     sensor_post: Vec<Vec<Matrix3<f64>>>,
-    /// Per phase: posterior 3×3 block of each displayed node (in the comparison's display
-    /// order).
+    /// Per phase: posterior 3×3 block of each displayed node (in the display order).
     node_post: Vec<Vec<Matrix3<f64>>>,
-    /// Per displayed node: (set, index) into the model's node sets.
-    display: Vec<(usize, usize)>,
+    /// R_jj per measurement channel, m².
+    measurement_variance: Vec<f64>,
 }
 
-/// C P (3×r) for the 3 rows of `block` in `m` (row-major 3k×r) and P (r×r row-major).
-fn block_times_p(m: &fmt::Matrix, block: usize, p: &[f64], r: usize) -> Vec<[f64; 3]> {
+/// A model's stored filters seen through its output rows, precomputed once per model
+/// (docs/design.md §11.3): what [`ConsistencyAccumulator`] needs of the covariances of each
+/// filter and phase. For a warped model one filter (`Model::kalman`), local frame; for a
+/// co-rotational tier the gain schedule, filter 0 = `tier.kalman` (rest) and filter i ≥ 1 =
+/// `tier.scheduled[i − 1].kalman` (the numbering of [`Estimator::tier_filter`]), world frame.
+#[derive(Clone, Debug)]
+pub struct FilterBlocks {
+    filters: Vec<Filter>,
+    /// Per displayed node: (node set, index in set).
+    display: Vec<(usize, usize)>,
+    /// True for the co-rotational tier (covariances already in the world frame).
+    world: bool,
+    /// State dimension the blocks were built for (checked against the estimator's).
+    state_dim: usize,
+}
+
+/// C P (3×r) for the 3 rows of `block` in `m` (row-major 3k×r) and the leading r×r block of P
+/// (row-major, `p.cols` columns: r for the warped tier, n ≥ 3r for the co-rotational tier).
+fn block_times_p(m: &fmt::Matrix, block: usize, p: &fmt::Matrix) -> Vec<[f64; 3]> {
+    let r = m.cols as usize;
+    let stride = p.cols as usize;
     let mut out = vec![[0.0; 3]; r];
-    for (c, row) in (0..3).map(|c| (c, &m.data[(3 * block + c) * r..(3 * block + c + 1) * r])) {
+    for c in 0..3 {
+        let row = &m.data[(3 * block + c) * r..(3 * block + c + 1) * r];
         for (i, &ci) in row.iter().enumerate() {
             if ci == 0.0 {
                 continue;
             }
-            let prow = &p[i * r..(i + 1) * r];
+            let prow = &p.data[i * stride..i * stride + r];
             for (j, &pij) in prow.iter().enumerate() {
                 out[j][c] += ci * pij;
             }
@@ -131,7 +170,8 @@ fn block_times_p(m: &fmt::Matrix, block: usize, p: &[f64], r: usize) -> Vec<[f64
 }
 
 /// (C_a P) C_bᵀ as a 3×3 matrix.
-fn close(cp: &[[f64; 3]], m: &fmt::Matrix, block: usize, r: usize) -> Matrix3<f64> {
+fn close(cp: &[[f64; 3]], m: &fmt::Matrix, block: usize) -> Matrix3<f64> {
+    let r = m.cols as usize;
     let mut out = Matrix3::zeros();
     for d in 0..3 {
         let row = &m.data[(3 * block + d) * r..(3 * block + d + 1) * r];
@@ -147,45 +187,89 @@ fn close(cp: &[[f64; 3]], m: &fmt::Matrix, block: usize, r: usize) -> Matrix3<f6
     out
 }
 
-impl Blocks {
-    /// Blocks of `model` for the displayed nodes `display` ((node set, index in set)).
-    pub(super) fn new(model: &fmt::Model, display: &[(usize, usize)]) -> Self {
-        let r = model.r();
-        let ns = model.sensors.len();
+impl Filter {
+    /// The blocks of `kalman` through the sensor rows `sensors` (3×r each) and the node sets'
+    /// rows `sets` (3n×r each) for the displayed nodes `display`.
+    fn new(
+        kalman: &fmt::KalmanGains,
+        sensors: &[&fmt::Matrix],
+        sets: &[&fmt::Matrix],
+        display: &[(usize, usize)],
+    ) -> Self {
+        let ns = sensors.len();
         let mut prior = Vec::new();
         let mut sensor_post = Vec::new();
         let mut node_post = Vec::new();
-        for phase in &model.kalman.phases {
-            let pp = &phase.prior_covariance.data;
-            let po = &phase.posterior_covariance.data;
+        for phase in &kalman.phases {
+            let pp = &phase.prior_covariance;
+            let po = &phase.posterior_covariance;
             let mut blocks = vec![vec![Matrix3::zeros(); ns]; ns];
             let mut post = Vec::with_capacity(ns);
-            for (s, sensor) in model.sensors.iter().enumerate() {
-                let cp = block_times_p(&sensor.displacement_rows, 0, pp, r);
-                for (t, other) in model.sensors.iter().enumerate() {
-                    blocks[s][t] = close(&cp, &other.displacement_rows, 0, r);
+            for (s, rows) in sensors.iter().enumerate() {
+                let cp = block_times_p(rows, 0, pp);
+                for (t, other) in sensors.iter().enumerate() {
+                    blocks[s][t] = close(&cp, other, 0);
                 }
-                let cp = block_times_p(&sensor.displacement_rows, 0, po, r);
-                post.push(close(&cp, &sensor.displacement_rows, 0, r));
+                post.push(close(&block_times_p(rows, 0, po), rows, 0));
             }
             prior.push(blocks);
             sensor_post.push(post);
             node_post.push(
                 display
                     .iter()
-                    .map(|&(set, i)| {
-                        let rows = &model.node_sets[set].displacement_rows;
-                        close(&block_times_p(rows, i, po, r), rows, i, r)
-                    })
+                    .map(|&(set, i)| close(&block_times_p(sets[set], i, po), sets[set], i))
                     .collect(),
             );
         }
-        Blocks {
+        Filter {
             prior,
             sensor_post,
             node_post,
-            display: display.to_vec(),
+            measurement_variance: kalman.measurement_variance.clone(),
         }
+    }
+}
+
+impl FilterBlocks {
+    /// Blocks of `model`'s filters (its tier's gain schedule when it has a tier) for the
+    /// displayed nodes `display` ((node set, index in set), the order in which
+    /// [`ConsistencyAccumulator::posterior`] gets their values).
+    pub fn new(model: &fmt::Model, display: &[(usize, usize)]) -> Self {
+        match &model.tier {
+            None => {
+                let sensors: Vec<&fmt::Matrix> =
+                    model.sensors.iter().map(|s| &s.displacement_rows).collect();
+                let sets: Vec<&fmt::Matrix> = model
+                    .node_sets
+                    .iter()
+                    .map(|s| &s.displacement_rows)
+                    .collect();
+                FilterBlocks {
+                    filters: vec![Filter::new(&model.kalman, &sensors, &sets, display)],
+                    display: display.to_vec(),
+                    world: false,
+                    state_dim: model.r(),
+                }
+            }
+            Some(tier) => {
+                let sensors: Vec<&fmt::Matrix> = tier.sensor_rows.iter().collect();
+                let sets: Vec<&fmt::Matrix> = tier.node_set_rows.iter().collect();
+                FilterBlocks {
+                    filters: std::iter::once(&tier.kalman)
+                        .chain(tier.scheduled.iter().map(|s| &s.kalman))
+                        .map(|k| Filter::new(k, &sensors, &sets, display))
+                        .collect(),
+                    display: display.to_vec(),
+                    world: true,
+                    state_dim: tier.state_dim(),
+                }
+            }
+        }
+    }
+
+    /// Number of stored filters (1 for a warped model; 1 + the schedule's points for a tier).
+    pub fn filter_count(&self) -> usize {
+        self.filters.len()
     }
 }
 
@@ -212,100 +296,130 @@ fn rows3(m: &fmt::Matrix, block: usize, x: &[f64]) -> [f64; 3] {
     })
 }
 
-/// Accumulates [`Consistency`] step by step.
-pub(super) struct Accumulator<'a> {
-    blocks: &'a Blocks,
-    model: &'a fmt::Model,
+/// Accumulates [`Consistency`] over a filtered run, step by step: after each
+/// [`Estimator::predict`] call [`ConsistencyAccumulator::innovation`] with the step's
+/// measurements, after each [`Estimator::update`] [`ConsistencyAccumulator::posterior`] with
+/// the references; then [`ConsistencyAccumulator::finish`].
+pub struct ConsistencyAccumulator<'a> {
+    blocks: &'a FilterBlocks,
     tip: Option<usize>,
     out: Consistency,
     inside_runtime: usize,
     inside_world: usize,
     total: usize,
+    /// Scratch: ŷ⁻ per measurement channel, sensor displacements, σ per node set.
+    predicted: Vec<f64>,
+    sensors: Vec<f64>,
+    std: Vec<Vec<f64>>,
 }
 
-impl<'a> Accumulator<'a> {
-    pub(super) fn new(blocks: &'a Blocks, model: &'a fmt::Model, tip: Option<usize>) -> Self {
-        Accumulator {
+impl<'a> ConsistencyAccumulator<'a> {
+    /// An accumulator for runs of `model` (the one `blocks` was built from), NEES at sensor
+    /// `tip` (none without).
+    pub fn new(blocks: &'a FilterBlocks, model: &fmt::Model, tip: Option<usize>) -> Self {
+        ConsistencyAccumulator {
             blocks,
-            model,
             tip,
             out: Consistency::default(),
             inside_runtime: 0,
             inside_world: 0,
             total: 0,
+            predicted: vec![0.0; model.measurements.len()],
+            sensors: vec![0.0; 3 * model.sensors.len()],
+            std: model
+                .node_sets
+                .iter()
+                .map(|s| vec![0.0; 3 * s.node_tags.len()])
+                .collect(),
         }
     }
 
-    /// After `predict`: the innovation of the active channels `active` (indices into the
-    /// model's measurements) of phase `phase`, with predicted world values `predicted` (all
-    /// channels) and measurements `y`, at the prior state `x`.
-    pub(super) fn innovation(
-        &mut self,
-        phase: usize,
-        active: &[u32],
-        predicted: &[f64],
-        y: &[Option<f64>],
-        x: &[f64],
-    ) {
-        let used: Vec<usize> = active
+    /// The stored filter `est` uses now (0 on the warped tier).
+    fn filter(&self, est: &Estimator) -> &'a Filter {
+        &self.blocks.filters[est.tier_filter().unwrap_or(0)]
+    }
+
+    /// The 3×3 rotation taking sensor `s`'s covariance block to the world frame at the state
+    /// `x`: R̃(W_s x) on the warped tier, I on the co-rotational tier.
+    fn sensor_warp(&self, model: &fmt::Model, s: usize, x: &[f64]) -> Matrix3<f64> {
+        if self.blocks.world {
+            Matrix3::identity()
+        } else {
+            warp_matrix(&Warp::new(&rows3(&model.sensors[s].rotation_rows, 0, x)))
+        }
+    }
+
+    /// After `est.predict`, before `est.update(y)`: NIS of the present measurements `y` on the
+    /// phase's active channels, ν = y − ŷ⁻ and S = R̃ (H P⁻_p Hᵀ) R̃ᵀ + R of the filter in use
+    /// (module docs).
+    pub fn innovation(&mut self, est: &Estimator, y: &[Option<f64>]) -> Result<(), RuntimeError> {
+        let model = est.model();
+        debug_assert_eq!(est.state().len(), self.blocks.state_dim);
+        debug_assert_eq!(est.is_corotational(), self.blocks.world);
+        let used: Vec<usize> = est
+            .active_measurements()
             .iter()
             .map(|&j| j as usize)
             .filter(|&j| y[j].is_some())
             .collect();
         if used.is_empty() {
-            return;
+            return Ok(());
         }
-        let warps: Vec<Matrix3<f64>> = self
-            .model
-            .sensors
-            .iter()
-            .map(|s| warp_matrix(&Warp::new(&rows3(&s.rotation_rows, 0, x))))
+        est.measurement_estimates(&mut self.predicted)?;
+        let filter = self.filter(est);
+        let phase = est.phase();
+        let x = est.state();
+        let warps: Vec<Matrix3<f64>> = (0..model.sensors.len())
+            .map(|s| self.sensor_warp(model, s, x))
             .collect();
         let m = used.len();
         let mut s_mat = DMatrix::<f64>::zeros(m, m);
         let mut nu = DMatrix::<f64>::zeros(m, 1);
         for (a, &ja) in used.iter().enumerate() {
-            let ch_a = self.model.measurements[ja];
+            let ch_a = model.measurements[ja];
             let (sa, ca) = (ch_a.sensor as usize, ch_a.component as usize);
-            nu[(a, 0)] = y[ja].unwrap_or(0.0) - predicted[ja];
+            nu[(a, 0)] = y[ja].unwrap_or(0.0) - self.predicted[ja];
             for (b, &jb) in used.iter().enumerate() {
-                let ch_b = self.model.measurements[jb];
+                let ch_b = model.measurements[jb];
                 let (sb, cb) = (ch_b.sensor as usize, ch_b.component as usize);
-                let block = warps[sa] * self.blocks.prior[phase][sa][sb] * warps[sb].transpose();
+                let block = warps[sa] * filter.prior[phase][sa][sb] * warps[sb].transpose();
                 s_mat[(a, b)] = block[(ca, cb)];
             }
-            s_mat[(a, a)] += self.model.kalman.measurement_variance[ja];
+            s_mat[(a, a)] += filter.measurement_variance[ja];
+            if nu[(a, 0)] * nu[(a, 0)] > 25.0 * s_mat[(a, a)] {
+                self.out.outliers += 1;
+            }
         }
         if let Some(chol) = s_mat.cholesky() {
             let z = chol.solve(&nu);
             self.out.nis.sum += (nu.transpose() * z)[(0, 0)];
             self.out.nis.dof += m;
         }
+        Ok(())
     }
 
-    /// After `update`: the tip's world estimate `tip_estimate` and reference `tip_reference`,
-    /// the displayed nodes' world estimates and references (3 per node) and the runtime's σ
-    /// read-out for them, at the posterior state `x` of phase `phase`, time `time`.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn posterior(
+    /// After `est.update`: at time `time` (s), the tip's NEES and trace against its world
+    /// reference `tip_reference` (3, m; ignored without a tip), and the 2σ coverage of the
+    /// displayed nodes' world estimates `display` against `reference` (3 per displayed node in
+    /// the order given to [`FilterBlocks::new`], m), with the runtime's σ read-out and with the
+    /// filter's posterior P_p (module docs).
+    pub fn posterior(
         &mut self,
-        phase: usize,
+        est: &Estimator,
         time: f64,
-        x: &[f64],
-        tip_estimate: &[f64],
         tip_reference: &[f64],
         display: &[f64],
         reference: &[f64],
-        runtime_std: &[f64],
-    ) {
+    ) -> Result<(), RuntimeError> {
+        let model = est.model();
+        let filter = self.filter(est);
+        let phase = est.phase();
+        let x = est.state();
         if let Some(t) = self.tip {
-            let w = warp_matrix(&Warp::new(&rows3(
-                &self.model.sensors[t].rotation_rows,
-                0,
-                x,
-            )));
-            let sigma = w * self.blocks.sensor_post[phase][t] * w.transpose();
-            let e = nalgebra::Vector3::from_fn(|c, _| tip_estimate[c] - tip_reference[c]);
+            est.sensor_displacements(&mut self.sensors)?;
+            let w = self.sensor_warp(model, t, x);
+            let sigma = w * filter.sensor_post[phase][t] * w.transpose();
+            let e = nalgebra::Vector3::from_fn(|c, _| self.sensors[3 * t + c] - tip_reference[c]);
             if let Some(inv) = sigma.try_inverse() {
                 self.out.nees_tip.sum += (e.transpose() * inv * e)[(0, 0)];
                 self.out.nees_tip.dof += 3;
@@ -316,20 +430,29 @@ impl<'a> Accumulator<'a> {
                 sigma: std::array::from_fn(|c| sigma[(c, c)].max(0.0).sqrt()),
             });
         }
+        for (set, buf) in self.std.iter_mut().enumerate() {
+            est.node_std(set, buf)?;
+        }
         for (j, &(set, i)) in self.blocks.display.iter().enumerate() {
-            let rot = &self.model.node_sets[set].rotation_rows;
-            let w = warp_matrix(&Warp::new(&rows3(rot, i, x)));
-            let sigma = w * self.blocks.node_post[phase][j] * w.transpose();
+            let w = if self.blocks.world {
+                Matrix3::identity()
+            } else {
+                let rot = &model.node_sets[set].rotation_rows;
+                warp_matrix(&Warp::new(&rows3(rot, i, x)))
+            };
+            let sigma = w * filter.node_post[phase][j] * w.transpose();
             for c in 0..3 {
                 let e = (display[3 * j + c] - reference[3 * j + c]).abs();
-                self.inside_runtime += (e <= 2.0 * runtime_std[3 * j + c]) as usize;
+                self.inside_runtime += (e <= 2.0 * self.std[set][3 * i + c]) as usize;
                 self.inside_world += (e <= 2.0 * sigma[(c, c)].max(0.0).sqrt()) as usize;
                 self.total += 1;
             }
         }
+        Ok(())
     }
 
-    pub(super) fn finish(mut self) -> Consistency {
+    /// The figures of the run (coverage NaN-free: 0 without displayed nodes).
+    pub fn finish(mut self) -> Consistency {
         let total = self.total.max(1) as f64;
         self.out.coverage_runtime = self.inside_runtime as f64 / total;
         self.out.coverage_world = self.inside_world as f64 / total;

@@ -186,6 +186,38 @@ fn ratio(a: f64, b: f64) -> String {
     }
 }
 
+/// A fraction as `93.4 %`; `—` when not finite.
+fn percent(v: f64) -> String {
+    if v.is_finite() {
+        format!("{:.1} %", 100.0 * v)
+    } else {
+        "—".into()
+    }
+}
+
+/// The 12 consistency fields of a CSV line (the header's `anis` … `withheld_coverage_world`)
+/// for the filtered run `given` and the run with the loads withheld `withheld`.
+fn csv_consistency(given: &Consistency, withheld: &Consistency) -> String {
+    let (nis_lo, nis_hi) = given.nis.bounds();
+    let (nees_lo, nees_hi) = given.nees_tip.bounds();
+    [
+        given.nis.mean(),
+        nis_lo,
+        nis_hi,
+        given.nees_tip.mean(),
+        nees_lo,
+        nees_hi,
+        given.coverage_runtime,
+        given.coverage_world,
+        withheld.nis.mean(),
+        withheld.nees_tip.mean(),
+        withheld.coverage_runtime,
+        withheld.coverage_world,
+    ]
+    .map(csv_number)
+    .join(",")
+}
+
 fn csv_number(v: f64) -> String {
     if v.is_finite() {
         format!("{v:e}")
@@ -355,7 +387,9 @@ impl Comparison {
                  and its consistency (docs/design.md §11): ANIS = Σ NIS / Σ m over the run, \
                  ANEES = Σ NEES / 3N at the tip marker, each with its two-sided 95 % χ² bounds; \
                  2σ coverage = fraction of displayed-node error components inside ±2σ, σ from \
-                 the runtime's read-out (local frame) / rotated to the world frame.\n"
+                 the runtime's read-out (local frame on the warped rows) / rotated to the world \
+                 frame; the co-rotational tier's from its own stored filters (the gain \
+                 schedule's filter in use at each step, world frame: both coverages agree).\n"
             );
             let _ = writeln!(
                 out,
@@ -363,43 +397,28 @@ impl Comparison {
             );
             let _ = writeln!(out, "|---:|---|---:|---:|---:|---:|---:|");
             for row in &self.reduced {
-                let consistencies: [&Consistency; 2] =
-                    [&row.consistency, &row.withheld_consistency];
-                let runs = row.runtime.filter_runs(self.withheld_loads);
-                for ((label, e, tip), c) in runs.into_iter().zip(consistencies) {
-                    let _ = writeln!(
-                        out,
-                        "| {} | {label} | {} | {} | {} | {} | {:.1} % / {:.1} % |",
-                        row.order - row.force_states,
-                        sci(e),
-                        sci(tip),
-                        chi(&c.nis),
-                        chi(&c.nees_tip),
-                        100.0 * c.coverage_runtime,
-                        100.0 * c.coverage_world
-                    );
-                }
+                self.filter_rows(
+                    &mut out,
+                    &(row.order - row.force_states).to_string(),
+                    &row.runtime,
+                    [&row.consistency, &row.withheld_consistency],
+                );
             }
-            // The tier's filter has its own covariances (state (q, q̇, q̈)); the consistency
-            // figures above read the warped model's, so the tier shows its errors only.
             if let Some(t) = &self.tier {
-                for (label, e, tip) in t.runtime.filter_runs(self.withheld_loads) {
-                    let _ = writeln!(
-                        out,
-                        "| tier {} | {label} | {} | {} | — | — | — |",
-                        tier_order(t),
-                        sci(e),
-                        sci(tip)
-                    );
-                }
+                self.filter_rows(
+                    &mut out,
+                    &format!("tier {}", tier_order(t)),
+                    &t.runtime,
+                    [&t.consistency, &t.withheld_consistency],
+                );
             }
         }
         if let Some(t) = &self.tier {
             let e = &t.envelope;
             let _ = writeln!(
                 out,
-                "\nCo-rotational tier from `{}`: r = {} POD vectors, {} sampled elements{}; \
-                 compiled with its training in {:.0} s. Open loop: {:.2} Newton iterations per \
+                "\nCo-rotational tier from `{}`: r = {} POD vectors, {} sampled elements{}, \
+                 {}; compiled with its training in {:.0} s. Open loop: {:.2} Newton iterations per \
                  step; training envelope {} (largest load ratio {:.2}, state ratio {:.2} of \
                  margin {:.2}).",
                 t.scene.display(),
@@ -409,6 +428,11 @@ impl Comparison {
                     format!(", {} force states", t.force_states)
                 } else {
                     String::new()
+                },
+                if t.filters > 1 {
+                    format!("a gain schedule of {} filters", t.filters)
+                } else {
+                    "one constant-gain filter".to_owned()
                 },
                 t.compile_s,
                 e.iterations_per_step(),
@@ -484,39 +508,45 @@ impl Comparison {
             csv_number(self.linear.tip_error)
         );
         for row in &self.reduced {
-            let (cs, w) = (&row.consistency, &row.withheld_consistency);
-            let (nis_lo, nis_hi) = cs.nis.bounds();
-            let (nees_lo, nees_hi) = cs.nees_tip.bounds();
-            let consistency = [
-                cs.nis.mean(),
-                nis_lo,
-                nis_hi,
-                cs.nees_tip.mean(),
-                nees_lo,
-                nees_hi,
-                cs.coverage_runtime,
-                cs.coverage_world,
-                w.nis.mean(),
-                w.nees_tip.mean(),
-                w.coverage_runtime,
-                w.coverage_world,
-            ]
-            .map(csv_number)
-            .join(",");
+            let consistency = csv_consistency(&row.consistency, &row.withheld_consistency);
             self.csv_row(&mut out, "runtime", row.order, &row.runtime, &consistency);
         }
         if let Some(t) = &self.tier {
-            // The tier has no consistency figures (see the Markdown's filter table).
-            let empty = ",".repeat(11);
+            let consistency = csv_consistency(&t.consistency, &t.withheld_consistency);
             self.csv_row(
                 &mut out,
                 "corotational_tier",
                 t.basis_order,
                 &t.runtime,
-                &empty,
+                &consistency,
             );
         }
         out
+    }
+
+    /// The filter table's lines of one row (a warped order or the tier, labelled `r`): per
+    /// filtered run ([`RuntimeFigures::filter_runs`]) its errors, ANIS and tip ANEES with their
+    /// 95 % bounds and the 2σ coverages of `consistency` (given, withheld).
+    fn filter_rows(
+        &self,
+        out: &mut String,
+        r: &str,
+        runtime: &RuntimeFigures,
+        consistency: [&Consistency; 2],
+    ) {
+        let runs = runtime.filter_runs(self.withheld_loads);
+        for ((label, e, tip), c) in runs.into_iter().zip(consistency) {
+            let _ = writeln!(
+                out,
+                "| {r} | {label} | {} | {} | {} | {} | {} / {} |",
+                sci(e),
+                sci(tip),
+                chi(&c.nis),
+                chi(&c.nees_tip),
+                percent(c.coverage_runtime),
+                percent(c.coverage_world)
+            );
+        }
     }
 
     /// A runtime row of the speed table: step time, the speed-ups over both full-order models,
@@ -867,14 +897,32 @@ impl Comparison {
     /// the loads withheld, the ±2σ band of the given-load run), or `None` without a tip trace.
     pub fn tip_svg(&self, index: usize) -> Option<String> {
         let row = self.reduced.get(index)?;
-        let given = &row.consistency.tip[..];
+        let label = format!(
+            "r = {} + {} force states",
+            row.order - row.force_states,
+            row.force_states
+        );
+        self.tip_plot(&label, &row.consistency, &row.withheld_consistency)
+    }
+
+    /// The same plot for the co-rotational tier's row ([`Comparison::tip_svg`]; σ from the
+    /// tier's own stored filters, world frame), or `None` without a tier or a tip trace.
+    pub fn tier_tip_svg(&self) -> Option<String> {
+        let t = self.tier.as_ref()?;
+        let label = format!("co-rotational tier {}", tier_order(t));
+        self.tip_plot(&label, &t.consistency, &t.withheld_consistency)
+    }
+
+    /// The tip plot of one row, `label` naming it in the title.
+    fn tip_plot(&self, label: &str, given: &Consistency, withheld: &Consistency) -> Option<String> {
+        let given = &given.tip[..];
         if given.is_empty() {
             return None;
         }
         let withheld = if self.withheld_loads {
             &[][..]
         } else {
-            &row.withheld_consistency.tip[..]
+            &withheld.tip[..]
         };
         const W: f64 = 760.0;
         const PANEL: f64 = 180.0;
@@ -895,10 +943,8 @@ impl Comparison {
 <rect x="0" y="0" width="{W}" height="{h}" fill="white"/>"#
         );
         let title = format!(
-            "tip marker `{}`: error and ±2σ, r = {} + {} force states; inside ±2σ: {:.1} % (loads given) / {:.1} % (withheld)",
+            "tip marker `{}`: error and ±2σ, {label}; inside ±2σ: {:.1} % (loads given) / {:.1} % (withheld)",
             self.tip.as_deref().unwrap_or("—"),
-            row.order - row.force_states,
-            row.force_states,
             100.0 * inside_fraction(given),
             100.0 * inside_fraction(withheld),
         );
