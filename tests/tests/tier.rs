@@ -9,7 +9,7 @@ use std::sync::OnceLock;
 
 use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
 use crokf_compile::nonlinear::ecsw::EcswOptions;
-use crokf_compile::nonlinear::reduced::{ReducedNewton, ReducedStepper, Refresh};
+use crokf_compile::nonlinear::reduced::{ReducedModel, ReducedNewton, ReducedStepper, Refresh};
 use crokf_compile::nonlinear::tier;
 use crokf_compile::nonlinear::training::TrainingPlan;
 use crokf_compile::report::StageTimer;
@@ -72,6 +72,22 @@ fn compiled() -> &'static (Vec<u8>, crokf_formats::Model) {
     })
 }
 
+/// The compiler's reduced stepper on `model` with the runtime's predictor and refresh policy,
+/// Newton to 1e-12 (a reference the runtime's step is compared with).
+fn tight_stepper(model: &ReducedModel) -> ReducedStepper {
+    ReducedStepper::new(
+        model.clone(),
+        ReducedNewton {
+            max_iterations: 60,
+            tolerance: 1e-12,
+            refresh: Refresh::WhenSlow { iterations: 4 },
+            consistent: false,
+            predictor: true,
+        },
+    )
+    .unwrap()
+}
+
 /// Tip load history: a ramp to `peak` N along −z over 0.1 s, then held.
 fn tip_load(k: usize, peak: f64) -> f64 {
     let t = k as f64 * 0.005;
@@ -129,17 +145,7 @@ fn runtime_step_equals_the_compilers_reduced_stepper() {
     )
     .unwrap();
     let r = built.model.order();
-    let mut stepper = ReducedStepper::new(
-        built.model.clone(),
-        ReducedNewton {
-            max_iterations: 60,
-            tolerance: 1e-12,
-            refresh: Refresh::WhenSlow { iterations: 4 },
-            consistent: false,
-            predictor: true,
-        },
-    )
-    .unwrap();
+    let mut stepper = tight_stepper(&built.model);
     let v = &built.basis.vectors;
     let z = full
         .operators
@@ -1004,17 +1010,7 @@ fn self_check_is_small_and_equals_an_independent_recomputation() {
     let mut sim = CorotationalSimulator::new(&full.fem, full.wilson, plan.newton).unwrap();
     sim.set_modified_newton(plan.modified).unwrap();
     sim.set_sequential();
-    let mut stepper = ReducedStepper::new(
-        built.model.clone(),
-        ReducedNewton {
-            max_iterations: 60,
-            tolerance: 1e-12,
-            refresh: Refresh::WhenSlow { iterations: 4 },
-            consistent: false,
-            predictor: true,
-        },
-    )
-    .unwrap();
+    let mut stepper = tight_stepper(&built.model);
     let v = &built.basis.vectors;
     let reduced_column = v.tr_mul(&DVector::from_column_slice(column));
     let (mut err2, mut ref2) = (0.0, 0.0);
