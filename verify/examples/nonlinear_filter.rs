@@ -32,10 +32,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use crokf_compile::report::StageTimer;
-use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, Simulator};
 use crokf_compile::FullOrder;
 use crokf_runtime::{load_model, Estimator};
 use crokf_verify::comparison::{ChiSquare, ConsistencyAccumulator, FilterBlocks, Gaussian};
+use crokf_verify::nonlinear::reference::Reference;
 use crokf_verify::scenario::{Horizon, Scenario};
 
 fn main() -> ExitCode {
@@ -60,40 +60,11 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         Horizon::Steps(k) => k,
         Horizon::Steady(_) => return Err("the scenario needs a fixed horizon".into()),
     };
-    let (shown_ref, sensors_ref, inputs) = match std::env::var_os("CROKF_REFERENCE_CACHE") {
-        Some(path) => match read_cache(&PathBuf::from(&path), steps) {
-            Some(cached) => {
-                eprintln!("reference read from {}", PathBuf::from(&path).display());
-                cached
-            }
-            None => {
-                let computed = reference_run(&full, &scenario, steps)?;
-                write_cache(&PathBuf::from(&path), &computed)?;
-                computed
-            }
-        },
-        None => reference_run(&full, &scenario, steps)?,
-    };
-    // Tip marker: the sensor named `tip`, else the one with the largest peak displacement
-    // (as `crokf-verify report`).
-    let tip = ops
-        .sensors
-        .iter()
-        .position(|s| s.name == "tip")
-        .or_else(|| {
-            (0..ops.sensors.len()).max_by(|&a, &b| {
-                let peak = |s: usize| {
-                    sensors_ref
-                        .iter()
-                        .map(|y| {
-                            (y[3 * s].powi(2) + y[3 * s + 1].powi(2) + y[3 * s + 2].powi(2)).sqrt()
-                        })
-                        .fold(0.0, f64::max)
-                };
-                peak(a).total_cmp(&peak(b))
-            })
-        })
-        .unwrap_or(0);
+    let cache = std::env::var_os("CROKF_REFERENCE_CACHE").map(PathBuf::from);
+    let reference = Reference::of(&full, &scenario, steps, cache.as_deref())?;
+    let tip = reference.tip_marker(&full);
+    let (shown_ref, sensors_ref, inputs) =
+        (&reference.shown, &reference.sensors, &reference.inputs);
     println!(
         "tip marker: {} (NEES); loads withheld = every load channel 0, gravity kept\n",
         ops.sensors.get(tip).map_or("—", |s| s.name.as_str())
@@ -124,7 +95,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             {
                 continue;
             }
-            let out = match run_model(&model, run, &inputs, &sensors_ref, &shown_ref, tip) {
+            let out = match run_model(&model, run, inputs, sensors_ref, shown_ref, tip) {
                 Ok(out) => out,
                 Err(e) => {
                     println!("| {path} | {tier} | {} | refused: {e} |", run.label());
@@ -166,92 +137,6 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     Ok(())
-}
-
-/// Displayed nodes, sensors (world displacement, m) and inputs per step.
-type Reference = (Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<Vec<f64>>);
-
-/// The full-order co-rotational reference run of the scenario (Newton to 1e-8).
-fn reference_run(
-    full: &FullOrder,
-    scenario: &Scenario,
-    steps: usize,
-) -> Result<Reference, Box<dyn std::error::Error>> {
-    let fem = &full.fem;
-    let ops = &full.operators;
-    let dt = full.wilson.dt;
-    let n = fem.dof_count();
-    // Reference: displayed nodes (node sets in order, world displacement) and sensors.
-    let mut reference = CorotationalSimulator::new(fem, full.wilson, NewtonOptions::default())?;
-    let mut shown_ref: Vec<Vec<f64>> = Vec::with_capacity(steps);
-    let mut sensors_ref: Vec<Vec<f64>> = Vec::with_capacity(steps);
-    let mut inputs = Vec::with_capacity(steps);
-    let nodal = |u: &[f64], node: usize, c: usize| fem.dofs.index[node][c].map_or(0.0, |d| u[d]);
-    for k in 0..steps {
-        let t = k as f64 * dt;
-        let f = scenario.load_vector(ops, n, t);
-        inputs.push(scenario.inputs_at(ops, t));
-        reference.step(&f)?;
-        let u = reference.displacement();
-        let mut shown = Vec::new();
-        for set in &ops.node_sets {
-            for &node in &set.nodes {
-                for c in 0..3 {
-                    shown.push(nodal(u, node, c));
-                }
-            }
-        }
-        shown_ref.push(shown);
-        let mut s = Vec::new();
-        for sensor in &ops.sensors {
-            for c in 0..3 {
-                s.push(
-                    sensor
-                        .weights
-                        .iter()
-                        .map(|&(node, w)| w * nodal(u, node, c))
-                        .sum::<f64>(),
-                );
-            }
-        }
-        sensors_ref.push(s);
-    }
-    Ok((shown_ref, sensors_ref, inputs))
-}
-
-/// The reference as little-endian f64 rows (`CROKF_REFERENCE_CACHE=FILE`: written on the first
-/// run, read on the next ones with the same scene, scenario and step count; a measuring aid).
-fn write_cache(path: &std::path::Path, r: &Reference) -> std::io::Result<()> {
-    let mut bytes = Vec::new();
-    for part in [&r.0, &r.1, &r.2] {
-        bytes.extend_from_slice(&(part.len() as u64).to_le_bytes());
-        bytes.extend_from_slice(&(part.first().map_or(0, Vec::len) as u64).to_le_bytes());
-        for row in part {
-            for v in row {
-                bytes.extend_from_slice(&v.to_le_bytes());
-            }
-        }
-    }
-    std::fs::write(path, bytes)
-}
-
-fn read_cache(path: &std::path::Path, steps: usize) -> Option<Reference> {
-    let bytes = std::fs::read(path).ok()?;
-    let mut at = 0;
-    let mut word = || -> Option<[u8; 8]> {
-        let w = bytes.get(at..at + 8)?.try_into().ok()?;
-        at += 8;
-        Some(w)
-    };
-    let mut part = || -> Option<Vec<Vec<f64>>> {
-        let rows = u64::from_le_bytes(word()?) as usize;
-        let cols = u64::from_le_bytes(word()?) as usize;
-        (0..rows)
-            .map(|_| (0..cols).map(|_| word().map(f64::from_le_bytes)).collect())
-            .collect()
-    };
-    let out = (part()?, part()?, part()?);
-    (out.0.len() == steps).then_some(out)
 }
 
 /// A model file, or `FILE@SCENE`: FILE's co-rotational tier with its filter recomputed for

@@ -159,4 +159,8 @@ pub enum KalmanError {
     /// A dense factorisation failed.
     #[error("Kalman: {0}")]
     LinearAlgebra(String),
+    /// Noise identification from innovations (autocovariance least squares) cannot run on
+    /// the data or filter given.
+    #[error("Kalman: noise identification: {0}")]
+    Identification(String),
 }

@@ -458,16 +458,29 @@ fn measured_rows(
     h
 }
 
-/// The filter of a [`LinearisedTier`] (see [`linearised_filter`]).
+/// The augmented model of a [`LinearisedTier`] in scaled modal coordinates x̃ (see
+/// [`filter_of`]): x̃⁺ = F x̃ + G w, y = H x̃ + v, w ~ N(0, I), and the map s = T x̃ back to
+/// s = (q, q̇, q̈, f, ḟ).
+struct ScaledSystem {
+    /// F (n × n).
+    f: Mat<f64>,
+    /// H (channels × n).
+    h: Mat<f64>,
+    /// G (n × (white + force + rate)): columns of the white channels, then of the force
+    /// states, then of their rates, σ included.
+    noise: Mat<f64>,
+    /// T (n × n) = diag(Φ, Φ, Φ, I) D.
+    t: Mat<f64>,
+}
+
+/// The [`ScaledSystem`] of `lin` for `measurements`.
 ///
 /// Route: mass-normalised modes of (K_r, M_r) (Φ, λ) decouple the recursion into 3×3 blocks
-/// ([`crate::dynamics::WilsonTheta::modal_block`]); the DARE of the augmented pair is solved in
-/// scaled modal coordinates x̃ (`kalman::periodic_gains`; the scaling D in the code) and mapped
-/// back with T D, T = diag(Φ, Φ, Φ, I).
-pub fn filter_of(
+/// ([`crate::dynamics::WilsonTheta::modal_block`]); scaled so that F's entries are O(1).
+fn scaled_system(
     lin: &LinearisedTier,
     measurements: &Measurements,
-) -> Result<TierFilter, NonlinearError> {
+) -> Result<ScaledSystem, NonlinearError> {
     let r = lin.mass.nrows();
     let chol = lin.mass.clone().cholesky().ok_or_else(|| {
         NonlinearError::Invalid("tier filter: reduced mass matrix is not positive definite".into())
@@ -558,7 +571,6 @@ pub fn filter_of(
     }
     let f = Mat::<f64>::from_fn(n, n, |i, j| f[(i, j)] * d[j] / d[i]);
     let gw = Mat::<f64>::from_fn(n, gw.ncols(), |i, j| gw[(i, j)] / d[i]);
-    let q = &gw * gw.transpose();
     let modal_rows = &lin.measured_rows * &phi;
     let h = Mat::<f64>::from_fn(measurements.channels.len(), n, |i, j| {
         if j < r {
@@ -567,14 +579,6 @@ pub fn filter_of(
             0.0
         }
     });
-    let schedule = kalman::periodic_gains(
-        f.as_ref(),
-        h.as_ref(),
-        q.as_ref(),
-        &measurements.variance,
-        &measurements.every,
-    )
-    .map_err(|e| NonlinearError::Invalid(format!("tier filter: {e}")))?;
     // Back to s = (q, q̇, q̈, f): x_s = T D x̃, T = diag(Φ, Φ, Φ, I).
     let mut t = Mat::<f64>::zeros(n, n);
     for blk in 0..3 {
@@ -587,6 +591,27 @@ pub fn filter_of(
     for j in n3..n {
         t[(j, j)] = d[j];
     }
+    Ok(ScaledSystem { f, h, noise: gw, t })
+}
+
+/// The filter of a [`LinearisedTier`] (see [`linearised_filter`]): the DARE of the augmented
+/// pair is solved in scaled modal coordinates x̃ ([`ScaledSystem`], `kalman::periodic_gains`)
+/// and mapped back with T.
+pub fn filter_of(
+    lin: &LinearisedTier,
+    measurements: &Measurements,
+) -> Result<TierFilter, NonlinearError> {
+    let ScaledSystem { f, h, noise, t } = scaled_system(lin, measurements)?;
+    let nr = lin.rate_sigma.len();
+    let q = &noise * noise.transpose();
+    let schedule = kalman::periodic_gains(
+        f.as_ref(),
+        h.as_ref(),
+        q.as_ref(),
+        &measurements.variance,
+        &measurements.every,
+    )
+    .map_err(|e| NonlinearError::Invalid(format!("tier filter: {e}")))?;
     let back = |p: &Mat<f64>| &t * p * t.transpose();
     let mut schedule = schedule;
     for phase in &mut schedule.phases {
@@ -827,6 +852,134 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
     t.kalman = kalman_section(&filter.schedule, &filter.process_noise, &measurements);
     t.scheduled = scheduled_section(&filter, &measurements);
     Ok(filter.schedule.closed_loop_spectral_radius)
+}
+
+/// What [`identify_noise`] found for one random-walk load group: σ in the scene and σ
+/// identified, for the force (N per step) and, with rate states, its rate (N/s per step).
+#[derive(Clone, Debug)]
+pub struct IdentifiedLoad {
+    /// The load group (index into the scene's loads).
+    pub load: usize,
+    /// σ_f of the scene and identified.
+    pub force_sigma: (f64, f64),
+    /// σ_ḟ of the scene and identified (rate states only).
+    pub rate_sigma: Option<(f64, f64)>,
+}
+
+/// The tier filter's noise identified from its innovations ([`identify_noise`]).
+#[derive(Clone, Debug)]
+pub struct IdentifiedNoise {
+    /// Per random-walk load group.
+    pub loads: Vec<IdentifiedLoad>,
+    /// The factor on the σ of the white process-noise channels (None without any).
+    pub white_scale: Option<f64>,
+    /// The factor on the markers' σ.
+    pub measurement_scale: f64,
+    /// The least-squares fit (θ per parameter: white, then per load force and rate, then R).
+    pub estimate: kalman::als::AlsEstimate,
+}
+
+/// The noise of a model file's tier filter identified by autocovariance least squares
+/// (docs/design.md §11.6, [`kalman::als`]) from `innovations`: ν_k = y_k − H V q⁻_k of the tier's
+/// filter at rest (no gain schedule) with the noise of the scene `full` (the filter
+/// [`refilter`] computes for it), every marker at every step, in the model's measurement order,
+/// the start-up transient dropped. Parameters: a factor on the variance of the white channels,
+/// of each random-walk load group's force increments and rate increments, and of the markers'
+/// variance; each is σ² (scene) × θ, θ ≥ 0. Lags 0 … `lags`−1.
+pub fn identify_noise(
+    full: &FullOrder,
+    model: &fmt::Model,
+    innovations: &[Vec<f64>],
+    lags: usize,
+) -> Result<IdentifiedNoise, NonlinearError> {
+    let (lin, measurements) = linearised_of_file(full, model)?;
+    if let Some(j) = measurements.every.iter().position(|&e| e != 1) {
+        return Err(NonlinearError::Invalid(format!(
+            "noise identification needs every marker at every step: channel {j} is read every {} \
+             steps",
+            measurements.every[j]
+        )));
+    }
+    let sys = scaled_system(&lin, &measurements)?;
+    let q = &sys.noise * sys.noise.transpose();
+    let design = kalman::periodic_gains(
+        sys.f.as_ref(),
+        sys.h.as_ref(),
+        q.as_ref(),
+        &measurements.variance,
+        &measurements.every,
+    )
+    .map_err(|e| NonlinearError::Invalid(format!("tier filter: {e}")))?;
+    let (nw, nf, nr) = (
+        lin.noise_columns.len(),
+        lin.force_columns.len(),
+        lin.rate_sigma.len(),
+    );
+    let n = sys.f.nrows();
+    let m = measurements.channels.len();
+    let part = |name: String, columns: std::ops::Range<usize>| {
+        let g = sys.noise.subcols(columns.start, columns.len());
+        kalman::als::NoiseParameter {
+            name,
+            process: g * g.transpose(),
+            measurement: vec![0.0; m],
+        }
+    };
+    let loads = full.random_walk_loads();
+    let mut parameters = Vec::new();
+    if nw > 0 {
+        parameters.push(part("white process noise".into(), 0..nw));
+    }
+    for (i, &(g, _)) in loads.iter().enumerate() {
+        let name = &full.scene.scene.loads[g].name;
+        parameters.push(part(
+            format!("force of load '{name}'"),
+            nw + 3 * i..nw + 3 * i + 3,
+        ));
+        if nr > 0 {
+            parameters.push(part(
+                format!("force rate of load '{name}'"),
+                nw + nf + 3 * i..nw + nf + 3 * i + 3,
+            ));
+        }
+    }
+    parameters.push(kalman::als::NoiseParameter {
+        name: "markers".into(),
+        process: Mat::zeros(n, n),
+        measurement: measurements.variance.clone(),
+    });
+    let estimate = kalman::als::autocovariance_least_squares(
+        sys.f.as_ref(),
+        sys.h.as_ref(),
+        design.phases[0].gain.as_ref(),
+        &parameters,
+        innovations,
+        lags,
+    )
+    .map_err(|e| NonlinearError::Invalid(format!("tier filter: {e}")))?;
+    let theta = &estimate.theta;
+    let mut at = usize::from(nw > 0);
+    let mut identified = Vec::with_capacity(loads.len());
+    for (i, &(g, sigma)) in loads.iter().enumerate() {
+        let force_sigma = (sigma, sigma * theta[at].sqrt());
+        at += 1;
+        let rate_sigma = (nr > 0).then(|| {
+            let scene = lin.rate_sigma[3 * i];
+            at += 1;
+            (scene, scene * theta[at - 1].sqrt())
+        });
+        identified.push(IdentifiedLoad {
+            load: g,
+            force_sigma,
+            rate_sigma,
+        });
+    }
+    Ok(IdentifiedNoise {
+        loads: identified,
+        white_scale: (nw > 0).then(|| theta[0].sqrt()),
+        measurement_scale: theta[at].sqrt(),
+        estimate,
+    })
 }
 
 /// The section's `kalman` of a periodic schedule with process noise `process_noise`.

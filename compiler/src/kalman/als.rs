@@ -1,0 +1,391 @@
+//! Autocovariance least squares (ALS; docs/design.md §11.6): the noise covariances of a
+//! steady-state filter identified from its own innovations (Odelson, Rajamani & Rawlings,
+//! Automatica 42 (2006) 303–308).
+//!
+//! A filter with a fixed gain K (posterior form, x = x⁻ + K ν) on the model
+//! x⁺ = F x + w, y = H x + v runs on data; its prior error e = x − x⁻ and innovation ν obey
+//!
+//! ```text
+//! e_{k+1} = Ā e_k + w_k − F K v_k,   ν_k = H e_k + v_k,   Ā = F (I − K H)
+//! ```
+//!
+//! whatever K is, so with Q = Σ θ_i Q_i and R = Σ θ_i R_i the stationary innovation
+//! autocovariances are linear in θ:
+//!
+//! ```text
+//! P   = Ā P Āᵀ + Q + F K R Kᵀ Fᵀ
+//! C_0 = H P Hᵀ + R
+//! C_j = H Āʲ P Hᵀ − H Āʲ⁻¹ F K R          (j ≥ 1)
+//! ```
+//!
+//! θ ≥ 0 minimises Σ_j ‖C_j(θ) − Ĉ_j‖_F² over the lags j = 0 … L−1, Ĉ_j the sample
+//! autocovariance (1/(N−j)) Σ_k ν_{k+j} ν_kᵀ. With the few parameters a filter has (a σ per
+//! load group, a scale of R) the non-negative least squares is solved exactly by trying every
+//! set of free parameters.
+
+use faer::prelude::Solve;
+use faer::{Mat, MatRef};
+
+use super::KalmanError;
+
+/// Largest number of parameters (every subset is tried: 2ᵖ small solves).
+pub const MAX_PARAMETERS: usize = 10;
+
+/// Doubling steps of the Lyapunov solve at most (the horizon doubles with each).
+const LYAPUNOV_MAX_DOUBLINGS: usize = 60;
+
+/// One noise parameter θ_i: its share of Q (n × n, PSD) and of R (diagonal, m entries) at
+/// θ_i = 1.
+#[derive(Clone, Debug)]
+pub struct NoiseParameter {
+    /// What it scales (e.g. "force probe σ²"), for messages.
+    pub name: String,
+    /// Q_i (n × n).
+    pub process: Mat<f64>,
+    /// diag(R_i) (m), zeros when the parameter is a process-noise one.
+    pub measurement: Vec<f64>,
+}
+
+/// The identified parameters and how well they explain the data.
+#[derive(Clone, Debug)]
+pub struct AlsEstimate {
+    /// θ ≥ 0, one per [`NoiseParameter`] in order.
+    pub theta: Vec<f64>,
+    /// ‖C(θ) − Ĉ‖_F / ‖Ĉ‖_F over the lags used.
+    pub relative_residual: f64,
+    /// Lags used (L) and innovations (N after the ones skipped).
+    pub lags: usize,
+    /// Innovations used.
+    pub samples: usize,
+}
+
+/// The sample autocovariances Ĉ_0 … Ĉ_{L−1} (m × m each) of `innovations` (N vectors of m).
+pub fn sample_autocovariances(innovations: &[Vec<f64>], lags: usize) -> Vec<Mat<f64>> {
+    let n = innovations.len();
+    let m = innovations.first().map_or(0, Vec::len);
+    (0..lags)
+        .map(|j| {
+            let mut c = Mat::<f64>::zeros(m, m);
+            if n > j {
+                for k in 0..n - j {
+                    let (a, b) = (&innovations[k + j], &innovations[k]);
+                    for r in 0..m {
+                        for s in 0..m {
+                            c[(r, s)] += a[r] * b[s];
+                        }
+                    }
+                }
+                let scale = 1.0 / (n - j) as f64;
+                for r in 0..m {
+                    for s in 0..m {
+                        c[(r, s)] *= scale;
+                    }
+                }
+            }
+            c
+        })
+        .collect()
+}
+
+/// The stationary solution of P = Ā P Āᵀ + X by doubling (P = Σ_k Āᵏ X Āᵀᵏ), for ρ(Ā) < 1.
+fn lyapunov(a_bar: MatRef<f64>, x: MatRef<f64>) -> Result<Mat<f64>, KalmanError> {
+    let mut p = x.to_owned();
+    let mut a = a_bar.to_owned();
+    for _ in 0..LYAPUNOV_MAX_DOUBLINGS {
+        let increment = &a * &p * a.transpose();
+        p += &increment;
+        let norm_a = a.norm_l2();
+        if !norm_a.is_finite() {
+            break;
+        }
+        if increment.norm_l2() <= 1e-16 * p.norm_l2() || norm_a < 1e-150 {
+            return Ok(p);
+        }
+        a = &a * &a;
+    }
+    Err(KalmanError::Identification(
+        "the filter's error propagator F (I − K H) is not stable (Lyapunov doubling did not \
+         converge)"
+            .into(),
+    ))
+}
+
+/// Identified noise parameters θ ≥ 0 (module docs) of the filter with gain `gain` (n × m,
+/// posterior form) on (F, H) (n × n, m × n) from its innovations (N vectors of m, every channel
+/// measured at every step, the start-up transient already dropped), over lags 0 … `lags`−1.
+pub fn autocovariance_least_squares(
+    f: MatRef<f64>,
+    h: MatRef<f64>,
+    gain: MatRef<f64>,
+    parameters: &[NoiseParameter],
+    innovations: &[Vec<f64>],
+    lags: usize,
+) -> Result<AlsEstimate, KalmanError> {
+    let n = f.nrows();
+    let m = h.nrows();
+    let shape = |what: String| Err(KalmanError::Identification(what));
+    if f.ncols() != n || h.ncols() != n || gain.nrows() != n || gain.ncols() != m {
+        return shape(format!(
+            "F {}x{}, H {}x{}, K {}x{} do not fit",
+            f.nrows(),
+            f.ncols(),
+            h.nrows(),
+            h.ncols(),
+            gain.nrows(),
+            gain.ncols()
+        ));
+    }
+    if parameters.is_empty() || parameters.len() > MAX_PARAMETERS {
+        return shape(format!(
+            "{} parameters (1 … {MAX_PARAMETERS})",
+            parameters.len()
+        ));
+    }
+    for p in parameters {
+        if p.process.nrows() != n || p.process.ncols() != n || p.measurement.len() != m {
+            return shape(format!("parameter '{}' has the wrong size", p.name));
+        }
+    }
+    if lags == 0 || innovations.len() < 10 * lags {
+        return shape(format!(
+            "{} innovations for {lags} lags (at least 10 per lag)",
+            innovations.len()
+        ));
+    }
+    if let Some(k) = innovations
+        .iter()
+        .position(|v| v.len() != m || v.iter().any(|x| !x.is_finite()))
+    {
+        return shape(format!(
+            "innovation {k} has not {m} finite entries (every channel at every step)"
+        ));
+    }
+    let kh = gain * h;
+    let mut i_kh = Mat::<f64>::identity(n, n);
+    i_kh -= &kh;
+    let a_bar = f * &i_kh;
+    let fk = f * gain;
+    // H Āʲ (m × n) for j = 0 … L−1.
+    let mut h_pow = Vec::with_capacity(lags);
+    let mut cur = h.to_owned();
+    for _ in 0..lags {
+        h_pow.push(cur.clone());
+        cur = &cur * &a_bar;
+    }
+    // Model autocovariances of each parameter at θ_i = 1, stacked as one column.
+    let columns: Vec<Vec<f64>> = parameters
+        .iter()
+        .map(|p| {
+            let r_i = Mat::<f64>::from_fn(m, m, |a, b| if a == b { p.measurement[a] } else { 0.0 });
+            let mut x = p.process.clone();
+            x += &fk * &r_i * fk.transpose();
+            let x = Mat::<f64>::from_fn(n, n, |a, b| 0.5 * (x[(a, b)] + x[(b, a)]));
+            let pi = lyapunov(a_bar.as_ref(), x.as_ref())?;
+            let pht = &pi * h.transpose();
+            let mut column = Vec::with_capacity(lags * m * m);
+            for j in 0..lags {
+                let mut c = &h_pow[j] * &pht;
+                if j == 0 {
+                    c += &r_i;
+                } else {
+                    c -= &h_pow[j - 1] * &fk * &r_i;
+                }
+                column.extend(
+                    (0..m)
+                        .flat_map(|a| (0..m).map(move |b| (a, b)))
+                        .map(|(a, b)| c[(a, b)]),
+                );
+            }
+            Ok(column)
+        })
+        .collect::<Result<_, KalmanError>>()?;
+    let sample = sample_autocovariances(innovations, lags);
+    let target: Vec<f64> = sample
+        .iter()
+        .flat_map(|c| (0..m).flat_map(move |a| (0..m).map(move |b| c[(a, b)])))
+        .collect();
+    let theta = nonnegative_least_squares(&columns, &target);
+    let fitted: Vec<f64> = (0..target.len())
+        .map(|i| columns.iter().zip(&theta).map(|(c, t)| c[i] * t).sum())
+        .collect();
+    let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
+    let residual = norm(&mut fitted.iter().zip(&target).map(|(a, b)| a - b));
+    let scale = norm(&mut target.iter().copied()).max(f64::MIN_POSITIVE);
+    Ok(AlsEstimate {
+        theta,
+        relative_residual: residual / scale,
+        lags,
+        samples: innovations.len(),
+    })
+}
+
+/// argmin_{θ ≥ 0} ‖Σ θ_i a_i − b‖₂ for a few columns a_i: the normal equations on every
+/// subset of free columns, the best feasible one kept (exact for p ≤ [`MAX_PARAMETERS`]).
+fn nonnegative_least_squares(columns: &[Vec<f64>], b: &[f64]) -> Vec<f64> {
+    let p = columns.len();
+    // Normalise the columns so that the normal equations are well scaled.
+    let norms: Vec<f64> = columns
+        .iter()
+        .map(|c| c.iter().map(|x| x * x).sum::<f64>().sqrt())
+        .collect();
+    let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
+    let gram = Mat::<f64>::from_fn(p, p, |i, j| {
+        let d = norms[i] * norms[j];
+        if d > 0.0 {
+            dot(&columns[i], &columns[j]) / d
+        } else {
+            0.0
+        }
+    });
+    let rhs: Vec<f64> = (0..p)
+        .map(|i| {
+            if norms[i] > 0.0 {
+                dot(&columns[i], b) / norms[i]
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let bb = dot(b, b);
+    let mut best = (bb, vec![0.0; p]);
+    for subset in 1u32..(1 << p) {
+        let free: Vec<usize> = (0..p)
+            .filter(|&i| subset & (1 << i) != 0 && norms[i] > 0.0)
+            .collect();
+        if free.len() != subset.count_ones() as usize {
+            continue;
+        }
+        let g = Mat::<f64>::from_fn(free.len(), free.len(), |a, c| gram[(free[a], free[c])]);
+        let r = Mat::<f64>::from_fn(free.len(), 1, |a, _| rhs[free[a]]);
+        let z = g.partial_piv_lu().solve(&r);
+        if (0..free.len()).any(|a| !(z[(a, 0)].is_finite() && z[(a, 0)] >= 0.0)) {
+            continue;
+        }
+        // ‖A z − b‖² = bᵀb − 2 zᵀ Aᵀb + zᵀ G z (normalised columns).
+        let mut value = bb;
+        for a in 0..free.len() {
+            value -= 2.0 * z[(a, 0)] * rhs[free[a]];
+            for c in 0..free.len() {
+                value += z[(a, 0)] * gram[(free[a], free[c])] * z[(c, 0)];
+            }
+        }
+        if value < best.0 {
+            let mut theta = vec![0.0; p];
+            for a in 0..free.len() {
+                theta[free[a]] = z[(a, 0)] / norms[free[a]];
+            }
+            best = (value, theta);
+        }
+    }
+    best.1
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Deterministic standard normals (xorshift64* + Box–Muller).
+    struct Normal(u64);
+    impl Normal {
+        fn uniform(&mut self) -> f64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            let x = self.0.wrapping_mul(0x2545_f491_4f6c_dd1d);
+            ((x >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        }
+        fn sample(&mut self) -> f64 {
+            let (u, v) = (self.uniform(), self.uniform());
+            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        }
+    }
+
+    /// A damped oscillator (position, velocity) with a random-walk force state, position
+    /// measured (the shape of the tier's filter): a filter designed for the wrong noise
+    /// (force σ 10× too large, R 4× too small) runs on simulated data with known σ; ALS
+    /// recovers the true force variance and R from its innovations alone.
+    #[test]
+    fn recovers_the_simulated_noise() {
+        let dt = 0.01;
+        let (omega, zeta) = (6.0, 0.05);
+        let f = Mat::<f64>::from_fn(3, 3, |i, j| match (i, j) {
+            (0, 0) => 1.0,
+            (0, 1) => dt,
+            (1, 0) => -omega * omega * dt,
+            (1, 1) => 1.0 - 2.0 * zeta * omega * dt,
+            (1, 2) => dt,
+            (2, 2) => 1.0,
+            _ => 0.0,
+        });
+        let h = Mat::<f64>::from_fn(1, 3, |_, j| if j == 0 { 1.0 } else { 0.0 });
+        let unit_force = Mat::<f64>::from_fn(3, 3, |i, j| if i == 2 && j == 2 { 1.0 } else { 0.0 });
+        let (sigma_f, sigma_v): (f64, f64) = (0.3, 1e-2);
+        // The filter in use: σ_f × 10, R / 4.
+        let q_design =
+            Mat::<f64>::from_fn(3, 3, |i, j| unit_force[(i, j)] * (10.0 * sigma_f).powi(2));
+        let design = crate::kalman::periodic_gains(
+            f.as_ref(),
+            h.as_ref(),
+            q_design.as_ref(),
+            &[sigma_v * sigma_v / 4.0],
+            &[1],
+        )
+        .expect("design filter");
+        let gain = design.phases[0].gain.clone();
+        let mut rng = Normal(0x9e37_79b9_7f4a_7c15);
+        let (mut x, mut x_hat) = (vec![0.0; 3], vec![0.0; 3]);
+        let mut innovations = Vec::new();
+        let step = |s: &[f64]| -> Vec<f64> {
+            (0..3)
+                .map(|i| (0..3).map(|j| f[(i, j)] * s[j]).sum())
+                .collect()
+        };
+        for k in 0..60_000 {
+            let y = x[0] + sigma_v * rng.sample();
+            let nu = y - x_hat[0];
+            for i in 0..3 {
+                x_hat[i] += gain[(i, 0)] * nu;
+            }
+            if k >= 500 {
+                innovations.push(vec![nu]);
+            }
+            x = step(&x);
+            x[2] += sigma_f * rng.sample();
+            x_hat = step(&x_hat);
+        }
+        let parameters = vec![
+            NoiseParameter {
+                name: "force σ²".into(),
+                process: unit_force.clone(),
+                measurement: vec![0.0],
+            },
+            NoiseParameter {
+                name: "R".into(),
+                process: Mat::zeros(3, 3),
+                measurement: vec![1.0],
+            },
+        ];
+        let est = autocovariance_least_squares(
+            f.as_ref(),
+            h.as_ref(),
+            gain.as_ref(),
+            &parameters,
+            &innovations,
+            40,
+        )
+        .expect("ALS");
+        let (sf, sv) = (est.theta[0].sqrt(), est.theta[1].sqrt());
+        assert!((sf / sigma_f - 1.0).abs() < 0.1, "σ_f {sf} vs {sigma_f}");
+        assert!((sv / sigma_v - 1.0).abs() < 0.05, "σ_v {sv} vs {sigma_v}");
+        assert!(est.relative_residual < 0.2, "{est:?}");
+    }
+
+    /// A model that does not fit (a positive θ for R cannot produce the negative lag-0 sample)
+    /// gives θ = 0, not a negative variance.
+    #[test]
+    fn never_negative() {
+        let columns = vec![vec![1.0, 0.0], vec![0.0, 1.0]];
+        let theta = nonnegative_least_squares(&columns, &[-1.0, 2.0]);
+        assert_eq!(theta, vec![0.0, 2.0]);
+    }
+}
