@@ -1,22 +1,32 @@
 //! The co-rotational tier's noise identified from its own innovations (autocovariance least
-//! squares, docs/design.md §11.6): the tier of MODEL, its filter recomputed at rest for SCENE's
-//! noise (no gain schedule: the ALS model is the filter at rest), runs through SCENARIO with
-//! the loads withheld (`--given`: given) on markers = the full-order co-rotational reference +
-//! Gaussian noise of the scene's σ (seed 7, every marker at every step); its innovations
-//! ν = y − ŷ⁻ after the first SKIP steps give the sample autocovariances, and
-//! `crokf_compile::nonlinear::tier::identify_noise` the σ that explain them: each random-walk
-//! load's force σ_f (and rate σ_ḟ), the markers' σ as a factor on the scene's (a check: 1 when
-//! the markers' noise is what the scene says).
+//! squares, docs/design.md §11.6). The tier of MODEL, its filters (gain schedule included)
+//! recomputed for SCENE's noise, runs through SCENARIO with the loads withheld (`--given`:
+//! given) on markers = the full-order co-rotational reference + Gaussian noise of the scene's σ
+//! (seed 7, every marker at every step). Its innovations ν = y − ŷ⁻ after the first SKIP steps
+//! give the sample autocovariances, the schedule's filter in use at each step gives the model's,
+//! and `crokf_compile::nonlinear::tier::identify_noise` the σ that explain them: each
+//! random-walk load's force σ_f (and rate σ_ḟ), and the markers' σ as a factor on the scene's.
+//!
+//! The markers' factor is the check of the result: the markers' noise is known (here it is the
+//! scene's by construction), so a factor outside [0.8, 1.25] says that the linearised filters do
+//! not explain this recording's innovations, and the σ are printed as not identified.
+//!
+//! Flags: `--force-sigma S` runs the filters of σ_f = S (N per step) on every random-walk load
+//! instead of the scene's (ALS needs stable filters, not optimal ones); `--no-schedule` the
+//! filter at rest only; `--fixed-point` repeats the identification with the filters of the σ
+//! just identified until they agree to 1 % (at most 10 runs): the σ that, used in the filter,
+//! its own innovations confirm; `--lags L` (30), `--skip S` (50 steps).
 //!
 //! ```sh
 //! cargo run --release -p crokf-verify --example identify_noise -- SCENE SCENARIO MODEL \
-//!     [--given] [--lags L] [--skip S]
+//!     [--given] [--no-schedule] [--fixed-point] [--force-sigma S] [--lags L] [--skip S]
 //! ```
-//! Defaults: L = 30 lags, S = 50 steps. `CROKF_REFERENCE_CACHE=FILE` as in `nonlinear_filter`.
+//! `CROKF_REFERENCE_CACHE=FILE` as in `nonlinear_filter`.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use crokf_compile::nonlinear::tier::IdentifiedNoise;
 use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
 use crokf_runtime::{load_model, Estimator};
@@ -35,14 +45,16 @@ fn main() -> ExitCode {
 }
 
 const USAGE: &str =
-    "usage: identify_noise SCENE SCENARIO MODEL [--given] [--lags L] [--skip S] [--force-sigma S]";
+    "usage: identify_noise SCENE SCENARIO MODEL [--given] [--no-schedule] [--fixed-point] \
+     [--lags L] [--skip S] [--force-sigma S]";
 
 /// The markers' factor outside which the identification is flagged (module docs).
 const MARKER_FACTOR_RANGE: (f64, f64) = (0.8, 1.25);
 
 fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut positional = Vec::new();
-    let (mut given, mut lags, mut skip) = (false, 30usize, 50usize);
+    let (mut given, mut schedule, mut fixed_point) = (false, true, false);
+    let (mut lags, mut skip) = (30usize, 50usize);
     let mut force_sigma: Option<f64> = None;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -68,6 +80,8 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         };
         match a.as_str() {
             "--given" => given = true,
+            "--no-schedule" => schedule = false,
+            "--fixed-point" => fixed_point = true,
             "--lags" => lags = number("--lags")?,
             "--skip" => skip = number("--skip")?,
             _ if a.starts_with("--") => return Err(format!("unknown flag {a}; {USAGE}").into()),
@@ -76,6 +90,10 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     }
     let [scene, scenario, model_path] = positional.as_slice() else {
         return Err(USAGE.into());
+    };
+    let base = load_model(model_path)?;
+    let Some(tier) = base.tier.as_ref() else {
+        return Err(format!("{model_path} has no co-rotational tier").into());
     };
     let mut full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
     if let Some(sigma) = force_sigma {
@@ -98,66 +116,179 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let cache = std::env::var_os("CROKF_REFERENCE_CACHE").map(PathBuf::from);
     let reference = Reference::of(&full, &scenario, steps, cache.as_deref())?;
 
-    let mut model = load_model(model_path)?;
-    let Some(tier) = model.tier.as_mut() else {
-        return Err(format!("{model_path} has no co-rotational tier").into());
+    let points = if schedule { tier.scheduled.len() } else { 0 };
+    let run = Run {
+        reference: &reference,
+        given,
+        schedule,
+        skip,
+        lags,
     };
-    tier.scheduled.clear();
-    crokf_compile::nonlinear::tier::refilter(&full, &mut model)?;
-    model.validate()?;
+    for iteration in 1..=if fixed_point { MAX_ITERATIONS } else { 1 } {
+        let found = run.identify(&full, &base)?;
+        println!(
+            "{}{steps} steps ({} innovations after {skip}), lags {lags}, loads {}, {} filter(s), \
+             {} switches; fit: relative residual {:.3}\n",
+            if fixed_point {
+                format!("iteration {iteration}: ")
+            } else {
+                String::new()
+            },
+            found.noise.estimate.samples,
+            if given { "given" } else { "withheld" },
+            1 + points,
+            found.switches,
+            found.noise.estimate.relative_residual
+        );
+        print_table(&full, &found.noise);
+        let (lo, hi) = MARKER_FACTOR_RANGE;
+        if !(lo..=hi).contains(&found.noise.measurement_scale) {
+            println!(
+                "\nNOT IDENTIFIED: the markers' factor {:.2} is outside [{lo}, {hi}]: the \
+                 linearised filters do not explain these innovations; try another \
+                 --force-sigma, or a recording nearer the trained states.",
+                found.noise.measurement_scale
+            );
+            break;
+        }
+        if !fixed_point {
+            break;
+        }
+        // The fixed point: the filter's σ := the identified σ, until they agree to 1 %.
+        let mut change = 0.0f64;
+        for l in &found.noise.loads {
+            let load = &mut full.scene.scene.loads[l.load];
+            let mut next = vec![(l.force_sigma, &mut load.force_noise_std)];
+            if let Some(rate) = l.rate_sigma {
+                next.push((rate, &mut load.force_rate_noise_std));
+            }
+            for ((old, new), field) in next {
+                if new <= 0.0 {
+                    println!(
+                        "\nσ → 0 for load '{}': a held load; no fixed point (the filter needs \
+                         σ > 0)",
+                        load.name
+                    );
+                    return Ok(());
+                }
+                change = change.max((new / old - 1.0).abs());
+                *field = new;
+            }
+        }
+        println!();
+        if change < FIXED_POINT_TOLERANCE {
+            println!(
+                "fixed point: the identified σ agree with the filter's to {:.2} %",
+                100.0 * change
+            );
+            break;
+        }
+        if iteration == MAX_ITERATIONS {
+            println!("no fixed point in {MAX_ITERATIONS} iterations (last change {change:.3})");
+        }
+    }
+    Ok(())
+}
 
-    let mut est = Estimator::new(&model)?;
-    est.set_innovation_gate(None);
-    let variance = model
-        .tier
-        .as_ref()
-        .map(|t| t.kalman.measurement_variance.clone())
-        .unwrap_or_default();
-    let is_load: Vec<bool> = model
-        .inputs
-        .iter()
-        .map(|i| matches!(i.kind, crokf_formats::InputKind::Load { .. }))
-        .collect();
-    let mut rng = Gaussian::new(7);
-    let mut predicted = vec![0.0; model.measurements.len()];
-    let mut innovations = Vec::with_capacity(steps - skip);
-    for k in 0..steps {
-        let y: Vec<Option<f64>> = model
-            .measurements
+/// Iterations of `--fixed-point` at most.
+const MAX_ITERATIONS: usize = 10;
+/// `--fixed-point` stops when no σ changes by more than this fraction.
+const FIXED_POINT_TOLERANCE: f64 = 0.01;
+
+/// One identification run's settings.
+struct Run<'a> {
+    reference: &'a Reference,
+    given: bool,
+    schedule: bool,
+    skip: usize,
+    lags: usize,
+}
+
+/// What one run identified.
+struct Found {
+    noise: IdentifiedNoise,
+    /// Changes of the schedule's filter between steps.
+    switches: usize,
+}
+
+impl Run<'_> {
+    /// The tier of `base` with its filters recomputed for `full`'s noise, run on the markers,
+    /// and the noise its innovations identify.
+    fn identify(
+        &self,
+        full: &FullOrder,
+        base: &crokf_formats::Model,
+    ) -> Result<Found, Box<dyn std::error::Error>> {
+        let mut model = base.clone();
+        if let Some(t) = model.tier.as_mut() {
+            if !self.schedule {
+                t.scheduled.clear();
+            }
+        }
+        crokf_compile::nonlinear::tier::refilter(full, &mut model)?;
+        model.validate()?;
+        let mut est = Estimator::new(&model)?;
+        est.set_innovation_gate(None);
+        let variance = model
+            .tier
+            .as_ref()
+            .map(|t| t.kalman.measurement_variance.clone())
+            .unwrap_or_default();
+        let is_load: Vec<bool> = model
+            .inputs
             .iter()
-            .zip(&variance)
-            .map(|(m, v)| {
-                Some(
-                    reference.sensors[k][3 * m.sensor as usize + m.component as usize]
-                        + v.sqrt() * rng.normal(),
-                )
-            })
+            .map(|i| matches!(i.kind, crokf_formats::InputKind::Load { .. }))
             .collect();
-        let u: Vec<f64> = reference.inputs[k]
-            .iter()
-            .zip(&is_load)
-            .map(|(&v, &load)| if load && !given { 0.0 } else { v })
-            .collect();
-        est.predict(&u)?;
-        est.measurement_estimates(&mut predicted)?;
-        if k >= skip {
+        let steps = self.reference.sensors.len();
+        let mut rng = Gaussian::new(7);
+        let mut predicted = vec![0.0; model.measurements.len()];
+        let mut innovations = Vec::with_capacity(steps);
+        let mut filters = Vec::with_capacity(steps);
+        for k in 0..steps {
+            let y: Vec<Option<f64>> = model
+                .measurements
+                .iter()
+                .zip(&variance)
+                .map(|(m, v)| {
+                    Some(
+                        self.reference.sensors[k][3 * m.sensor as usize + m.component as usize]
+                            + v.sqrt() * rng.normal(),
+                    )
+                })
+                .collect();
+            let u: Vec<f64> = self.reference.inputs[k]
+                .iter()
+                .zip(&is_load)
+                .map(|(&v, &load)| if load && !self.given { 0.0 } else { v })
+                .collect();
+            est.predict(&u)?;
+            est.measurement_estimates(&mut predicted)?;
             innovations.push(
                 y.iter()
                     .zip(&predicted)
                     .map(|(y, p)| y.unwrap_or(0.0) - p)
-                    .collect(),
+                    .collect::<Vec<f64>>(),
             );
+            est.update(&y)?;
+            filters.push(est.tier_filter().unwrap_or(0));
         }
-        est.update(&y)?;
+        let noise = crokf_compile::nonlinear::tier::identify_noise(
+            full,
+            &model,
+            &innovations,
+            &filters,
+            self.skip,
+            self.lags,
+        )?;
+        Ok(Found {
+            noise,
+            switches: filters.windows(2).filter(|w| w[0] != w[1]).count(),
+        })
     }
-    let found = crokf_compile::nonlinear::tier::identify_noise(&full, &model, &innovations, lags)?;
-    println!(
-        "{} steps ({} innovations after {skip}), lags {lags}, loads {}; fit: relative residual {:.3}\n",
-        steps,
-        found.estimate.samples,
-        if given { "given" } else { "withheld" },
-        found.estimate.relative_residual
-    );
+}
+
+/// The identified σ against those of the filter run, as a Markdown table.
+fn print_table(full: &FullOrder, found: &IdentifiedNoise) {
     println!("| parameter | σ of the filter run | identified σ |\n|---|---:|---:|");
     for l in &found.loads {
         let name = &full.scene.scene.loads[l.load].name;
@@ -176,14 +307,4 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         "| markers (factor on the scene's σ) | 1 | {:.4} |",
         found.measurement_scale
     );
-    let (lo, hi) = MARKER_FACTOR_RANGE;
-    if !(lo..=hi).contains(&found.measurement_scale) {
-        println!(
-            "\nNOT IDENTIFIED: the markers' factor {:.2} is outside [{lo}, {hi}]: the filter at \
-             rest does not explain these innovations (a recording far from rest run with a \
-             strong gain); try a smaller --force-sigma or a recording nearer rest.",
-            found.measurement_scale
-        );
-    }
-    Ok(())
 }

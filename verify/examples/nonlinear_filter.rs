@@ -26,7 +26,10 @@
 //! `CROKF_RUNS=open,given,withheld` runs only those; `CROKF_NOISE_SCALE=c` scales the markers'
 //! noise (0: noise-free, the filter unchanged); `CROKF_NO_SCHEDULE=1` drops the tier's gain
 //! schedule (the filter designed at rest only, docs/design.md §11.5); `CROKF_TRACE=1` prints
-//! ‖q‖, ‖q̇‖, ‖q̈‖ and f before and after every update on stderr.
+//! ‖q‖, ‖q̇‖, ‖q̈‖ and f before and after every update on stderr; `CROKF_MARKER_PHASE=o` makes
+//! sparse markers arrive o steps earlier in their period (o predictions at rest first);
+//! `CROKF_ERROR_TRACE=1` prints each step's error and reference norm over the displayed nodes,
+//! the phase and the tier's force states on stderr (lines starting `ERR`).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -211,6 +214,17 @@ fn run_model(
     let steps = inputs.len();
     let mut est = Estimator::new(model)?;
     est.set_innovation_gate(None);
+    // CROKF_MARKER_PHASE=o (a measuring aid): o predictions at rest before the scenario starts,
+    // so that sparse markers (period L) arrive at steps k ≡ L − 1 − o (mod L) instead of
+    // k ≡ L − 1: the camera's clock is not synchronised with the load's start.
+    let pre: usize = std::env::var("CROKF_MARKER_PHASE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    let rest_inputs = vec![0.0; model.inputs.len()];
+    for _ in 0..pre {
+        est.predict(&rest_inputs)?;
+    }
     let mut rng = Gaussian::new(7);
     // CROKF_NOISE_SCALE=c (a measuring aid): markers with c times the model's σ (0: noise-free),
     // the filter unchanged; separates the noise-driven part of the error from the rest.
@@ -302,9 +316,25 @@ fn run_model(
             est.node_displacements_exact(set, &mut shown[at..at + len])?;
             at += len;
         }
+        let (mut ke, mut kr) = (0.0, 0.0);
         for (a, b) in shown.iter().zip(&shown_ref[k]) {
             e2 += (a - b) * (a - b);
             r2 += b * b;
+            ke += (a - b) * (a - b);
+            kr += b * b;
+        }
+        if std::env::var_os("CROKF_ERROR_TRACE").is_some() {
+            let r = tier.map_or(0, |t| t.order as usize);
+            let f = &est.state()[3 * r..];
+            eprintln!(
+                "ERR {k} {:.6e} {:.6e} {} {:?}",
+                ke.sqrt(),
+                kr.sqrt(),
+                est.phase(),
+                f.iter()
+                    .map(|v| (v * 1e4).round() / 1e4)
+                    .collect::<Vec<_>>()
+            );
         }
         est.sensor_displacements(&mut sens)?;
         for (i, (a, b)) in sens.iter().zip(&sensors_ref[k]).enumerate() {

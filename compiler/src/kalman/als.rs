@@ -22,6 +22,17 @@
 //! autocovariance (1/(N−j)) Σ_k ν_{k+j} ν_kᵀ. With the few parameters a filter has (a σ per
 //! load group, a scale of R) the non-negative least squares is solved exactly by trying every
 //! set of free parameters.
+//!
+//! A gain schedule ([`scheduled_autocovariance_least_squares`]) uses filter i_k = (F_i, K_i)
+//! at step k; the same recursion with Ā_k = F_{i_k}(I − K_{i_k} H) is still linear in θ:
+//!
+//! ```text
+//! P_{k+1}   = Ā_k P_k Ā_kᵀ + Q + F_k K_k R K_kᵀ F_kᵀ      (P_0 stationary for filter i_0)
+//! C(k+j, k) = H Ā_{k+j−1} ⋯ Ā_k P_k Hᵀ − H Ā_{k+j−1} ⋯ Ā_{k+1} F_k K_k R   (j ≥ 1)
+//! ```
+//!
+//! and the sample Ĉ_j = mean_k ν_{k+j} ν_kᵀ is matched by the mean of C(k+j, k) over the same
+//! steps k.
 
 use faer::prelude::Solve;
 use faer::{Mat, MatRef};
@@ -110,6 +121,74 @@ fn lyapunov(a_bar: MatRef<f64>, x: MatRef<f64>) -> Result<Mat<f64>, KalmanError>
     ))
 }
 
+/// Checks the parameters' sizes (n states, m channels) and count.
+fn check_parameters(parameters: &[NoiseParameter], n: usize, m: usize) -> Result<(), KalmanError> {
+    if parameters.is_empty() || parameters.len() > MAX_PARAMETERS {
+        return Err(KalmanError::Identification(format!(
+            "{} parameters (1 … {MAX_PARAMETERS})",
+            parameters.len()
+        )));
+    }
+    for p in parameters {
+        if p.process.nrows() != n || p.process.ncols() != n || p.measurement.len() != m {
+            return Err(KalmanError::Identification(format!(
+                "parameter '{}' has the wrong size",
+                p.name
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Checks that `innovations` are `count` ≥ 10 per lag vectors of m finite entries.
+fn check_innovations(innovations: &[Vec<f64>], m: usize, lags: usize) -> Result<(), KalmanError> {
+    if lags == 0 || innovations.len() < 10 * lags {
+        return Err(KalmanError::Identification(format!(
+            "{} innovations for {lags} lags (at least 10 per lag)",
+            innovations.len()
+        )));
+    }
+    if let Some(k) = innovations
+        .iter()
+        .position(|v| v.len() != m || v.iter().any(|x| !x.is_finite()))
+    {
+        return Err(KalmanError::Identification(format!(
+            "innovation {k} has not {m} finite entries (every channel at every step)"
+        )));
+    }
+    Ok(())
+}
+
+/// R_i as a diagonal matrix (m × m).
+fn diagonal(d: &[f64]) -> Mat<f64> {
+    Mat::from_fn(d.len(), d.len(), |a, b| if a == b { d[a] } else { 0.0 })
+}
+
+/// The lags' m × m entries stacked in one vector (row-major per lag).
+fn stacked(c: &[Mat<f64>]) -> Vec<f64> {
+    c.iter()
+        .flat_map(|c| (0..c.nrows()).flat_map(move |a| (0..c.ncols()).map(move |b| c[(a, b)])))
+        .collect()
+}
+
+/// θ ≥ 0 fitting the model columns (one per parameter, [`stacked`]) to the sample.
+fn fit(columns: &[Vec<f64>], sample: &[Mat<f64>], samples: usize) -> AlsEstimate {
+    let target = stacked(sample);
+    let theta = nonnegative_least_squares(columns, &target);
+    let fitted: Vec<f64> = (0..target.len())
+        .map(|i| columns.iter().zip(&theta).map(|(c, t)| c[i] * t).sum())
+        .collect();
+    let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
+    let residual = norm(&mut fitted.iter().zip(&target).map(|(a, b)| a - b));
+    let scale = norm(&mut target.iter().copied()).max(f64::MIN_POSITIVE);
+    AlsEstimate {
+        theta,
+        relative_residual: residual / scale,
+        lags: sample.len(),
+        samples,
+    }
+}
+
 /// Identified noise parameters θ ≥ 0 (module docs) of the filter with gain `gain` (n × m,
 /// posterior form) on (F, H) (n × n, m × n) from its innovations (N vectors of m, every channel
 /// measured at every step, the start-up transient already dropped), over lags 0 … `lags`−1.
@@ -123,9 +202,8 @@ pub fn autocovariance_least_squares(
 ) -> Result<AlsEstimate, KalmanError> {
     let n = f.nrows();
     let m = h.nrows();
-    let shape = |what: String| Err(KalmanError::Identification(what));
     if f.ncols() != n || h.ncols() != n || gain.nrows() != n || gain.ncols() != m {
-        return shape(format!(
+        return Err(KalmanError::Identification(format!(
             "F {}x{}, H {}x{}, K {}x{} do not fit",
             f.nrows(),
             f.ncols(),
@@ -133,37 +211,11 @@ pub fn autocovariance_least_squares(
             h.ncols(),
             gain.nrows(),
             gain.ncols()
-        ));
+        )));
     }
-    if parameters.is_empty() || parameters.len() > MAX_PARAMETERS {
-        return shape(format!(
-            "{} parameters (1 … {MAX_PARAMETERS})",
-            parameters.len()
-        ));
-    }
-    for p in parameters {
-        if p.process.nrows() != n || p.process.ncols() != n || p.measurement.len() != m {
-            return shape(format!("parameter '{}' has the wrong size", p.name));
-        }
-    }
-    if lags == 0 || innovations.len() < 10 * lags {
-        return shape(format!(
-            "{} innovations for {lags} lags (at least 10 per lag)",
-            innovations.len()
-        ));
-    }
-    if let Some(k) = innovations
-        .iter()
-        .position(|v| v.len() != m || v.iter().any(|x| !x.is_finite()))
-    {
-        return shape(format!(
-            "innovation {k} has not {m} finite entries (every channel at every step)"
-        ));
-    }
-    let kh = gain * h;
-    let mut i_kh = Mat::<f64>::identity(n, n);
-    i_kh -= &kh;
-    let a_bar = f * &i_kh;
+    check_parameters(parameters, n, m)?;
+    check_innovations(innovations, m, lags)?;
+    let a_bar = error_propagator(f, h, gain);
     let fk = f * gain;
     // H Āʲ (m × n) for j = 0 … L−1.
     let mut h_pow = Vec::with_capacity(lags);
@@ -176,47 +228,163 @@ pub fn autocovariance_least_squares(
     let columns: Vec<Vec<f64>> = parameters
         .iter()
         .map(|p| {
-            let r_i = Mat::<f64>::from_fn(m, m, |a, b| if a == b { p.measurement[a] } else { 0.0 });
-            let mut x = p.process.clone();
-            x += &fk * &r_i * fk.transpose();
-            let x = Mat::<f64>::from_fn(n, n, |a, b| 0.5 * (x[(a, b)] + x[(b, a)]));
-            let pi = lyapunov(a_bar.as_ref(), x.as_ref())?;
+            let r_i = diagonal(&p.measurement);
+            let pi = stationary_covariance(a_bar.as_ref(), fk.as_ref(), p)?;
             let pht = &pi * h.transpose();
-            let mut column = Vec::with_capacity(lags * m * m);
-            for j in 0..lags {
-                let mut c = &h_pow[j] * &pht;
-                if j == 0 {
-                    c += &r_i;
-                } else {
-                    c -= &h_pow[j - 1] * &fk * &r_i;
-                }
-                column.extend(
-                    (0..m)
-                        .flat_map(|a| (0..m).map(move |b| (a, b)))
-                        .map(|(a, b)| c[(a, b)]),
-                );
-            }
-            Ok(column)
+            let c: Vec<Mat<f64>> = (0..lags)
+                .map(|j| {
+                    let mut c = &h_pow[j] * &pht;
+                    if j == 0 {
+                        c += &r_i;
+                    } else {
+                        c -= &h_pow[j - 1] * &fk * &r_i;
+                    }
+                    c
+                })
+                .collect();
+            Ok(stacked(&c))
         })
         .collect::<Result<_, KalmanError>>()?;
     let sample = sample_autocovariances(innovations, lags);
-    let target: Vec<f64> = sample
+    Ok(fit(&columns, &sample, innovations.len()))
+}
+
+/// Ā = F (I − K H).
+fn error_propagator(f: MatRef<f64>, h: MatRef<f64>, gain: MatRef<f64>) -> Mat<f64> {
+    let n = f.nrows();
+    let mut i_kh = Mat::<f64>::identity(n, n);
+    i_kh -= gain * h;
+    f * &i_kh
+}
+
+/// The stationary prior error covariance of parameter `p` at θ = 1: P = Ā P Āᵀ + Q_p +
+/// (F K) R_p (F K)ᵀ.
+fn stationary_covariance(
+    a_bar: MatRef<f64>,
+    fk: MatRef<f64>,
+    p: &NoiseParameter,
+) -> Result<Mat<f64>, KalmanError> {
+    let n = a_bar.nrows();
+    let mut x = p.process.clone();
+    x += fk * diagonal(&p.measurement) * fk.transpose();
+    let x = Mat::<f64>::from_fn(n, n, |a, b| 0.5 * (x[(a, b)] + x[(b, a)]));
+    lyapunov(a_bar, x.as_ref())
+}
+
+/// A gain schedule as [`scheduled_autocovariance_least_squares`] sees it: the linearised
+/// transition F_i (n × n) and gain K_i (n × m, posterior form) of each of its filters, in one
+/// set of coordinates, and the filter in use at every step.
+#[derive(Clone, Copy, Debug)]
+pub struct GainSchedule<'a> {
+    /// F_i.
+    pub transitions: &'a [Mat<f64>],
+    /// K_i.
+    pub gains: &'a [Mat<f64>],
+    /// i_k for every step k of the run: the filter whose gain updated step k and whose F
+    /// predicts k → k + 1.
+    pub sequence: &'a [usize],
+}
+
+/// θ ≥ 0 (module docs, gain schedule) from the innovations of a scheduled filter: `innovations`
+/// has one vector per step of `schedule.sequence` (every channel at every step); the first
+/// `skip` steps are left out of the statistics (their covariance is still propagated from the
+/// stationary P of filter i_0).
+pub fn scheduled_autocovariance_least_squares(
+    h: MatRef<f64>,
+    schedule: GainSchedule,
+    parameters: &[NoiseParameter],
+    innovations: &[Vec<f64>],
+    skip: usize,
+    lags: usize,
+) -> Result<AlsEstimate, KalmanError> {
+    let (n, m) = (h.ncols(), h.nrows());
+    let count = schedule.sequence.len();
+    if schedule.transitions.len() != schedule.gains.len()
+        || schedule.transitions.is_empty()
+        || innovations.len() != count
+    {
+        return Err(KalmanError::Identification(format!(
+            "{} transitions, {} gains, {} steps, {} innovations do not fit",
+            schedule.transitions.len(),
+            schedule.gains.len(),
+            count,
+            innovations.len()
+        )));
+    }
+    for (i, (f, k)) in schedule.transitions.iter().zip(schedule.gains).enumerate() {
+        if f.nrows() != n || f.ncols() != n || k.nrows() != n || k.ncols() != m {
+            return Err(KalmanError::Identification(format!(
+                "filter {i}: F {}x{}, K {}x{} do not fit H {m}x{n}",
+                f.nrows(),
+                f.ncols(),
+                k.nrows(),
+                k.ncols()
+            )));
+        }
+    }
+    if let Some(k) = schedule
+        .sequence
         .iter()
-        .flat_map(|c| (0..m).flat_map(move |a| (0..m).map(move |b| c[(a, b)])))
+        .position(|&i| i >= schedule.transitions.len())
+    {
+        return Err(KalmanError::Identification(format!(
+            "step {k} uses filter {} of {}",
+            schedule.sequence[k],
+            schedule.transitions.len()
+        )));
+    }
+    check_parameters(parameters, n, m)?;
+    let used = innovations.get(skip..).unwrap_or(&[]);
+    check_innovations(used, m, lags)?;
+    let a_bars: Vec<Mat<f64>> = schedule
+        .transitions
+        .iter()
+        .zip(schedule.gains)
+        .map(|(f, k)| error_propagator(f.as_ref(), h, k.as_ref()))
         .collect();
-    let theta = nonnegative_least_squares(&columns, &target);
-    let fitted: Vec<f64> = (0..target.len())
-        .map(|i| columns.iter().zip(&theta).map(|(c, t)| c[i] * t).sum())
+    let fks: Vec<Mat<f64>> = schedule
+        .transitions
+        .iter()
+        .zip(schedule.gains)
+        .map(|(f, k)| f * k)
         .collect();
-    let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
-    let residual = norm(&mut fitted.iter().zip(&target).map(|(a, b)| a - b));
-    let scale = norm(&mut target.iter().copied()).max(f64::MIN_POSITIVE);
-    Ok(AlsEstimate {
-        theta,
-        relative_residual: residual / scale,
-        lags,
-        samples: innovations.len(),
-    })
+    let seq = schedule.sequence;
+    // Steps k ≥ skip with k + j < count, per lag: the mean's denominator, as in the sample.
+    let pairs = |j: usize| count.saturating_sub(skip + j).max(1) as f64;
+    let columns: Vec<Vec<f64>> = parameters
+        .iter()
+        .map(|p| {
+            let r_i = diagonal(&p.measurement);
+            let mut cov = stationary_covariance(a_bars[seq[0]].as_ref(), fks[seq[0]].as_ref(), p)?;
+            let mut sum = vec![Mat::<f64>::zeros(m, m); lags];
+            for k in 0..count {
+                let (a_bar, fk) = (&a_bars[seq[k]], &fks[seq[k]]);
+                if k >= skip {
+                    // Y_j = Ā_{k+j−1} ⋯ Ā_k P_k Hᵀ, Z_j = Ā_{k+j−1} ⋯ Ā_{k+1} F_k K_k R.
+                    let mut y = &cov * h.transpose();
+                    sum[0] += h * &y + &r_i;
+                    let mut z = fk * &r_i;
+                    for j in 1..lags.min(count - k) {
+                        y = &a_bars[seq[k + j - 1]] * &y;
+                        if j > 1 {
+                            z = &a_bars[seq[k + j - 1]] * &z;
+                        }
+                        sum[j] += h * (&y - &z);
+                    }
+                }
+                let mut next = a_bar * &cov * a_bar.transpose();
+                next += &p.process;
+                next += fk * &r_i * fk.transpose();
+                cov = Mat::from_fn(n, n, |a, b| 0.5 * (next[(a, b)] + next[(b, a)]));
+            }
+            for (j, c) in sum.iter_mut().enumerate() {
+                *c *= faer::Scale(1.0 / pairs(j));
+            }
+            Ok(stacked(&sum))
+        })
+        .collect::<Result<_, KalmanError>>()?;
+    let sample = sample_autocovariances(used, lags);
+    Ok(fit(&columns, &sample, used.len()))
 }
 
 /// argmin_{θ ≥ 0} ‖Σ θ_i a_i − b‖₂ for a few columns a_i: the normal equations on every
@@ -301,11 +469,8 @@ mod tests {
     }
 
     /// A damped oscillator (position, velocity) with a random-walk force state, position
-    /// measured (the shape of the tier's filter): a filter designed for the wrong noise
-    /// (force σ 10× too large, R 4× too small) runs on simulated data with known σ; ALS
-    /// recovers the true force variance and R from its innovations alone.
-    #[test]
-    fn recovers_the_simulated_noise() {
+    /// measured (the shape of the tier's filter).
+    fn oscillator() -> (Mat<f64>, Mat<f64>, Mat<f64>) {
         let dt = 0.01;
         let (omega, zeta) = (6.0, 0.05);
         let f = Mat::<f64>::from_fn(3, 3, |i, j| match (i, j) {
@@ -319,41 +484,63 @@ mod tests {
         });
         let h = Mat::<f64>::from_fn(1, 3, |_, j| if j == 0 { 1.0 } else { 0.0 });
         let unit_force = Mat::<f64>::from_fn(3, 3, |i, j| if i == 2 && j == 2 { 1.0 } else { 0.0 });
-        let (sigma_f, sigma_v): (f64, f64) = (0.3, 1e-2);
-        // The filter in use: σ_f × 10, R / 4.
-        let q_design =
-            Mat::<f64>::from_fn(3, 3, |i, j| unit_force[(i, j)] * (10.0 * sigma_f).powi(2));
+        (f, h, unit_force)
+    }
+
+    /// The filter's gain for force σ `sigma_f` and marker σ `sigma_v`.
+    fn gain(
+        f: &Mat<f64>,
+        h: &Mat<f64>,
+        unit_force: &Mat<f64>,
+        sigma_f: f64,
+        sigma_v: f64,
+    ) -> Mat<f64> {
+        let q = Mat::<f64>::from_fn(3, 3, |i, j| unit_force[(i, j)] * sigma_f * sigma_f);
         let design = crate::kalman::periodic_gains(
             f.as_ref(),
             h.as_ref(),
-            q_design.as_ref(),
-            &[sigma_v * sigma_v / 4.0],
+            q.as_ref(),
+            &[sigma_v * sigma_v],
             &[1],
         )
         .expect("design filter");
-        let gain = design.phases[0].gain.clone();
+        design.phases[0].gain.clone()
+    }
+
+    /// The filter's innovations on data simulated with noise (σ_f, σ_v), the gain of step k
+    /// `gains[sequence(k)]`, `steps` steps from rest.
+    fn simulate(
+        f: &Mat<f64>,
+        gains: &[Mat<f64>],
+        sequence: impl Fn(usize) -> usize,
+        (sigma_f, sigma_v): (f64, f64),
+        steps: usize,
+    ) -> Vec<Vec<f64>> {
         let mut rng = Normal(0x9e37_79b9_7f4a_7c15);
         let (mut x, mut x_hat) = (vec![0.0; 3], vec![0.0; 3]);
-        let mut innovations = Vec::new();
         let step = |s: &[f64]| -> Vec<f64> {
             (0..3)
                 .map(|i| (0..3).map(|j| f[(i, j)] * s[j]).sum())
                 .collect()
         };
-        for k in 0..60_000 {
+        let mut innovations = Vec::with_capacity(steps);
+        for k in 0..steps {
             let y = x[0] + sigma_v * rng.sample();
             let nu = y - x_hat[0];
+            let g = &gains[sequence(k)];
             for i in 0..3 {
-                x_hat[i] += gain[(i, 0)] * nu;
+                x_hat[i] += g[(i, 0)] * nu;
             }
-            if k >= 500 {
-                innovations.push(vec![nu]);
-            }
+            innovations.push(vec![nu]);
             x = step(&x);
             x[2] += sigma_f * rng.sample();
             x_hat = step(&x_hat);
         }
-        let parameters = vec![
+        innovations
+    }
+
+    fn parameters(unit_force: &Mat<f64>) -> Vec<NoiseParameter> {
+        vec![
             NoiseParameter {
                 name: "force σ²".into(),
                 process: unit_force.clone(),
@@ -364,13 +551,30 @@ mod tests {
                 process: Mat::zeros(3, 3),
                 measurement: vec![1.0],
             },
-        ];
+        ]
+    }
+
+    /// A filter designed for the wrong noise (force σ 10× too large, R 4× too small) runs on
+    /// simulated data with known σ; ALS recovers the true force variance and R from its
+    /// innovations alone.
+    #[test]
+    fn recovers_the_simulated_noise() {
+        let (f, h, unit_force) = oscillator();
+        let (sigma_f, sigma_v): (f64, f64) = (0.3, 1e-2);
+        let k = gain(&f, &h, &unit_force, 10.0 * sigma_f, sigma_v / 2.0);
+        let innovations = simulate(
+            &f,
+            std::slice::from_ref(&k),
+            |_| 0,
+            (sigma_f, sigma_v),
+            60_000,
+        );
         let est = autocovariance_least_squares(
             f.as_ref(),
             h.as_ref(),
-            gain.as_ref(),
-            &parameters,
-            &innovations,
+            k.as_ref(),
+            &parameters(&unit_force),
+            &innovations[500..],
             40,
         )
         .expect("ALS");
@@ -378,6 +582,92 @@ mod tests {
         assert!((sf / sigma_f - 1.0).abs() < 0.1, "σ_f {sf} vs {sigma_f}");
         assert!((sv / sigma_v - 1.0).abs() < 0.05, "σ_v {sv} vs {sigma_v}");
         assert!(est.relative_residual < 0.2, "{est:?}");
+    }
+
+    /// A schedule that never switches is the stationary case: the same θ to rounding.
+    #[test]
+    fn one_filter_schedule_is_the_stationary_case() {
+        let (f, h, unit_force) = oscillator();
+        let k = gain(&f, &h, &unit_force, 1.0, 5e-3);
+        let innovations = simulate(&f, std::slice::from_ref(&k), |_| 0, (0.3, 1e-2), 4_000);
+        let params = parameters(&unit_force);
+        let stationary = autocovariance_least_squares(
+            f.as_ref(),
+            h.as_ref(),
+            k.as_ref(),
+            &params,
+            &innovations[500..],
+            20,
+        )
+        .expect("stationary ALS");
+        let sequence = vec![0; innovations.len()];
+        let scheduled = scheduled_autocovariance_least_squares(
+            h.as_ref(),
+            GainSchedule {
+                transitions: std::slice::from_ref(&f),
+                gains: std::slice::from_ref(&k),
+                sequence: &sequence,
+            },
+            &params,
+            &innovations,
+            500,
+            20,
+        )
+        .expect("scheduled ALS");
+        for (a, b) in stationary.theta.iter().zip(&scheduled.theta) {
+            assert!(
+                (a - b).abs() <= 1e-8 * a.abs().max(b.abs()),
+                "{stationary:?} vs {scheduled:?}"
+            );
+        }
+        assert_eq!(stationary.samples, scheduled.samples);
+    }
+
+    /// Two gains (a strong and a gentle one) alternating in blocks of 37 steps: the scheduled
+    /// ALS recovers the simulated noise; the stationary one, told only the first gain, does not
+    /// (its model of the innovations is wrong half of the time).
+    #[test]
+    fn recovers_the_noise_under_a_switching_gain() {
+        let (f, h, unit_force) = oscillator();
+        let (sigma_f, sigma_v): (f64, f64) = (0.3, 1e-2);
+        let gains = [
+            gain(&f, &h, &unit_force, 10.0 * sigma_f, sigma_v),
+            gain(&f, &h, &unit_force, 0.1 * sigma_f, sigma_v),
+        ];
+        let which = |k: usize| (k / 37) % 2;
+        let innovations = simulate(&f, &gains, which, (sigma_f, sigma_v), 60_000);
+        let sequence: Vec<usize> = (0..innovations.len()).map(which).collect();
+        let params = parameters(&unit_force);
+        let est = scheduled_autocovariance_least_squares(
+            h.as_ref(),
+            GainSchedule {
+                transitions: &[f.clone(), f.clone()],
+                gains: &gains,
+                sequence: &sequence,
+            },
+            &params,
+            &innovations,
+            500,
+            30,
+        )
+        .expect("scheduled ALS");
+        let (sf, sv) = (est.theta[0].sqrt(), est.theta[1].sqrt());
+        assert!((sf / sigma_f - 1.0).abs() < 0.1, "σ_f {sf} vs {sigma_f}");
+        assert!((sv / sigma_v - 1.0).abs() < 0.05, "σ_v {sv} vs {sigma_v}");
+        let naive = autocovariance_least_squares(
+            f.as_ref(),
+            h.as_ref(),
+            gains[0].as_ref(),
+            &params,
+            &innovations[500..],
+            30,
+        )
+        .expect("stationary ALS");
+        let naive_f = naive.theta[0].sqrt();
+        assert!(
+            (naive_f / sigma_f - 1.0).abs() > 0.2,
+            "the stationary fit should be off under switching: σ_f {naive_f}"
+        );
     }
 
     /// A model that does not fit (a positive θ for R cannot produce the negative lag-0 sample)

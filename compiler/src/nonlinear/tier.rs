@@ -880,16 +880,21 @@ pub struct IdentifiedNoise {
 }
 
 /// The noise of a model file's tier filter identified by autocovariance least squares
-/// (docs/design.md §11.6, [`kalman::als`]) from `innovations`: ν_k = y_k − H V q⁻_k of the tier's
-/// filter at rest (no gain schedule) with the noise of the scene `full` (the filter
-/// [`refilter`] computes for it), every marker at every step, in the model's measurement order,
-/// the start-up transient dropped. Parameters: a factor on the variance of the white channels,
-/// of each random-walk load group's force increments and rate increments, and of the markers'
-/// variance; each is σ² (scene) × θ, θ ≥ 0. Lags 0 … `lags`−1.
+/// (docs/design.md §11.6, [`kalman::als`]) from the innovations of a run of that filter, gain
+/// schedule included: `innovations[k]` = y_k − H V q⁻_k at every step k (every marker at every
+/// step, in the model's measurement order), `filters[k]` the schedule's filter that updated step
+/// k (`Estimator::tier_filter` after the update: 0 rest, i ≥ 1 `scheduled[i − 1]`); the first
+/// `skip` steps are left out of the statistics. The filters are those of the scene `full`
+/// ([`refilter`]), each linearised at its point and mapped into the rest filter's scaled
+/// coordinates. Parameters: a factor on the variance of the white channels, of each random-walk
+/// load group's force increments and rate increments, and of the markers' variance; each is
+/// σ² (scene) × θ, θ ≥ 0. Lags 0 … `lags`−1.
 pub fn identify_noise(
     full: &FullOrder,
     model: &fmt::Model,
     innovations: &[Vec<f64>],
+    filters: &[usize],
+    skip: usize,
     lags: usize,
 ) -> Result<IdentifiedNoise, NonlinearError> {
     let (lin, measurements) = linearised_of_file(full, model)?;
@@ -900,16 +905,43 @@ pub fn identify_noise(
             measurements.every[j]
         )));
     }
+    let Some(t) = model.tier.as_ref() else {
+        return Err(NonlinearError::Invalid("the model has no tier".into()));
+    };
     let sys = scaled_system(&lin, &measurements)?;
-    let q = &sys.noise * sys.noise.transpose();
-    let design = kalman::periodic_gains(
-        sys.f.as_ref(),
-        sys.h.as_ref(),
-        q.as_ref(),
-        &measurements.variance,
-        &measurements.every,
-    )
-    .map_err(|e| NonlinearError::Invalid(format!("tier filter: {e}")))?;
+    let gain_of = |sys: &ScaledSystem| -> Result<Mat<f64>, NonlinearError> {
+        let q = &sys.noise * sys.noise.transpose();
+        let design = kalman::periodic_gains(
+            sys.f.as_ref(),
+            sys.h.as_ref(),
+            q.as_ref(),
+            &measurements.variance,
+            &measurements.every,
+        )
+        .map_err(|e| NonlinearError::Invalid(format!("tier filter: {e}")))?;
+        Ok(design.phases[0].gain.clone())
+    };
+    let mut transitions = vec![sys.f.clone()];
+    let mut gains = vec![gain_of(&sys)?];
+    if !t.scheduled.is_empty() {
+        let reduced = reduced_model_of_file(full, t)?;
+        let t0 = sys.t.partial_piv_lu();
+        for point in &t.scheduled {
+            let at = lin.at(&reduced, &DVector::from_column_slice(&point.point));
+            let sys_i = scaled_system(&at, &measurements)?;
+            // x̂ = T₀⁻¹ s = X x̃_i, X = T₀⁻¹ T_i: F̂ = X F̃_i X⁻¹, K̂ = X K̃_i.
+            let x = t0.solve(&sys_i.t);
+            let xf = &x * &sys_i.f;
+            let f_hat = x
+                .transpose()
+                .partial_piv_lu()
+                .solve(xf.transpose())
+                .transpose()
+                .to_owned();
+            gains.push(&x * gain_of(&sys_i)?);
+            transitions.push(f_hat);
+        }
+    }
     let (nw, nf, nr) = (
         lin.noise_columns.len(),
         lin.force_columns.len(),
@@ -948,12 +980,16 @@ pub fn identify_noise(
         process: Mat::zeros(n, n),
         measurement: measurements.variance.clone(),
     });
-    let estimate = kalman::als::autocovariance_least_squares(
-        sys.f.as_ref(),
+    let estimate = kalman::als::scheduled_autocovariance_least_squares(
         sys.h.as_ref(),
-        design.phases[0].gain.as_ref(),
+        kalman::als::GainSchedule {
+            transitions: &transitions,
+            gains: &gains,
+            sequence: filters,
+        },
         &parameters,
         innovations,
+        skip,
         lags,
     )
     .map_err(|e| NonlinearError::Invalid(format!("tier filter: {e}")))?;
