@@ -827,7 +827,8 @@ impl TierState {
         // entry summed over a in order, so s_i + (K_p ν)_i as the row-by-row product has it.
         let n = self.s_upd.len();
         let mut filter = self.filter;
-        for _ in 0..model.filters.len() {
+        let passes = model.filters.len();
+        for pass in 0..passes {
             let gain_t = &model.filters[filter].gains_t[phase];
             self.s_upd.iter_mut().for_each(|v| *v = 0.0);
             for (column, &nu) in gain_t.chunks_exact(n).zip(&self.innovation[..nm]) {
@@ -839,7 +840,8 @@ impl TierState {
                 *o += si;
             }
             let next = model.nearest_filter(&self.s_upd[..model.r]);
-            if next == filter {
+            // The last pass keeps its filter: `filter_upd` names the gain s_upd was made with.
+            if next == filter || pass + 1 == passes {
                 break;
             }
             filter = next;

@@ -1139,7 +1139,7 @@ fn a_crippled_tier_is_flagged_by_the_self_check() {
 /// a truth whose noise is known: the tier itself driven open loop by a tip force that is a
 /// random walk of σ = 0.5 N per step in each component (10× the filter's σ), markers = its tip
 /// plus Gaussian noise of the scene's σ, 1,500 steps (the force reaches 55 N, past the trained
-/// 37.5 N, through 4 of the schedule's 9 filters). The filter (gain schedule included) runs
+/// 37.5 N, through 4 of the schedule's 9 filters; 4–9 with seeds 11–14). The filter (gain schedule included) runs
 /// with the load withheld; ALS on its innovations recovers the truth's σ within 15 % and the
 /// markers' σ within 20 % (seeds 11–14: σ_f 0.48–0.55 N, markers' factor 1.00–1.15; the
 /// linearised filters explain less of the innovations the farther the walk goes: over 4,000

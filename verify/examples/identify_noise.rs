@@ -105,6 +105,14 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             full.scene.scene.loads[g].force_noise_std = sigma;
         }
     }
+    if let Some(sensor) = full.operators.sensors.iter().find(|s| s.every != 1) {
+        return Err(format!(
+            "{scene}: sensor '{}' is read every {} steps; the identification needs every marker \
+             at every step",
+            sensor.name, sensor.every
+        )
+        .into());
+    }
     let scenario = Scenario::read(&PathBuf::from(scenario))?;
     let steps = match scenario.horizon(full.wilson.dt) {
         Horizon::Steps(k) => k,

@@ -217,10 +217,13 @@ fn run_model(
     // CROKF_MARKER_PHASE=o (a measuring aid): o predictions at rest before the scenario starts,
     // so that sparse markers (period L) arrive at steps k ≡ L − 1 − o (mod L) instead of
     // k ≡ L − 1: the camera's clock is not synchronised with the load's start.
-    let pre: usize = std::env::var("CROKF_MARKER_PHASE")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(0);
+    let pre: usize = match std::env::var("CROKF_MARKER_PHASE") {
+        Ok(v) => v
+            .parse()
+            .map_err(|_| format!("CROKF_MARKER_PHASE={v}: not a whole number of steps"))?,
+        Err(_) => 0,
+    };
+    let error_trace = std::env::var_os("CROKF_ERROR_TRACE").is_some();
     let rest_inputs = vec![0.0; model.inputs.len()];
     for _ in 0..pre {
         est.predict(&rest_inputs)?;
@@ -318,20 +321,21 @@ fn run_model(
         }
         let (mut ke, mut kr) = (0.0, 0.0);
         for (a, b) in shown.iter().zip(&shown_ref[k]) {
-            e2 += (a - b) * (a - b);
-            r2 += b * b;
             ke += (a - b) * (a - b);
             kr += b * b;
         }
-        if std::env::var_os("CROKF_ERROR_TRACE").is_some() {
-            let r = tier.map_or(0, |t| t.order as usize);
-            let f = &est.state()[3 * r..];
+        e2 += ke;
+        r2 += kr;
+        if error_trace {
+            // The tier's force states (none on the warped tier).
+            let forces = tier.map_or(&[][..], |t| &est.state()[3 * t.order as usize..]);
             eprintln!(
                 "ERR {k} {:.6e} {:.6e} {} {:?}",
                 ke.sqrt(),
                 kr.sqrt(),
                 est.phase(),
-                f.iter()
+                forces
+                    .iter()
                     .map(|v| (v * 1e4).round() / 1e4)
                     .collect::<Vec<_>>()
             );

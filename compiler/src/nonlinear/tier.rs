@@ -883,12 +883,16 @@ pub struct IdentifiedNoise {
 /// (docs/design.md §11.6, [`kalman::als`]) from the innovations of a run of that filter, gain
 /// schedule included: `innovations[k]` = y_k − H V q⁻_k at every step k (every marker at every
 /// step, in the model's measurement order), `filters[k]` the schedule's filter that updated step
-/// k (`Estimator::tier_filter` after the update: 0 rest, i ≥ 1 `scheduled[i − 1]`); the first
-/// `skip` steps are left out of the statistics. The filters are those of the scene `full`
-/// ([`refilter`]), each linearised at its point and mapped into the rest filter's scaled
-/// coordinates. Parameters: a factor on the variance of the white channels, of each random-walk
-/// load group's force increments and rate increments, and of the markers' variance; each is
-/// σ² (scene) × θ, θ ≥ 0. Lags 0 … `lags`−1.
+/// k (`Estimator::tier_filter` after the update: 0 rest, i ≥ 1 `scheduled[i − 1]`), the
+/// innovation gate off; the first `skip` steps are left out of the statistics. The gains are
+/// the model file's (those the run used); the transitions are the tier linearised at rest and
+/// at each scheduled point, all mapped into the rest filter's scaled coordinates. Parameters:
+/// a factor on the variance of the white channels, of each random-walk load group's force
+/// increments and rate increments, and of the markers' variance; each is σ² × θ, θ ≥ 0, σ those
+/// of the scene `full` (the noise model's shape: same loads and markers as the model's).
+/// Approximation: a white channel's process noise enters through the modal load of the rest
+/// linearisation at every point (the force, rate and marker parameters are exact; the example
+/// scenes have no white channel on the tier). Lags 0 … `lags`−1.
 pub fn identify_noise(
     full: &FullOrder,
     model: &fmt::Model,
@@ -909,27 +913,37 @@ pub fn identify_noise(
         return Err(NonlinearError::Invalid("the model has no tier".into()));
     };
     let sys = scaled_system(&lin, &measurements)?;
-    let gain_of = |sys: &ScaledSystem| -> Result<Mat<f64>, NonlinearError> {
-        let q = &sys.noise * sys.noise.transpose();
-        let design = kalman::periodic_gains(
-            sys.f.as_ref(),
-            sys.h.as_ref(),
-            q.as_ref(),
-            &measurements.variance,
-            &measurements.every,
-        )
-        .map_err(|e| NonlinearError::Invalid(format!("tier filter: {e}")))?;
-        Ok(design.phases[0].gain.clone())
+    let m = measurements.channels.len();
+    let t0 = sys.t.partial_piv_lu();
+    // The file's gain of a filter (s coordinates, phase 0: every channel in order) as
+    // K̂ = T₀⁻¹ K_s.
+    let gain_of = |k: &fmt::KalmanGains, which: usize| -> Result<Mat<f64>, NonlinearError> {
+        let phase = &k.phases[0];
+        if phase.measured.len() != m
+            || phase
+                .measured
+                .iter()
+                .enumerate()
+                .any(|(a, &j)| j as usize != a)
+            || phase.gain.rows as usize != sys.f.nrows()
+            || phase.gain.cols as usize != m
+        {
+            return Err(NonlinearError::Invalid(format!(
+                "noise identification: filter {which} of the model does not update every channel \
+                 at every step"
+            )));
+        }
+        let gain = Mat::<f64>::from_fn(sys.f.nrows(), m, |a, b| phase.gain.data[a * m + b]);
+        Ok(t0.solve(&gain))
     };
     let mut transitions = vec![sys.f.clone()];
-    let mut gains = vec![gain_of(&sys)?];
+    let mut gains = vec![gain_of(&t.kalman, 0)?];
     if !t.scheduled.is_empty() {
         let reduced = reduced_model_of_file(full, t)?;
-        let t0 = sys.t.partial_piv_lu();
-        for point in &t.scheduled {
+        for (i, point) in t.scheduled.iter().enumerate() {
             let at = lin.at(&reduced, &DVector::from_column_slice(&point.point));
             let sys_i = scaled_system(&at, &measurements)?;
-            // x̂ = T₀⁻¹ s = X x̃_i, X = T₀⁻¹ T_i: F̂ = X F̃_i X⁻¹, K̂ = X K̃_i.
+            // x̂ = T₀⁻¹ s = X x̃_i, X = T₀⁻¹ T_i: F̂ = X F̃_i X⁻¹.
             let x = t0.solve(&sys_i.t);
             let xf = &x * &sys_i.f;
             let f_hat = x
@@ -938,8 +952,8 @@ pub fn identify_noise(
                 .solve(xf.transpose())
                 .transpose()
                 .to_owned();
-            gains.push(&x * gain_of(&sys_i)?);
             transitions.push(f_hat);
+            gains.push(gain_of(&point.kalman, i + 1)?);
         }
     }
     let (nw, nf, nr) = (
@@ -948,7 +962,6 @@ pub fn identify_noise(
         lin.rate_sigma.len(),
     );
     let n = sys.f.nrows();
-    let m = measurements.channels.len();
     let part = |name: String, columns: std::ops::Range<usize>| {
         let g = sys.noise.subcols(columns.start, columns.len());
         kalman::als::NoiseParameter {
@@ -992,7 +1005,7 @@ pub fn identify_noise(
         skip,
         lags,
     )
-    .map_err(|e| NonlinearError::Invalid(format!("tier filter: {e}")))?;
+    .map_err(|e| NonlinearError::Invalid(e.to_string()))?;
     let theta = &estimate.theta;
     let mut at = usize::from(nw > 0);
     let mut identified = Vec::with_capacity(loads.len());

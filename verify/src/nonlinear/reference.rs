@@ -25,15 +25,24 @@ pub struct Reference {
 impl Reference {
     /// The full-order co-rotational run of `scenario` over `steps` steps (Newton to the default
     /// tolerance); with `cache` a file that holds it (written after computing, read while its
-    /// step count matches: one file per scene and scenario).
+    /// step count and its displayed-node and sensor counts match: one file per scene and
+    /// scenario).
     pub fn of(
         full: &FullOrder,
         scenario: &Scenario,
         steps: usize,
         cache: Option<&Path>,
     ) -> Result<Reference, TierError> {
+        let ops = &full.operators;
+        let shape = (
+            ops.node_sets
+                .iter()
+                .map(|s| 3 * s.nodes.len())
+                .sum::<usize>(),
+            3 * ops.sensors.len(),
+        );
         if let Some(path) = cache {
-            if let Some(cached) = read_cache(path, steps) {
+            if let Some(cached) = read_cache(path, steps, shape) {
                 eprintln!("reference read from {}", path.display());
                 return Ok(cached);
             }
@@ -124,7 +133,9 @@ fn write_cache(path: &Path, r: &Reference) -> Result<(), crokf_formats::output::
     crokf_formats::output::write_atomically(path, &bytes)
 }
 
-fn read_cache(path: &Path, steps: usize) -> Option<Reference> {
+/// The cached reference if it has `steps` rows and `shape` = (displayed values, sensor values)
+/// per row.
+fn read_cache(path: &Path, steps: usize, shape: (usize, usize)) -> Option<Reference> {
     let bytes = std::fs::read(path).ok()?;
     let mut at = 0;
     let mut word = || -> Option<[u8; 8]> {
@@ -144,5 +155,8 @@ fn read_cache(path: &Path, steps: usize) -> Option<Reference> {
         sensors: part()?,
         inputs: part()?,
     };
-    (out.shown.len() == steps).then_some(out)
+    let fits = |rows: &[Vec<f64>], width: usize| {
+        rows.len() == steps && rows.iter().all(|r| r.len() == width)
+    };
+    (fits(&out.shown, shape.0) && fits(&out.sensors, shape.1)).then_some(out)
 }
