@@ -1187,8 +1187,9 @@ fn identify_noise_recovers_the_random_walk_of_a_known_truth() {
                 .map(|(m, p)| m.unwrap() - p)
                 .collect::<Vec<f64>>(),
         );
+        let phase = est.phase();
         est.update(&measured).unwrap();
-        filters.push(est.tier_filter().unwrap());
+        filters.push((est.tier_filter().unwrap(), phase));
         for &c in &channels {
             u[c] += sigma_true * normal();
         }
@@ -1196,8 +1197,8 @@ fn identify_noise_recovers_the_random_walk_of_a_known_truth() {
     }
     let found = tier::identify_noise(&full, model, &innovations, &filters, 100, 20).unwrap();
     let load = &found.loads[0];
-    let switches = filters.windows(2).filter(|w| w[0] != w[1]).count();
-    let used: std::collections::BTreeSet<usize> = filters.iter().copied().collect();
+    let switches = filters.windows(2).filter(|w| w[0].0 != w[1].0).count();
+    let used: std::collections::BTreeSet<usize> = filters.iter().map(|f| f.0).collect();
     eprintln!(
         "identified σ_f = {:.4} N (truth {sigma_true}, filter {}), markers' factor {:.4}, \
          filters used {used:?}, {switches} switches, fit residual {:.3}, largest force {peak:.1} N",

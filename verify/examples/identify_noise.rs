@@ -2,7 +2,7 @@
 //! squares, docs/design.md §11.6). The tier of MODEL, its filters (gain schedule included)
 //! recomputed for SCENE's noise, runs through SCENARIO with the loads withheld (`--given`:
 //! given) on markers = the full-order co-rotational reference + Gaussian noise of the scene's σ
-//! (seed 7, every marker at every step). Its innovations ν = y − ŷ⁻ after the first SKIP steps
+//! (seed 7, each marker at its rate). Its innovations ν = y − ŷ⁻ after the first SKIP steps
 //! give the sample autocovariances, the schedule's filter in use at each step gives the model's,
 //! and `crokf_compile::nonlinear::tier::identify_noise` the σ that explain them: each
 //! random-walk load's force σ_f (and rate σ_ḟ), and the markers' σ as a factor on the scene's.
@@ -104,14 +104,6 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         for g in loads {
             full.scene.scene.loads[g].force_noise_std = sigma;
         }
-    }
-    if let Some(sensor) = full.operators.sensors.iter().find(|s| s.every != 1) {
-        return Err(format!(
-            "{scene}: sensor '{}' is read every {} steps; the identification needs every marker \
-             at every step",
-            sensor.name, sensor.every
-        )
-        .into());
     }
     let scenario = Scenario::read(&PathBuf::from(scenario))?;
     let steps = match scenario.horizon(full.wilson.dt) {
@@ -271,14 +263,16 @@ impl Run<'_> {
                 .collect();
             est.predict(&u)?;
             est.measurement_estimates(&mut predicted)?;
-            innovations.push(
-                y.iter()
-                    .zip(&predicted)
-                    .map(|(y, p)| y.unwrap_or(0.0) - p)
-                    .collect::<Vec<f64>>(),
-            );
+            // The phase's channels; NaN for the others (not measured at this step).
+            let mut nu = vec![f64::NAN; y.len()];
+            for &j in est.active_measurements() {
+                let j = j as usize;
+                nu[j] = y[j].unwrap_or(f64::NAN) - predicted[j];
+            }
+            innovations.push(nu);
+            let phase = est.phase();
             est.update(&y)?;
-            filters.push(est.tier_filter().unwrap_or(0));
+            filters.push((est.tier_filter().unwrap_or(0), phase));
         }
         let noise = crokf_compile::nonlinear::tier::identify_noise(
             full,
@@ -290,7 +284,7 @@ impl Run<'_> {
         )?;
         Ok(Found {
             noise,
-            switches: filters.windows(2).filter(|w| w[0] != w[1]).count(),
+            switches: filters.windows(2).filter(|w| w[0].0 != w[1].0).count(),
         })
     }
 }

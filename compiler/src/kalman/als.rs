@@ -27,12 +27,14 @@
 //! at step k; the same recursion with Ā_k = F_{i_k}(I − K_{i_k} H) is still linear in θ:
 //!
 //! ```text
-//! P_{k+1}   = Ā_k P_k Ā_kᵀ + Q + F_k K_k R K_kᵀ F_kᵀ      (P_0 stationary for filter i_0)
+//! P_{k+1}   = Ā_k P_k Ā_kᵀ + Q + F_k K_k R K_kᵀ F_kᵀ      (P_0 = 0: the run starts at rest)
 //! C(k+j, k) = H Ā_{k+j−1} ⋯ Ā_k P_k Hᵀ − H Ā_{k+j−1} ⋯ Ā_{k+1} F_k K_k R   (j ≥ 1)
 //! ```
 //!
 //! and the sample Ĉ_j = mean_k ν_{k+j} ν_kᵀ is matched by the mean of C(k+j, k) over the same
-//! steps k.
+//! steps k. Sparse (multi-rate) measurements fit the same form: a channel not measured at step
+//! k has a zero column in K_k and no innovation, and each entry (a, b) of Ĉ_j and of the model
+//! is the mean over the steps where channel a is measured at k + j and b at k.
 
 use faer::prelude::Solve;
 use faer::{Mat, MatRef};
@@ -141,13 +143,15 @@ fn check_parameters(parameters: &[NoiseParameter], n: usize, m: usize) -> Result
     Ok(())
 }
 
-/// Checks that `innovations` are at least 10 per lag vectors of m finite entries; `first` is
-/// the step of `innovations[0]` (for messages).
+/// Checks that `innovations` are at least 10 per lag vectors of m entries, finite (or NaN for
+/// a channel not measured at that step, when `missing` allows it); `first` is the step of
+/// `innovations[0]` (for messages).
 fn check_innovations(
     innovations: &[Vec<f64>],
     m: usize,
     lags: usize,
     first: usize,
+    missing: bool,
 ) -> Result<(), KalmanError> {
     if lags == 0 {
         return Err(KalmanError::Identification(
@@ -160,13 +164,19 @@ fn check_innovations(
             innovations.len()
         )));
     }
+    let bad = |x: &f64| !(x.is_finite() || (missing && x.is_nan()));
     if let Some(k) = innovations
         .iter()
-        .position(|v| v.len() != m || v.iter().any(|x| !x.is_finite()))
+        .position(|v| v.len() != m || v.iter().any(bad))
     {
         return Err(KalmanError::Identification(format!(
-            "innovation of step {} has not {m} finite entries (every channel at every step)",
-            first + k
+            "innovation of step {} has not {m} finite entries{}",
+            first + k,
+            if missing {
+                " (NaN: not measured)"
+            } else {
+                " (every channel at every step)"
+            }
         )));
     }
     Ok(())
@@ -247,7 +257,7 @@ pub fn autocovariance_least_squares(
         )));
     }
     check_parameters(parameters, n, m)?;
-    check_innovations(innovations, m, lags, 0)?;
+    check_innovations(innovations, m, lags, 0, false)?;
     let a_bar = error_propagator(f, h, gain);
     let fk = f * gain;
     // H Āʲ (m × n) for j = 0 … L−1.
@@ -321,10 +331,10 @@ pub struct GainSchedule<'a> {
     pub sequence: &'a [usize],
 }
 
-/// θ ≥ 0 (module docs, gain schedule) from the innovations of a scheduled filter: `innovations`
-/// has one vector per step of `schedule.sequence` (every channel at every step); the first
-/// `skip` steps are left out of the statistics (their covariance is still propagated from the
-/// stationary P of filter i_0).
+/// θ ≥ 0 (module docs, gain schedule) from the innovations of a scheduled filter that starts at
+/// rest (P_0 = 0): `innovations` has one vector per step of `schedule.sequence`, NaN for a
+/// channel not measured at that step (its column of that step's gain zero); the first `skip`
+/// steps are left out of the statistics (their covariance is still propagated).
 pub fn scheduled_autocovariance_least_squares(
     h: MatRef<f64>,
     schedule: GainSchedule,
@@ -371,7 +381,7 @@ pub fn scheduled_autocovariance_least_squares(
     }
     check_parameters(parameters, n, m)?;
     let used = innovations.get(skip..).unwrap_or(&[]);
-    check_innovations(used, m, lags, skip)?;
+    check_innovations(used, m, lags, skip, true)?;
     let (a_bars, fks): (Vec<Mat<f64>>, Vec<Mat<f64>>) = schedule
         .transitions
         .iter()
@@ -379,26 +389,60 @@ pub fn scheduled_autocovariance_least_squares(
         .map(|(f, k)| (error_propagator(f.as_ref(), h, k.as_ref()), f * k))
         .unzip();
     let seq = schedule.sequence;
-    // Steps k ≥ skip with k + j < count, per lag: the mean's denominator, as in the sample.
-    let pairs = |j: usize| count.saturating_sub(skip + j).max(1) as f64;
+    let measured = |k: usize, a: usize| !innovations[k][a].is_nan();
+    // Entry (a, b) of lag j averages over the steps k ≥ skip with k + j < count where a is
+    // measured at k + j and b at k: the same pairs for the sample and the model.
+    let mut pairs = vec![Mat::<f64>::zeros(m, m); lags];
+    let mut sample = vec![Mat::<f64>::zeros(m, m); lags];
+    for k in skip..count {
+        for j in 0..lags.min(count - k) {
+            for a in (0..m).filter(|&a| measured(k + j, a)) {
+                for b in (0..m).filter(|&b| measured(k, b)) {
+                    pairs[j][(a, b)] += 1.0;
+                    sample[j][(a, b)] += innovations[k + j][a] * innovations[k][b];
+                }
+            }
+        }
+    }
+    let mean = |sums: &mut [Mat<f64>]| {
+        for (c, n) in sums.iter_mut().zip(&pairs) {
+            for a in 0..m {
+                for b in 0..m {
+                    c[(a, b)] = if n[(a, b)] > 0.0 {
+                        c[(a, b)] / n[(a, b)]
+                    } else {
+                        0.0
+                    };
+                }
+            }
+        }
+    };
+    mean(&mut sample);
+    let add_measured = |sum: &mut Mat<f64>, c: &Mat<f64>, later: usize, earlier: usize| {
+        for a in (0..m).filter(|&a| measured(later, a)) {
+            for b in (0..m).filter(|&b| measured(earlier, b)) {
+                sum[(a, b)] += c[(a, b)];
+            }
+        }
+    };
     let columns: Vec<Vec<f64>> = parameters
         .iter()
         .map(|p| {
             let r_i = diagonal(&p.measurement);
-            let mut cov = stationary_covariance(a_bars[seq[0]].as_ref(), fks[seq[0]].as_ref(), p)?;
+            let mut cov = Mat::<f64>::zeros(n, n);
             let mut sum = vec![Mat::<f64>::zeros(m, m); lags];
             for k in 0..count {
                 let (a_bar, fk) = (&a_bars[seq[k]], &fks[seq[k]]);
                 if k >= skip {
                     // C(k+j, k) = H W_j, W_1 = Ā_k P_k Hᵀ − F_k K_k R, W_j = Ā_{k+j−1} W_{j−1}.
                     let pht = &cov * h.transpose();
-                    sum[0] += h * &pht + &r_i;
+                    add_measured(&mut sum[0], &(h * &pht + &r_i), k, k);
                     if lags > 1 && k + 1 < count {
                         let mut w = a_bar * &pht - fk * &r_i;
-                        sum[1] += h * &w;
+                        add_measured(&mut sum[1], &(h * &w), k + 1, k);
                         for j in 2..lags.min(count - k) {
                             w = &a_bars[seq[k + j - 1]] * &w;
-                            sum[j] += h * &w;
+                            add_measured(&mut sum[j], &(h * &w), k + j, k);
                         }
                     }
                 }
@@ -407,13 +451,10 @@ pub fn scheduled_autocovariance_least_squares(
                 next += fk * &r_i * fk.transpose();
                 cov = symmetric(&next);
             }
-            for (j, c) in sum.iter_mut().enumerate() {
-                *c *= faer::Scale(1.0 / pairs(j));
-            }
+            mean(&mut sum);
             Ok(stacked(&sum))
         })
         .collect::<Result<_, KalmanError>>()?;
-    let sample = sample_autocovariances(used, lags);
     fit(parameters, &columns, &sample, used.len())
 }
 
@@ -523,13 +564,15 @@ mod tests {
     }
 
     /// The filter's innovations on data simulated with noise (σ_f, σ_v), the gain of step k
-    /// `gains[sequence(k)]`, `steps` steps from rest.
+    /// `gains[sequence(k)]`, `steps` steps from rest; the position is measured every `every`
+    /// steps (NaN innovations between).
     fn simulate(
         f: &Mat<f64>,
         gains: &[Mat<f64>],
         sequence: impl Fn(usize) -> usize,
         (sigma_f, sigma_v): (f64, f64),
         steps: usize,
+        every: usize,
     ) -> Vec<Vec<f64>> {
         let mut rng = SplitMix64(0x9e37_79b9_7f4a_7c15);
         let (mut x, mut x_hat) = (vec![0.0; 3], vec![0.0; 3]);
@@ -541,12 +584,16 @@ mod tests {
         let mut innovations = Vec::with_capacity(steps);
         for k in 0..steps {
             let y = x[0] + sigma_v * rng.normal();
-            let nu = y - x_hat[0];
-            let g = &gains[sequence(k)];
-            for i in 0..3 {
-                x_hat[i] += g[(i, 0)] * nu;
+            if k % every == 0 {
+                let nu = y - x_hat[0];
+                let g = &gains[sequence(k)];
+                for i in 0..3 {
+                    x_hat[i] += g[(i, 0)] * nu;
+                }
+                innovations.push(vec![nu]);
+            } else {
+                innovations.push(vec![f64::NAN]);
             }
-            innovations.push(vec![nu]);
             x = step(&x);
             x[2] += sigma_f * rng.normal();
             x_hat = step(&x_hat);
@@ -586,6 +633,7 @@ mod tests {
             |_| 0,
             (sigma_f, sigma_v),
             60_000,
+            1,
         );
         let est = autocovariance_least_squares(
             f.as_ref(),
@@ -607,7 +655,7 @@ mod tests {
     fn one_filter_schedule_is_the_stationary_case() {
         let (f, h, unit_force) = oscillator();
         let k = gain(&f, &h, &unit_force, 1.0, 5e-3);
-        let innovations = simulate(&f, std::slice::from_ref(&k), |_| 0, (0.3, 1e-2), 4_000);
+        let innovations = simulate(&f, std::slice::from_ref(&k), |_| 0, (0.3, 1e-2), 4_000, 1);
         let params = parameters(&unit_force);
         let stationary = autocovariance_least_squares(
             f.as_ref(),
@@ -655,7 +703,7 @@ mod tests {
             gain(&f, &h, &unit_force, 0.1 * sigma_f, sigma_v),
         ];
         let which = |k: usize| (k / 37) % 2;
-        let innovations = simulate(&f, &gains, which, (sigma_f, sigma_v), 60_000);
+        let innovations = simulate(&f, &gains, which, (sigma_f, sigma_v), 60_000, 1);
         let sequence: Vec<usize> = (0..innovations.len()).map(which).collect();
         let params = parameters(&unit_force);
         let est = scheduled_autocovariance_least_squares(
@@ -688,6 +736,54 @@ mod tests {
             (naive_f / sigma_f - 1.0).abs() > 0.2,
             "the stationary fit should be off under switching: σ_f {naive_f}"
         );
+    }
+
+    /// Sparse markers (every 3rd step, the periodic filter's gains, zero between): the
+    /// scheduled form with NaN innovations between markers recovers the simulated noise.
+    #[test]
+    fn recovers_the_noise_from_sparse_markers() {
+        let (f, h, unit_force) = oscillator();
+        let (sigma_f, sigma_v): (f64, f64) = (0.3, 1e-2);
+        let q = Mat::<f64>::from_fn(3, 3, |i, j| unit_force[(i, j)] * (0.3 * sigma_f).powi(2));
+        let design = crate::kalman::periodic_gains(
+            f.as_ref(),
+            h.as_ref(),
+            q.as_ref(),
+            &[4.0 * sigma_v * sigma_v],
+            &[3],
+        )
+        .expect("periodic design");
+        let gains: Vec<Mat<f64>> = design
+            .phases
+            .iter()
+            .map(|p| {
+                if p.measured.is_empty() {
+                    Mat::zeros(3, 1)
+                } else {
+                    p.gain.clone()
+                }
+            })
+            .collect();
+        let phase = |k: usize| k % 3;
+        let innovations = simulate(&f, &gains, phase, (sigma_f, sigma_v), 90_000, 3);
+        let sequence: Vec<usize> = (0..innovations.len()).map(phase).collect();
+        let transitions = vec![f.clone(), f.clone(), f.clone()];
+        let est = scheduled_autocovariance_least_squares(
+            h.as_ref(),
+            GainSchedule {
+                transitions: &transitions,
+                gains: &gains,
+                sequence: &sequence,
+            },
+            &parameters(&unit_force),
+            &innovations,
+            600,
+            60,
+        )
+        .expect("scheduled ALS");
+        let (sf, sv) = (est.theta[0].sqrt(), est.theta[1].sqrt());
+        assert!((sf / sigma_f - 1.0).abs() < 0.1, "σ_f {sf} vs {sigma_f}");
+        assert!((sv / sigma_v - 1.0).abs() < 0.05, "σ_v {sv} vs {sigma_v}");
     }
 
     /// A model that does not fit (a positive θ for R cannot produce the negative lag-0 sample)

@@ -881,10 +881,11 @@ pub struct IdentifiedNoise {
 
 /// The noise of a model file's tier filter identified by autocovariance least squares
 /// (docs/design.md §11.6, [`kalman::als`]) from the innovations of a run of that filter, gain
-/// schedule included: `innovations[k]` = y_k − H V q⁻_k at every step k (every marker at every
-/// step, in the model's measurement order), `filters[k]` the schedule's filter that updated step
-/// k (`Estimator::tier_filter` after the update: 0 rest, i ≥ 1 `scheduled[i − 1]`), the
-/// innovation gate off; the first `skip` steps are left out of the statistics. The gains are
+/// schedule included, from rest: `innovations[k]` = y_k − H V q⁻_k at every step k (in the
+/// model's measurement order, NaN for a channel the step's phase does not measure), `filters[k]`
+/// = (the schedule's filter that updated step k, the step's phase) (`Estimator::tier_filter`
+/// after the update: 0 rest, i ≥ 1 `scheduled[i − 1]`; `Estimator::phase`), the innovation gate
+/// off; the first `skip` steps are left out of the statistics. The gains are
 /// the model file's (those the run used); the transitions are the tier linearised at rest and
 /// at each scheduled point, all mapped into the rest filter's scaled coordinates. Parameters:
 /// a factor on the variance of the white channels, of each random-walk load group's force
@@ -897,47 +898,51 @@ pub fn identify_noise(
     full: &FullOrder,
     model: &fmt::Model,
     innovations: &[Vec<f64>],
-    filters: &[usize],
+    filters: &[(usize, usize)],
     skip: usize,
     lags: usize,
 ) -> Result<IdentifiedNoise, NonlinearError> {
     let (lin, measurements) = linearised_of_file(full, model)?;
-    if let Some(j) = measurements.every.iter().position(|&e| e != 1) {
-        return Err(NonlinearError::Invalid(format!(
-            "noise identification needs every marker at every step: channel {j} is read every {} \
-             steps",
-            measurements.every[j]
-        )));
-    }
     let Some(t) = model.tier.as_ref() else {
         return Err(NonlinearError::Invalid("the model has no tier".into()));
     };
     let sys = scaled_system(&lin, &measurements)?;
-    let m = measurements.channels.len();
+    let (n, m) = (sys.f.nrows(), measurements.channels.len());
     let t0 = sys.t.partial_piv_lu();
-    // The file's gain of a filter (s coordinates, phase 0: every channel in order) as
-    // K̂ = T₀⁻¹ K_s.
-    let gain_of = |k: &fmt::KalmanGains, which: usize| -> Result<Mat<f64>, NonlinearError> {
-        let phase = &k.phases[0];
-        if phase.measured.len() != m
-            || phase
-                .measured
-                .iter()
-                .enumerate()
-                .any(|(a, &j)| j as usize != a)
-            || phase.gain.rows as usize != sys.f.nrows()
-            || phase.gain.cols as usize != m
-        {
+    let period = t.kalman.period as usize;
+    // The file's gains of a filter per phase (s coordinates, the phase's channels) as
+    // K̂ = T₀⁻¹ K_s with a zero column for each channel the phase does not measure.
+    let gains_of = |k: &fmt::KalmanGains, which: usize| -> Result<Vec<Mat<f64>>, NonlinearError> {
+        if k.phases.len() != period {
             return Err(NonlinearError::Invalid(format!(
-                "noise identification: filter {which} of the model does not update every channel \
-                 at every step"
+                "noise identification: filter {which} has {} phases, the tier {period}",
+                k.phases.len()
             )));
         }
-        let gain = Mat::<f64>::from_fn(sys.f.nrows(), m, |a, b| phase.gain.data[a * m + b]);
-        Ok(t0.solve(&gain))
+        k.phases
+            .iter()
+            .map(|phase| {
+                let cols = phase.measured.len();
+                if phase.gain.rows as usize != n
+                    || phase.gain.cols as usize != cols
+                    || phase.measured.iter().any(|&j| j as usize >= m)
+                {
+                    return Err(NonlinearError::Invalid(format!(
+                        "noise identification: filter {which}'s gain does not fit its channels"
+                    )));
+                }
+                let mut gain = Mat::<f64>::zeros(n, m);
+                for (a, &j) in phase.measured.iter().enumerate() {
+                    for i in 0..n {
+                        gain[(i, j as usize)] = phase.gain.data[i * cols + a];
+                    }
+                }
+                Ok(t0.solve(&gain))
+            })
+            .collect()
     };
     let mut transitions = vec![sys.f.clone()];
-    let mut gains = vec![gain_of(&t.kalman, 0)?];
+    let mut gains = vec![gains_of(&t.kalman, 0)?];
     if !t.scheduled.is_empty() {
         let reduced = reduced_model_of_file(full, t)?;
         for (i, point) in t.scheduled.iter().enumerate() {
@@ -953,15 +958,35 @@ pub fn identify_noise(
                 .transpose()
                 .to_owned();
             transitions.push(f_hat);
-            gains.push(gain_of(&point.kalman, i + 1)?);
+            gains.push(gains_of(&point.kalman, i + 1)?);
         }
     }
+    // One (F̂, K̂) per filter and phase, indexed filter · period + phase.
+    let (transitions, gains): (Vec<Mat<f64>>, Vec<Mat<f64>>) = transitions
+        .iter()
+        .zip(&gains)
+        .flat_map(|(f, per_phase)| per_phase.iter().map(move |k| (f.clone(), k.clone())))
+        .unzip();
+    if let Some(k) = filters.iter().position(|&(i, p)| {
+        p >= period
+            || i.checked_mul(period)
+                .and_then(|x| x.checked_add(p))
+                .is_none_or(|x| x >= gains.len())
+    }) {
+        return Err(NonlinearError::Invalid(format!(
+            "noise identification: step {k} names filter {} phase {}, the model has {} filters \
+             of {period} phases",
+            filters[k].0,
+            filters[k].1,
+            gains.len() / period.max(1)
+        )));
+    }
+    let sequence: Vec<usize> = filters.iter().map(|&(i, p)| i * period + p).collect();
     let (nw, nf, nr) = (
         lin.noise_columns.len(),
         lin.force_columns.len(),
         lin.rate_sigma.len(),
     );
-    let n = sys.f.nrows();
     let part = |name: String, columns: std::ops::Range<usize>| {
         let g = sys.noise.subcols(columns.start, columns.len());
         kalman::als::NoiseParameter {
@@ -998,7 +1023,7 @@ pub fn identify_noise(
         kalman::als::GainSchedule {
             transitions: &transitions,
             gains: &gains,
-            sequence: filters,
+            sequence: &sequence,
         },
         &parameters,
         innovations,
