@@ -121,7 +121,7 @@ pub struct PhaseGain {
 pub struct PeriodicSchedule {
     /// Period L = lcm(every), base steps.
     pub period: usize,
-    /// Phases 0..L; phase p measures the rows i with p % every[i] == 0.
+    /// Phases 0..L; phase p measures the rows i with p % every\[i\] == 0.
     pub phases: Vec<PhaseGain>,
     /// Worst relative residual over the period: ‖P₀ − Ricc_{L−1}∘…∘Ricc₀(P₀)‖_F /
     /// max(‖P₀‖_F, ‖Q‖_F, tiny) (the per-phase equations hold exactly by construction of
@@ -216,7 +216,7 @@ pub fn solve_filter_dare(
 ///
 /// Measurement row i (of H, variance `r_diag[i]` > 0) is available every `every[i]` ≥ 1 base
 /// steps; the period is L = lcm(every) and phase p ∈ 0..L measures the rows with
-/// p % every[i] == 0 (phase 0 measures all). The per-phase a priori covariances satisfy
+/// p % every\[i\] == 0 (phase 0 measures all). The per-phase a priori covariances satisfy
 /// P_{p+1} = F [(I − K_p H_p) P_p (I − K_p H_p)ᵀ + K_p R_p K_pᵀ] Fᵀ + Q with P_L = P_0,
 /// K_p = P_p H_pᵀ (H_p P_p H_pᵀ + R_p)⁻¹. Route: compose the L Riccati maps of one period
 /// into one map in SDA form, solve its fixed point P_0 by SDA, polish by Newton on the

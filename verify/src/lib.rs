@@ -6,7 +6,7 @@
 //! - [`vtu`]: trajectories as CSV and ParaView VTU/PVD series;
 //! - [`comparison`]: speed against error, full-order references vs the runtime at several
 //!   orders (one modal system, truncated per order), with Markdown, CSV and SVG output;
-//! - [`bench`]: structured benchmark meshes and benchmarks (medians, ratios in
+//! - [`mod@bench`]: structured benchmark meshes and benchmarks (medians, ratios in
 //!   one run).
 
 pub mod bench;

@@ -153,7 +153,7 @@ pub enum KalmanError {
     PeriodTooLong {
         /// The period (saturated at u64::MAX).
         period: u64,
-        /// [`MAX_PERIOD`].
+        /// [`crate::kalman::MAX_PERIOD`].
         limit: usize,
     },
     /// A dense factorisation failed.

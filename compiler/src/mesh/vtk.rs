@@ -3,7 +3,7 @@
 //! VTK writes it; legacy 5.1 files with OFFSETS/CONNECTIVITY are not read by vtkio).
 //!
 //! vtkio 0.7 decodes appended data only when it is base64-encoded; raw appended data (what
-//! ParaView and VTK write by default) is re-encoded as base64 here first ([`raw_to_base64`]):
+//! ParaView and VTK write by default) is re-encoded as base64 here first (`raw_to_base64`):
 //! every block keeps its bytes, only the encoding and the `offset` attributes change.
 //!
 //! - Node tags are the 0-based point ids and element tags the 0-based cell ids (over all pieces,

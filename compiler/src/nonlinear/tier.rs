@@ -595,7 +595,7 @@ fn scaled_system(
 }
 
 /// The filter of a [`LinearisedTier`] (see [`linearised_filter`]): the DARE of the augmented
-/// pair is solved in scaled modal coordinates x̃ ([`ScaledSystem`], `kalman::periodic_gains`)
+/// pair is solved in scaled modal coordinates x̃ (`ScaledSystem`, `kalman::periodic_gains`)
 /// and mapped back with T.
 pub fn filter_of(
     lin: &LinearisedTier,
@@ -1161,7 +1161,7 @@ pub struct TierFilter {
     /// Whether the force states' rates follow them (3 more per group, docs/design.md §11.5).
     pub force_rates: bool,
     /// Worst relative static residual of the measured response to a force channel
-    /// ([`static_residual`]; 0 without force states).
+    /// (`static_residual`; 0 without force states).
     pub static_residual: f64,
     /// The basis's error at the markers over the training snapshots, per measurement channel:
     /// RMS of H(u − V VᵀM u) divided by the channel's σ ([`marker_model_error`]).

@@ -3,7 +3,7 @@
 //! co-rotational trajectory at all?
 //!
 //! - Projection floor of a basis V (M-orthonormal, n × r): min_q ‖V_k q − u_t‖_M over the
-//!   whole trajectory, relative, for nested sizes k ([`super::basis::projection_errors`]); also
+//!   whole trajectory, relative, for nested sizes k ([`crokf_compile::nonlinear::basis::projection_errors`]); also
 //!   the same M-projection measured as relative L2 over the displayed nodes (the README's
 //!   error norm).
 //! - Warped floor: the best fit of the warped linear read-out of §5,
