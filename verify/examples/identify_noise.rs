@@ -1,25 +1,35 @@
 //! The co-rotational tier's noise identified from its own innovations (autocovariance least
 //! squares, docs/design.md §11.6). The tier of MODEL, its filters (gain schedule included)
-//! recomputed for SCENE's noise, runs through SCENARIO with the loads withheld (`--given`:
-//! given) on markers = the full-order co-rotational reference + Gaussian noise of the scene's σ
-//! (seed 7, each marker at its rate). Its innovations ν = y − ŷ⁻ after the first SKIP steps
-//! give the sample autocovariances, the schedule's filter in use at each step gives the model's,
-//! and `crokf_compile::nonlinear::tier::identify_noise` the σ that explain them: each
-//! random-walk load's force σ_f (and rate σ_ḟ), and the markers' σ as a factor on the scene's.
+//! recomputed for SCENE's noise, runs from rest over a recording; its innovations ν = y − ŷ⁻
+//! after the first SKIP steps give the sample autocovariances, the schedule's filter and phase
+//! in use at each step give the model's, and `crokf_compile::nonlinear::tier::identify_noise`
+//! the σ that explain them: each random-walk load's force σ_f (and rate σ_ḟ), and the markers'
+//! σ as a factor on the scene's.
 //!
-//! The markers' factor is the check of the result: the markers' noise is known (here it is the
-//! scene's by construction), so a factor outside [0.8, 1.25] says that the linearised filters do
-//! not explain this recording's innovations, and the σ are printed as not identified.
+//! The recording is either
+//! - simulated, `SCENE SCENARIO MODEL`: the full-order co-rotational reference of SCENARIO,
+//!   markers = reference + Gaussian noise of the scene's σ (seed 7, each marker at its rate),
+//!   the loads withheld (every load channel 0; `--given`: given); or
+//! - a user's, `SCENE MODEL --recording MEASUREMENTS.csv [--inputs INPUTS.csv]`, in
+//!   `crokf-run`'s CSV formats (`run/src/table.rs`; without an inputs file every input is 0:
+//!   the loads are withheld).
+//!
+//! The markers' factor is the check of the result: the markers' noise is known (a tracking
+//! system's specification; the scene's by construction when simulated), so a factor outside
+//! [0.8, 1.25] says that the linearised filters do not explain the innovations, and the σ are
+//! printed as not identified.
 //!
 //! Flags: `--force-sigma S` runs the filters of σ_f = S (N per step) on every random-walk load
 //! instead of the scene's (ALS needs stable filters, not optimal ones); `--no-schedule` the
 //! filter at rest only; `--fixed-point` repeats the identification with the filters of the σ
-//! just identified until they agree to 1 % (at most 10 runs): the σ that, used in the filter,
-//! its own innovations confirm; `--lags L` (30), `--skip S` (50 steps).
+//! just identified until they agree to 1 % (at most 10 runs, the same recording): the σ that,
+//! used in the filter, its own innovations confirm; `--lags L` (30), `--skip S` (50 steps).
 //!
 //! ```sh
 //! cargo run --release -p crokf-verify --example identify_noise -- SCENE SCENARIO MODEL \
 //!     [--given] [--no-schedule] [--fixed-point] [--force-sigma S] [--lags L] [--skip S]
+//! cargo run --release -p crokf-verify --example identify_noise -- SCENE MODEL \
+//!     --recording MEASUREMENTS.csv [--inputs INPUTS.csv] [--fixed-point] …
 //! ```
 //! `CROKF_REFERENCE_CACHE=FILE` as in `nonlinear_filter`.
 
@@ -29,8 +39,9 @@ use std::process::ExitCode;
 use crokf_compile::nonlinear::tier::IdentifiedNoise;
 use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
-use crokf_runtime::{load_model, Estimator};
+use crokf_runtime::load_model;
 use crokf_verify::comparison::Gaussian;
+use crokf_verify::nonlinear::identify::filter_run;
 use crokf_verify::nonlinear::reference::Reference;
 use crokf_verify::scenario::{Horizon, Scenario};
 
@@ -45,8 +56,9 @@ fn main() -> ExitCode {
 }
 
 const USAGE: &str =
-    "usage: identify_noise SCENE SCENARIO MODEL [--given] [--no-schedule] [--fixed-point] \
-     [--lags L] [--skip S] [--force-sigma S]";
+    "usage: identify_noise SCENE SCENARIO MODEL [--given] | SCENE MODEL --recording \
+     MEASUREMENTS.csv [--inputs INPUTS.csv]; and [--no-schedule] [--fixed-point] [--lags L] \
+     [--skip S] [--force-sigma S]";
 
 /// The markers' factor outside which the identification is flagged (module docs).
 const MARKER_FACTOR_RANGE: (f64, f64) = (0.8, 1.25);
@@ -56,6 +68,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let (mut given, mut schedule, mut fixed_point) = (false, true, false);
     let (mut lags, mut skip) = (30usize, 50usize);
     let mut force_sigma: Option<f64> = None;
+    let (mut recording, mut inputs_file): (Option<PathBuf>, Option<PathBuf>) = (None, None);
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         if a == "--force-sigma" {
@@ -69,6 +82,15 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
                 return Err(format!("--force-sigma {v}: must be > 0 (N per step)").into());
             }
             force_sigma = Some(sigma);
+            continue;
+        }
+        if a == "--recording" || a == "--inputs" {
+            let v = args.next().ok_or(format!("{a} needs a file; {USAGE}"))?;
+            if a == "--recording" {
+                recording = Some(PathBuf::from(v));
+            } else {
+                inputs_file = Some(PathBuf::from(v));
+            }
             continue;
         }
         let mut number = |flag: &str| -> Result<usize, Box<dyn std::error::Error>> {
@@ -88,9 +110,21 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             _ => positional.push(a),
         }
     }
-    let [scene, scenario, model_path] = positional.as_slice() else {
-        return Err(USAGE.into());
+    let (scene, scenario, model_path) = match (positional.as_slice(), &recording) {
+        ([scene, scenario, model], None) => (scene, Some(scenario), model),
+        ([scene, model], Some(_)) => (scene, None, model),
+        _ => return Err(USAGE.into()),
     };
+    if recording.is_none() && inputs_file.is_some() {
+        return Err(format!("--inputs goes with --recording; {USAGE}").into());
+    }
+    if recording.is_some() && given {
+        return Err(format!(
+            "--given is for a simulated recording (the inputs file gives a \
+                            recording's loads); {USAGE}"
+        )
+        .into());
+    }
     let base = load_model(model_path)?;
     let Some(tier) = base.tier.as_ref() else {
         return Err(format!("{model_path} has no co-rotational tier").into());
@@ -105,21 +139,24 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             full.scene.scene.loads[g].force_noise_std = sigma;
         }
     }
-    let scenario = Scenario::read(&PathBuf::from(scenario))?;
-    let steps = match scenario.horizon(full.wilson.dt) {
-        Horizon::Steps(k) => k,
-        Horizon::Steady(_) => return Err("the scenario needs a fixed horizon".into()),
+    let (inputs, measurements) = match (scenario, &recording) {
+        (Some(scenario), _) => {
+            // The markers' noise of the scene (its filter's R), not the file's.
+            let mut scene_model = base.clone();
+            crokf_compile::nonlinear::tier::refilter(&full, &mut scene_model)?;
+            simulated(&full, &scene_model, &PathBuf::from(scenario), given)?
+        }
+        (None, Some(path)) => recorded(&base, path, inputs_file.as_deref())?,
+        (None, None) => return Err(USAGE.into()),
     };
+    let steps = inputs.len();
     if steps <= skip {
-        return Err(format!("the scenario has {steps} steps, fewer than --skip {skip}").into());
+        return Err(format!("the recording has {steps} steps, fewer than --skip {skip}").into());
     }
-    let cache = std::env::var_os("CROKF_REFERENCE_CACHE").map(PathBuf::from);
-    let reference = Reference::of(&full, &scenario, steps, cache.as_deref())?;
-
     let points = if schedule { tier.scheduled.len() } else { 0 };
     let run = Run {
-        reference: &reference,
-        given,
+        inputs: &inputs,
+        measurements: &measurements,
         schedule,
         skip,
         lags,
@@ -135,7 +172,11 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
                 String::new()
             },
             found.noise.estimate.samples,
-            if given { "given" } else { "withheld" },
+            match (&recording, given) {
+                (Some(_), _) => "as recorded",
+                (None, true) => "given",
+                (None, false) => "withheld",
+            },
             1 + points,
             found.switches,
             found.noise.estimate.relative_residual
@@ -195,10 +236,11 @@ const MAX_ITERATIONS: usize = 10;
 /// `--fixed-point` stops when no σ changes by more than this fraction.
 const FIXED_POINT_TOLERANCE: f64 = 0.01;
 
-/// One identification run's settings.
+/// One identification run's settings: the recording (one row per step, model order) and the
+/// identification's.
 struct Run<'a> {
-    reference: &'a Reference,
-    given: bool,
+    inputs: &'a [Vec<f64>],
+    measurements: &'a [Vec<Option<f64>>],
     schedule: bool,
     skip: usize,
     lags: usize,
@@ -212,8 +254,8 @@ struct Found {
 }
 
 impl Run<'_> {
-    /// The tier of `base` with its filters recomputed for `full`'s noise, run on the markers,
-    /// and the noise its innovations identify.
+    /// The tier of `base` with its filters recomputed for `full`'s noise, run over the
+    /// recording, and the noise its innovations identify.
     fn identify(
         &self,
         full: &FullOrder,
@@ -227,67 +269,114 @@ impl Run<'_> {
         }
         crokf_compile::nonlinear::tier::refilter(full, &mut model)?;
         model.validate()?;
-        let mut est = Estimator::new(&model)?;
-        est.set_innovation_gate(None);
-        let variance = model
-            .tier
-            .as_ref()
-            .map(|t| t.kalman.measurement_variance.clone())
-            .unwrap_or_default();
-        let is_load: Vec<bool> = model
-            .inputs
-            .iter()
-            .map(|i| matches!(i.kind, crokf_formats::InputKind::Load { .. }))
-            .collect();
-        let steps = self.reference.sensors.len();
-        let mut rng = Gaussian::new(7);
-        let mut predicted = vec![0.0; model.measurements.len()];
-        let mut innovations = Vec::with_capacity(steps);
-        let mut filters = Vec::with_capacity(steps);
-        for k in 0..steps {
-            let y: Vec<Option<f64>> = model
-                .measurements
-                .iter()
-                .zip(&variance)
-                .map(|(m, v)| {
-                    Some(
-                        self.reference.sensors[k][3 * m.sensor as usize + m.component as usize]
-                            + v.sqrt() * rng.normal(),
-                    )
-                })
-                .collect();
-            let u: Vec<f64> = self.reference.inputs[k]
-                .iter()
-                .zip(&is_load)
-                .map(|(&v, &load)| if load && !self.given { 0.0 } else { v })
-                .collect();
-            est.predict(&u)?;
-            est.measurement_estimates(&mut predicted)?;
-            // The phase's channels; NaN for the others (not measured at this step).
-            let mut nu = vec![f64::NAN; y.len()];
-            for &j in est.active_measurements() {
-                let j = j as usize;
-                nu[j] = y[j].unwrap_or(f64::NAN) - predicted[j];
-            }
-            innovations.push(nu);
-            let phase = est.phase();
-            est.update(&y)?;
-            filters.push((est.tier_filter().unwrap_or(0), phase));
-        }
+        let run = filter_run(&model, self.inputs, self.measurements)?;
         let noise = crokf_compile::nonlinear::tier::identify_noise(
             full,
             &model,
-            &innovations,
-            &filters,
+            &run.innovations,
+            &run.filters,
             self.skip,
             self.lags,
         )?;
         Ok(Found {
             noise,
-            switches: filters.windows(2).filter(|w| w[0].0 != w[1].0).count(),
+            switches: run.switches(),
         })
     }
 }
+
+/// Inputs and markers per step of the simulated recording: the full-order co-rotational
+/// reference of `scenario`, markers = reference + Gaussian noise of the model's σ (seed 7),
+/// every load channel 0 unless `given`.
+fn simulated(
+    full: &FullOrder,
+    model: &crokf_formats::Model,
+    scenario: &std::path::Path,
+    given: bool,
+) -> Result<Recording, Box<dyn std::error::Error>> {
+    let scenario = Scenario::read(scenario)?;
+    let steps = match scenario.horizon(full.wilson.dt) {
+        Horizon::Steps(k) => k,
+        Horizon::Steady(_) => return Err("the scenario needs a fixed horizon".into()),
+    };
+    let cache = std::env::var_os("CROKF_REFERENCE_CACHE").map(PathBuf::from);
+    let reference = Reference::of(full, &scenario, steps, cache.as_deref())?;
+    let variance = model
+        .tier
+        .as_ref()
+        .map(|t| t.kalman.measurement_variance.clone())
+        .unwrap_or_default();
+    let mut rng = Gaussian::new(7);
+    let measurements = reference
+        .sensors
+        .iter()
+        .map(|row| {
+            model
+                .measurements
+                .iter()
+                .zip(&variance)
+                .map(|(m, v)| {
+                    Some(
+                        row[3 * m.sensor as usize + m.component as usize] + v.sqrt() * rng.normal(),
+                    )
+                })
+                .collect()
+        })
+        .collect();
+    let inputs = reference
+        .inputs
+        .iter()
+        .map(|row| {
+            row.iter()
+                .zip(&model.inputs)
+                .map(|(&v, input)| match input.kind {
+                    crokf_formats::InputKind::Load { .. } if !given => 0.0,
+                    _ => v,
+                })
+                .collect()
+        })
+        .collect();
+    Ok((inputs, measurements))
+}
+
+/// Inputs and markers per step of a user's recording in `crokf-run`'s CSV formats: steps
+/// 1 … n (n: the inputs' rows, else the last measured step); without an inputs file every
+/// input is 0.
+fn recorded(
+    model: &crokf_formats::Model,
+    measurements: &std::path::Path,
+    inputs: Option<&std::path::Path>,
+) -> Result<Recording, Box<dyn std::error::Error>> {
+    let table = crokf_run::table::read_measurements(measurements, model)?;
+    let rows = match inputs {
+        Some(path) => crokf_run::table::read_inputs(path, model)?.rows,
+        None => {
+            let last = table.keys().next_back().copied().unwrap_or(0) as usize;
+            vec![vec![0.0; model.inputs.len()]; last]
+        }
+    };
+    if let Some((&k, row)) = table.iter().find(|(&k, _)| k as usize > rows.len()) {
+        return Err(format!(
+            "{}: line {}: step {k} is beyond the inputs' {} steps",
+            measurements.display(),
+            row.line,
+            rows.len()
+        )
+        .into());
+    }
+    let none = vec![None; model.measurements.len()];
+    let values = (1..=rows.len() as u64)
+        .map(|k| {
+            table
+                .get(&k)
+                .map_or_else(|| none.clone(), |r| r.values.clone())
+        })
+        .collect();
+    Ok((rows, values))
+}
+
+/// Inputs and measurements (`None`: missing) per step, model order.
+type Recording = (Vec<Vec<f64>>, Vec<Vec<Option<f64>>>);
 
 /// The identified σ against those of the filter run, as a Markdown table.
 fn print_table(full: &FullOrder, found: &IdentifiedNoise) {

@@ -7,6 +7,7 @@
 //! `--example nonlinear_tier -- …` print the tables of `docs/corotational-tier.md`.
 
 pub mod floors;
+pub mod identify;
 pub mod reference;
 pub mod tier;
 pub mod training;

@@ -1,0 +1,56 @@
+//! A filter run as the noise identification needs it (docs/design.md §11.6,
+//! `crokf_compile::nonlinear::tier::identify_noise`): the innovations of every step and the
+//! gain-schedule filter and phase that updated it, from rest, the innovation gate off.
+
+use crokf_runtime::{Estimator, Model, RuntimeError};
+
+/// What one run of a model's filter over a recording gives the identification.
+#[derive(Clone, Debug, Default)]
+pub struct FilterRun {
+    /// Per step: y − ŷ⁻ per measurement channel (model order), m; NaN for a channel the step's
+    /// phase does not measure or the recording does not have.
+    pub innovations: Vec<Vec<f64>>,
+    /// Per step: (the schedule's filter that updated it, its phase); filter 0 on the warped tier.
+    pub filters: Vec<(usize, usize)>,
+}
+
+impl FilterRun {
+    /// Changes of the schedule's filter between consecutive steps.
+    pub fn switches(&self) -> usize {
+        self.filters.windows(2).filter(|w| w[0].0 != w[1].0).count()
+    }
+}
+
+/// Runs `model`'s filter from rest over `inputs` (one row per step, model input order) and
+/// `measurements` (one row per step, model measurement order; `None`: missing), the innovation
+/// gate off, and records what [`FilterRun`] holds. Both have one row per step, as many rows.
+pub fn filter_run(
+    model: &Model,
+    inputs: &[Vec<f64>],
+    measurements: &[Vec<Option<f64>>],
+) -> Result<FilterRun, RuntimeError> {
+    let mut est = Estimator::new(model)?;
+    est.set_innovation_gate(None);
+    let m = model.measurements.len();
+    let mut predicted = vec![0.0; m];
+    let mut run = FilterRun {
+        innovations: Vec::with_capacity(inputs.len()),
+        filters: Vec::with_capacity(inputs.len()),
+    };
+    for (u, y) in inputs.iter().zip(measurements) {
+        est.predict(u)?;
+        est.measurement_estimates(&mut predicted)?;
+        let mut nu = vec![f64::NAN; m];
+        for &j in est.active_measurements() {
+            let j = j as usize;
+            if let Some(value) = y.get(j).copied().flatten() {
+                nu[j] = value - predicted[j];
+            }
+        }
+        let phase = est.phase();
+        est.update(y)?;
+        run.innovations.push(nu);
+        run.filters.push((est.tier_filter().unwrap_or(0), phase));
+    }
+    Ok(run)
+}
