@@ -54,3 +54,53 @@ pub fn filter_run(
     }
     Ok(run)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crokf_formats::synthetic::{benchmark_model, SplitMix64};
+
+    /// The run's innovations are y − ŷ⁻ of an estimator stepped the same way, NaN exactly where
+    /// the recording has no value, and every step's filter and phase is recorded.
+    #[test]
+    fn innovations_and_filters_of_a_recording() {
+        let model = benchmark_model(8, 3, 6, 10);
+        let (n_in, m) = (model.inputs.len(), model.measurements.len());
+        let mut rng = SplitMix64(5);
+        let inputs: Vec<Vec<f64>> = (0..40)
+            .map(|_| (0..n_in).map(|_| rng.uniform()).collect())
+            .collect();
+        let measurements: Vec<Vec<Option<f64>>> = (0..40)
+            .map(|k| {
+                (0..m)
+                    .map(|j| ((k + j) % 5 != 0).then(|| 1e-3 * rng.uniform()))
+                    .collect()
+            })
+            .collect();
+        let run = filter_run(&model, &inputs, &measurements).unwrap();
+        assert_eq!(run.innovations.len(), 40);
+        assert_eq!(run.filters.len(), 40);
+        let mut est = Estimator::new(&model).unwrap();
+        est.set_innovation_gate(None);
+        let mut predicted = vec![0.0; m];
+        for (k, (u, y)) in inputs.iter().zip(&measurements).enumerate() {
+            est.predict(u).unwrap();
+            est.measurement_estimates(&mut predicted).unwrap();
+            let active: Vec<usize> = est
+                .active_measurements()
+                .iter()
+                .map(|&j| j as usize)
+                .collect();
+            for j in 0..m {
+                let nu = run.innovations[k][j];
+                match y[j] {
+                    Some(v) if active.contains(&j) => assert_eq!(nu, v - predicted[j]),
+                    _ => assert!(nu.is_nan(), "step {k} channel {j}: {nu}"),
+                }
+            }
+            assert_eq!(run.filters[k], (0, est.phase()));
+            est.update(y).unwrap();
+        }
+        assert_eq!(run.switches(), 0);
+    }
+}
