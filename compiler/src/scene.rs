@@ -634,8 +634,11 @@ pub struct CorotationalSpec {
     pub ecsw_max_elements: usize,
 }
 
+/// Most ECSW-sampled elements unless a scene says otherwise (also `EcswOptions::default`'s).
+pub const DEFAULT_ECSW_MAX_ELEMENTS: usize = 200;
+
 fn default_ecsw_max_elements() -> usize {
-    200
+    DEFAULT_ECSW_MAX_ELEMENTS
 }
 
 fn default_combinations() -> bool {

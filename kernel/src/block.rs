@@ -525,39 +525,12 @@ mod tests {
     }
 
     /// The polar iteration as it was before the lane version (session 5, verbatim but for
-    /// the names): the lane version must reproduce it bit for bit.
+    /// the names; det and X⁻ᵀ are the crate's scalar test helpers, not the lane code): the lane
+    /// version must reproduce it bit for bit.
     fn reference_polar(f: &Mat3) -> Result<Mat3, PolarError> {
-        fn det(m: &Mat3) -> f64 {
-            m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-                - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-                + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-        }
+        use crate::{det, inverse_transpose};
         fn norm(m: &Mat3) -> f64 {
             m.iter().flatten().map(|v| v * v).sum::<f64>().sqrt()
-        }
-        fn inverse_transpose(m: &Mat3) -> Option<Mat3> {
-            let d = det(m);
-            if d == 0.0 || !d.is_finite() {
-                return None;
-            }
-            let inv = 1.0 / d;
-            Some([
-                [
-                    (m[1][1] * m[2][2] - m[1][2] * m[2][1]) * inv,
-                    (m[1][2] * m[2][0] - m[1][0] * m[2][2]) * inv,
-                    (m[1][0] * m[2][1] - m[1][1] * m[2][0]) * inv,
-                ],
-                [
-                    (m[0][2] * m[2][1] - m[0][1] * m[2][2]) * inv,
-                    (m[0][0] * m[2][2] - m[0][2] * m[2][0]) * inv,
-                    (m[0][1] * m[2][0] - m[0][0] * m[2][1]) * inv,
-                ],
-                [
-                    (m[0][1] * m[1][2] - m[0][2] * m[1][1]) * inv,
-                    (m[0][2] * m[1][0] - m[0][0] * m[1][2]) * inv,
-                    (m[0][0] * m[1][1] - m[0][1] * m[1][0]) * inv,
-                ],
-            ])
         }
         let n = norm(f);
         let d = det(f);

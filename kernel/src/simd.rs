@@ -316,6 +316,12 @@ mod avx2 {
         (_mm256_movemask_pd(lo) | (_mm256_movemask_pd(hi) << 4)) as u8
     }
 
+    /// The 8-bit mask of comparison `P` (`_CMP_*`) of two 8-lane values.
+    #[inline(always)]
+    unsafe fn compare<const P: i32>(a: (__m256d, __m256d), b: (__m256d, __m256d)) -> u8 {
+        bits(_mm256_cmp_pd::<P>(a.0, b.0), _mm256_cmp_pd::<P>(a.1, b.1))
+    }
+
     /// All-ones lanes where bit l of `mask` (of 4) is set.
     #[inline(always)]
     unsafe fn lanes(mask: u8) -> __m256d {
@@ -380,42 +386,26 @@ mod avx2 {
         }
         #[inline(always)]
         fn le(self, o: Self) -> u8 {
-            unsafe {
-                bits(
-                    _mm256_cmp_pd::<_CMP_LE_OQ>(self.0, o.0),
-                    _mm256_cmp_pd::<_CMP_LE_OQ>(self.1, o.1),
-                )
-            }
+            unsafe { compare::<_CMP_LE_OQ>((self.0, self.1), (o.0, o.1)) }
         }
         #[inline(always)]
         fn gt(self, o: Self) -> u8 {
-            unsafe {
-                bits(
-                    _mm256_cmp_pd::<_CMP_GT_OQ>(self.0, o.0),
-                    _mm256_cmp_pd::<_CMP_GT_OQ>(self.1, o.1),
-                )
-            }
+            unsafe { compare::<_CMP_GT_OQ>((self.0, self.1), (o.0, o.1)) }
         }
         #[inline(always)]
         fn finite(self) -> u8 {
             // v − v is 0 exactly when v is finite (NaN for ±∞ and NaN).
             unsafe {
                 let z = _mm256_setzero_pd();
-                bits(
-                    _mm256_cmp_pd::<_CMP_EQ_OQ>(_mm256_sub_pd(self.0, self.0), z),
-                    _mm256_cmp_pd::<_CMP_EQ_OQ>(_mm256_sub_pd(self.1, self.1), z),
-                )
+                let d = (_mm256_sub_pd(self.0, self.0), _mm256_sub_pd(self.1, self.1));
+                compare::<_CMP_EQ_OQ>(d, (z, z))
             }
         }
         #[inline(always)]
         fn finite_nonzero(self) -> u8 {
             unsafe {
                 let z = _mm256_setzero_pd();
-                self.finite()
-                    & bits(
-                        _mm256_cmp_pd::<_CMP_NEQ_OQ>(self.0, z),
-                        _mm256_cmp_pd::<_CMP_NEQ_OQ>(self.1, z),
-                    )
+                self.finite() & compare::<_CMP_NEQ_OQ>((self.0, self.1), (z, z))
             }
         }
     }

@@ -17,6 +17,7 @@ use crokf_compile::{compile, CompileOptions, FullOrder};
 use crokf_formats::synthetic::SplitMix64;
 use crokf_runtime::tier::{Gate, TierModel, TierState};
 use crokf_runtime::{Estimator, RuntimeError, TierError, DEFAULT_GATE_SIGMAS};
+use crokf_verify::nonlinear::identify::filter_run;
 use nalgebra::DVector;
 
 #[path = "../../runtime/tests/support/counting_alloc.rs"]
@@ -131,19 +132,7 @@ fn runtime_step_equals_the_compilers_reduced_stepper() {
     let (_, model) = compiled();
     // The compiler's reduced model from the same training (deterministic).
     let full = FullOrder::build(scene(), &mut StageTimer::default()).unwrap();
-    let spec = full.scene.scene.reduction.corotational.clone().unwrap();
-    let plan = TrainingPlan::from_scene(&spec, &["tip".to_string()]);
-    let built = tier::build(
-        &full,
-        &plan,
-        spec.order,
-        &EcswOptions {
-            tolerance: spec.ecsw_tolerance,
-            ..EcswOptions::default()
-        },
-        &mut |_, _, _| {},
-    )
-    .unwrap();
+    let (_, built) = built_tier(&full);
     let r = built.model.order();
     let mut stepper = tight_stepper(&built.model);
     let v = &built.basis.vectors;
@@ -545,13 +534,6 @@ fn a_v4_model_file_is_refused_with_recompile() {
     );
 }
 
-/// Matrix of a model file as nalgebra.
-fn file_matrix(m: &crokf_formats::Matrix) -> nalgebra::DMatrix<f64> {
-    nalgebra::DMatrix::from_fn(m.rows as usize, m.cols as usize, |i, j| {
-        m.data[i * m.cols as usize + j]
-    })
-}
-
 /// The gain schedule (docs/design.md §11.5) of the force-state tier: its operating points are
 /// training states picked farthest-first (the first is the training state of largest ‖q‖,
 /// which the envelope records independently), each stored filter solves the Riccati equation
@@ -589,7 +571,7 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
     let prepared = TierModel::new(model, t);
     assert_eq!(prepared.filter_count(), 1 + t.scheduled.len());
     assert_eq!(prepared.nearest_filter(&vec![0.0; r]), 0);
-    let q_noise = file_matrix(&t.kalman.process_noise);
+    let q_noise = tier::file_matrix(&t.kalman.process_noise);
     let mut rest_radius_at_points = Vec::new();
     for (i, s) in t.scheduled.iter().enumerate() {
         assert_eq!(prepared.nearest_filter(&s.point), i + 1);
@@ -597,8 +579,8 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
         let (f, h) = lin.at(&reduced, &q).transition().unwrap();
         let phase = &s.kalman.phases[0];
         assert_eq!(s.kalman.period, 1);
-        let prior = file_matrix(&phase.prior_covariance);
-        let posterior = file_matrix(&phase.posterior_covariance);
+        let prior = tier::file_matrix(&phase.prior_covariance);
+        let posterior = tier::file_matrix(&phase.posterior_covariance);
         let riccati = &f * &posterior * f.transpose() + &q_noise;
         let residual = (&riccati - &prior).norm() / prior.norm();
         assert!(residual < 1e-6, "point {i}: Riccati residual {residual:e}");
@@ -611,9 +593,9 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
                 .map(|z| z.norm())
                 .fold(0.0, f64::max)
         };
-        let own = radius(&file_matrix(&phase.gain));
+        let own = radius(&tier::file_matrix(&phase.gain));
         assert!(own < 1.0, "point {i}: closed-loop spectral radius {own}");
-        rest_radius_at_points.push((own, radius(&file_matrix(&t.kalman.phases[0].gain))));
+        rest_radius_at_points.push((own, radius(&tier::file_matrix(&t.kalman.phases[0].gain))));
     }
     eprintln!(
         "schedule: {} points, ‖q*‖ = {norms:.3?}; closed-loop spectral radius at each point \
@@ -623,11 +605,12 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
     let mut again = model.clone();
     tier::refilter(&full, &mut again).unwrap();
     let again = again.tier.unwrap();
+    assert_eq!(again.scheduled.len(), t.scheduled.len());
     for (a, b) in again.scheduled.iter().zip(&t.scheduled) {
         assert_eq!(a.point, b.point);
         let (ga, gb) = (
-            file_matrix(&a.kalman.phases[0].gain),
-            file_matrix(&b.kalman.phases[0].gain),
+            tier::file_matrix(&a.kalman.phases[0].gain),
+            tier::file_matrix(&b.kalman.phases[0].gain),
         );
         assert!((&ga - &gb).norm() <= 1e-9 * gb.norm());
     }
@@ -756,7 +739,7 @@ fn force_rate_states_follow_a_withheld_ramp() {
 /// the displacement of the scheduled operating point farthest from rest (c = 1, 10, 50) move the
 /// state away from rest; in every case the committed state is s⁻ + K_i ν with ν the innovation
 /// and K_i the stored gain of the filter i that the runtime reports, i is the filter nearest
-/// to that state (the fixed point the iteration looks for), and for the larger c it is not the
+/// to that state (the fixed point the iteration looks for), and for c = 10 and 50 it is not the
 /// rest filter that the prior would pick.
 #[test]
 fn the_update_uses_the_gain_of_the_filter_nearest_to_its_result() {
@@ -789,6 +772,9 @@ fn the_update_uses_the_gain_of_the_filter_nearest_to_its_result() {
         let used = est.tier_filter().unwrap();
         let posterior = est.state().to_vec();
         assert_eq!(used, prepared.nearest_filter(&posterior[..r]), "c = {c}");
+        if c >= 10.0 {
+            assert_ne!(used, 0, "c = {c}: the update should leave the rest filter");
+        }
         let kalman = if used == 0 {
             &t.kalman
         } else {
@@ -803,7 +789,7 @@ fn the_update_uses_the_gain_of_the_filter_nearest_to_its_result() {
                 .iter()
                 .map(|&j| y[j as usize] - predicted[j as usize]),
         );
-        let expected = DVector::from_column_slice(&prior) + file_matrix(&phase.gain) * nu;
+        let expected = DVector::from_column_slice(&prior) + tier::file_matrix(&phase.gain) * nu;
         let error = (&expected - DVector::from_column_slice(&posterior)).norm() / expected.norm();
         eprintln!(
             "iterated update, markers × {c}: filter {used} of {}, relative difference {error:.1e}",
@@ -909,7 +895,7 @@ fn inverted_sampled_elements_are_refused_and_leave_the_estimator_unchanged() {
         }
     }
     let (load, mut est, before, index, error, u) =
-        refusal.expect("no axial load up to 1e5 N made the tier refuse a step");
+        refusal.expect("no axial load up to 5e5 N made the tier refuse a step");
     eprintln!("axial tip load {load} N: {error}");
     assert!(
         matches!(error, RuntimeError::Tier(TierError::InvertedElement { det, .. }) if det <= 0.0),
@@ -1162,42 +1148,33 @@ fn identify_noise_recovers_the_random_walk_of_a_known_truth() {
     let sigma_true = 10.0 * FORCE_SIGMA;
     let mut rng = SplitMix64(11);
     let mut normal = move || rng.normal();
+    // The truth and its markers first (the truth does not depend on the filter).
     let mut truth = Estimator::new(model).unwrap();
-    let mut est = Estimator::new(model).unwrap();
-    est.set_innovation_gate(None);
-    let zero = vec![0.0; model.inputs.len()];
     let mut u = vec![0.0; model.inputs.len()];
-    let (mut y, mut predicted) = (vec![0.0; variance.len()], vec![0.0; variance.len()]);
-    let (mut innovations, mut filters) = (Vec::new(), Vec::new());
+    let mut y = vec![0.0; variance.len()];
+    let mut recording: Vec<Vec<Option<f64>>> = Vec::with_capacity(1500);
     let mut peak = 0.0f64;
     for _ in 0..1500 {
         truth.predict(&u).unwrap();
         truth.measurement_estimates(&mut y).unwrap();
-        let measured: Vec<Option<f64>> = y
-            .iter()
-            .zip(&variance)
-            .map(|(v, s2): (&f64, &f64)| Some(v + s2.sqrt() * normal()))
-            .collect();
-        est.predict(&zero).unwrap();
-        est.measurement_estimates(&mut predicted).unwrap();
-        innovations.push(
-            measured
-                .iter()
-                .zip(&predicted)
-                .map(|(m, p)| m.unwrap() - p)
-                .collect::<Vec<f64>>(),
+        recording.push(
+            y.iter()
+                .zip(&variance)
+                .map(|(v, s2): (&f64, &f64)| Some(v + s2.sqrt() * normal()))
+                .collect(),
         );
-        let phase = est.phase();
-        est.update(&measured).unwrap();
-        filters.push((est.tier_filter().unwrap(), phase));
         for &c in &channels {
             u[c] += sigma_true * normal();
         }
         peak = peak.max(channels.iter().map(|&c| u[c] * u[c]).sum::<f64>().sqrt());
     }
-    let found = tier::identify_noise(&full, model, &innovations, &filters, 100, 20).unwrap();
+    // The filter over it with the load withheld.
+    let inputs = vec![vec![0.0; model.inputs.len()]; recording.len()];
+    let run = filter_run(model, &inputs, &recording).unwrap();
+    let (innovations, filters) = (&run.innovations, &run.filters);
+    let found = tier::identify_noise(&full, model, innovations, filters, 100, 20).unwrap();
     let load = &found.loads[0];
-    let switches = filters.windows(2).filter(|w| w[0].0 != w[1].0).count();
+    let switches = run.switches();
     let used: std::collections::BTreeSet<usize> = filters.iter().map(|f| f.0).collect();
     eprintln!(
         "identified σ_f = {:.4} N (truth {sigma_true}, filter {}), markers' factor {:.4}, \

@@ -323,7 +323,11 @@ fn the_self_check_flags_the_default_twist_tier() {
     for r in check.flagged() {
         eprintln!("  {:<50} {:.3e}", r.label, r.error);
     }
-    assert!(worst_torque > 0.05, "{worst_torque:e}");
+    assert!(worst_torque > check.threshold, "{worst_torque:e}");
+    assert!(
+        check.flagged().iter().any(|r| torque(&r.label)),
+        "the self-check should flag a torque-pair run"
+    );
     let warning = compiled
         .model
         .report

@@ -8,8 +8,9 @@
 //!
 //! The recording is either
 //! - simulated, `SCENE SCENARIO MODEL`: the full-order co-rotational reference of SCENARIO,
-//!   markers = reference + Gaussian noise of the scene's σ (seed 7, each marker at its rate),
-//!   the loads withheld (every load channel 0; `--given`: given); or
+//!   markers = reference + Gaussian noise of the scene's σ (`--seed N`, default 7; every
+//!   marker at every step), the loads withheld (every load channel 0; `--given`: given);
+//!   `--write-recording FILE` also writes these markers as a `crokf-run` measurements file; or
 //! - a user's, `SCENE MODEL --recording MEASUREMENTS.csv [--inputs INPUTS.csv]`, in
 //!   `crokf-run`'s CSV formats (`run/src/table.rs`; without an inputs file every input is 0:
 //!   the loads are withheld).
@@ -27,7 +28,8 @@
 //!
 //! ```sh
 //! cargo run --release -p crokf-verify --example identify_noise -- SCENE SCENARIO MODEL \
-//!     [--given] [--no-schedule] [--fixed-point] [--force-sigma S] [--lags L] [--skip S]
+//!     [--given] [--seed N] [--write-recording FILE] [--no-schedule] [--fixed-point] \
+//!     [--force-sigma S] [--lags L] [--skip S]
 //! cargo run --release -p crokf-verify --example identify_noise -- SCENE MODEL \
 //!     --recording MEASUREMENTS.csv [--inputs INPUTS.csv] [--fixed-point] …
 //! ```
@@ -56,7 +58,8 @@ fn main() -> ExitCode {
 }
 
 const USAGE: &str =
-    "usage: identify_noise SCENE SCENARIO MODEL [--given] | SCENE MODEL --recording \
+    "usage: identify_noise SCENE SCENARIO MODEL [--given] [--seed N] [--write-recording FILE] | \
+     SCENE MODEL --recording \
      MEASUREMENTS.csv [--inputs INPUTS.csv]; and [--no-schedule] [--fixed-point] [--lags L] \
      [--skip S] [--force-sigma S]";
 
@@ -69,6 +72,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let (mut lags, mut skip) = (30usize, 50usize);
     let mut force_sigma: Option<f64> = None;
     let (mut recording, mut inputs_file): (Option<PathBuf>, Option<PathBuf>) = (None, None);
+    let (mut seed, mut write_recording): (u64, Option<PathBuf>) = (7, None);
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         if a == "--force-sigma" {
@@ -84,12 +88,13 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             force_sigma = Some(sigma);
             continue;
         }
-        if a == "--recording" || a == "--inputs" {
+        if a == "--recording" || a == "--inputs" || a == "--write-recording" {
             let v = args.next().ok_or(format!("{a} needs a file; {USAGE}"))?;
-            if a == "--recording" {
-                recording = Some(PathBuf::from(v));
-            } else {
-                inputs_file = Some(PathBuf::from(v));
+            let path = Some(PathBuf::from(v));
+            match a.as_str() {
+                "--recording" => recording = path,
+                "--inputs" => inputs_file = path,
+                _ => write_recording = path,
             }
             continue;
         }
@@ -106,6 +111,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             "--fixed-point" => fixed_point = true,
             "--lags" => lags = number("--lags")?,
             "--skip" => skip = number("--skip")?,
+            "--seed" => seed = number("--seed")? as u64,
             _ if a.starts_with("--") => return Err(format!("unknown flag {a}; {USAGE}").into()),
             _ => positional.push(a),
         }
@@ -117,6 +123,11 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     };
     if recording.is_none() && inputs_file.is_some() {
         return Err(format!("--inputs goes with --recording; {USAGE}").into());
+    }
+    if recording.is_some() && (write_recording.is_some() || seed != 7) {
+        return Err(
+            format!("--seed and --write-recording are for a simulated recording; {USAGE}").into(),
+        );
     }
     if recording.is_some() && given {
         return Err(format!(
@@ -141,10 +152,12 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     }
     let (inputs, measurements) = match (scenario, &recording) {
         (Some(scenario), _) => {
-            // The markers' noise of the scene (its filter's R), not the file's.
-            let mut scene_model = base.clone();
-            crokf_compile::nonlinear::tier::refilter(&full, &mut scene_model)?;
-            simulated(&full, &scene_model, &PathBuf::from(scenario), given)?
+            let simulated = simulated(&full, &base, &PathBuf::from(scenario), given, seed)?;
+            if let Some(path) = &write_recording {
+                write_measurements(path, &base, &simulated.1)?;
+                eprintln!("markers written to {}", path.display());
+            }
+            simulated
         }
         (None, Some(path)) => recorded(&base, path, inputs_file.as_deref())?,
         (None, None) => return Err(USAGE.into()),
@@ -286,13 +299,15 @@ impl Run<'_> {
 }
 
 /// Inputs and markers per step of the simulated recording: the full-order co-rotational
-/// reference of `scenario`, markers = reference + Gaussian noise of the model's σ (seed 7),
-/// every load channel 0 unless `given`.
+/// reference of `scenario`, markers = reference + Gaussian noise of the scene's σ (seed 7; the
+/// scene's measurement channels are the model's, `refilter` checks it), every load channel 0
+/// unless `given`.
 fn simulated(
     full: &FullOrder,
     model: &crokf_formats::Model,
     scenario: &std::path::Path,
     given: bool,
+    seed: u64,
 ) -> Result<Recording, Box<dyn std::error::Error>> {
     let scenario = Scenario::read(scenario)?;
     let steps = match scenario.horizon(full.wilson.dt) {
@@ -301,12 +316,8 @@ fn simulated(
     };
     let cache = std::env::var_os("CROKF_REFERENCE_CACHE").map(PathBuf::from);
     let reference = Reference::of(full, &scenario, steps, cache.as_deref())?;
-    let variance = model
-        .tier
-        .as_ref()
-        .map(|t| t.kalman.measurement_variance.clone())
-        .unwrap_or_default();
-    let mut rng = Gaussian::new(7);
+    let variance = crokf_compile::outputs::Measurements::new(&full.operators).variance;
+    let mut rng = Gaussian::new(seed);
     let measurements = reference
         .sensors
         .iter()
@@ -373,6 +384,28 @@ fn recorded(
         })
         .collect();
     Ok((rows, values))
+}
+
+/// Writes `measurements` (one row per step, steps 1, 2, …) as a `crokf-run` measurements file
+/// (`step`, then the model's measurement labels; an empty cell for a missing value), atomically.
+fn write_measurements(
+    path: &std::path::Path,
+    model: &crokf_formats::Model,
+    measurements: &[Vec<Option<f64>>],
+) -> Result<(), Box<dyn std::error::Error>> {
+    let mut text = format!("step,{}\n", model.measurement_labels().join(","));
+    for (k, row) in measurements.iter().enumerate() {
+        text.push_str(&(k + 1).to_string());
+        for v in row {
+            text.push(',');
+            if let Some(v) = v {
+                text.push_str(&format!("{v:e}"));
+            }
+        }
+        text.push('\n');
+    }
+    crokf_formats::output::write_atomically(path, text.as_bytes())?;
+    Ok(())
 }
 
 /// Inputs and measurements (`None`: missing) per step, model order.

@@ -13,8 +13,19 @@
 //!
 //! ```sh
 //! cargo run --release -p crokf-verify --example nonlinear_basis -- SCENE SCENARIO[,SCENARIO…] \
-//!     [--cache FILE] [--pooled R] [--tolerances 1e-1,1e-2] [--max-order N] [--end-to-end] [--exact] [--ecsw-max N] [--ecsw-snapshots N]
+//!     [--cache FILE] [--pooled R] [--tolerances 1e-1,1e-2] [--max-order N] [--end-to-end] [--exact] [--ecsw-max N] [--ecsw-snapshots N] \
+//!     [--energy | --energy-enrich]
 //! ```
+//!
+//! `--exact`: exact integration over every element instead of ECSW (implies `--end-to-end`).
+//! `--energy`: POD and per-run errors in the energy (K) inner product instead of M;
+//! `--energy-enrich`: the pooled POD in M, the enrichment measured in K (docs/corotational-tier.md
+//! §8). Measuring aids (environment): `COMPARE_REFERENCES=1` prints each scenario's reference
+//! against the first one's (the reference's own sensitivity); `DUMP_END=1` prints the end-face
+//! nodes of the first reference at steps 50, 80, 100, 150, 200; `CONSISTENT=1` the consistent
+//! tangent in the reduced Newton matrix; `NO_PREDICTOR=1` no Taylor predictor; `STATIC=1` a
+//! static check at each reference's last load (linear and co-rotational, full order against
+//! Galerkin on V); `TRACE=1` the sensor's reduced and full-order values every 10 steps.
 //!
 //! Candidates: `pod r` (the first r POD vectors of the pooled snapshots, today's basis,
 //! r = `--pooled`, default the scene's `order`), and for each ε of `--tolerances` the
@@ -361,14 +372,7 @@ fn run() -> Result<(), Failure> {
     let pooled_pod = |r: usize| basis::m_orthonormalise(inner, &all_modes, 1e-8, r);
     // The same span made M-orthonormal (the tier's convention).
     let to_mass = |b: Basis| {
-        let columns: Vec<(String, Vec<f64>)> = (0..b.len())
-            .map(|j| {
-                (
-                    b.labels[j].clone(),
-                    b.vectors.column(j).iter().copied().collect(),
-                )
-            })
-            .collect();
+        let columns: Vec<(String, Vec<f64>)> = b.columns();
         basis::m_orthonormalise(mass, &columns, 1e-10, columns.len())
     };
     let b = to_mass(pooled_pod(pooled));
@@ -377,14 +381,7 @@ fn run() -> Result<(), Failure> {
     for &eps in &tolerances {
         let started = std::time::Instant::now();
         let start = pooled_pod(pooled);
-        let start_columns: Vec<(String, Vec<f64>)> = (0..start.len())
-            .map(|j| {
-                (
-                    start.labels[j].clone(),
-                    start.vectors.column(j).iter().copied().collect(),
-                )
-            })
-            .collect();
+        let start_columns: Vec<(String, Vec<f64>)> = start.columns();
         let pr = basis::enrich_per_run(
             enrich_inner,
             &training.snapshots,

@@ -22,7 +22,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use crokf_compile::nonlinear::tier;
+use crokf_compile::nonlinear::tier::{self, file_matrix};
 use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
 use crokf_runtime::{load_model, Estimator};
@@ -37,12 +37,6 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
-}
-
-fn matrix(m: &crokf_formats::Matrix) -> DMatrix<f64> {
-    DMatrix::from_fn(m.rows as usize, m.cols as usize, |i, j| {
-        m.data[i * m.cols as usize + j]
-    })
 }
 
 fn faer_to(m: &faer::Mat<f64>) -> DMatrix<f64> {
@@ -108,9 +102,12 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
                 .position(|s| s.name == "near_probe")
                 .unwrap_or(0)
         });
-    let tip_rows = matrix(&t.sensor_rows[tip]);
+    let tip_rows = file_matrix(&t.sensor_rows[tip]);
     // Open-loop run: q at `points` states spread over the run (the last one included).
     let mut est = Estimator::new(&model)?;
+    if points == 0 || points > steps {
+        return Err(format!("{points} states asked of a {steps}-step run (1 … {steps})").into());
+    }
     let picks: Vec<usize> = (0..points)
         .map(|i| ((i + 1) * steps) / points - 1)
         .collect();
@@ -122,9 +119,9 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     let kal = &t.kalman;
-    let gains: Vec<DMatrix<f64>> = kal.phases.iter().map(|p| matrix(&p.gain)).collect();
-    let q_noise = matrix(&kal.process_noise);
-    let claimed = tip_sigma(&tip_rows, &matrix(&kal.phases[0].posterior_covariance));
+    let gains: Vec<DMatrix<f64>> = kal.phases.iter().map(|p| file_matrix(&p.gain)).collect();
+    let q_noise = file_matrix(&kal.process_noise);
+    let claimed = tip_sigma(&tip_rows, &file_matrix(&kal.phases[0].posterior_covariance));
     println!(
         "tip sensor: {}; force σ = {:?} N/step; claimed (rest DARE) tip posterior σ = {:.3?} mm\n",
         ops.sensors[tip].name, lin0.force_sigma, claimed
@@ -158,7 +155,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         }
         let rho = spectral_radius(&phi);
         // Actual covariance: start from the claimed prior of phase 0, iterate periods.
-        let mut x = matrix(&kal.phases[0].prior_covariance);
+        let mut x = file_matrix(&kal.phases[0].prior_covariance);
         let mut posterior0 = x.clone();
         let mut converged = false;
         for _ in 0..4000 {

@@ -39,13 +39,13 @@
 use faer::prelude::Solve;
 use faer::{Mat, MatRef};
 
+#[cfg(test)]
+use super::sda::stein;
+use super::sda::symmetrise;
 use super::KalmanError;
 
 /// Largest number of parameters (every subset is tried: 2ᵖ small solves).
 pub const MAX_PARAMETERS: usize = 10;
-
-/// Doubling steps of the Lyapunov solve at most (the horizon doubles with each).
-const LYAPUNOV_MAX_DOUBLINGS: usize = 60;
 
 /// One noise parameter θ_i: its share of Q (n × n, PSD) and of R (diagonal, m entries) at
 /// θ_i = 1.
@@ -72,8 +72,9 @@ pub struct AlsEstimate {
     pub samples: usize,
 }
 
-/// The sample autocovariances Ĉ_0 … Ĉ_{L−1} (m × m each) of `innovations` (N vectors of m,
+/// The sample autocovariances (the stationary reference, tests only) Ĉ_0 … Ĉ_{L−1} (m × m each) of `innovations` (N vectors of m,
 /// checked by [`check_innovations`]).
+#[cfg(test)]
 fn sample_autocovariances(innovations: &[Vec<f64>], lags: usize) -> Vec<Mat<f64>> {
     let n = innovations.len();
     let m = innovations.first().map_or(0, Vec::len);
@@ -99,29 +100,6 @@ fn sample_autocovariances(innovations: &[Vec<f64>], lags: usize) -> Vec<Mat<f64>
             c
         })
         .collect()
-}
-
-/// The stationary solution of P = Ā P Āᵀ + X by doubling (P = Σ_k Āᵏ X Āᵀᵏ), for ρ(Ā) < 1.
-fn lyapunov(a_bar: MatRef<f64>, x: MatRef<f64>) -> Result<Mat<f64>, KalmanError> {
-    let mut p = x.to_owned();
-    let mut a = a_bar.to_owned();
-    for _ in 0..LYAPUNOV_MAX_DOUBLINGS {
-        let increment = &a * &p * a.transpose();
-        p += &increment;
-        let norm_a = a.norm_l2();
-        if !norm_a.is_finite() {
-            break;
-        }
-        if increment.norm_l2() <= 1e-16 * p.norm_l2() || norm_a < 1e-150 {
-            return Ok(p);
-        }
-        a = &a * &a;
-    }
-    Err(KalmanError::Identification(
-        "the filter's error propagator F (I − K H) is not stable (Lyapunov doubling did not \
-         converge)"
-            .into(),
-    ))
 }
 
 /// Checks the parameters' sizes (n states, m channels) and count.
@@ -232,9 +210,12 @@ fn fit(
     })
 }
 
-/// Identified noise parameters θ ≥ 0 (module docs) of the filter with gain `gain` (n × m,
+/// The stationary form, kept as the tests' reference for the scheduled one (a schedule that
+/// never switches must give its θ): identified noise parameters θ ≥ 0 (module docs) of the
+/// filter with gain `gain` (n × m,
 /// posterior form) on (F, H) (n × n, m × n) from its innovations (N vectors of m, every channel
 /// measured at every step, the start-up transient already dropped), over lags 0 … `lags`−1.
+#[cfg(test)]
 pub fn autocovariance_least_squares(
     f: MatRef<f64>,
     h: MatRef<f64>,
@@ -302,6 +283,7 @@ fn error_propagator(f: MatRef<f64>, h: MatRef<f64>, gain: MatRef<f64>) -> Mat<f6
 
 /// The stationary prior error covariance of parameter `p` at θ = 1: P = Ā P Āᵀ + Q_p +
 /// (F K) R_p (F K)ᵀ.
+#[cfg(test)]
 fn stationary_covariance(
     a_bar: MatRef<f64>,
     fk: MatRef<f64>,
@@ -309,12 +291,13 @@ fn stationary_covariance(
 ) -> Result<Mat<f64>, KalmanError> {
     let mut x = p.process.clone();
     x += fk * diagonal(&p.measurement) * fk.transpose();
-    lyapunov(a_bar, symmetric(&x).as_ref())
-}
-
-/// (X + Xᵀ) / 2.
-fn symmetric(x: &Mat<f64>) -> Mat<f64> {
-    Mat::from_fn(x.nrows(), x.ncols(), |a, b| 0.5 * (x[(a, b)] + x[(b, a)]))
+    stein(&a_bar.to_owned(), &symmetrise(&x)).ok_or_else(|| {
+        KalmanError::Identification(
+            "the filter's error propagator F (I − K H) is not stable (the Stein doubling did \
+             not converge)"
+                .into(),
+        )
+    })
 }
 
 /// A gain schedule as [`scheduled_autocovariance_least_squares`] sees it: the linearised
@@ -449,7 +432,7 @@ pub fn scheduled_autocovariance_least_squares(
                 let mut next = a_bar * &cov * a_bar.transpose();
                 next += &p.process;
                 next += fk * &r_i * fk.transpose();
-                cov = symmetric(&next);
+                cov = symmetrise(&next);
             }
             mean(&mut sum);
             Ok(stacked(&sum))

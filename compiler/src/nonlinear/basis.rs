@@ -37,6 +37,19 @@ impl Basis {
         self.vectors.ncols() == 0
     }
 
+    /// (label, column) of every vector, in order: the input of an orthonormalisation in another
+    /// inner product or of an enrichment.
+    pub fn columns(&self) -> Vec<(String, Vec<f64>)> {
+        (0..self.len())
+            .map(|j| {
+                (
+                    self.labels[j].clone(),
+                    self.vectors.column(j).iter().copied().collect(),
+                )
+            })
+            .collect()
+    }
+
     /// Coefficients q = VᵀMu (r) of the M-orthogonal projection of u (n, m).
     pub fn project(&self, u: &[f64]) -> DVector<f64> {
         self.mass_vectors.tr_mul(&DVector::from_column_slice(u))
@@ -343,14 +356,7 @@ pub fn enrich_per_run(
     };
     let mut run_errors = errors(&coefficients);
     let mut enriched_from = Vec::new();
-    let mut columns: Vec<(String, Vec<f64>)> = (0..basis.len())
-        .map(|j| {
-            (
-                basis.labels[j].clone(),
-                basis.vectors.column(j).iter().copied().collect(),
-            )
-        })
-        .collect();
+    let mut columns: Vec<(String, Vec<f64>)> = basis.columns();
     while basis.len() < max_columns {
         let Some((worst, &e)) = run_errors
             .iter()

@@ -134,7 +134,7 @@ impl Default for EcswOptions {
     fn default() -> Self {
         EcswOptions {
             tolerance: 1e-2,
-            max_elements: 200,
+            max_elements: crate::scene::DEFAULT_ECSW_MAX_ELEMENTS,
             max_snapshots: 80,
         }
     }

@@ -197,9 +197,12 @@ impl ReducedModel {
                 cols: &el.flat_t,
             };
             let g = crokf_kernel::gather(&e, q, velocity);
+            // Where the kernel refuses (inverted or degenerate), the SVD rule directly
+            // (`stepping::polar_rotation` would run the same kernel iteration first).
             let rot = crokf_kernel::polar_rotation(&g.f).unwrap_or_else(|_| {
-                let m =
-                    crate::stepping::polar_rotation(&nalgebra::Matrix3::from_fn(|i, j| g.f[i][j]));
+                let m = crate::stepping::polar_rotation_svd(&nalgebra::Matrix3::from_fn(|i, j| {
+                    g.f[i][j]
+                }));
                 std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)]))
             });
             crokf_kernel::scatter(&e, &g, &rot, beta, out);
@@ -292,32 +295,6 @@ impl ReducedModel {
         }
         Ok(q)
     }
-}
-
-/// The rotation of the polar decomposition F = R S by Higham's scaled Newton iteration
-/// X ← ½(γX + (γX)⁻ᵀ), γ = (‖X⁻¹‖_F/‖X‖_F)^½, to ‖ΔX‖_F ≤ 1e-14 (quadratic convergence:
-/// 3–7 iterations for elements near a rotation); where det F ≤ 1e-12·‖F‖³ (inverted or
-/// degenerate elements) or the iteration does not converge in 30 steps, the SVD-based
-/// [`polar_rotation`](crate::stepping::polar_rotation) of the full-order reference.
-pub fn fast_polar(f: &nalgebra::Matrix3<f64>) -> nalgebra::Matrix3<f64> {
-    let norm = f.norm();
-    if f.determinant() <= 1e-12 * norm * norm * norm {
-        return crate::stepping::polar_rotation(f);
-    }
-    let mut x = *f;
-    for _ in 0..30 {
-        let Some(inv) = x.try_inverse() else {
-            break;
-        };
-        let gamma = (inv.norm() / x.norm()).sqrt();
-        let next = (x * gamma + inv.transpose() / gamma) * 0.5;
-        let change = (next - x).norm();
-        x = next;
-        if change <= 1e-14 {
-            return x;
-        }
-    }
-    crate::stepping::polar_rotation(f)
 }
 
 /// xₑ = Xₑ + uₑ (uₑ: 12, node-major).

@@ -22,7 +22,6 @@
 //! thread count.
 
 use nalgebra::DVector;
-use serde::Serialize;
 
 use crate::full_order::FullOrder;
 
@@ -49,7 +48,7 @@ pub fn runtime_newton(tolerance: f64, iterations: usize) -> ReducedNewton {
 }
 
 /// The self-check of one training run.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct RunCheck {
     /// The training run's label.
     pub label: String,
@@ -79,7 +78,7 @@ impl RunCheck {
 }
 
 /// The self-check of a tier: one [`RunCheck`] per training run, in run order.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct SelfCheck {
     /// Per training run.
     pub runs: Vec<RunCheck>,
@@ -314,34 +313,7 @@ pub fn self_check(
         }
         out
     };
-    let mut results: Vec<Option<RunCheck>> = vec![None; runs.len()];
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let threads = plan.threads.clamp(1, runs.len().max(1));
-    std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..threads)
-            .map(|_| {
-                let (next, check_run, count) = (&next, &check_run, runs.len());
-                scope.spawn(move || {
-                    let mut done = Vec::new();
-                    loop {
-                        let k = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                        if k >= count {
-                            break done;
-                        }
-                        done.push((k, check_run(k)));
-                    }
-                })
-            })
-            .collect();
-        for h in handles {
-            // A panicking worker leaves its runs as None (reported below).
-            if let Ok(done) = h.join() {
-                for (k, c) in done {
-                    results[k] = Some(c);
-                }
-            }
-        }
-    });
+    let results = super::training::run_indexed(runs.len(), plan.threads, check_run, |_| {});
     let runs = results
         .into_iter()
         .zip(&runs)

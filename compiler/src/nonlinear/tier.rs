@@ -35,7 +35,9 @@ pub struct Tier {
     pub model: ReducedModel,
     /// Training runs and envelope (snapshots kept).
     pub training: Training,
-    /// Largest ‖q‖ = ‖VᵀM u‖ over the training snapshots.
+    /// The training snapshots' reduced coordinates q = VᵀM u (r each, in the snapshots' order).
+    pub projected: Vec<DVector<f64>>,
+    /// Largest ‖q‖ over `projected`.
     pub max_coordinate_norm: f64,
     /// Wall time of the POD and of the ECSW, s.
     pub seconds: [f64; 2],
@@ -116,24 +118,10 @@ pub fn from_training_with(
             tolerance,
             choice.max_order.max(order),
         );
-        let columns: Vec<(String, Vec<f64>)> = (0..enriched.basis.len())
-            .map(|j| {
-                (
-                    enriched.basis.labels[j].clone(),
-                    enriched.basis.vectors.column(j).iter().copied().collect(),
-                )
-            })
-            .collect();
+        let columns: Vec<(String, Vec<f64>)> = enriched.basis.columns();
         // The pooled columns first, unchanged (same M-orthonormal vectors as without the
         // tolerance), then the enrichment M-orthogonalised against them.
-        let mut all: Vec<(String, Vec<f64>)> = (0..basis.len())
-            .map(|j| {
-                (
-                    basis.labels[j].clone(),
-                    basis.vectors.column(j).iter().copied().collect(),
-                )
-            })
-            .collect();
+        let mut all: Vec<(String, Vec<f64>)> = basis.columns();
         all.extend(columns.into_iter().skip(enriched.pooled));
         enrichment = Some((enriched.enriched_from.len(), enriched.worst()));
         basis = basis::m_orthonormalise(&full.fem.mass, &all, 1e-10, all.len());
@@ -149,17 +137,19 @@ pub fn from_training_with(
     )?;
     let t_ecsw = clock.elapsed().as_secs_f64();
     let model = ReducedModel::new(&full.fem, &basis.vectors, &sampling.weights, full.wilson)?;
-    let max_coordinate_norm = training
+    let projected: Vec<DVector<f64>> = training
         .snapshots
         .iter()
-        .map(|u| basis.project(u).norm())
-        .fold(0.0, f64::max);
+        .map(|u| basis.project(u))
+        .collect();
+    let max_coordinate_norm = projected.iter().map(|q| q.norm()).fold(0.0, f64::max);
     Ok(Tier {
         basis,
         pod_values,
         sampling,
         model,
         training,
+        projected,
         max_coordinate_norm,
         seconds: [t_pod, t_ecsw],
         enrichment,
@@ -339,14 +329,8 @@ pub fn linearised_filter(
     let mut filter = filter_of(&lin, measurements)?;
     filter.force_loads = full.random_walk_loads().iter().map(|&(g, _)| g).collect();
     filter.static_residual = residual;
-    let projected: Vec<DVector<f64>> = tier
-        .training
-        .snapshots
-        .iter()
-        .map(|u| tier.basis.project(u))
-        .collect();
-    filter.marker_model_error = marker_model_error(full, tier, &projected, measurements);
-    let points = schedule_points(&projected, SCHEDULE_POINTS);
+    filter.marker_model_error = marker_model_error(full, tier, &lin.measured_rows, measurements);
+    let points = schedule_points(&tier.projected, SCHEDULE_POINTS);
     filter.scheduled = scheduled_filters(&lin, model, &points, measurements);
     Ok(filter)
 }
@@ -354,41 +338,45 @@ pub fn linearised_filter(
 /// The model error of the tier at the markers that its basis alone makes (docs/design.md
 /// §11.5, a check of the noise model against the training runs): per measurement channel j,
 /// sqrt(mean over the training snapshots u of (h_j (u − V q))²) / σ_j, q = VᵀM u the snapshot's
-/// projection (`projected`), h_j the channel's row of the sensor interpolation, σ_j its noise.
+/// projection (`tier.projected`), h_j the channel's row of the sensor interpolation (h_j V the
+/// row j of `measured_rows`), σ_j its noise.
 /// Small against 1: the markers' noise, not the basis, dominates their error budget.
 pub fn marker_model_error(
     full: &FullOrder,
     tier: &Tier,
-    projected: &[DVector<f64>],
+    measured_rows: &DMatrix<f64>,
     measurements: &Measurements,
 ) -> Vec<f64> {
-    let ops = &full.operators;
-    let v = &tier.basis.vectors;
     let count = tier.training.snapshots.len().max(1) as f64;
     measurements
         .channels
         .iter()
         .zip(&measurements.variance)
-        .map(|(&(s, c), &variance)| {
-            let rows = point_rows(full, v, &ops.sensors[s].weights);
-            let row = rows.row(c);
+        .enumerate()
+        .map(|(j, (&channel, &variance))| {
+            let row = measured_rows.row(j);
             let sum: f64 = tier
                 .training
                 .snapshots
                 .iter()
-                .zip(projected)
+                .zip(&tier.projected)
                 .map(|(u, q)| {
-                    let exact: f64 = ops.sensors[s]
-                        .weights
-                        .iter()
-                        .filter_map(|&(node, w)| full.fem.dofs.index[node][c].map(|d| w * u[d]))
-                        .sum();
-                    (exact - row.dot(&q.transpose())).powi(2)
+                    (measured_value(full, channel, |d| u[d]) - row.dot(&q.transpose())).powi(2)
                 })
                 .sum();
             (sum / count / variance).sqrt()
         })
         .collect()
+}
+
+/// The full-order value of measurement channel (sensor, component) `channel` for the
+/// displacement `u` (by DOF index): the sensor's barycentric interpolation.
+fn measured_value(full: &FullOrder, (s, c): (usize, usize), u: impl Fn(usize) -> f64) -> f64 {
+    full.operators.sensors[s]
+        .weights
+        .iter()
+        .filter_map(|&(node, w)| full.fem.dofs.index[node][c].map(|d| w * u(d)))
+        .sum()
 }
 
 /// Operating points of the tier's gain schedule besides rest (docs/design.md §11.5).
@@ -702,7 +690,7 @@ pub fn linearised_of_file(
 }
 
 /// A model file's matrix as a DMatrix.
-fn file_matrix(m: &fmt::Matrix) -> DMatrix<f64> {
+pub fn file_matrix(m: &fmt::Matrix) -> DMatrix<f64> {
     DMatrix::from_fn(m.rows as usize, m.cols as usize, |i, j| {
         m.data[i * m.cols as usize + j]
     })
@@ -1124,18 +1112,13 @@ fn static_residual(
             "tier filter: the reduced tangent at rest is not positive definite".into(),
         )
     })?;
-    let ops = &full.operators;
     let mut worst: f64 = 0.0;
     for (j, &ch) in channels.iter().enumerate() {
         let load = v.tr_mul(&DVector::from_column_slice(&inputs[ch].column));
         let reduced = h_red * reduced_tangent.solve(&load);
         let (mut diff, mut size) = (0.0, 0.0);
-        for (row, &(s, c)) in measurements.channels.iter().enumerate() {
-            let exact: f64 = ops.sensors[s]
-                .weights
-                .iter()
-                .filter_map(|&(node, w)| full.fem.dofs.index[node][c].map(|d| w * u[(d, j)]))
-                .sum();
+        for (row, &channel) in measurements.channels.iter().enumerate() {
+            let exact = measured_value(full, channel, |d| u[(d, j)]);
             diff += (exact - reduced[row]).powi(2);
             size += exact * exact;
         }

@@ -382,31 +382,12 @@ pub fn train(
     let mut out = Training::default();
     let fem = &full.fem;
     let unit_loads = |run: &TrainingRun| run_load(full, plan, &groups, run);
-    type RunResult = Result<(Vec<Vec<f64>>, NewtonStats), SteppingError>;
-    let mut results: Vec<Option<RunResult>> = (0..runs.len()).map(|_| None).collect();
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let (sender, receiver) = std::sync::mpsc::channel::<(usize, Option<RunResult>)>();
-    std::thread::scope(|scope| {
-        for _ in 0..plan.threads.min(runs.len().max(1)) {
-            let sender = sender.clone();
-            let (next, runs, unit_loads) = (&next, &runs, &unit_loads);
-            scope.spawn(move || loop {
-                let k = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let Some(run) = runs.get(k) else { break };
-                // The receiver lives until every sender is dropped: sends cannot fail.
-                let _ = sender.send((k, None));
-                let result = training_run(full, plan, &unit_loads(run), &run.history);
-                let _ = sender.send((k, Some(result)));
-            });
-        }
-        drop(sender);
-        for (k, message) in receiver {
-            match message {
-                None => progress(k, runs.len(), &runs[k].label),
-                Some(result) => results[k] = Some(result),
-            }
-        }
-    });
+    let results = run_indexed(
+        runs.len(),
+        plan.threads,
+        |k| training_run(full, plan, &unit_loads(&runs[k]), &runs[k].history),
+        |k| progress(k, runs.len(), &runs[k].label),
+    );
     for (k, (run, result)) in runs.iter().zip(results).enumerate() {
         match result {
             Some(Ok((frames, stats))) => {
@@ -499,4 +480,42 @@ pub fn max_nodal(fem: &FemModel, u: &[f64]) -> f64 {
                 .sqrt()
         })
         .fold(0.0, f64::max)
+}
+
+/// `work(k)` for k = 0 … `count` − 1 on up to `threads` scoped threads (at least one), each
+/// taking the next k; `started(k)` runs on the calling thread as each k begins (progress).
+/// The results by index, independent of the thread count and the order of completion.
+pub(crate) fn run_indexed<T: Send>(
+    count: usize,
+    threads: usize,
+    work: impl Fn(usize) -> T + Sync,
+    mut started: impl FnMut(usize),
+) -> Vec<Option<T>> {
+    let mut results: Vec<Option<T>> = (0..count).map(|_| None).collect();
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let (sender, receiver) = std::sync::mpsc::channel::<(usize, Option<T>)>();
+    std::thread::scope(|scope| {
+        for _ in 0..threads.clamp(1, count.max(1)) {
+            let sender = sender.clone();
+            let (next, work) = (&next, &work);
+            scope.spawn(move || loop {
+                let k = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                if k >= count {
+                    break;
+                }
+                // The receiver lives until every sender is dropped: sends cannot fail.
+                let _ = sender.send((k, None));
+                let result = work(k);
+                let _ = sender.send((k, Some(result)));
+            });
+        }
+        drop(sender);
+        for (k, message) in receiver {
+            match message {
+                None => started(k),
+                Some(result) => results[k] = Some(result),
+            }
+        }
+    });
+    results
 }

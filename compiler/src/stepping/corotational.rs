@@ -16,7 +16,7 @@ use super::{advance_all, check_len, norm, Simulator, SteppingError};
 /// The rotation R (det R = +1) of the polar decomposition F = R S: the runtime kernel's
 /// scaled Newton iteration ([`crokf_kernel::polar_rotation`], converged to round-off) where
 /// det F > 0, else [`polar_rotation_svd`] (robust to inverted elements). The two agree to
-/// round-off where both apply (test `kernel_polar_matches_svd`); the kernel's is 3–4 Newton
+/// round-off where both apply (test `kernel_polar_matches_the_svd_polar_rotation`); the kernel's is 3–4 Newton
 /// steps with one 3×3 inverse each instead of a Jacobi SVD.
 pub fn polar_rotation(f: &Matrix3<f64>) -> Matrix3<f64> {
     let m: crokf_kernel::Mat3 = std::array::from_fn(|i| std::array::from_fn(|j| f[(i, j)]));

@@ -266,11 +266,6 @@ impl FilterBlocks {
             }
         }
     }
-
-    /// Number of stored filters (1 for a warped model; 1 + the schedule's points for a tier).
-    pub fn filter_count(&self) -> usize {
-        self.filters.len()
-    }
 }
 
 /// R̃(ω) as a matrix.
@@ -356,11 +351,11 @@ impl<'a> ConsistencyAccumulator<'a> {
         let model = est.model();
         debug_assert_eq!(est.state().len(), self.blocks.state_dim);
         debug_assert_eq!(est.is_corotational(), self.blocks.world);
-        let used: Vec<usize> = est
+        // The phase's channels with a value: (channel, value).
+        let used: Vec<(usize, f64)> = est
             .active_measurements()
             .iter()
-            .map(|&j| j as usize)
-            .filter(|&j| y[j].is_some())
+            .filter_map(|&j| y[j as usize].map(|v| (j as usize, v)))
             .collect();
         if used.is_empty() {
             return Ok(());
@@ -375,11 +370,11 @@ impl<'a> ConsistencyAccumulator<'a> {
         let m = used.len();
         let mut s_mat = DMatrix::<f64>::zeros(m, m);
         let mut nu = DMatrix::<f64>::zeros(m, 1);
-        for (a, &ja) in used.iter().enumerate() {
+        for (a, &(ja, value)) in used.iter().enumerate() {
             let ch_a = model.measurements[ja];
             let (sa, ca) = (ch_a.sensor as usize, ch_a.component as usize);
-            nu[(a, 0)] = y[ja].unwrap_or(0.0) - self.predicted[ja];
-            for (b, &jb) in used.iter().enumerate() {
+            nu[(a, 0)] = value - self.predicted[ja];
+            for (b, &(jb, _)) in used.iter().enumerate() {
                 let ch_b = model.measurements[jb];
                 let (sb, cb) = (ch_b.sensor as usize, ch_b.component as usize);
                 let block = warps[sa] * filter.prior[phase][sa][sb] * warps[sb].transpose();

@@ -61,7 +61,9 @@ mod tests {
     use crokf_formats::synthetic::{benchmark_model, SplitMix64};
 
     /// The run's innovations are y − ŷ⁻ of an estimator stepped the same way, NaN exactly where
-    /// the recording has no value, and every step's filter and phase is recorded.
+    /// the recording has no value, and every step's phase is recorded (on this warped model the
+    /// filter is always 0; the tier's filter sequence is exercised by tests/tests/tier.rs,
+    /// `identify_noise_recovers_the_random_walk_of_a_known_truth`).
     #[test]
     fn innovations_and_filters_of_a_recording() {
         let model = benchmark_model(8, 3, 6, 10);
