@@ -31,10 +31,17 @@
 //! J (warped tangent K_t,r = Σ wₑ V_eᵀ Rₑ Kₑ Rₑᵀ V_e) is refreshed at the first step, at the
 //! first iteration of a step after a step that needed more than [`SLOW_ITERATIONS`]
 //! iterations or after an update that moved q to another operating point of the gain schedule
-//! (docs/design.md §11.5), at the iteration after an increment that did not shrink
-//! (‖δₖ‖ ≥ ‖δₖ₋₁‖: the frozen J no longer contracts), and once within a step at iteration
-//! [`SLOW_ITERATIONS`]: a modified Newton iteration converging to the same root. Nothing
-//! allocates per step.
+//! (docs/design.md §11.5), at every iteration of a step after its first increment that did not
+//! shrink (‖δₖ‖ ≥ ‖δₖ₋₁‖: the frozen J no longer contracts, and a J refreshed only once
+//! went stale again within the step: full Newton from there on), and once within a step at
+//! iteration [`SLOW_ITERATIONS`]: a modified Newton iteration converging to the same root.
+//! Backtracking: an iterate whose residual meets an inverted sampled element is not refused at
+//! once; it is moved halfway back to the last iterate of the step whose residual was admissible
+//! (q itself before the first), J is refreshed there, up to [`BACKTRACK_HALVINGS`] times per
+//! step (a damped Newton step; the step is refused only when the halvings run out). Both
+//! safeguards act only where the plain iteration fails: after a sparse marker update that
+//! moved q far (docs/design.md §11.5, the meniscus's 30 Hz filter) the stale J made the
+//! increments grow into an inverted element. Nothing allocates per step.
 //!
 //! Filter (docs/design.md §11.4–11.5): the gains of the filter of the schedule whose operating
 //! point is nearest to q ([`TierModel::nearest_filter`]; filter 0 is the one designed at rest),
@@ -47,6 +54,10 @@ use crokf_kernel::{self as kernel, Mat3, PolarError};
 
 /// Iterations after which J is refreshed (within a step, and at the next step).
 pub const SLOW_ITERATIONS: usize = 4;
+
+/// Halvings per step of an iterate whose residual met an inverted element (module docs): 12
+/// bring it within 2⁻¹² of the last admissible iterate.
+pub const BACKTRACK_HALVINGS: usize = 12;
 
 /// Floor of the Newton test's scale, as a fraction of the largest training ‖q‖: converged
 /// when ‖δq‖ ≤ tol · max(‖q̂‖, QUIET · max‖q‖_training).
@@ -441,6 +452,9 @@ pub struct TierState {
     /// Previous s (rollback of a step) and the update's scratch.
     pub(crate) s_prev: Vec<f64>,
     q_hat: Vec<f64>,
+    /// The last iterate of this step whose residual was evaluated without an inverted element
+    /// (q at the start of the step): where a backtracking halving heads.
+    q_back: Vec<f64>,
     acc: Vec<f64>,
     vel: Vec<f64>,
     force: Vec<f64>,
@@ -479,6 +493,7 @@ impl TierState {
             s: vec![0.0; model.n],
             s_prev: vec![0.0; model.n],
             q_hat: vec![0.0; r],
+            q_back: vec![0.0; r],
             acc: vec![0.0; r],
             vel: vec![0.0; r],
             force: vec![0.0; r],
@@ -628,10 +643,27 @@ impl TierState {
         let mut increment = f64::INFINITY;
         let mut converged = false;
         let mut previous = f64::INFINITY;
-        // The last increment grew (ρ ≥ 1): J is refreshed at the next iteration.
+        // An increment grew (ρ ≥ 1) or an iterate was backtracked: J is refreshed at every
+        // remaining iteration of the step.
         let mut growing = false;
+        let mut halvings = 0;
+        self.q_back.copy_from_slice(&self.s[..r]);
         while iterations < model.max_iterations {
-            self.residual(model, step)?;
+            match self.residual(model, step) {
+                Ok(()) => {}
+                Err(TierError::InvertedElement { .. }) if halvings < BACKTRACK_HALVINGS => {
+                    // Backtracking (module docs): halfway back to the last admissible iterate,
+                    // J refreshed there.
+                    for (q, b) in self.q_hat.iter_mut().zip(&self.q_back) {
+                        *q = 0.5 * (*q + b);
+                    }
+                    halvings += 1;
+                    growing = true;
+                    continue;
+                }
+                Err(e) => return Err(e),
+            }
+            self.q_back.copy_from_slice(&self.q_hat);
             let refresh_now = !self.has_factor
                 || (iterations == 0 && self.slow)
                 || iterations == SLOW_ITERATIONS
@@ -661,7 +693,9 @@ impl TierState {
                 let rho = dn / previous;
                 self.eta = if rho < 0.5 { rho / (1.0 - rho) } else { 1.0 };
             }
-            growing = iterations > 1 && dn >= previous;
+            // Once an increment grew, J is refreshed at every remaining iteration of the step
+            // (full Newton).
+            growing = growing || (iterations > 1 && dn >= previous);
             previous = dn;
             if self.eta * dn <= model.tolerance * qn {
                 converged = true;
