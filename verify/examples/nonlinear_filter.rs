@@ -21,6 +21,14 @@
 //! see `read_model`).
 //! SCENE is the scene of the reference (either tier's scene: same mesh and material).
 //!
+//! `--seeds N` (N ≥ 2) also repeats each filtered run with the markers' noise drawn from seeds
+//! 7, 8, …, 6 + N and prints a second table: the error's mean and range over the N runs, and
+//! the N-run consistency test (`crokf_verify::comparison::Ensemble`, docs/design.md §11.3): at
+//! each step the N-run average NIS and tip NEES against the 95 % bounds of χ²(N d)/(N d), the
+//! fractions of steps below / inside / above them (≈ 95 % inside for a consistent filter), valid
+//! where one run's errors are correlated in time, unlike the single-run bounds of the first
+//! table; and the 2σ coverage's mean and range.
+//!
 //! Measuring aids (environment): `CROKF_REFERENCE_CACHE=FILE` keeps the reference run in FILE
 //! (written once, read while the step count matches: use one file per scene and scenario);
 //! `CROKF_RUNS=open,given,withheld` runs only those; `CROKF_NOISE_SCALE=c` scales the markers'
@@ -37,7 +45,9 @@ use std::process::ExitCode;
 use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
 use crokf_runtime::{load_model, Estimator};
-use crokf_verify::comparison::{ChiSquare, ConsistencyAccumulator, FilterBlocks, Gaussian};
+use crokf_verify::comparison::{
+    ChiSquare, Consistency, ConsistencyAccumulator, Ensemble, FilterBlocks, Gaussian,
+};
 use crokf_verify::nonlinear::reference::Reference;
 use crokf_verify::scenario::{Horizon, Scenario};
 
@@ -52,9 +62,21 @@ fn main() -> ExitCode {
 }
 
 fn run() -> Result<(), Box<dyn std::error::Error>> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let seeds = match args.iter().position(|a| a == "--seeds") {
+        Some(i) => {
+            let n = args
+                .get(i + 1)
+                .and_then(|v| v.parse::<u64>().ok())
+                .filter(|&n| n >= 2)
+                .ok_or("--seeds needs a whole number N ≥ 2")?;
+            args.drain(i..i + 2);
+            n
+        }
+        None => 1,
+    };
     if args.len() < 3 {
-        return Err("usage: nonlinear_filter SCENE SCENARIO MODEL...".into());
+        return Err("usage: nonlinear_filter SCENE SCENARIO MODEL... [--seeds N]".into());
     }
     let full = FullOrder::build(&PathBuf::from(&args[0]), &mut StageTimer::default())?;
     let scenario = Scenario::read(&PathBuf::from(&args[1]))?;
@@ -75,6 +97,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "| model | tier | run | nodes | sensors | tip | ANIS [95 % bounds] | tip ANEES [95 % bounds] | 2σ coverage | > 5σ innovations | final f (N) | median step (µs) |\n|---|---|---|---:|---:|---:|---|---|---:|---:|---|---:|"
     );
+    let mut ensembles = Vec::new();
     for path in &args[2..] {
         let mut model = read_model(path)?;
         // CROKF_NO_SCHEDULE=1 (a measuring aid): the tier's filter designed at rest only, as
@@ -98,13 +121,19 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             {
                 continue;
             }
-            let out = match run_model(&model, run, inputs, sensors_ref, shown_ref, tip) {
+            let out = match run_model(&model, run, inputs, sensors_ref, shown_ref, tip, SEED) {
                 Ok(out) => out,
                 Err(e) => {
                     println!("| {path} | {tier} | {} | refused: {e} |", run.label());
                     continue;
                 }
             };
+            if seeds > 1 && run != Run::OpenLoop {
+                ensembles.push((
+                    format!("{path} | {}", run.label()),
+                    ensemble(&model, run, inputs, sensors_ref, shown_ref, tip, seeds),
+                ));
+            }
             let stat = |c: &Option<ChiSquare>| match c {
                 Some(c) if c.dof > 0 => {
                     let (lo, hi) = c.bounds();
@@ -139,7 +168,119 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             );
         }
     }
+    if !ensembles.is_empty() {
+        println!(
+            "\n{seeds} noise seeds ({SEED}…{}): nodes error, N-run ANIS and tip ANEES per step against χ²(N d)/(N d) (steps below / inside / above the 95 % bounds), 2σ coverage\n",
+            SEED + seeds - 1
+        );
+        println!("| model | run | nodes: mean [min, max] | ANIS: mean, steps below / inside / above | tip ANEES: mean, steps below / inside / above | 2σ coverage: mean [min, max] | refused |\n|---|---|---|---|---|---|---|");
+        for (label, e) in &ensembles {
+            match e {
+                Ok(e) => println!("| {label} | {} |", e.row()),
+                Err(err) => println!("| {label} | {err} |"),
+            }
+        }
+    }
     Ok(())
+}
+
+/// The markers' noise seed of the single runs (and the first of `--seeds`).
+const SEED: u64 = 7;
+
+/// Figures of one filtered run over `seeds` noise seeds.
+struct EnsembleFigures {
+    nodes: Vec<f64>,
+    coverage: Vec<f64>,
+    nis: Ensemble,
+    nees: Ensemble,
+    /// The seeds whose run the runtime refused, and why (the figures are over the others).
+    refused: Vec<String>,
+}
+
+impl EnsembleFigures {
+    fn row(&self) -> String {
+        if self.nodes.is_empty() {
+            return format!("every run refused: {}", self.refused.join("; "));
+        }
+        let spread = |v: &[f64], scale: f64, digits: usize| {
+            let mean = v.iter().sum::<f64>() / v.len() as f64;
+            let (lo, hi) = v
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                    (a.min(x), b.max(x))
+                });
+            format!(
+                "{:.digits$} [{:.digits$}, {:.digits$}] %",
+                scale * mean,
+                scale * lo,
+                scale * hi
+            )
+        };
+        let steps = |e: &Ensemble| {
+            let f = e.fractions();
+            format!(
+                "{:.3}, {:.1} / {:.1} / {:.1} % of {}",
+                e.total().mean(),
+                100.0 * f.below,
+                100.0 * f.inside,
+                100.0 * f.above,
+                f.steps
+            )
+        };
+        let refused = if self.refused.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " | refused {} of {}: {}",
+                self.refused.len(),
+                self.refused.len() + self.nodes.len(),
+                self.refused.join("; ")
+            )
+        };
+        format!(
+            "{} | {} | {} | {}{refused}",
+            spread(&self.nodes, 100.0, 2),
+            steps(&self.nis),
+            steps(&self.nees),
+            spread(&self.coverage, 100.0, 1)
+        )
+    }
+}
+
+/// `run` of `model` with the markers' noise from seeds SEED … SEED + seeds − 1.
+fn ensemble(
+    model: &crokf_formats::Model,
+    run: Run,
+    inputs: &[Vec<f64>],
+    sensors_ref: &[Vec<f64>],
+    shown_ref: &[Vec<f64>],
+    tip: usize,
+    seeds: u64,
+) -> Result<EnsembleFigures, Box<dyn std::error::Error>> {
+    let mut out = EnsembleFigures {
+        nodes: Vec::new(),
+        coverage: Vec::new(),
+        nis: Ensemble::default(),
+        nees: Ensemble::default(),
+        refused: Vec::new(),
+    };
+    for seed in SEED..SEED + seeds {
+        let f = match run_model(model, run, inputs, sensors_ref, shown_ref, tip, seed) {
+            Ok(f) => f,
+            Err(e) => {
+                out.refused.push(format!("seed {seed}: {e}"));
+                continue;
+            }
+        };
+        out.nodes.push(f.nodes);
+        out.coverage.extend(f.coverage);
+        let c = f
+            .consistency
+            .ok_or("a filtered run without consistency figures")?;
+        out.nis.add(&c.nis_steps)?;
+        out.nees.add(&c.nees_tip_steps)?;
+    }
+    Ok(out)
 }
 
 /// A model file, or `FILE@SCENE`: FILE's co-rotational tier with its filter recomputed for
@@ -201,6 +342,8 @@ struct RunFigures {
     /// The tier's force states at the end (N).
     forces: Vec<f64>,
     median_step: f64,
+    /// Filtered runs: the whole consistency record (per-step statistics for `--seeds`).
+    consistency: Option<Consistency>,
 }
 
 fn run_model(
@@ -210,6 +353,7 @@ fn run_model(
     sensors_ref: &[Vec<f64>],
     shown_ref: &[Vec<f64>],
     tip: usize,
+    seed: u64,
 ) -> Result<RunFigures, Box<dyn std::error::Error>> {
     let steps = inputs.len();
     let mut est = Estimator::new(model)?;
@@ -228,7 +372,7 @@ fn run_model(
     for _ in 0..pre {
         est.predict(&rest_inputs)?;
     }
-    let mut rng = Gaussian::new(7);
+    let mut rng = Gaussian::new(seed);
     // CROKF_NOISE_SCALE=c (a measuring aid): markers with c times the model's σ (0: noise-free),
     // the filter unchanged; separates the noise-driven part of the error from the rest.
     let noise_scale: f64 = std::env::var("CROKF_NOISE_SCALE")
@@ -375,5 +519,6 @@ fn run_model(
         outliers: filtered.then_some(c.outliers),
         forces,
         median_step: times[times.len() / 2],
+        consistency: filtered.then_some(c),
     })
 }

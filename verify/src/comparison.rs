@@ -60,7 +60,8 @@ mod render;
 
 use crate::scenario::{Horizon, Scenario, ScenarioError};
 pub use consistency::{
-    chi_square_quantile, ChiSquare, Consistency, ConsistencyAccumulator, FilterBlocks, TipSample,
+    chi_square_quantile, ChiSquare, Consistency, ConsistencyAccumulator, Ensemble, FilterBlocks,
+    RunLengthMismatch, StepFractions, TipSample,
 };
 use metrics::ErrorSum;
 pub use metrics::{

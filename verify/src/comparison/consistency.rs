@@ -31,6 +31,13 @@
 //!   error, which is why coverage is reported beside them.
 //! - Outliers: active innovations with ν_j² > 25 S_jj (beyond 5σ of their own variance: what
 //!   the runtime's 5σ gate would skip with every channel accepted at its period).
+//! - Over N independent runs (Monte Carlo: the same scenario, independent marker noise),
+//!   [`Ensemble`]: at each step k the N-run average of NIS_k or NEES_k, which for a consistent
+//!   filter is χ²(N d_k)/N (d_k the dimension of one run's sample), with its two-sided 95 %
+//!   bounds; the fraction of steps inside them is ≈ 95 % for a consistent filter, and below /
+//!   above tells a conservative from an overconfident one (Bar-Shalom, Li & Kirubarajan 2001,
+//!   §5.4.2). The runs are independent of each other even where one run's samples are
+//!   correlated in time, so these bounds hold where the single-run ones above do not.
 
 use crokf_formats as fmt;
 use crokf_runtime::warp::Warp;
@@ -70,6 +77,104 @@ impl ChiSquare {
         let (lo, hi) = self.bounds();
         let m = self.mean();
         m >= lo && m <= hi
+    }
+
+    /// Adds another sample's sum and degrees of freedom.
+    pub fn add(&mut self, other: ChiSquare) {
+        self.sum += other.sum;
+        self.dof += other.dof;
+    }
+}
+
+/// A per-step χ² statistic (NIS_k or NEES_k) summed over N independent runs of one scenario
+/// (module docs, Bar-Shalom, Li & Kirubarajan 2001, §5.4.2): step k holds Σ_i ε_{i,k} with
+/// N d_k degrees of freedom, so its mean is the N-run average per degree of freedom and its
+/// [`ChiSquare::bounds`] are the 95 % bounds of χ²(N d_k)/(N d_k).
+#[derive(Clone, Debug, Default)]
+pub struct Ensemble {
+    steps: Vec<ChiSquare>,
+    runs: usize,
+}
+
+/// Where the steps of an [`Ensemble`] lie against their 95 % bounds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepFractions {
+    /// Steps with a sample (d_k > 0).
+    pub steps: usize,
+    /// Fractions below the lower bound (σ too large), inside, above the upper bound (σ too
+    /// small); they sum to 1 (NaN without steps).
+    pub below: f64,
+    /// See `below`.
+    pub inside: f64,
+    /// See `below`.
+    pub above: f64,
+}
+
+/// Runs of unequal length given to [`Ensemble::add`].
+#[derive(Debug, thiserror::Error)]
+#[error("ensemble of runs with {expected} steps: a run with {found} steps")]
+pub struct RunLengthMismatch {
+    /// Steps of the runs added before.
+    pub expected: usize,
+    /// Steps of the run refused.
+    pub found: usize,
+}
+
+impl Ensemble {
+    /// Adds one run's per-step statistics (`Consistency::nis_steps` or `nees_tip_steps`); every
+    /// run of an ensemble has the same steps.
+    pub fn add(&mut self, run: &[ChiSquare]) -> Result<(), RunLengthMismatch> {
+        if self.runs == 0 {
+            self.steps = vec![ChiSquare::default(); run.len()];
+        } else if run.len() != self.steps.len() {
+            return Err(RunLengthMismatch {
+                expected: self.steps.len(),
+                found: run.len(),
+            });
+        }
+        for (acc, &step) in self.steps.iter_mut().zip(run) {
+            acc.add(step);
+        }
+        self.runs += 1;
+        Ok(())
+    }
+
+    /// Runs added.
+    pub fn runs(&self) -> usize {
+        self.runs
+    }
+
+    /// Σ over runs and steps (its mean is the ensemble's average NIS or NEES; its single-run
+    /// style bounds assume samples independent in time and are not used for a verdict).
+    pub fn total(&self) -> ChiSquare {
+        self.steps.iter().fold(ChiSquare::default(), |mut t, &s| {
+            t.add(s);
+            t
+        })
+    }
+
+    /// Where the steps' N-run averages lie against their 95 % bounds.
+    pub fn fractions(&self) -> StepFractions {
+        let (mut below, mut inside, mut above) = (0usize, 0usize, 0usize);
+        for s in self.steps.iter().filter(|s| s.dof > 0) {
+            let (lo, hi) = s.bounds();
+            let m = s.mean();
+            if m < lo {
+                below += 1;
+            } else if m > hi {
+                above += 1;
+            } else {
+                inside += 1;
+            }
+        }
+        let steps = below + inside + above;
+        let n = steps as f64;
+        StepFractions {
+            steps,
+            below: below as f64 / n,
+            inside: inside as f64 / n,
+            above: above as f64 / n,
+        }
     }
 }
 
@@ -115,6 +220,12 @@ pub struct Consistency {
     pub coverage_world: f64,
     /// Active innovations beyond 5σ of their own variance, ν_j² > 25 S_jj, over the run.
     pub outliers: usize,
+    /// NIS_k of each step (one entry per [`ConsistencyAccumulator::innovation`]; dof 0 where
+    /// the step had no measurement), for [`Ensemble`].
+    pub nis_steps: Vec<ChiSquare>,
+    /// NEES_k at the tip of each step (one entry per [`ConsistencyAccumulator::posterior`];
+    /// dof 0 without a tip), for [`Ensemble`].
+    pub nees_tip_steps: Vec<ChiSquare>,
     /// The tip trace (empty without a tip sensor).
     pub tip: Vec<TipSample>,
 }
@@ -357,6 +468,7 @@ impl<'a> ConsistencyAccumulator<'a> {
             .iter()
             .filter_map(|&j| y[j as usize].map(|v| (j as usize, v)))
             .collect();
+        self.out.nis_steps.push(ChiSquare::default());
         if used.is_empty() {
             return Ok(());
         }
@@ -387,8 +499,14 @@ impl<'a> ConsistencyAccumulator<'a> {
         }
         if let Some(chol) = s_mat.cholesky() {
             let z = chol.solve(&nu);
-            self.out.nis.sum += (nu.transpose() * z)[(0, 0)];
-            self.out.nis.dof += m;
+            let step = ChiSquare {
+                sum: (nu.transpose() * z)[(0, 0)],
+                dof: m,
+            };
+            self.out.nis.add(step);
+            if let Some(last) = self.out.nis_steps.last_mut() {
+                *last = step;
+            }
         }
         Ok(())
     }
@@ -410,14 +528,21 @@ impl<'a> ConsistencyAccumulator<'a> {
         let filter = self.filter(est);
         let phase = est.phase();
         let x = est.state();
+        self.out.nees_tip_steps.push(ChiSquare::default());
         if let Some(t) = self.tip {
             est.sensor_displacements(&mut self.sensors)?;
             let w = self.sensor_warp(model, t, x);
             let sigma = w * filter.sensor_post[phase][t] * w.transpose();
             let e = nalgebra::Vector3::from_fn(|c, _| self.sensors[3 * t + c] - tip_reference[c]);
             if let Some(inv) = sigma.try_inverse() {
-                self.out.nees_tip.sum += (e.transpose() * inv * e)[(0, 0)];
-                self.out.nees_tip.dof += 3;
+                let step = ChiSquare {
+                    sum: (e.transpose() * inv * e)[(0, 0)],
+                    dof: 3,
+                };
+                self.out.nees_tip.add(step);
+                if let Some(last) = self.out.nees_tip_steps.last_mut() {
+                    *last = step;
+                }
             }
             self.out.tip.push(TipSample {
                 time,
@@ -452,5 +577,90 @@ impl<'a> ConsistencyAccumulator<'a> {
         self.out.coverage_runtime = self.inside_runtime as f64 / total;
         self.out.coverage_world = self.inside_world as f64 / total;
         self.out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::comparison::Gaussian;
+
+    /// N runs of K steps of a 3-component error that is an AR(1) process in time (correlation
+    /// `rho` per step, stationary variance `scale` per component) against a filter that claims
+    /// the identity: per-step NEES and the runs' single-run averages.
+    fn runs(n: usize, k: usize, rho: f64, scale: f64, seed: u64) -> (Ensemble, Vec<ChiSquare>) {
+        let mut rng = Gaussian::new(seed);
+        let mut ensemble = Ensemble::default();
+        let mut singles = Vec::new();
+        for _ in 0..n {
+            let mut e: [f64; 3] = std::array::from_fn(|_| rng.normal());
+            let mut steps = Vec::with_capacity(k);
+            let mut single = ChiSquare::default();
+            for _ in 0..k {
+                for c in &mut e {
+                    *c = rho * *c + (1.0 - rho * rho).sqrt() * rng.normal();
+                }
+                let step = ChiSquare {
+                    sum: scale * e.iter().map(|c| c * c).sum::<f64>(),
+                    dof: 3,
+                };
+                single.add(step);
+                steps.push(step);
+            }
+            ensemble.add(&steps).expect("equal lengths");
+            singles.push(single);
+        }
+        (ensemble, singles)
+    }
+
+    #[test]
+    fn ensemble_bounds_hold_for_errors_correlated_in_time() {
+        // A consistent filter whose errors are strongly correlated in time (ρ = 0.98: about
+        // 4 independent samples in 400 steps): the single-run bounds reject most runs, the
+        // per-step N-run bounds accept ≈ 95 % of the steps.
+        let (ensemble, singles) = runs(20, 400, 0.98, 1.0, 3);
+        let f = ensemble.fractions();
+        assert_eq!(f.steps, 400);
+        assert!(f.inside > 0.88 && f.inside < 0.995, "{f:?}");
+        assert!((f.below + f.inside + f.above - 1.0).abs() < 1e-12);
+        let rejected = singles.iter().filter(|s| !s.inside()).count();
+        assert!(
+            rejected >= 10,
+            "single-run bounds rejected {rejected} of 20"
+        );
+        let total = ensemble.total();
+        assert_eq!(total.dof, 20 * 400 * 3);
+        assert!((total.mean() - 1.0).abs() < 0.15, "{}", total.mean());
+        // Independent samples: both kinds of bounds accept.
+        let (ensemble, singles) = runs(20, 400, 0.0, 1.0, 4);
+        let f = ensemble.fractions();
+        assert!(f.inside > 0.9 && f.inside < 0.99, "{f:?}");
+        assert!(singles.iter().filter(|s| !s.inside()).count() <= 4);
+    }
+
+    #[test]
+    fn ensemble_tells_conservative_from_overconfident() {
+        // χ²(60)/60 bounds are [0.69, 1.39]: errors of 0.4× the claimed variance lie below at
+        // almost every step, of 2.5× above.
+        let (conservative, _) = runs(20, 300, 0.5, 0.4, 5);
+        let f = conservative.fractions();
+        assert!(f.below > 0.9 && f.above == 0.0, "{f:?}");
+        let (overconfident, _) = runs(20, 300, 0.5, 2.5, 6);
+        let f = overconfident.fractions();
+        assert!(f.above > 0.9 && f.below == 0.0, "{f:?}");
+    }
+
+    #[test]
+    fn ensemble_refuses_runs_of_another_length() {
+        let mut e = Ensemble::default();
+        let step = ChiSquare { sum: 3.0, dof: 3 };
+        e.add(&[step; 5]).expect("first run");
+        let err = e.add(&[step; 4]).expect_err("shorter run");
+        assert_eq!((err.expected, err.found), (5, 4));
+        assert_eq!(e.runs(), 1);
+        // Steps without a sample are not counted.
+        let mut e = Ensemble::default();
+        e.add(&[ChiSquare::default(), step]).expect("run");
+        assert_eq!(e.fractions().steps, 1);
     }
 }
