@@ -46,7 +46,8 @@ use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
 use crokf_runtime::{load_model, Estimator};
 use crokf_verify::comparison::{
-    ChiSquare, Consistency, ConsistencyAccumulator, Ensemble, FilterBlocks, Gaussian,
+    spread, ChiSquare, Consistency, ConsistencyAccumulator, Ensemble, FilterBlocks, Gaussian,
+    SeedEnsemble,
 };
 use crokf_verify::nonlinear::reference::Reference;
 use crokf_verify::scenario::{Horizon, Scenario};
@@ -176,7 +177,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         println!("| model | run | nodes: mean [min, max] | ANIS: mean, steps below / inside / above | tip ANEES: mean, steps below / inside / above | 2σ coverage: mean [min, max] | refused |\n|---|---|---|---|---|---|---|");
         for (label, e) in &ensembles {
             match e {
-                Ok(e) => println!("| {label} | {} |", e.row()),
+                Ok(e) => println!("| {label} | {} |", ensemble_row(e)),
                 Err(err) => println!("| {label} | {err} |"),
             }
         }
@@ -187,64 +188,47 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
 /// The markers' noise seed of the single runs (and the first of `--seeds`).
 const SEED: u64 = 7;
 
-/// Figures of one filtered run over `seeds` noise seeds.
-struct EnsembleFigures {
-    nodes: Vec<f64>,
-    coverage: Vec<f64>,
-    nis: Ensemble,
-    nees: Ensemble,
-    /// The seeds whose run the runtime refused, and why (the figures are over the others).
-    refused: Vec<String>,
+/// The row of the `--seeds` table: error, N-run NIS and tip NEES, coverage, refusals.
+fn ensemble_row(e: &SeedEnsemble) -> String {
+    let Some((mean, lo, hi)) = spread(&e.errors) else {
+        return format!("every run refused: {}", refusals(e));
+    };
+    let steps = |ens: &Ensemble| {
+        let f = ens.fractions();
+        format!(
+            "{:.3}, {:.1} / {:.1} / {:.1} % of {}",
+            ens.total().mean(),
+            100.0 * f.below,
+            100.0 * f.inside,
+            100.0 * f.above,
+            f.steps
+        )
+    };
+    let (cov, cov_lo, cov_hi) = spread(&e.coverage).unwrap_or((f64::NAN, f64::NAN, f64::NAN));
+    let refused = if e.refused.is_empty() {
+        "0".to_string()
+    } else {
+        format!("{} of {}: {}", e.refused.len(), e.draws(), refusals(e))
+    };
+    format!(
+        "{:.2} [{:.2}, {:.2}] % | {} | {} | {:.1} [{:.1}, {:.1}] % | {refused}",
+        100.0 * mean,
+        100.0 * lo,
+        100.0 * hi,
+        steps(&e.nis),
+        steps(&e.nees_tip),
+        100.0 * cov,
+        100.0 * cov_lo,
+        100.0 * cov_hi
+    )
 }
 
-impl EnsembleFigures {
-    fn row(&self) -> String {
-        if self.nodes.is_empty() {
-            return format!("every run refused: {}", self.refused.join("; "));
-        }
-        let spread = |v: &[f64], scale: f64, digits: usize| {
-            let mean = v.iter().sum::<f64>() / v.len() as f64;
-            let (lo, hi) = v
-                .iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
-                    (a.min(x), b.max(x))
-                });
-            format!(
-                "{:.digits$} [{:.digits$}, {:.digits$}] %",
-                scale * mean,
-                scale * lo,
-                scale * hi
-            )
-        };
-        let steps = |e: &Ensemble| {
-            let f = e.fractions();
-            format!(
-                "{:.3}, {:.1} / {:.1} / {:.1} % of {}",
-                e.total().mean(),
-                100.0 * f.below,
-                100.0 * f.inside,
-                100.0 * f.above,
-                f.steps
-            )
-        };
-        let refused = if self.refused.is_empty() {
-            String::new()
-        } else {
-            format!(
-                " | refused {} of {}: {}",
-                self.refused.len(),
-                self.refused.len() + self.nodes.len(),
-                self.refused.join("; ")
-            )
-        };
-        format!(
-            "{} | {} | {} | {}{refused}",
-            spread(&self.nodes, 100.0, 2),
-            steps(&self.nis),
-            steps(&self.nees),
-            spread(&self.coverage, 100.0, 1)
-        )
-    }
+fn refusals(e: &SeedEnsemble) -> String {
+    e.refused
+        .iter()
+        .map(|(seed, why)| format!("seed {seed}: {why}"))
+        .collect::<Vec<_>>()
+        .join("; ")
 }
 
 /// `run` of `model` with the markers' noise from seeds SEED … SEED + seeds − 1.
@@ -256,29 +240,18 @@ fn ensemble(
     shown_ref: &[Vec<f64>],
     tip: usize,
     seeds: u64,
-) -> Result<EnsembleFigures, Box<dyn std::error::Error>> {
-    let mut out = EnsembleFigures {
-        nodes: Vec::new(),
-        coverage: Vec::new(),
-        nis: Ensemble::default(),
-        nees: Ensemble::default(),
-        refused: Vec::new(),
-    };
+) -> Result<SeedEnsemble, Box<dyn std::error::Error>> {
+    let mut out = SeedEnsemble::default();
     for seed in SEED..SEED + seeds {
-        let f = match run_model(model, run, inputs, sensors_ref, shown_ref, tip, seed) {
-            Ok(f) => f,
-            Err(e) => {
-                out.refused.push(format!("seed {seed}: {e}"));
-                continue;
+        match run_model(model, run, inputs, sensors_ref, shown_ref, tip, seed) {
+            Ok(f) => {
+                let c = f
+                    .consistency
+                    .ok_or("a filtered run without consistency figures")?;
+                out.add(f.nodes, &c)?;
             }
-        };
-        out.nodes.push(f.nodes);
-        out.coverage.extend(f.coverage);
-        let c = f
-            .consistency
-            .ok_or("a filtered run without consistency figures")?;
-        out.nis.add(&c.nis_steps)?;
-        out.nees.add(&c.nees_tip_steps)?;
+            Err(e) => out.refused.push((seed, e.to_string())),
+        }
     }
     Ok(out)
 }

@@ -60,8 +60,8 @@ mod render;
 
 use crate::scenario::{Horizon, Scenario, ScenarioError};
 pub use consistency::{
-    chi_square_quantile, ChiSquare, Consistency, ConsistencyAccumulator, Ensemble, FilterBlocks,
-    RunLengthMismatch, StepFractions, TipSample,
+    chi_square_quantile, spread, verdict, ChiSquare, Consistency, ConsistencyAccumulator, Ensemble,
+    FilterBlocks, RunLengthMismatch, SeedEnsemble, StepFractions, TipSample,
 };
 use metrics::ErrorSum;
 pub use metrics::{
@@ -125,6 +125,9 @@ pub struct ComparisonOptions {
     pub withhold_loads: bool,
     /// Timing samples (batches) of the runtime step.
     pub timing_samples: usize,
+    /// Noise draws of the N-run consistency test (seeds `seed`, `seed + 1`, …; docs/design.md
+    /// §11.3): every filtered run is repeated with each; below 2 only the single run.
+    pub seeds: usize,
 }
 
 impl Default for ComparisonOptions {
@@ -136,6 +139,7 @@ impl Default for ComparisonOptions {
             measure_compile_error: false,
             withhold_loads: false,
             timing_samples: 31,
+            seeds: 20,
         }
     }
 }
@@ -231,6 +235,10 @@ pub struct ReducedRow {
     pub consistency: Consistency,
     /// The same for the run with the loads withheld.
     pub withheld_consistency: Consistency,
+    /// The filtered run over the options' noise draws (`None` below 2 draws).
+    pub ensemble: Option<SeedEnsemble>,
+    /// The same for the run with the loads withheld.
+    pub withheld_ensemble: Option<SeedEnsemble>,
     /// The compiler's measured errors (empty unless `measure_compile_error`).
     pub compile_measured_errors: std::collections::BTreeMap<String, f64>,
     /// Compile wall time, s.
@@ -278,6 +286,8 @@ pub struct Comparison {
     pub tier_notes: Vec<String>,
     /// Noise seed used.
     pub seed: u64,
+    /// Noise draws of the N-run consistency test (`ComparisonOptions::seeds`).
+    pub seeds: usize,
     /// Whether the runtime got the loads.
     pub withheld_loads: bool,
     /// What the compiler said about the scene, once for all orders: scene warnings, mesh
@@ -469,6 +479,10 @@ pub struct TierRow {
     pub consistency: Consistency,
     /// The same for the run with the loads withheld.
     pub withheld_consistency: Consistency,
+    /// The filtered run over the options' noise draws (`None` below 2 draws).
+    pub ensemble: Option<SeedEnsemble>,
+    /// The same for the run with the loads withheld.
+    pub withheld_ensemble: Option<SeedEnsemble>,
     /// Filters of the tier's gain schedule (1: the constant gain designed at rest).
     pub filters: usize,
     /// Envelope and Newton work of the open-loop run.
@@ -1103,7 +1117,7 @@ fn run_tier(
         &inputs,
         &measurements,
         corot,
-        options.withhold_loads,
+        options,
         "tier",
         progress,
     )?;
@@ -1125,6 +1139,8 @@ fn run_tier(
         runtime: RuntimeFigures::new(times, &open, &filter.given, &filter.withheld),
         consistency: filter.given_consistency,
         withheld_consistency: filter.withheld_consistency,
+        ensemble: filter.given_ensemble,
+        withheld_ensemble: filter.withheld_ensemble,
         filters: model.tier.as_ref().map_or(1, |t| 1 + t.scheduled.len()),
         envelope: open.envelope,
     })
@@ -1134,16 +1150,19 @@ fn run_tier(
 struct FilteredRuns {
     given: RunErrors,
     given_consistency: Consistency,
+    given_ensemble: Option<SeedEnsemble>,
     withheld: RunErrors,
     withheld_consistency: Consistency,
+    withheld_ensemble: Option<SeedEnsemble>,
 }
 
 /// A row's filtered runs through [`run_runtime`]: with `inputs` (the loads given, or withheld
-/// when the whole comparison withholds them) and, unless `withhold_loads`, with the loads
-/// withheld (the headline case: the runtime gets no load input, only the markers), each with
-/// the same [`ConsistencyAccumulator`] over the model's own stored filters ([`FilterBlocks`]:
-/// the warped model's, or the tier's gain schedule). Progress phases `filtered {label}` and
-/// `withheld {label}`.
+/// when the whole comparison withholds them) and, unless `options.withhold_loads`, with the
+/// loads withheld (the headline case: the runtime gets no load input, only the markers), each
+/// with the same [`ConsistencyAccumulator`] over the model's own stored filters
+/// ([`FilterBlocks`]: the warped model's, or the tier's gain schedule); then each repeated over
+/// `options.seeds` noise draws ([`seed_ensemble`]). Progress phases `filtered {label}`,
+/// `withheld {label}`, and `draws filtered {label}` / `draws withheld {label}` with the draws.
 #[allow(clippy::too_many_arguments)]
 fn filtered_runs(
     setup: &Setup,
@@ -1152,7 +1171,7 @@ fn filtered_runs(
     inputs: &[Vec<f64>],
     measurements: &[Vec<Option<f64>>],
     corot: &ReferenceRun,
-    withhold_loads: bool,
+    options: &ComparisonOptions,
     label: &str,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<FilteredRuns, ComparisonError> {
@@ -1171,12 +1190,26 @@ fn filtered_runs(
         progress,
     )?;
     let given_consistency = acc.finish();
-    if withhold_loads {
+    let given_ensemble = seed_ensemble(
+        setup,
+        est,
+        model,
+        &blocks,
+        inputs,
+        corot,
+        options,
+        (&given, &given_consistency),
+        &format!("draws filtered {label}"),
+        progress,
+    )?;
+    if options.withhold_loads {
         return Ok(FilteredRuns {
             given,
             withheld: given,
             withheld_consistency: given_consistency.clone(),
             given_consistency,
+            withheld_ensemble: given_ensemble.clone(),
+            given_ensemble,
         });
     }
     let blind = runtime_inputs(setup, &setup.scenario, model, true)?;
@@ -1192,21 +1225,89 @@ fn filtered_runs(
         &format!("withheld {label}"),
         progress,
     )?;
+    let withheld_consistency = acc.finish();
+    let withheld_ensemble = seed_ensemble(
+        setup,
+        est,
+        model,
+        &blocks,
+        &blind,
+        corot,
+        options,
+        (&withheld, &withheld_consistency),
+        &format!("draws withheld {label}"),
+        progress,
+    )?;
     Ok(FilteredRuns {
         given,
         given_consistency,
+        given_ensemble,
         withheld,
-        withheld_consistency: acc.finish(),
+        withheld_consistency,
+        withheld_ensemble,
     })
+}
+
+/// A filtered run over the noise draws `options.seed + i`, i = 0 … `options.seeds` − 1 (the
+/// N-run consistency test, docs/design.md §11.3); `first` is the run of draw 0, already made.
+/// A draw the runtime refuses is recorded with its reason. `None` below 2 draws. Progress
+/// phase `phase`.
+#[allow(clippy::too_many_arguments)]
+fn seed_ensemble(
+    setup: &Setup,
+    est: &mut Estimator,
+    model: &fmt::Model,
+    blocks: &FilterBlocks,
+    inputs: &[Vec<f64>],
+    corot: &ReferenceRun,
+    options: &ComparisonOptions,
+    first: (&RunErrors, &Consistency),
+    phase: &str,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<Option<SeedEnsemble>, ComparisonError> {
+    if options.seeds < 2 {
+        return Ok(None);
+    }
+    let invalid = |e: RunLengthMismatch| ComparisonError::Invalid {
+        path: setup.scene_path.clone(),
+        what: format!("{phase}: {e}"),
+    };
+    let mut ensemble = SeedEnsemble::default();
+    ensemble
+        .add(first.0.display.relative(), first.1)
+        .map_err(invalid)?;
+    for i in 1..options.seeds as u64 {
+        let seed = options.seed.wrapping_add(i);
+        let measurements = synthetic_measurements(model, corot, setup.steps, seed);
+        let mut acc = ConsistencyAccumulator::new(blocks, model, setup.tip);
+        match run_runtime(
+            setup,
+            est,
+            inputs,
+            &measurements,
+            corot,
+            None,
+            Some(&mut acc),
+            phase,
+            progress,
+        ) {
+            Ok(errors) => ensemble
+                .add(errors.display.relative(), &acc.finish())
+                .map_err(invalid)?,
+            Err(e) => ensemble.refused.push((seed, e.to_string())),
+        }
+    }
+    Ok(Some(ensemble))
 }
 
 /// Runs the comparison of one scene and one scenario (see the module docs), with the
 /// co-rotational tier as one more row when `tier` is given (compiled by [`compile_tier`]).
 ///
 /// Phases reported through `progress`: `linear FEM`, `co-rotational FEM` (steps), `modal
-/// system` (0/1: front end and modes, once), then per order `compile r = R` (0/1), `open loop r = R`, `filtered r = R` (steps) and
-/// `timing r = R` (0/1); with a tier, `open loop tier`, `filtered tier`, `withheld tier` and
-/// `timing tier`.
+/// system` (0/1: front end and modes, once), then per order `compile r = R` (0/1), `open loop
+/// r = R`, `filtered r = R`, `withheld r = R` (steps; each followed by `draws filtered r = R` /
+/// `draws withheld r = R` with `options.seeds` ≥ 2) and `timing r = R` (0/1); with a tier the
+/// same phases labelled `tier`.
 pub fn run(
     scene: &Path,
     scenario: &Path,
@@ -1319,7 +1420,7 @@ pub fn run(
                 &inputs,
                 &measurements,
                 &corot,
-                options.withhold_loads,
+                options,
                 &format!("r = {order}"),
                 progress,
             )?;
@@ -1339,6 +1440,8 @@ pub fn run(
                 runtime: RuntimeFigures::new(times, &open, &filter.given, &filter.withheld),
                 consistency: filter.given_consistency,
                 withheld_consistency: filter.withheld_consistency,
+                ensemble: filter.given_ensemble,
+                withheld_ensemble: filter.withheld_ensemble,
                 compile_measured_errors: model.report.measured_errors.clone(),
                 compile_s,
             })
@@ -1381,6 +1484,7 @@ pub fn run(
         tier_failure,
         tier_notes: tier.map(|t| t.notes().to_vec()).unwrap_or_default(),
         seed: options.seed,
+        seeds: options.seeds,
         withheld_loads: options.withhold_loads,
         notes: setup
             .full

@@ -107,6 +107,9 @@ fn run(scene: &Path, scenario: &Path, options: &ComparisonOptions) -> Comparison
                 continue;
             }
             expected.push(format!("{p} r = {r}"));
+            if (p == "filtered" || p == "withheld") && options.seeds >= 2 {
+                expected.push(format!("draws {p} r = {r}"));
+            }
         }
     }
     assert_eq!(phases, expected);
@@ -195,9 +198,16 @@ fn tiny_load_runtime_error_matches_compile_report_and_linear_reference() {
     let options = ComparisonOptions {
         orders: vec![4, 8],
         measure_compile_error: true,
+        seeds: 1,
         ..ComparisonOptions::default()
     };
     let c = run(&scene, &scenario, &options);
+    // One noise draw: no N-run table.
+    assert!(c
+        .reduced
+        .iter()
+        .all(|r| r.ensemble.is_none() && r.withheld_ensemble.is_none()));
+    assert!(!c.markdown().contains("noise draws"));
     assert_eq!((c.dofs, c.tetrahedra, c.steps), (324, 288, 60));
     assert_eq!(c.tip.as_deref(), Some("tip"));
     assert!(
@@ -362,6 +372,27 @@ fn nis_and_coverage_hold_when_the_model_is_right_and_fail_when_it_is_not() {
     );
     assert_eq!(row.consistency.tip.len(), 200);
     assert!(row.withheld_consistency.nis.dof > 0);
+    // The N-run test over the default 20 noise draws (docs/design.md §11.3) agrees.
+    for e in [&row.ensemble, &row.withheld_ensemble] {
+        let e = e.as_ref().expect("20 noise draws by default");
+        assert_eq!((e.draws(), e.errors.len()), (20, 20));
+        let f = e.nis.fractions();
+        eprintln!("small load, 20 draws: NIS steps {f:?}");
+        assert_eq!(f.steps, 200);
+        assert!(f.inside > 0.85, "{f:?}");
+        assert_eq!(comparison::verdict(&f), "consistent");
+    }
+    let md = c.markdown();
+    let table: Vec<&str> = md
+        .lines()
+        .skip_while(|l| !l.contains("noise draws"))
+        .filter(|l| l.starts_with("| 8 |"))
+        .collect();
+    assert_eq!(table.len(), 2, "{md}");
+    assert!(
+        table.iter().all(|l| l.matches('|').count() == 8),
+        "{table:?}"
+    );
     let svg = c.tip_svg(0).expect("tip plot");
     assert_eq!(svg.matches(r#"class="band""#).count(), 3, "{svg}");
     assert_eq!(svg.matches(r#"class="error-withheld""#).count(), 3);
@@ -375,6 +406,15 @@ fn nis_and_coverage_hold_when_the_model_is_right_and_fail_when_it_is_not() {
     let nis = c.reduced[0].consistency.nis;
     eprintln!("large load: ANIS {:.3}", nis.mean());
     assert!(nis.mean() > 2.0 * nis.bounds().1, "ANIS {}", nis.mean());
+    let f = c.reduced[0]
+        .ensemble
+        .as_ref()
+        .expect("draws")
+        .nis
+        .fractions();
+    eprintln!("large load, 20 draws: NIS steps {f:?}");
+    assert!(f.above > 0.5, "{f:?}");
+    assert_eq!(comparison::verdict(&f), "overconfident");
 }
 
 #[test]

@@ -61,6 +61,11 @@ struct ReportArgs {
     /// Seed of the synthetic measurement noise.
     #[arg(long, default_value_t = 0x5eed_c0ff_ee00_0001)]
     seed: u64,
+    /// Noise draws of the N-run consistency test (seeds SEED, SEED + 1, …; docs/design.md
+    /// §11.3): every filtered run is repeated with each and the report adds their table; 1:
+    /// the single run only.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    seeds: u64,
     /// Co-rotational reference: most Newton solves per step.
     #[arg(long, default_value_t = 10)]
     max_newton: usize,
@@ -126,6 +131,7 @@ fn report(args: &ReportArgs) -> Result<(), String> {
             consistent: true,
         },
         seed: args.seed,
+        seeds: args.seeds as usize,
         withhold_loads: args.withhold_loads,
         ..comparison::ComparisonOptions::default()
     };

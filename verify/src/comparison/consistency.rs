@@ -144,6 +144,11 @@ impl Ensemble {
         self.runs
     }
 
+    /// Steps of each run (0 before the first run).
+    pub fn steps(&self) -> usize {
+        self.steps.len()
+    }
+
     /// Σ over runs and steps (its mean is the ensemble's average NIS or NEES; its single-run
     /// style bounds assume samples independent in time and are not used for a verdict).
     pub fn total(&self) -> ChiSquare {
@@ -577,6 +582,77 @@ impl<'a> ConsistencyAccumulator<'a> {
         self.out.coverage_runtime = self.inside_runtime as f64 / total;
         self.out.coverage_world = self.inside_world as f64 / total;
         self.out
+    }
+}
+
+/// One filtered run repeated over N noise draws (docs/design.md §11.3): the N-run consistency
+/// test ([`Ensemble`] of the per-step NIS and tip NEES) and the spread of the error and of the
+/// 2σ coverage over the draws.
+#[derive(Clone, Debug, Default)]
+pub struct SeedEnsemble {
+    /// Relative L2 error over the displayed nodes of each completed run.
+    pub errors: Vec<f64>,
+    /// 2σ coverage (runtime σ) of each completed run.
+    pub coverage: Vec<f64>,
+    /// Per-step NIS over the completed runs.
+    pub nis: Ensemble,
+    /// Per-step tip NEES over the completed runs.
+    pub nees_tip: Ensemble,
+    /// Draws whose run the runtime refused: seed and reason (the figures are over the others).
+    pub refused: Vec<(u64, String)>,
+}
+
+/// Mean, smallest and largest value (`None` when empty).
+pub fn spread(values: &[f64]) -> Option<(f64, f64, f64)> {
+    if values.is_empty() {
+        return None;
+    }
+    let (lo, hi) = values
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
+    Some((values.iter().sum::<f64>() / values.len() as f64, lo, hi))
+}
+
+impl SeedEnsemble {
+    /// Adds a completed run: its error and its consistency record.
+    pub fn add(&mut self, error: f64, run: &Consistency) -> Result<(), RunLengthMismatch> {
+        // Both checked before either is changed: the two ensembles hold the same runs.
+        for (ensemble, steps) in [
+            (&self.nis, &run.nis_steps),
+            (&self.nees_tip, &run.nees_tip_steps),
+        ] {
+            if ensemble.runs() > 0 && ensemble.steps() != steps.len() {
+                return Err(RunLengthMismatch {
+                    expected: ensemble.steps(),
+                    found: steps.len(),
+                });
+            }
+        }
+        self.nis.add(&run.nis_steps)?;
+        self.nees_tip.add(&run.nees_tip_steps)?;
+        self.errors.push(error);
+        self.coverage.push(run.coverage_runtime);
+        Ok(())
+    }
+
+    /// Draws made (completed and refused).
+    pub fn draws(&self) -> usize {
+        self.errors.len() + self.refused.len()
+    }
+}
+
+/// The word for where an [`Ensemble`]'s steps lie: "overconfident" when more than 10 % of them
+/// lie above their bounds (σ too small), else "conservative" when more than 10 % lie below
+/// (σ too large), else "consistent" (≈ 2.5 % on either side expected).
+pub fn verdict(f: &StepFractions) -> &'static str {
+    if f.above > 0.1 {
+        "overconfident"
+    } else if f.below > 0.1 {
+        "conservative"
+    } else {
+        "consistent"
     }
 }
 
