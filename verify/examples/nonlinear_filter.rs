@@ -191,7 +191,7 @@ const SEED: u64 = 7;
 /// The row of the `--seeds` table: error, N-run NIS and tip NEES, coverage, refusals.
 fn ensemble_row(e: &SeedEnsemble) -> String {
     let Some((mean, lo, hi)) = spread(&e.errors) else {
-        return format!("every run refused: {}", refusals(e));
+        return format!("— | — | — | — | {}", e.refusals());
     };
     let steps = |ens: &Ensemble| {
         let f = ens.fractions();
@@ -205,13 +205,8 @@ fn ensemble_row(e: &SeedEnsemble) -> String {
         )
     };
     let (cov, cov_lo, cov_hi) = spread(&e.coverage).unwrap_or((f64::NAN, f64::NAN, f64::NAN));
-    let refused = if e.refused.is_empty() {
-        "0".to_string()
-    } else {
-        format!("{} of {}: {}", e.refused.len(), e.draws(), refusals(e))
-    };
     format!(
-        "{:.2} [{:.2}, {:.2}] % | {} | {} | {:.1} [{:.1}, {:.1}] % | {refused}",
+        "{:.2} [{:.2}, {:.2}] % | {} | {} | {:.1} [{:.1}, {:.1}] % | {}",
         100.0 * mean,
         100.0 * lo,
         100.0 * hi,
@@ -219,16 +214,9 @@ fn ensemble_row(e: &SeedEnsemble) -> String {
         steps(&e.nees_tip),
         100.0 * cov,
         100.0 * cov_lo,
-        100.0 * cov_hi
+        100.0 * cov_hi,
+        e.refusals()
     )
-}
-
-fn refusals(e: &SeedEnsemble) -> String {
-    e.refused
-        .iter()
-        .map(|(seed, why)| format!("seed {seed}: {why}"))
-        .collect::<Vec<_>>()
-        .join("; ")
 }
 
 /// `run` of `model` with the markers' noise from seeds SEED … SEED + seeds − 1.

@@ -641,6 +641,24 @@ impl SeedEnsemble {
     pub fn draws(&self) -> usize {
         self.errors.len() + self.refused.len()
     }
+
+    /// The refused draws in words: `0`, or `k of N: seed s: reason; …`.
+    pub fn refusals(&self) -> String {
+        if self.refused.is_empty() {
+            return "0".into();
+        }
+        let reasons: Vec<String> = self
+            .refused
+            .iter()
+            .map(|(seed, why)| format!("seed {seed}: {why}"))
+            .collect();
+        format!(
+            "{} of {}: {}",
+            self.refused.len(),
+            self.draws(),
+            reasons.join("; ")
+        )
+    }
 }
 
 /// The word for where an [`Ensemble`]'s steps lie: "overconfident" when more than 10 % of them
@@ -724,6 +742,27 @@ mod tests {
         let (overconfident, _) = runs(20, 300, 0.5, 2.5, 6);
         let f = overconfident.fractions();
         assert!(f.above > 0.9 && f.below == 0.0, "{f:?}");
+    }
+
+    #[test]
+    fn seed_ensemble_keeps_its_two_ensembles_over_the_same_runs() {
+        let step = ChiSquare { sum: 3.0, dof: 3 };
+        let run = |n: usize, m: usize| Consistency {
+            nis_steps: vec![step; n],
+            nees_tip_steps: vec![step; m],
+            coverage_runtime: 0.95,
+            ..Consistency::default()
+        };
+        let mut e = SeedEnsemble::default();
+        e.add(0.01, &run(4, 4)).expect("first run");
+        // A run whose NEES record is short changes neither ensemble.
+        assert!(e.add(0.02, &run(4, 3)).is_err());
+        assert_eq!((e.nis.runs(), e.nees_tip.runs(), e.errors.len()), (1, 1, 1));
+        e.refused.push((9, "step 3: refused".into()));
+        assert_eq!(e.draws(), 2);
+        assert_eq!(e.refusals(), "1 of 2: seed 9: step 3: refused");
+        assert_eq!(spread(&[1.0, 3.0, 2.0]), Some((2.0, 1.0, 3.0)));
+        assert_eq!(spread(&[]), None);
     }
 
     #[test]

@@ -621,27 +621,14 @@ impl Comparison {
                     ),
                     None => "—".into(),
                 };
-                let refused = if e.refused.is_empty() {
-                    "0".to_string()
-                } else {
-                    format!(
-                        "{} of {}: {}",
-                        e.refused.len(),
-                        e.draws(),
-                        e.refused
-                            .iter()
-                            .map(|(seed, why)| format!("seed {seed}: {why}"))
-                            .collect::<Vec<_>>()
-                            .join("; ")
-                    )
-                };
                 let _ = writeln!(
                     out,
-                    "| {r} | {label} | {} | {} | {} | {} | {refused} |",
+                    "| {r} | {label} | {} | {} | {} | {} | {} |",
                     range(&e.errors, 2),
                     steps(&e.nis),
                     steps(&e.nees_tip),
-                    range(&e.coverage, 1)
+                    range(&e.coverage, 1),
+                    e.refusals()
                 );
             }
         }
