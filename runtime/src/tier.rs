@@ -38,7 +38,8 @@
 //! Backtracking: an iterate whose residual meets an inverted sampled element is not refused at
 //! once; it is moved halfway back to the last iterate of the step whose residual was admissible
 //! (q itself before the first), J is refreshed there, up to [`BACKTRACK_HALVINGS`] times per
-//! step (a damped Newton step; the step is refused only when the halvings run out). Both
+//! step (a damped Newton step; the step is refused only when the halvings run out), and the
+//! Newton test is the plain one (η = 1) until a contraction is measured again. Both
 //! safeguards act only where the plain iteration fails: after a sparse marker update that
 //! moved q far (docs/design.md §11.5, the meniscus's 30 Hz filter) the stale J made the
 //! increments grow into an inverted element. Nothing allocates per step.
@@ -647,6 +648,8 @@ impl TierState {
         // remaining iteration of the step.
         let mut growing = false;
         let mut halvings = 0;
+        // The iterate was just backtracked: no contraction is measured across it.
+        let mut backtracked = false;
         self.q_back.copy_from_slice(&self.s[..r]);
         while iterations < model.max_iterations {
             match self.residual(model, step) {
@@ -659,6 +662,9 @@ impl TierState {
                     }
                     halvings += 1;
                     growing = true;
+                    backtracked = true;
+                    // The plain test until a contraction is measured again.
+                    self.eta = 1.0;
                     continue;
                 }
                 Err(e) => return Err(e),
@@ -689,13 +695,15 @@ impl TierState {
             increment = if qn > 0.0 { dn / qn } else { 0.0 };
             // Contraction estimate: this step's ratio of increments from the second iteration
             // on, the previous steps' (grown by ^0.8) at the first (docs: `error_factor`).
-            if iterations > 1 {
+            let measured = iterations > 1 && !backtracked;
+            if measured {
                 let rho = dn / previous;
                 self.eta = if rho < 0.5 { rho / (1.0 - rho) } else { 1.0 };
             }
             // Once an increment grew, J is refreshed at every remaining iteration of the step
             // (full Newton).
-            growing = growing || (iterations > 1 && dn >= previous);
+            growing = growing || (measured && dn >= previous);
+            backtracked = false;
             previous = dn;
             if self.eta * dn <= model.tolerance * qn {
                 converged = true;
