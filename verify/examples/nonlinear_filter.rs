@@ -76,8 +76,20 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         }
         None => 1,
     };
+    let imm = match args.iter().position(|a| a == "--imm") {
+        Some(i) => {
+            let stay = args
+                .get(i + 1)
+                .and_then(|v| v.parse::<f64>().ok())
+                .filter(|p| *p > 0.0 && *p < 1.0)
+                .ok_or("--imm needs the probability P of staying in a model per step, 0 < P < 1")?;
+            args.drain(i..i + 2);
+            Some(stay)
+        }
+        None => None,
+    };
     if args.len() < 3 {
-        return Err("usage: nonlinear_filter SCENE SCENARIO MODEL... [--seeds N]".into());
+        return Err("usage: nonlinear_filter SCENE SCENARIO MODEL... [--seeds N] [--imm P]".into());
     }
     let full = FullOrder::build(&PathBuf::from(&args[0]), &mut StageTimer::default())?;
     let scenario = Scenario::read(&PathBuf::from(&args[1]))?;
@@ -98,6 +110,9 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "| model | tier | run | nodes | sensors | tip | ANIS [95 % bounds] | tip ANEES [95 % bounds] | 2σ coverage | > 5σ innovations | final f (N) | median step (µs) |\n|---|---|---|---:|---:|---:|---|---|---:|---:|---|---:|"
     );
+    if let Some(stay) = imm {
+        return imm_rows(&args[2..], stay, seeds, &reference, tip);
+    }
     let mut ensembles = Vec::new();
     for path in &args[2..] {
         let mut model = read_model(path)?;
@@ -183,6 +198,158 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     Ok(())
+}
+
+/// `--imm P` (a measuring prototype, docs/design.md §11.5): the two MODEL files (the same tier
+/// with two load models, e.g. without and with force rates) run as an interacting-multiple-model
+/// filter (Blom & Bar-Shalom 1988) with fixed gains: each step the two states are mixed with
+/// the Markov weights (stay P, switch 1 − P; a state without rates gets ḟ = 0, one with them
+/// loses ḟ), both predicted and updated, and the model weights follow the innovations'
+/// likelihoods N(ν; 0, S) (S from each filter's stored prior covariance); the estimate is the
+/// weighted mean of the displayed nodes. Covariances are not mixed (constant gains), so only
+/// errors are printed, over `--seeds` noise draws.
+fn imm_rows(
+    paths: &[String],
+    stay: f64,
+    seeds: u64,
+    reference: &Reference,
+    tip: usize,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let [a, b] = paths else {
+        return Err("--imm needs exactly two MODEL arguments".into());
+    };
+    let models = [read_model(a)?, read_model(b)?];
+    println!(
+        "\nIMM of {a} and {b}, stay {stay} per step, seeds {SEED}…{}\n",
+        SEED + seeds - 1
+    );
+    println!(
+        "| run | nodes error: mean [min, max] | mean weight of the second model |\n|---|---|---:|"
+    );
+    for run in [Run::Given, Run::Withheld] {
+        let (mut errors, mut weights) = (Vec::new(), Vec::new());
+        for seed in SEED..SEED + seeds {
+            let (e, w) = run_imm(&models, stay, run, reference, tip, seed)?;
+            errors.push(e);
+            weights.push(w);
+        }
+        let (m, lo, hi) = spread(&errors).ok_or("no run")?;
+        let (w, _, _) = spread(&weights).ok_or("no run")?;
+        println!(
+            "| {} | {:.2} [{:.2}, {:.2}] % | {w:.3} |",
+            run.label(),
+            100.0 * m,
+            100.0 * lo,
+            100.0 * hi
+        );
+    }
+    Ok(())
+}
+
+/// One IMM run (see [`imm_rows`]): the relative L2 error over the displayed nodes and the
+/// second model's mean weight.
+fn run_imm(
+    models: &[crokf_formats::Model; 2],
+    stay: f64,
+    run: Run,
+    reference: &Reference,
+    _tip: usize,
+    seed: u64,
+) -> Result<(f64, f64), Box<dyn std::error::Error>> {
+    let (inputs, sensors_ref, shown_ref) =
+        (&reference.inputs, &reference.sensors, &reference.shown);
+    let mut est = Vec::with_capacity(2);
+    for m in models {
+        let mut e = Estimator::new(m)?;
+        e.set_innovation_gate(None);
+        est.push(e);
+    }
+    let blocks: Vec<FilterBlocks> = models.iter().map(|m| FilterBlocks::new(m, &[])).collect();
+    let mut acc: Vec<ConsistencyAccumulator> = models
+        .iter()
+        .zip(&blocks)
+        .map(|(m, b)| ConsistencyAccumulator::new(b, m, None))
+        .collect();
+    let p = [[stay, 1.0 - stay], [1.0 - stay, stay]];
+    let mut mu = [0.5, 0.5];
+    let mut rng = Gaussian::new(seed);
+    let model = &models[0];
+    let variance = &model
+        .tier
+        .as_ref()
+        .map_or(&model.kalman, |t| &t.kalman)
+        .measurement_variance;
+    let is_load: Vec<bool> = model
+        .inputs
+        .iter()
+        .map(|i| matches!(i.kind, crokf_formats::InputKind::Load { .. }))
+        .collect();
+    let width = shown_ref[0].len();
+    let mut parts = vec![vec![0.0; width]; 2];
+    let (mut e2, mut r2, mut weight) = (0.0, 0.0, 0.0);
+    for k in 0..inputs.len() {
+        let y: Vec<Option<f64>> = model
+            .measurements
+            .iter()
+            .enumerate()
+            .map(|(j, m)| {
+                Some(
+                    sensors_ref[k][3 * m.sensor as usize + m.component as usize]
+                        + variance[j].sqrt() * rng.normal(),
+                )
+            })
+            .collect();
+        let u: Vec<f64> = inputs[k]
+            .iter()
+            .zip(&is_load)
+            .map(|(&v, &load)| if run == Run::Withheld && load { 0.0 } else { v })
+            .collect();
+        // Mixing: x0_j = Σ_i μ_{i|j} x_i, μ_{i|j} = p_ij μ_i / c_j.
+        let c = [
+            p[0][0] * mu[0] + p[1][0] * mu[1],
+            p[0][1] * mu[0] + p[1][1] * mu[1],
+        ];
+        let states: Vec<Vec<f64>> = est.iter().map(|e| e.state().to_vec()).collect();
+        for (j, e) in est.iter_mut().enumerate() {
+            let mut x = vec![0.0; states[j].len()];
+            for (i, s) in states.iter().enumerate() {
+                let w = p[i][j] * mu[i] / c[j];
+                for (t, v) in x.iter_mut().zip(s) {
+                    *t += w * v;
+                }
+            }
+            e.set_state(&x)?;
+        }
+        mu = c;
+        let mut ll = [None, None];
+        for (j, e) in est.iter_mut().enumerate() {
+            e.predict(&u)?;
+            acc[j].innovation(e, &y)?;
+            ll[j] = acc[j].log_likelihood();
+            e.update(&y)?;
+        }
+        if let [Some(a), Some(b)] = ll {
+            let top = a.max(b);
+            let w = [mu[0] * (a - top).exp(), mu[1] * (b - top).exp()];
+            mu = [w[0] / (w[0] + w[1]), w[1] / (w[0] + w[1])];
+        }
+        weight += mu[1];
+        for (e, part) in est.iter().zip(parts.iter_mut()) {
+            let mut at = 0;
+            for set in 0..model.node_sets.len() {
+                let len = 3 * model.node_sets[set].node_tags.len();
+                e.node_displacements_exact(set, &mut part[at..at + len])?;
+                at += len;
+            }
+        }
+        for i in 0..width {
+            let v = mu[0] * parts[0][i] + mu[1] * parts[1][i];
+            let t = shown_ref[k][i];
+            e2 += (v - t) * (v - t);
+            r2 += t * t;
+        }
+    }
+    Ok(((e2 / r2).sqrt(), weight / inputs.len() as f64))
 }
 
 /// The markers' noise seed of the single runs (and the first of `--seeds`).

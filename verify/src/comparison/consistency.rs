@@ -418,6 +418,8 @@ pub struct ConsistencyAccumulator<'a> {
     inside_runtime: usize,
     inside_world: usize,
     total: usize,
+    /// ln N(ν; 0, S) of the last innovation (see [`ConsistencyAccumulator::log_likelihood`]).
+    log_likelihood: Option<f64>,
     /// Scratch: ŷ⁻ per measurement channel, sensor displacements, σ per node set.
     predicted: Vec<f64>,
     sensors: Vec<f64>,
@@ -435,6 +437,7 @@ impl<'a> ConsistencyAccumulator<'a> {
             inside_runtime: 0,
             inside_world: 0,
             total: 0,
+            log_likelihood: None,
             predicted: vec![0.0; model.measurements.len()],
             sensors: vec![0.0; 3 * model.sensors.len()],
             std: model
@@ -474,6 +477,7 @@ impl<'a> ConsistencyAccumulator<'a> {
             .filter_map(|&j| y[j as usize].map(|v| (j as usize, v)))
             .collect();
         self.out.nis_steps.push(ChiSquare::default());
+        self.log_likelihood = None;
         if used.is_empty() {
             return Ok(());
         }
@@ -512,8 +516,19 @@ impl<'a> ConsistencyAccumulator<'a> {
             if let Some(last) = self.out.nis_steps.last_mut() {
                 *last = step;
             }
+            let log_det: f64 = (0..m).map(|i| 2.0 * chol.l_dirty()[(i, i)].ln()).sum();
+            self.log_likelihood =
+                Some(-0.5 * (step.sum + log_det + m as f64 * (2.0 * std::f64::consts::PI).ln()));
         }
         Ok(())
+    }
+
+    /// ln N(ν; 0, S) of the innovation of the last [`ConsistencyAccumulator::innovation`]: the
+    /// likelihood of the measurements under the filter's prior (`None` when the step had no
+    /// measurement or S was not positive definite). For comparing filters on one recording
+    /// (an interacting-multiple-model weight).
+    pub fn log_likelihood(&self) -> Option<f64> {
+        self.log_likelihood
     }
 
     /// After `est.update`: at time `time` (s), the tip's NEES and trace against its world
