@@ -29,6 +29,10 @@
 //! where one run's errors are correlated in time, unlike the single-run bounds of the first
 //! table; and the 2σ coverage's mean and range.
 //!
+//! `--imm P` (a measuring prototype, docs/design.md §11.5): exactly two MODEL arguments, the same
+//! tier with two load models (e.g. without and with force rates), run as an
+//! interacting-multiple-model filter, stay probability P per step (`imm_rows`).
+//!
 //! Measuring aids (environment): `CROKF_REFERENCE_CACHE=FILE` keeps the reference run in FILE
 //! (written once, read while the step count matches: use one file per scene and scenario);
 //! `CROKF_RUNS=open,given,withheld` runs only those; `CROKF_NOISE_SCALE=c` scales the markers'
@@ -111,7 +115,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         "| model | tier | run | nodes | sensors | tip | ANIS [95 % bounds] | tip ANEES [95 % bounds] | 2σ coverage | > 5σ innovations | final f (N) | median step (µs) |\n|---|---|---|---:|---:|---:|---|---|---:|---:|---|---:|"
     );
     if let Some(stay) = imm {
-        return imm_rows(&args[2..], stay, seeds, &reference, tip);
+        return imm_rows(&args[2..], stay, seeds, &reference);
     }
     let mut ensembles = Vec::new();
     for path in &args[2..] {
@@ -213,7 +217,6 @@ fn imm_rows(
     stay: f64,
     seeds: u64,
     reference: &Reference,
-    tip: usize,
 ) -> Result<(), Box<dyn std::error::Error>> {
     let [a, b] = paths else {
         return Err("--imm needs exactly two MODEL arguments".into());
@@ -229,7 +232,7 @@ fn imm_rows(
     for run in [Run::Given, Run::Withheld] {
         let (mut errors, mut weights) = (Vec::new(), Vec::new());
         for seed in SEED..SEED + seeds {
-            let (e, w) = run_imm(&models, stay, run, reference, tip, seed)?;
+            let (e, w) = run_imm(&models, stay, run, reference, seed)?;
             errors.push(e);
             weights.push(w);
         }
@@ -253,7 +256,6 @@ fn run_imm(
     stay: f64,
     run: Run,
     reference: &Reference,
-    _tip: usize,
     seed: u64,
 ) -> Result<(f64, f64), Box<dyn std::error::Error>> {
     let (inputs, sensors_ref, shown_ref) =
