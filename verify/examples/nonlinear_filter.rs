@@ -95,6 +95,9 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     if args.len() < 3 {
         return Err("usage: nonlinear_filter SCENE SCENARIO MODEL... [--seeds N] [--imm P]".into());
     }
+    if imm.is_some() && args.len() != 4 {
+        return Err("--imm needs exactly two MODEL arguments".into());
+    }
     let full = FullOrder::build(&PathBuf::from(&args[0]), &mut StageTimer::default())?;
     let scenario = Scenario::read(&PathBuf::from(&args[1]))?;
     let ops = &full.operators;
