@@ -118,7 +118,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         "| model | tier | run | nodes | sensors | tip | ANIS [95 % bounds] | tip ANEES [95 % bounds] | 2σ coverage | > 5σ innovations | final f (N) | median step (µs) |\n|---|---|---|---:|---:|---:|---|---|---:|---:|---|---:|"
     );
     if let Some(stay) = imm {
-        return imm_rows(&args[2..], stay, seeds, &reference);
+        return imm_rows(&args[2..], stay, seeds, &reference, tip);
     }
     let mut ensembles = Vec::new();
     for path in &args[2..] {
@@ -220,6 +220,7 @@ fn imm_rows(
     stay: f64,
     seeds: u64,
     reference: &Reference,
+    tip: usize,
 ) -> Result<(), Box<dyn std::error::Error>> {
     let [a, b] = paths else {
         return Err("--imm needs exactly two MODEL arguments".into());
@@ -230,37 +231,47 @@ fn imm_rows(
         SEED + seeds - 1
     );
     println!(
-        "| run | nodes error: mean [min, max] | mean weight of the second model |\n|---|---|---:|"
+        "| run | nodes error: mean [min, max] | mean weight of the second model | tip NEES of the mixture: mean, steps below / inside / above |\n|---|---|---:|---|"
     );
     for run in [Run::Given, Run::Withheld] {
         let (mut errors, mut weights) = (Vec::new(), Vec::new());
+        let mut nees = Ensemble::default();
         for seed in SEED..SEED + seeds {
-            let (e, w) = run_imm(&models, stay, run, reference, seed)?;
+            let (e, w, steps) = run_imm(&models, stay, run, reference, tip, seed)?;
             errors.push(e);
             weights.push(w);
+            nees.add(&steps)?;
         }
         let (m, lo, hi) = spread(&errors).ok_or("no run")?;
         let (w, _, _) = spread(&weights).ok_or("no run")?;
+        let f = nees.fractions();
         println!(
-            "| {} | {:.2} [{:.2}, {:.2}] % | {w:.3} |",
+            "| {} | {:.2} [{:.2}, {:.2}] % | {w:.3} | {:.3}, {:.1} / {:.1} / {:.1} % of {} |",
             run.label(),
             100.0 * m,
             100.0 * lo,
-            100.0 * hi
+            100.0 * hi,
+            nees.total().mean(),
+            100.0 * f.below,
+            100.0 * f.inside,
+            100.0 * f.above,
+            f.steps
         );
     }
     Ok(())
 }
 
-/// One IMM run (see [`imm_rows`]): the relative L2 error over the displayed nodes and the
-/// second model's mean weight.
+/// One IMM run (see [`imm_rows`]): the relative L2 error over the displayed nodes, the second
+/// model's mean weight, and per step the tip's NEES against the mixture's covariance
+/// Σ μ_j (P_j + d_j d_jᵀ) (d_j = the model's tip estimate − the mixture's).
 fn run_imm(
     models: &[crokf_formats::Model; 2],
     stay: f64,
     run: Run,
     reference: &Reference,
+    tip: usize,
     seed: u64,
-) -> Result<(f64, f64), Box<dyn std::error::Error>> {
+) -> Result<(f64, f64, Vec<ChiSquare>), Box<dyn std::error::Error>> {
     let (inputs, sensors_ref, shown_ref) =
         (&reference.inputs, &reference.sensors, &reference.shown);
     let mut est = Vec::with_capacity(2);
@@ -291,6 +302,8 @@ fn run_imm(
         .collect();
     let width = shown_ref[0].len();
     let mut parts = vec![vec![0.0; width]; 2];
+    let mut sensors = vec![vec![0.0; 3 * model.sensors.len()]; 2];
+    let mut nees_steps = Vec::with_capacity(inputs.len());
     let (mut e2, mut r2, mut weight) = (0.0, 0.0, 0.0);
     for k in 0..inputs.len() {
         let y: Vec<Option<f64>> = model
@@ -353,8 +366,29 @@ fn run_imm(
             e2 += (v - t) * (v - t);
             r2 += t * t;
         }
+        // The tip's NEES against the mixture's covariance.
+        let mut tips = [nalgebra::Vector3::zeros(); 2];
+        for j in 0..2 {
+            est[j].sensor_displacements(&mut sensors[j])?;
+            tips[j] = nalgebra::Vector3::from_fn(|c, _| sensors[j][3 * tip + c]);
+        }
+        let mix = tips[0] * mu[0] + tips[1] * mu[1];
+        let mut cov = nalgebra::Matrix3::zeros();
+        for j in 0..2 {
+            let d = tips[j] - mix;
+            cov += (acc[j].sensor_covariance(&est[j], tip) + d * d.transpose()) * mu[j];
+        }
+        let truth = nalgebra::Vector3::from_fn(|c, _| sensors_ref[k][3 * tip + c]);
+        let e = mix - truth;
+        nees_steps.push(match cov.try_inverse() {
+            Some(inv) => ChiSquare {
+                sum: (e.transpose() * inv * e)[(0, 0)],
+                dof: 3,
+            },
+            None => ChiSquare::default(),
+        });
     }
-    Ok(((e2 / r2).sqrt(), weight / inputs.len() as f64))
+    Ok(((e2 / r2).sqrt(), weight / inputs.len() as f64, nees_steps))
 }
 
 /// The markers' noise seed of the single runs (and the first of `--seeds`).

@@ -523,6 +523,14 @@ impl<'a> ConsistencyAccumulator<'a> {
         Ok(())
     }
 
+    /// The posterior covariance of sensor `s`'s world displacement after `est.update` (m², the
+    /// stored P_p of the filter in use mapped by the sensor's rows, rotated to the world frame
+    /// on the warped tier; module docs).
+    pub fn sensor_covariance(&self, est: &Estimator, s: usize) -> Matrix3<f64> {
+        let w = self.sensor_warp(est.model(), s, est.state());
+        w * self.filter(est).sensor_post[est.phase()][s] * w.transpose()
+    }
+
     /// ln N(ν; 0, S) of the innovation of the last [`ConsistencyAccumulator::innovation`]: the
     /// likelihood of the measurements under the filter's prior (`None` when the step had no
     /// measurement or S was not positive definite). For comparing filters on one recording
