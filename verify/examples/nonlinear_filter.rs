@@ -29,9 +29,10 @@
 //! where one run's errors are correlated in time, unlike the single-run bounds of the first
 //! table; and the 2σ coverage's mean and range.
 //!
-//! `--imm P` (a measuring prototype, docs/design.md §11.5): exactly two MODEL arguments, the same
-//! tier with two load models (e.g. without and with force rates), run as an
-//! interacting-multiple-model filter, stay probability P per step (`imm_rows`).
+//! `--imm P` (a measuring prototype, docs/design.md §11.5–11.6): exactly two MODEL arguments,
+//! the same tier with two load models (without and with force rates, or two force σ), run as an
+//! interacting-multiple-model filter, stay probability P per step (`imm_rows`): the error, the
+//! second model's mean weight and the mixture's tip NEES over `--seeds` draws.
 //!
 //! Measuring aids (environment): `CROKF_REFERENCE_CACHE=FILE` keeps the reference run in FILE
 //! (written once, read while the step count matches: use one file per scene and scenario);
