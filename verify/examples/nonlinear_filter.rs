@@ -208,14 +208,15 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
-/// `--imm P` (a measuring prototype, docs/design.md §11.5): the two MODEL files (the same tier
-/// with two load models, e.g. without and with force rates) run as an interacting-multiple-model
-/// filter (Blom & Bar-Shalom 1988) with fixed gains: each step the two states are mixed with
-/// the Markov weights (stay P, switch 1 − P; a state without rates gets ḟ = 0, one with them
-/// loses ḟ), both predicted and updated, and the model weights follow the innovations'
-/// likelihoods N(ν; 0, S) (S from each filter's stored prior covariance); the estimate is the
-/// weighted mean of the displayed nodes. Covariances are not mixed (constant gains), so only
-/// errors are printed, over `--seeds` noise draws.
+/// `--imm P` (a measuring prototype, docs/design.md §11.5–11.6): the two MODEL files (the same
+/// tier with two load models: without and with force rates, or two force σ) run as an
+/// interacting-multiple-model filter (Blom & Bar-Shalom 1988) with fixed gains: each step the
+/// two states are mixed with the Markov weights (stay P, switch 1 − P; a state without rates
+/// gets ḟ = 0, one with them loses ḟ), both predicted and updated, and the model weights follow
+/// the innovations' likelihoods N(ν; 0, S) (S from each filter's stored prior covariance); the
+/// estimate is the weighted mean of the displayed nodes. The filters' covariances are not mixed
+/// (constant gains); the mixture's tip covariance Σ μ_j (P_j + d_j d_jᵀ) gives its NEES. Over
+/// `--seeds` noise draws; a refused step ends the table with its error.
 fn imm_rows(
     paths: &[String],
     stay: f64,
