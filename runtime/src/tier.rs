@@ -453,9 +453,6 @@ pub struct TierState {
     /// Previous s (rollback of a step) and the update's scratch.
     pub(crate) s_prev: Vec<f64>,
     q_hat: Vec<f64>,
-    /// The last iterate of this step whose residual was evaluated without an inverted element
-    /// (q at the start of the step): where a backtracking halving heads.
-    q_back: Vec<f64>,
     acc: Vec<f64>,
     vel: Vec<f64>,
     force: Vec<f64>,
@@ -494,7 +491,6 @@ impl TierState {
             s: vec![0.0; model.n],
             s_prev: vec![0.0; model.n],
             q_hat: vec![0.0; r],
-            q_back: vec![0.0; r],
             acc: vec![0.0; r],
             vel: vec![0.0; r],
             force: vec![0.0; r],
@@ -634,10 +630,13 @@ impl TierState {
                 });
             }
         }
-        // Taylor predictor q̂₀ = q + τq̇ + (τ²/2)q̈ (the compiler's `ReducedNewton::predictor`).
+        // Taylor predictor q̂₀ = q + τq̇ + (τ²/2)q̈ (the compiler's `ReducedNewton::predictor`);
+        // `res` holds the last step taken towards q̂ (here q̂₀ − q), which a backtracking halving
+        // undoes by halves (module docs).
         let tau = wilson(model).tau;
         for i in 0..r {
             self.q_hat[i] = self.s[i] + tau * self.s[r + i] + 0.5 * tau * tau * self.s[2 * r + i];
+            self.res[i] = self.q_hat[i] - self.s[i];
         }
         let mut refreshed = false;
         let mut iterations = 0;
@@ -650,15 +649,16 @@ impl TierState {
         let mut halvings = 0;
         // The iterate was just backtracked: no contraction is measured across it.
         let mut backtracked = false;
-        self.q_back.copy_from_slice(&self.s[..r]);
         while iterations < model.max_iterations {
             match self.residual(model, step) {
                 Ok(()) => {}
                 Err(TierError::InvertedElement { .. }) if halvings < BACKTRACK_HALVINGS => {
                     // Backtracking (module docs): halfway back to the last admissible iterate,
-                    // J refreshed there.
-                    for (q, b) in self.q_hat.iter_mut().zip(&self.q_back) {
-                        *q = 0.5 * (*q + b);
+                    // J refreshed there. The residual failed before writing `res`: it still
+                    // holds the step into this iterate.
+                    for (q, d) in self.q_hat.iter_mut().zip(self.res.iter_mut()) {
+                        *d *= 0.5;
+                        *q -= *d;
                     }
                     halvings += 1;
                     growing = true;
@@ -669,7 +669,6 @@ impl TierState {
                 }
                 Err(e) => return Err(e),
             }
-            self.q_back.copy_from_slice(&self.q_hat);
             let refresh_now = !self.has_factor
                 || (iterations == 0 && self.slow)
                 || iterations == SLOW_ITERATIONS
