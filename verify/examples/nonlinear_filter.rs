@@ -109,18 +109,16 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let cache = std::env::var_os("CROKF_REFERENCE_CACHE").map(PathBuf::from);
     let reference = Reference::of(&full, &scenario, steps, cache.as_deref())?;
     let tip = reference.tip_marker(&full);
-    let (shown_ref, sensors_ref, inputs) =
-        (&reference.shown, &reference.sensors, &reference.inputs);
     println!(
         "tip marker: {} (NEES); loads withheld = every load channel 0, gravity kept\n",
         ops.sensors.get(tip).map_or("—", |s| s.name.as_str())
     );
-    println!(
-        "| model | tier | run | nodes | sensors | tip | ANIS [95 % bounds] | tip ANEES [95 % bounds] | 2σ coverage | > 5σ innovations | final f (N) | median step (µs) |\n|---|---|---|---:|---:|---:|---|---|---:|---:|---|---:|"
-    );
     if let Some(stay) = imm {
         return imm_rows(&args[2..], stay, seeds, &reference, tip);
     }
+    println!(
+        "| model | tier | run | nodes | sensors | tip | ANIS [95 % bounds] | tip ANEES [95 % bounds] | 2σ coverage | > 5σ innovations | final f (N) | median step (µs) |\n|---|---|---|---:|---:|---:|---|---|---:|---:|---|---:|"
+    );
     let mut ensembles = Vec::new();
     for path in &args[2..] {
         let mut model = read_model(path)?;
@@ -145,7 +143,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             {
                 continue;
             }
-            let out = match run_model(&model, run, inputs, sensors_ref, shown_ref, tip, SEED) {
+            let out = match run_model(&model, run, &reference, tip, SEED) {
                 Ok(out) => out,
                 Err(e) => {
                     println!("| {path} | {tier} | {} | refused: {e} |", run.label());
@@ -155,7 +153,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             if seeds > 1 && run != Run::OpenLoop {
                 ensembles.push((
                     format!("{path} | {}", run.label()),
-                    ensemble(&model, run, inputs, sensors_ref, shown_ref, tip, seeds),
+                    ensemble(&model, run, &reference, tip, seeds),
                 ));
             }
             let stat = |c: &Option<ChiSquare>| match c {
@@ -274,8 +272,8 @@ fn run_imm(
     tip: usize,
     seed: u64,
 ) -> Result<(f64, f64, Vec<ChiSquare>), Box<dyn std::error::Error>> {
-    let (inputs, sensors_ref, shown_ref) =
-        (&reference.inputs, &reference.sensors, &reference.shown);
+    let (sensors_ref, shown_ref) = (&reference.sensors, &reference.shown);
+    let steps = reference.inputs.len();
     let mut est = Vec::with_capacity(2);
     for m in models {
         let mut e = Estimator::new(m)?;
@@ -290,40 +288,16 @@ fn run_imm(
         .collect();
     let p = [[stay, 1.0 - stay], [1.0 - stay, stay]];
     let mut mu = [0.5, 0.5];
-    let mut rng = Gaussian::new(seed);
     let model = &models[0];
-    let variance = &model
-        .tier
-        .as_ref()
-        .map_or(&model.kalman, |t| &t.kalman)
-        .measurement_variance;
-    let is_load: Vec<bool> = model
-        .inputs
-        .iter()
-        .map(|i| matches!(i.kind, crokf_formats::InputKind::Load { .. }))
-        .collect();
+    let mut drive = Drive::new(model, reference, run, seed)?;
     let width = shown_ref[0].len();
     let mut parts = vec![vec![0.0; width]; 2];
     let mut sensors = vec![vec![0.0; 3 * model.sensors.len()]; 2];
-    let mut nees_steps = Vec::with_capacity(inputs.len());
+    let mut nees_steps = Vec::with_capacity(steps);
     let (mut e2, mut r2, mut weight) = (0.0, 0.0, 0.0);
-    for k in 0..inputs.len() {
-        let y: Vec<Option<f64>> = model
-            .measurements
-            .iter()
-            .enumerate()
-            .map(|(j, m)| {
-                Some(
-                    sensors_ref[k][3 * m.sensor as usize + m.component as usize]
-                        + variance[j].sqrt() * rng.normal(),
-                )
-            })
-            .collect();
-        let u: Vec<f64> = inputs[k]
-            .iter()
-            .zip(&is_load)
-            .map(|(&v, &load)| if run == Run::Withheld && load { 0.0 } else { v })
-            .collect();
+    for k in 0..steps {
+        let y = drive.markers(k);
+        let u = drive.inputs(k);
         // Mixing: x0_j = Σ_i μ_{i|j} x_i, μ_{i|j} = p_ij μ_i / c_j.
         let c = [
             p[0][0] * mu[0] + p[1][0] * mu[1],
@@ -355,12 +329,7 @@ fn run_imm(
         }
         weight += mu[1];
         for (e, part) in est.iter().zip(parts.iter_mut()) {
-            let mut at = 0;
-            for set in 0..model.node_sets.len() {
-                let len = 3 * model.node_sets[set].node_tags.len();
-                e.node_displacements_exact(set, &mut part[at..at + len])?;
-                at += len;
-            }
+            displayed(e, model, part)?;
         }
         for i in 0..width {
             let v = mu[0] * parts[0][i] + mu[1] * parts[1][i];
@@ -390,7 +359,7 @@ fn run_imm(
             None => ChiSquare::default(),
         });
     }
-    Ok(((e2 / r2).sqrt(), weight / inputs.len() as f64, nees_steps))
+    Ok(((e2 / r2).sqrt(), weight / steps as f64, nees_steps))
 }
 
 /// The markers' noise seed of the single runs (and the first of `--seeds`).
@@ -431,15 +400,13 @@ fn ensemble_row(e: &SeedEnsemble) -> String {
 fn ensemble(
     model: &crokf_formats::Model,
     run: Run,
-    inputs: &[Vec<f64>],
-    sensors_ref: &[Vec<f64>],
-    shown_ref: &[Vec<f64>],
+    reference: &Reference,
     tip: usize,
     seeds: u64,
 ) -> Result<SeedEnsemble, Box<dyn std::error::Error>> {
     let mut out = SeedEnsemble::default();
     for seed in SEED..SEED + seeds {
-        match run_model(model, run, inputs, sensors_ref, shown_ref, tip, seed) {
+        match run_model(model, run, reference, tip, seed) {
             Ok(f) => {
                 let c = f
                     .consistency
@@ -515,16 +482,106 @@ struct RunFigures {
     consistency: Option<Consistency>,
 }
 
+/// What one run feeds the estimator at each step: the scenario's inputs (every load channel 0
+/// when the run withholds the loads, gravity kept) and the markers, the reference's sensor
+/// displacements plus Gaussian noise of each channel's σ (the model's filter's R) times
+/// `CROKF_NOISE_SCALE`, drawn from `seed` one channel after another.
+struct Drive<'a> {
+    reference: &'a Reference,
+    /// Per input channel: zeroed in this run.
+    zeroed: Vec<bool>,
+    /// Per measurement channel: its index in a step's sensor row (3 per sensor) and noise σ.
+    channels: Vec<(usize, f64)>,
+    rng: Gaussian,
+}
+
+impl<'a> Drive<'a> {
+    fn new(
+        model: &crokf_formats::Model,
+        reference: &'a Reference,
+        run: Run,
+        seed: u64,
+    ) -> Result<Self, Box<dyn std::error::Error>> {
+        // CROKF_NOISE_SCALE=c (a measuring aid): markers with c times the model's σ (0:
+        // noise-free), the filter unchanged; separates the noise-driven part of the error.
+        let noise_scale: f64 = match std::env::var("CROKF_NOISE_SCALE") {
+            Ok(v) => v
+                .parse()
+                .map_err(|_| format!("CROKF_NOISE_SCALE={v}: not a number"))?,
+            Err(_) => 1.0,
+        };
+        let variance = &model
+            .tier
+            .as_ref()
+            .map_or(&model.kalman, |t| &t.kalman)
+            .measurement_variance;
+        Ok(Drive {
+            reference,
+            zeroed: model
+                .inputs
+                .iter()
+                .map(|i| {
+                    run == Run::Withheld && matches!(i.kind, crokf_formats::InputKind::Load { .. })
+                })
+                .collect(),
+            channels: model
+                .measurements
+                .iter()
+                .zip(variance)
+                .map(|(m, v)| {
+                    (
+                        3 * m.sensor as usize + m.component as usize,
+                        noise_scale * v.sqrt(),
+                    )
+                })
+                .collect(),
+            rng: Gaussian::new(seed),
+        })
+    }
+
+    /// The inputs of step k.
+    fn inputs(&self, k: usize) -> Vec<f64> {
+        self.reference.inputs[k]
+            .iter()
+            .zip(&self.zeroed)
+            .map(|(&v, &zero)| if zero { 0.0 } else { v })
+            .collect()
+    }
+
+    /// The markers of step k (every channel; the runtime uses those of its phase).
+    fn markers(&mut self, k: usize) -> Vec<Option<f64>> {
+        let row = &self.reference.sensors[k];
+        self.channels
+            .iter()
+            .map(|&(at, sigma)| Some(row[at] + sigma * self.rng.normal()))
+            .collect()
+    }
+}
+
+/// The estimator's displayed nodes, every node set in order (the layout of `Reference::shown`).
+fn displayed(
+    est: &Estimator,
+    model: &crokf_formats::Model,
+    out: &mut [f64],
+) -> Result<(), crokf_runtime::RuntimeError> {
+    let mut at = 0;
+    for set in 0..model.node_sets.len() {
+        let len = 3 * model.node_sets[set].node_tags.len();
+        est.node_displacements_exact(set, &mut out[at..at + len])?;
+        at += len;
+    }
+    Ok(())
+}
+
 fn run_model(
     model: &crokf_formats::Model,
     run: Run,
-    inputs: &[Vec<f64>],
-    sensors_ref: &[Vec<f64>],
-    shown_ref: &[Vec<f64>],
+    reference: &Reference,
     tip: usize,
     seed: u64,
 ) -> Result<RunFigures, Box<dyn std::error::Error>> {
-    let steps = inputs.len();
+    let (sensors_ref, shown_ref) = (&reference.sensors, &reference.shown);
+    let steps = reference.inputs.len();
     let mut est = Estimator::new(model)?;
     est.set_innovation_gate(None);
     // CROKF_MARKER_PHASE=o (a measuring aid): o predictions at rest before the scenario starts,
@@ -541,13 +598,7 @@ fn run_model(
     for _ in 0..pre {
         est.predict(&rest_inputs)?;
     }
-    let mut rng = Gaussian::new(seed);
-    // CROKF_NOISE_SCALE=c (a measuring aid): markers with c times the model's σ (0: noise-free),
-    // the filter unchanged; separates the noise-driven part of the error from the rest.
-    let noise_scale: f64 = std::env::var("CROKF_NOISE_SCALE")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(1.0);
+    let mut drive = Drive::new(model, reference, run, seed)?;
     let (mut e2, mut r2, mut se2, mut sr2, mut te2, mut tr2) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     let mut shown = vec![0.0; shown_ref[0].len()];
     let mut sens = vec![0.0; 3 * model.sensors.len()];
@@ -563,33 +614,9 @@ fn run_model(
         .collect();
     let blocks = FilterBlocks::new(model, &display);
     let mut acc = ConsistencyAccumulator::new(&blocks, model, Some(tip));
-    let is_load: Vec<bool> = model
-        .inputs
-        .iter()
-        .map(|i| matches!(i.kind, crokf_formats::InputKind::Load { .. }))
-        .collect();
-    let variance = &model
-        .tier
-        .as_ref()
-        .map_or(&model.kalman, |t| &t.kalman)
-        .measurement_variance;
     for k in 0..steps {
-        let y: Vec<Option<f64>> = model
-            .measurements
-            .iter()
-            .enumerate()
-            .map(|(j, m)| {
-                Some(
-                    sensors_ref[k][3 * m.sensor as usize + m.component as usize]
-                        + noise_scale * variance[j].sqrt() * rng.normal(),
-                )
-            })
-            .collect();
-        let u: Vec<f64> = inputs[k]
-            .iter()
-            .zip(&is_load)
-            .map(|(&v, &load)| if run == Run::Withheld && load { 0.0 } else { v })
-            .collect();
+        let y = drive.markers(k);
+        let u = drive.inputs(k);
         let clock = std::time::Instant::now();
         est.predict(&u)?;
         let mut elapsed = clock.elapsed().as_secs_f64();
@@ -626,12 +653,7 @@ fn run_model(
             }
         }
         times.push(elapsed);
-        let mut at = 0;
-        for set in 0..model.node_sets.len() {
-            let len = 3 * model.node_sets[set].node_tags.len();
-            est.node_displacements_exact(set, &mut shown[at..at + len])?;
-            at += len;
-        }
+        displayed(&est, model, &mut shown)?;
         let (mut ke, mut kr) = (0.0, 0.0);
         for (a, b) in shown.iter().zip(&shown_ref[k]) {
             ke += (a - b) * (a - b);
