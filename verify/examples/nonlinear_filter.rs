@@ -54,7 +54,7 @@ use crokf_verify::comparison::{
     spread, ChiSquare, Consistency, ConsistencyAccumulator, Ensemble, FilterBlocks, Gaussian,
     SeedEnsemble,
 };
-use crokf_verify::nonlinear::reference::Reference;
+use crokf_verify::nonlinear::reference::{displayed, Reference};
 use crokf_verify::scenario::{Horizon, Scenario};
 
 fn main() -> ExitCode {
@@ -556,21 +556,6 @@ impl<'a> Drive<'a> {
             .map(|&(at, sigma)| Some(row[at] + sigma * self.rng.normal()))
             .collect()
     }
-}
-
-/// The estimator's displayed nodes, every node set in order (the layout of `Reference::shown`).
-fn displayed(
-    est: &Estimator,
-    model: &crokf_formats::Model,
-    out: &mut [f64],
-) -> Result<(), crokf_runtime::RuntimeError> {
-    let mut at = 0;
-    for set in 0..model.node_sets.len() {
-        let len = 3 * model.node_sets[set].node_tags.len();
-        est.node_displacements_exact(set, &mut out[at..at + len])?;
-        at += len;
-    }
-    Ok(())
 }
 
 fn run_model(

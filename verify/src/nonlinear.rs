@@ -9,6 +9,7 @@
 pub mod floors;
 pub mod identify;
 pub mod reference;
+pub mod sampling;
 pub mod tier;
 pub mod training;
 
@@ -40,6 +41,9 @@ pub enum TierError {
     /// Scene, mesh or assembly.
     #[error(transparent)]
     Compile(#[from] Box<CompileError>),
+    /// The runtime (an oracle run through the model's `Estimator`).
+    #[error(transparent)]
+    Runtime(#[from] crokf_runtime::RuntimeError),
     /// Inconsistent arguments (what is wrong, naming the offending item).
     #[error("{0}")]
     Invalid(String),

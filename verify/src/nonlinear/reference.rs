@@ -1,11 +1,13 @@
 //! The full-order co-rotational reference of a scenario as the filter drivers use it
 //! (`--example nonlinear_filter`, `--example identify_noise`): displayed nodes, sensors and the
-//! scenario's inputs per step, optionally cached in a file (a measuring aid).
+//! scenario's inputs per step, optionally cached in a file (a measuring aid); [`displayed`], an
+//! estimator's read-out in the same layout.
 
 use std::path::Path;
 
 use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, Simulator};
 use crokf_compile::FullOrder;
+use crokf_runtime::{Estimator, Model, RuntimeError};
 
 use super::TierError;
 use crate::scenario::Scenario;
@@ -72,6 +74,25 @@ impl Reference {
             .or_else(|| (0..sensors.len()).max_by(|&a, &b| peak(a).total_cmp(&peak(b))))
             .unwrap_or(0)
     }
+}
+
+/// The estimator's displayed nodes in the layout of [`Reference::shown`]: every node set of
+/// `model` in order, 3 world-frame displacements per node (m), exact rotations
+/// (`Estimator::node_displacements_exact`). `out` has 3 × (the node sets' total count).
+pub fn displayed(est: &Estimator, model: &Model, out: &mut [f64]) -> Result<(), RuntimeError> {
+    let found = out.len();
+    let mut at = 0;
+    for (set, nodes) in model.node_sets.iter().enumerate() {
+        let len = 3 * nodes.node_tags.len();
+        let rows = out.get_mut(at..at + len).ok_or(RuntimeError::Length {
+            what: "displayed nodes",
+            expected: at + len,
+            found,
+        })?;
+        est.node_displacements_exact(set, rows)?;
+        at += len;
+    }
+    Ok(())
 }
 
 fn run(full: &FullOrder, scenario: &Scenario, steps: usize) -> Result<Reference, TierError> {
