@@ -48,13 +48,7 @@ use crokf_verify::nonlinear::reference::Reference;
 use crokf_verify::scenario::{Horizon, Scenario};
 
 fn main() -> ExitCode {
-    match run() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    crokf_verify::exit(run())
 }
 
 const USAGE: &str =

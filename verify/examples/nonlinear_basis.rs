@@ -52,13 +52,7 @@ use crokf_verify::scenario::{Horizon, Scenario};
 type Failure = Box<dyn std::error::Error>;
 
 fn main() -> ExitCode {
-    match run() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    crokf_verify::exit(run())
 }
 
 fn flag(args: &[String], name: &str) -> Option<String> {

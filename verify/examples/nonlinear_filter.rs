@@ -58,13 +58,7 @@ use crokf_verify::nonlinear::reference::{displayed, Reference};
 use crokf_verify::scenario::{Horizon, Scenario};
 
 fn main() -> ExitCode {
-    match run() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    crokf_verify::exit(run())
 }
 
 fn run() -> Result<(), Box<dyn std::error::Error>> {

@@ -23,13 +23,7 @@ use crokf_verify::scenario::Scenario;
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    crokf_verify::exit(run(&args))
 }
 
 fn number<T: std::str::FromStr>(args: &[String], i: usize, what: &str) -> Result<T, TierError> {

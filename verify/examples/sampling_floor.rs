@@ -27,13 +27,7 @@ use crokf_verify::nonlinear::sampling::{sampling_floor, MarkerSteps};
 use crokf_verify::scenario::{Horizon, Scenario};
 
 fn main() -> ExitCode {
-    match run() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    crokf_verify::exit(run())
 }
 
 /// Removes `--name VALUE` from `args` and parses VALUE as a comma-separated list.

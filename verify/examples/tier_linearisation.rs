@@ -30,13 +30,7 @@ use crokf_verify::scenario::{Horizon, Scenario};
 use nalgebra::{DMatrix, DVector};
 
 fn main() -> ExitCode {
-    match run() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    crokf_verify::exit(run())
 }
 
 fn faer_to(m: &faer::Mat<f64>) -> DMatrix<f64> {

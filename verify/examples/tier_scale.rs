@@ -30,13 +30,7 @@ use crokf_runtime::{load_model, Estimator};
 use crokf_verify::bench::{step_clock_seconds, STEP_CLOCK};
 
 fn main() -> ExitCode {
-    match run() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    crokf_verify::exit(run())
 }
 
 fn flag_value(args: &[String], name: &str) -> Option<String> {

@@ -15,3 +15,16 @@ pub mod nonlinear;
 pub mod scenario;
 pub mod simulate;
 pub mod vtu;
+
+/// The exit of a measuring example (`verify/examples/*`: `fn main() -> ExitCode {
+/// crokf_verify::exit(run()) }`): success for `Ok`; for an error, `error: …` in its `Display`
+/// form (a `Result`-returning `main` would print its `Debug` form) on stderr and failure.
+pub fn exit<E: std::fmt::Display>(result: Result<(), E>) -> std::process::ExitCode {
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

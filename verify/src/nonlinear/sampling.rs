@@ -143,7 +143,13 @@ pub fn sampling_floor(
             load.len()
         )));
     }
-    let width = shown[0].len();
+    let width: usize = model.node_sets.iter().map(|s| 3 * s.node_tags.len()).sum();
+    if let Some(k) = shown.iter().position(|r| r.len() != width) {
+        return Err(TierError::Invalid(format!(
+            "sampling floor: reference row {k} has {} values, the model displays {width} (3 per node of its node sets): not the model of this scene?",
+            shown[k].len()
+        )));
+    }
     let mut row = vec![0.0; width];
 
     // The model open loop, loads given: its states (the oracles' knowledge at markers) and its
@@ -373,5 +379,9 @@ mod tests {
         short[3].pop();
         let err = sampling_floor(&model, &short, &shown, m, &[0.0], 1).unwrap_err();
         assert!(err.to_string().contains("input row 3"), "{err}");
+        let mut narrow = shown.clone();
+        narrow[7].pop();
+        let err = sampling_floor(&model, &inputs, &narrow, m, &[0.0], 1).unwrap_err();
+        assert!(err.to_string().contains("reference row 7"), "{err}");
     }
 }
