@@ -39,7 +39,8 @@
 //! `CROKF_RUNS=open,given,withheld` runs only those; `CROKF_NOISE_SCALE=c` scales the markers'
 //! noise (0: noise-free, the filter unchanged); `CROKF_NO_SCHEDULE=1` drops the tier's gain
 //! schedule (the filter designed at rest only, docs/design.md §11.5); `CROKF_TRACE=1` prints
-//! ‖q‖, ‖q̇‖, ‖q̈‖ and f before and after every update on stderr; `CROKF_MARKER_PHASE=o` makes
+//! ‖q‖, ‖q̇‖, ‖q̈‖ and f before and after every update, and the schedule's filter that made
+//! the update, on stderr; `CROKF_MARKER_PHASE=o` makes
 //! sparse markers arrive o steps earlier in their period (o predictions at rest first);
 //! `CROKF_ERROR_TRACE=1` prints each step's error and reference norm over the displayed nodes,
 //! the phase and the tier's force states on stderr (lines starting `ERR`).
@@ -628,7 +629,11 @@ fn run_model(
             est.update(&y)?;
             elapsed += clock.elapsed().as_secs_f64();
             if trace {
-                eprintln!("k {k}          post   {}", norms(est.state(), r));
+                eprintln!(
+                    "k {k} filter {:?} post   {}",
+                    est.tier_filter(),
+                    norms(est.state(), r)
+                );
             }
         }
         times.push(elapsed);
