@@ -4,7 +4,7 @@
 //! Markers every L steps (offset o: they arrive at the steps k ≡ L − 1 − o (mod L), the
 //! convention of `nonlinear_filter`'s `CROKF_MARKER_PHASE`) are all the estimator learns of a
 //! withheld load. Two oracles, each given far more than noisy markers of a few points can tell,
-//! bound what a filter can reach on a recording; both step the model's own runtime
+//! show what the samples alone would allow on a recording; both step the model's own runtime
 //! ([`Estimator`]), so the model's open-loop error is in both, and both are scored as the filter
 //! drivers score a run (relative L2 over the displayed nodes and the whole trajectory):
 //!
