@@ -23,7 +23,7 @@ use std::process::ExitCode;
 use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
 use crokf_verify::nonlinear::reference::Reference;
-use crokf_verify::nonlinear::sampling::{sampling_floor, MarkerSteps};
+use crokf_verify::nonlinear::sampling::{MarkerSteps, OpenLoop};
 use crokf_verify::scenario::{Horizon, Scenario};
 
 fn main() -> ExitCode {
@@ -96,7 +96,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         model.dt
     );
     let heads: Vec<String> = alphas.iter().map(|a| format!("α = {a:.2}")).collect();
-    let mut open_loop = None;
+    let open_loop = OpenLoop::run(&model, &reference.inputs, &reference.shown)?;
     for (span, what) in [
         (1, "the exact last change of the loads"),
         (period, "the loads' change between the last two markers"),
@@ -111,14 +111,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         );
         println!("|---:|---:|---:|{}---|", "---:|".repeat(alphas.len()));
         for (o, &m) in offsets.iter().zip(&markers) {
-            let floor = sampling_floor(
-                &model,
-                &reference.inputs,
-                &reference.shown,
-                m,
-                &alphas,
-                span,
-            )?;
+            let floor = open_loop.floor(m, &alphas, span)?;
             let cells: Vec<String> = floor
                 .extrapolated
                 .iter()
@@ -134,15 +127,15 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
                 cells.join(" | "),
                 100.0 * best
             );
-            open_loop = Some(floor.open_loop);
         }
         println!();
         if period == 1 {
             break;
         }
     }
-    if let Some(e) = open_loop {
-        println!("the model open loop, loads given: {:.3} %", 100.0 * e);
-    }
+    println!(
+        "the model open loop, loads given: {:.3} %",
+        100.0 * open_loop.error()
+    );
     Ok(())
 }

@@ -84,32 +84,181 @@ impl SamplingFloor {
     }
 }
 
-/// Running Σ‖u − u_ref‖² and Σ‖u_ref‖².
-#[derive(Default)]
-struct Relative {
-    error: f64,
-    reference: f64,
+/// Σ_i (u_i − u_ref,i)² and Σ_i u_ref,i² of one step.
+fn squared(approx: &[f64], exact: &[f64]) -> (f64, f64) {
+    approx.iter().zip(exact).fold((0.0, 0.0), |(e, r), (a, b)| {
+        (e + (a - b) * (a - b), r + b * b)
+    })
 }
 
-impl Relative {
-    fn add(&mut self, approx: &[f64], exact: &[f64]) {
-        for (a, b) in approx.iter().zip(exact) {
-            self.error += (a - b) * (a - b);
-            self.reference += b * b;
+/// The model's open-loop run on a recording (loads given), built once per recording and shared
+/// by every marker schedule, rate span and α ([`OpenLoop::floor`]): the state after each
+/// prediction (what the oracles are given at a marker) and each step's squared error.
+pub struct OpenLoop<'a> {
+    model: &'a Model,
+    inputs: &'a [Vec<f64>],
+    shown: &'a [Vec<f64>],
+    /// Per input channel: a load (withheld before the first marker, extrapolated after).
+    load: Vec<bool>,
+    /// The state after the prediction of step k.
+    states: Vec<Vec<f64>>,
+    /// Per step: Σ (u − u_ref)² over the displayed nodes.
+    error2: Vec<f64>,
+    /// Σ_k Σ u_ref² (the denominator of every relative error here).
+    reference2: f64,
+}
+
+impl<'a> OpenLoop<'a> {
+    /// Runs `model` open loop on `inputs` (one row per step, the model's input order; the loads
+    /// given) against `shown` (the reference's displayed nodes per step, node sets in order,
+    /// world frame, m: `Reference::shown`).
+    pub fn run(
+        model: &'a Model,
+        inputs: &'a [Vec<f64>],
+        shown: &'a [Vec<f64>],
+    ) -> Result<Self, TierError> {
+        let steps = inputs.len();
+        if steps == 0 || shown.len() != steps {
+            return Err(TierError::Invalid(format!(
+                "sampling floor: {steps} input rows and {} reference rows (need as many, at least one)",
+                shown.len()
+            )));
         }
+        let load: Vec<bool> = model
+            .inputs
+            .iter()
+            .map(|i| matches!(i.kind, InputKind::Load { .. }))
+            .collect();
+        if let Some(k) = inputs.iter().position(|u| u.len() != load.len()) {
+            return Err(TierError::Invalid(format!(
+                "sampling floor: input row {k} has {} values, the model {} input channels",
+                inputs[k].len(),
+                load.len()
+            )));
+        }
+        let width: usize = model.node_sets.iter().map(|s| 3 * s.node_tags.len()).sum();
+        if let Some(k) = shown.iter().position(|r| r.len() != width) {
+            return Err(TierError::Invalid(format!(
+                "sampling floor: reference row {k} has {} values, the model displays {width} (3 per node of its node sets): not the model of this scene?",
+                shown[k].len()
+            )));
+        }
+        let mut est = Estimator::new(model)?;
+        let mut row = vec![0.0; width];
+        let mut states = Vec::with_capacity(steps);
+        let mut error2 = Vec::with_capacity(steps);
+        let mut reference2 = 0.0;
+        for (u, exact) in inputs.iter().zip(shown) {
+            est.predict(u)?;
+            states.push(est.state().to_vec());
+            displayed(&est, model, &mut row)?;
+            let (e, r) = squared(&row, exact);
+            error2.push(e);
+            reference2 += r;
+        }
+        Ok(OpenLoop {
+            model,
+            inputs,
+            shown,
+            load,
+            states,
+            error2,
+            reference2,
+        })
     }
 
-    fn value(&self) -> f64 {
-        (self.error / self.reference).sqrt()
+    /// The model's open-loop error (relative L2 over the displayed nodes and the run).
+    pub fn error(&self) -> f64 {
+        (self.error2.iter().sum::<f64>() / self.reference2).sqrt()
+    }
+
+    /// Step k's inputs with every load channel 0.
+    fn withheld(&self, k: usize) -> Vec<f64> {
+        self.inputs[k]
+            .iter()
+            .zip(&self.load)
+            .map(|(&v, &is_load)| if is_load { 0.0 } else { v })
+            .collect()
+    }
+
+    /// The onset and extrapolating oracles for markers at `markers`: one extrapolating run per
+    /// α in `alphas`, the rate over `rate_span` ≥ 1 steps, (u(m) − u(m − rate_span)) /
+    /// rate_span (1: the exact last change; the marker period: the change between the last two
+    /// markers, what noise-free markers tell).
+    pub fn floor(
+        &self,
+        markers: MarkerSteps,
+        alphas: &[f64],
+        rate_span: usize,
+    ) -> Result<SamplingFloor, TierError> {
+        if rate_span == 0 {
+            return Err(TierError::Invalid(
+                "sampling floor: the rate's span must be at least one step".into(),
+            ));
+        }
+        let (model, inputs, load) = (self.model, self.inputs, &self.load);
+        let span = rate_span as f64;
+        let mut row = vec![0.0; self.shown[0].len()];
+        let first_marker = (0..inputs.len())
+            .find(|&k| markers.at(k) && inputs[k].iter().zip(load).any(|(&v, &l)| l && v != 0.0));
+
+        // Onset: at rest until m₁, the open loop from m₁ on.
+        let mut est = Estimator::new(model)?;
+        let mut onset = 0.0;
+        for (k, exact) in self.shown.iter().enumerate() {
+            if first_marker.is_some_and(|m| k >= m) {
+                onset += self.error2[k];
+            } else {
+                est.predict(&self.withheld(k))?;
+                displayed(&est, model, &mut row)?;
+                onset += squared(&row, exact).0;
+            }
+        }
+
+        let mut extrapolated = Vec::with_capacity(alphas.len());
+        for &alpha in alphas {
+            let mut est = Estimator::new(model)?;
+            let mut total = 0.0;
+            let mut last: Option<usize> = None;
+            for (k, exact) in self.shown.iter().enumerate() {
+                let u = match last {
+                    None => self.withheld(k),
+                    Some(m) => {
+                        let ahead = (k - m) as f64;
+                        inputs[k]
+                            .iter()
+                            .enumerate()
+                            .map(|(c, &given)| {
+                                if !load[c] {
+                                    return given;
+                                }
+                                let before = m.checked_sub(rate_span).map_or(0.0, |j| inputs[j][c]);
+                                inputs[m][c] + alpha * ahead * (inputs[m][c] - before) / span
+                            })
+                            .collect()
+                    }
+                };
+                est.predict(&u)?;
+                if markers.at(k) {
+                    est.set_state(&self.states[k])?;
+                    last = Some(k);
+                }
+                displayed(&est, model, &mut row)?;
+                total += squared(&row, exact).0;
+            }
+            extrapolated.push((alpha, (total / self.reference2).sqrt()));
+        }
+        Ok(SamplingFloor {
+            open_loop: self.error(),
+            first_marker,
+            onset: (onset / self.reference2).sqrt(),
+            extrapolated,
+        })
     }
 }
 
-/// The onset and extrapolating oracles of `model` on a recording: `inputs` (one row per step,
-/// the model's input order; the loads given) and `shown` (the reference's displayed nodes per
-/// step, node sets in order, world frame, m: `Reference::shown`), markers at `markers`, one
-/// extrapolating run per α in `alphas`, the rate over `rate_span` ≥ 1 steps:
-/// (u(m) − u(m − rate_span)) / rate_span (1: the exact last change; the marker period: the
-/// change between the last two markers, what noise-free markers tell).
+/// [`OpenLoop::run`] then [`OpenLoop::floor`]: the oracles of one marker schedule on a
+/// recording (for several schedules, run the open loop once and call `floor` for each).
 pub fn sampling_floor(
     model: &Model,
     inputs: &[Vec<f64>],
@@ -118,116 +267,7 @@ pub fn sampling_floor(
     alphas: &[f64],
     rate_span: usize,
 ) -> Result<SamplingFloor, TierError> {
-    let steps = inputs.len();
-    if rate_span == 0 {
-        return Err(TierError::Invalid(
-            "sampling floor: the rate's span must be at least one step".into(),
-        ));
-    }
-    let span = rate_span as f64;
-    if steps == 0 || shown.len() != steps {
-        return Err(TierError::Invalid(format!(
-            "sampling floor: {steps} input rows and {} reference rows (need as many, at least one)",
-            shown.len()
-        )));
-    }
-    let load: Vec<bool> = model
-        .inputs
-        .iter()
-        .map(|i| matches!(i.kind, InputKind::Load { .. }))
-        .collect();
-    if let Some(k) = inputs.iter().position(|u| u.len() != load.len()) {
-        return Err(TierError::Invalid(format!(
-            "sampling floor: input row {k} has {} values, the model {} input channels",
-            inputs[k].len(),
-            load.len()
-        )));
-    }
-    let width: usize = model.node_sets.iter().map(|s| 3 * s.node_tags.len()).sum();
-    if let Some(k) = shown.iter().position(|r| r.len() != width) {
-        return Err(TierError::Invalid(format!(
-            "sampling floor: reference row {k} has {} values, the model displays {width} (3 per node of its node sets): not the model of this scene?",
-            shown[k].len()
-        )));
-    }
-    let mut row = vec![0.0; width];
-
-    // The model open loop, loads given: its states (the oracles' knowledge at markers) and its
-    // displayed nodes (the onset oracle from m₁ on).
-    let mut est = Estimator::new(model)?;
-    let mut states = Vec::with_capacity(steps);
-    let mut open_rows = Vec::with_capacity(steps);
-    let mut open_loop = Relative::default();
-    for (u, exact) in inputs.iter().zip(shown) {
-        est.predict(u)?;
-        states.push(est.state().to_vec());
-        displayed(&est, model, &mut row)?;
-        open_loop.add(&row, exact);
-        open_rows.push(row.clone());
-    }
-
-    let withheld = |k: usize| -> Vec<f64> {
-        inputs[k]
-            .iter()
-            .zip(&load)
-            .map(|(&v, &is_load)| if is_load { 0.0 } else { v })
-            .collect()
-    };
-    let first_marker = (0..steps)
-        .find(|&k| markers.at(k) && inputs[k].iter().zip(&load).any(|(&v, &l)| l && v != 0.0));
-
-    // Onset: at rest until m₁, the open loop from m₁ on.
-    let mut onset = Relative::default();
-    let mut est = Estimator::new(model)?;
-    for (k, exact) in shown.iter().enumerate() {
-        if first_marker.is_some_and(|m| k >= m) {
-            onset.add(&open_rows[k], exact);
-        } else {
-            est.predict(&withheld(k))?;
-            displayed(&est, model, &mut row)?;
-            onset.add(&row, exact);
-        }
-    }
-
-    let mut extrapolated = Vec::with_capacity(alphas.len());
-    for &alpha in alphas {
-        let mut est = Estimator::new(model)?;
-        let mut total = Relative::default();
-        let mut last: Option<usize> = None;
-        for (k, exact) in shown.iter().enumerate() {
-            let u = match last {
-                None => withheld(k),
-                Some(m) => {
-                    let ahead = (k - m) as f64;
-                    inputs[k]
-                        .iter()
-                        .enumerate()
-                        .map(|(c, &given)| {
-                            if !load[c] {
-                                return given;
-                            }
-                            let before = m.checked_sub(rate_span).map_or(0.0, |j| inputs[j][c]);
-                            inputs[m][c] + alpha * ahead * (inputs[m][c] - before) / span
-                        })
-                        .collect()
-                }
-            };
-            est.predict(&u)?;
-            if markers.at(k) {
-                est.set_state(&states[k])?;
-                last = Some(k);
-            }
-            displayed(&est, model, &mut row)?;
-            total.add(&row, exact);
-        }
-        extrapolated.push((alpha, total.value()));
-    }
-    Ok(SamplingFloor {
-        open_loop: open_loop.value(),
-        first_marker,
-        onset: onset.value(),
-        extrapolated,
-    })
+    OpenLoop::run(model, inputs, shown)?.floor(markers, alphas, rate_span)
 }
 
 #[cfg(test)]
