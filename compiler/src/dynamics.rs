@@ -1,160 +1,18 @@
-//! Wilson-θ time stepping (docs/design.md §2) as a linear recursion in s = [U; U̇; Ü].
-//!
-//! With τ = θΔt and the load f held constant over the step:
-//! ```text
-//! J  = K + (6/τ²) M + (3/τ) C
-//! Û  = J⁻¹ [ f + M(6/τ² U + 6/τ U̇ + 2Ü) + C(3/τ U + 2U̇ + τ/2 Ü) ]
-//! Ü' = 6/(θ³Δt²)(Û − U) − 6/(θ²Δt) U̇ + (1 − 3/θ) Ü
-//! U̇' = U̇ + Δt/2 (Ü' + Ü)
-//! U' = U + Δt U̇ + Δt²/6 (Ü' + 2Ü)
-//! ```
-//! Full-order solvers use [`WilsonTheta::mass_rhs`], [`WilsonTheta::damping_rhs`] and
-//! [`WilsonTheta::advance`]; the reduced model uses the 3×3 per-mode blocks of
-//! [`WilsonTheta::modal_block`].
+//! Wilson-θ time stepping (docs/design.md §2) as a linear recursion in s = [U; U̇; Ü]: the
+//! scheme, its constants and its per-mode blocks are [`crokf_kernel::wilson`]'s, one definition
+//! for the compiler, the runtime and the verification; here the scene's `[time]` table becomes
+//! one ([`WilsonTheta::from`]).
 
-/// Wilson-θ parameters: time step Δt (s) and θ (≥ 1.37 for unconditional stability).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct WilsonTheta {
-    /// Time step Δt, s.
-    pub dt: f64,
-    /// θ, dimensionless.
-    pub theta: f64,
-}
+pub use crokf_kernel::wilson::WilsonTheta;
 
-impl WilsonTheta {
-    /// The scene's time spec `[time]`: the one place Δt and θ become a Wilson-θ scheme.
-    pub fn from_time(time: &crate::scene::TimeSpec) -> Self {
+use crate::scene::TimeSpec;
+
+/// The scene's time spec `[time]`: the one place Δt and θ become a Wilson-θ scheme.
+impl From<&TimeSpec> for WilsonTheta {
+    fn from(time: &TimeSpec) -> Self {
         WilsonTheta {
             dt: time.dt,
             theta: time.theta,
         }
-    }
-
-    /// τ = θΔt, s.
-    pub fn tau(&self) -> f64 {
-        self.theta * self.dt
-    }
-
-    /// Coefficient of M in J: 6/τ², 1/s².
-    pub fn mass_coefficient(&self) -> f64 {
-        6.0 / (self.tau() * self.tau())
-    }
-
-    /// Coefficient of C in J: 3/τ, 1/s.
-    pub fn damping_coefficient(&self) -> f64 {
-        3.0 / self.tau()
-    }
-
-    /// The vector multiplied by M on the right-hand side, per DOF:
-    /// 6/τ² U + 6/τ U̇ + 2Ü.
-    pub fn mass_rhs(&self, u: f64, v: f64, a: f64) -> f64 {
-        let tau = self.tau();
-        6.0 / (tau * tau) * u + 6.0 / tau * v + 2.0 * a
-    }
-
-    /// The vector multiplied by C on the right-hand side, per DOF:
-    /// 3/τ U + 2U̇ + τ/2 Ü.
-    pub fn damping_rhs(&self, u: f64, v: f64, a: f64) -> f64 {
-        let tau = self.tau();
-        3.0 / tau * u + 2.0 * v + 0.5 * tau * a
-    }
-
-    /// Advances one DOF from (U, U̇, Ü) at t to t + Δt given Û = U(t + θΔt).
-    /// ([`crokf_kernel::wilson::advance`], shared with the runtime's tier step.)
-    pub fn advance(&self, u: f64, v: f64, a: f64, u_hat: f64) -> (f64, f64, f64) {
-        crokf_kernel::wilson::advance(self.dt, self.theta, u, v, a, u_hat)
-    }
-
-    /// One step of a single mass-normalised mode q̈ + c q̇ + k q = f with (q, q̇, q̈) state.
-    pub fn modal_step(&self, k: f64, c: f64, s: [f64; 3], f: f64) -> [f64; 3] {
-        let j = k + self.mass_coefficient() + self.damping_coefficient() * c;
-        let [u, v, a] = s;
-        let u_hat = (f + self.mass_rhs(u, v, a) + c * self.damping_rhs(u, v, a)) / j;
-        let (u, v, a) = self.advance(u, v, a, u_hat);
-        [u, v, a]
-    }
-
-    /// The discrete blocks (Φ, Γ) of one mass-normalised mode with stiffness k = ω² (1/s²) and
-    /// damping c = α + βω² (1/s): s_{k+1} = Φ s_k + Γ f_k, s = [q, q̇, q̈], Φ row-major.
-    pub fn modal_block(&self, k: f64, c: f64) -> ([[f64; 3]; 3], [f64; 3]) {
-        let mut phi = [[0.0; 3]; 3];
-        for col in 0..3 {
-            let mut e = [0.0; 3];
-            e[col] = 1.0;
-            let s = self.modal_step(k, c, e, 0.0);
-            for row in 0..3 {
-                phi[row][col] = s[row];
-            }
-        }
-        let gamma = self.modal_step(k, c, [0.0; 3], 1.0);
-        (phi, gamma)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// ρ(Φ) ≈ ‖Φ^(2^20)‖^(2^-20) by repeated squaring with rescaling (Gelfand's formula).
-    fn spectral_radius_3x3(p: [[f64; 3]; 3]) -> f64 {
-        let mut m = p;
-        let mut log_scale = 0.0;
-        let squarings = 20;
-        for _ in 0..squarings {
-            let mut sq = [[0.0; 3]; 3];
-            for i in 0..3 {
-                for j in 0..3 {
-                    sq[i][j] = (0..3).map(|k| m[i][k] * m[k][j]).sum();
-                }
-            }
-            let norm = sq.iter().flatten().map(|v| v * v).sum::<f64>().sqrt();
-            log_scale = 2.0 * log_scale + norm.ln();
-            m = sq.map(|row| row.map(|v| v / norm));
-        }
-        (log_scale / f64::powi(2.0, squarings)).exp()
-    }
-
-    #[test]
-    fn static_load_converges_to_static_deflection() {
-        let w = WilsonTheta {
-            dt: 0.01,
-            theta: 1.4,
-        };
-        let (k, c) = (400.0, 2.0);
-        let mut s = [0.0; 3];
-        for _ in 0..5000 {
-            s = w.modal_step(k, c, s, 2.0);
-        }
-        assert!((s[0] - 2.0 / 400.0).abs() < 1e-12, "{s:?}");
-    }
-
-    #[test]
-    fn undamped_step_far_above_period_does_not_grow() {
-        // Δt = 100 × the period of the mode: Wilson-θ (θ = 1.4) must stay bounded.
-        let w = WilsonTheta {
-            dt: 1.0,
-            theta: 1.4,
-        };
-        let omega = 2.0 * std::f64::consts::PI * 100.0;
-        let mut s = [1.0, 0.0, -omega * omega];
-        // The first steps carry a non-normal transient; afterwards the amplitude only decays.
-        let (mut early, mut late): (f64, f64) = (0.0, 0.0);
-        for step in 0..100_000 {
-            s = w.modal_step(omega * omega, 0.0, s, 0.0);
-            let size = s[0].abs() + s[1].abs() * w.dt + s[2].abs() * w.dt * w.dt;
-            if step < 1000 {
-                early = early.max(size);
-            } else if step >= 99_000 {
-                late = late.max(size);
-            }
-            assert!(size.is_finite());
-        }
-        assert!(
-            late <= early,
-            "grew: first 1000 steps {early}, last 1000 steps {late}"
-        );
-        let (phi, _) = w.modal_block(omega * omega, 0.0);
-        let rho = spectral_radius_3x3(phi);
-        assert!(rho < 1.0, "spectral radius {rho}");
     }
 }

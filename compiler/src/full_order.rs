@@ -85,7 +85,7 @@ impl FullOrder {
                 Operators::build(&mesh, &scene.scene, &fem, unit)
             })
             .map_err(fem_err)?;
-        let wilson = WilsonTheta::from_time(&scene.scene.time);
+        let wilson = WilsonTheta::from(&scene.scene.time);
         let node_lists = scene
             .scene
             .node_list_files()

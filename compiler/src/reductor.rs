@@ -10,6 +10,8 @@ use faer::linalg::solvers::Solve as _;
 use faer::sparse::SparseColMat;
 use faer::Mat;
 
+use crokf_kernel::wilson;
+
 use crate::accuracy::{self, ReferenceResponses};
 use crate::error::CompileError;
 use crate::full_order::FullOrder;
@@ -100,7 +102,7 @@ impl<'a> Reductor<'a> {
         let b: Mat<f64> = columns(&input_columns, n);
         let spec = &full.scene.scene.reduction;
         let modes = modes.or(spec.modes);
-        let resolved = 0.25 / full.wilson.dt;
+        let resolved = full.wilson.highest_resolved_hz();
         let (max_frequency_hz, max_modes) = match (modes, spec.max_frequency) {
             // An explicit count: exactly that many.
             (Some(m), _) => (None, m.max(1)),
@@ -374,13 +376,13 @@ impl<'a> Reductor<'a> {
 /// Wilson-θ damps every kept mode numerically and the model is quasi-static at best.
 fn unresolved_modes_note(basis: &reduce::ModalBasis, dt: f64) -> Option<String> {
     let lowest = *basis.frequencies_hz[..basis.n_eigenmodes].first()?;
-    let resolved = 0.25 / dt;
+    let resolved = wilson::highest_resolved_hz(dt);
     (lowest > resolved).then(|| {
         format!(
             "time.dt = {dt:e} s resolves none of the kept vibration modes: the lowest is \
              {lowest:.4} Hz, above 1/(4Δt) = {resolved:.4e} Hz, so Wilson-θ damps every kept mode \
              numerically; for dynamics choose dt ≤ {:.3e} s",
-            0.25 / lowest
+            wilson::resolving_dt(lowest)
         )
     })
 }

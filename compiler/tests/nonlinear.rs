@@ -98,7 +98,7 @@ fn full_basis_with_every_element_reproduces_the_full_order_stepper() {
     let v = full_basis(&fem);
     let all: Vec<(usize, f64)> = (0..fem.elements.len()).map(|e| (e, 1.0)).collect();
     let reduced =
-        ReducedModel::new(&fem, &v, &all, WilsonTheta::from_time(&scene.time)).expect("model");
+        ReducedModel::new(&fem, &v, &all, WilsonTheta::from(&scene.time)).expect("model");
     // M_r = VᵀMV = I.
     let eye = DMatrix::<f64>::identity(v.ncols(), v.ncols());
     assert!((&reduced.mass - eye).norm() < 1e-10);
@@ -120,7 +120,7 @@ fn full_basis_with_every_element_reproduces_the_full_order_stepper() {
     .expect("stepper");
     let mut full = CorotationalSimulator::new(
         &fem,
-        WilsonTheta::from_time(&scene.time),
+        WilsonTheta::from(&scene.time),
         NewtonOptions {
             max_newton: 30,
             tolerance: 1e-12,
@@ -163,7 +163,7 @@ fn rigid_rotation_gives_no_reduced_force() {
     let v = full_basis(&fem);
     let all: Vec<(usize, f64)> = (0..fem.elements.len()).map(|e| (e, 1.0)).collect();
     let reduced =
-        ReducedModel::new(&fem, &v, &all, WilsonTheta::from_time(&scene.time)).expect("model");
+        ReducedModel::new(&fem, &v, &all, WilsonTheta::from(&scene.time)).expect("model");
     let rot = Rotation3::from_axis_angle(&Vector3::y_axis(), 1.2);
     let mut u = vec![0.0; fem.dof_count()];
     let mut stretch = vec![0.0; fem.dof_count()];
@@ -272,7 +272,7 @@ fn ecsw_weights_reproduce_the_training_forces_to_the_tolerance() {
     // Training: a few static-ish states of the full-order model under tip loads.
     let mut full = CorotationalSimulator::new(
         &fem,
-        WilsonTheta::from_time(&scene.time),
+        WilsonTheta::from(&scene.time),
         NewtonOptions::default(),
     )
     .expect("full-order");
@@ -312,14 +312,14 @@ fn ecsw_weights_reproduce_the_training_forces_to_the_tolerance() {
         &fem,
         &basis.vectors,
         &all,
-        WilsonTheta::from_time(&scene.time),
+        WilsonTheta::from(&scene.time),
     )
     .expect("model");
     let sampled = ReducedModel::new(
         &fem,
         &basis.vectors,
         &sol.weights,
-        WilsonTheta::from_time(&scene.time),
+        WilsonTheta::from(&scene.time),
     )
     .expect("model");
     let q = basis.project(&snapshots[25]);
@@ -459,10 +459,10 @@ fn reduced_static_solve_with_the_full_basis_matches_the_full_order_static_solve(
     let v = full_basis(&fem);
     let all: Vec<(usize, f64)> = (0..fem.elements.len()).map(|e| (e, 1.0)).collect();
     let reduced =
-        ReducedModel::new(&fem, &v, &all, WilsonTheta::from_time(&scene.time)).expect("model");
+        ReducedModel::new(&fem, &v, &all, WilsonTheta::from(&scene.time)).expect("model");
     let mut full = CorotationalSimulator::new(
         &fem,
-        WilsonTheta::from_time(&scene.time),
+        WilsonTheta::from(&scene.time),
         NewtonOptions::default(),
     )
     .expect("full-order");

@@ -51,6 +51,7 @@
 
 use crate::prepared::{gate_variances, row_std};
 use crokf_formats::{CorotationalTier, InputKind, Model};
+use crokf_kernel::wilson::WilsonTheta;
 use crokf_kernel::{self as kernel, Mat3, PolarError};
 
 /// Iterations after which J is refreshed (within a step, and at the next step).
@@ -539,7 +540,7 @@ impl TierState {
         let (q, v, a) = (&self.s[..r], &self.s[r..2 * r], &self.s[2 * r..]);
         for i in 0..r {
             let du = self.q_hat[i] - q[i];
-            self.acc[i] = w.a0 * du - (6.0 / w.tau) * v[i] - 2.0 * a[i];
+            self.acc[i] = w.a0 * du - w.a1 * v[i] - 2.0 * a[i];
             self.vel[i] = w.a2 * du - 2.0 * v[i] - 0.5 * w.tau * a[i];
         }
         match model.blocks.reduced_force(
@@ -934,29 +935,34 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
+/// The tier's Wilson-θ scheme ([`crokf_kernel::wilson`]) with its constants evaluated once per
+/// call site: τ, a₀ = 6/τ², a₁ = 6/τ, a₂ = 3/τ.
 #[derive(Clone, Copy)]
 struct Wilson {
-    dt: f64,
-    theta: f64,
+    scheme: WilsonTheta,
     tau: f64,
     a0: f64,
+    a1: f64,
     a2: f64,
 }
 
 impl Wilson {
-    /// (U, U̇, Ü) at t + Δt from Û = U(t + θΔt) ([`crokf_kernel::wilson::advance`]).
+    /// (U, U̇, Ü) at t + Δt from Û = U(t + θΔt) ([`WilsonTheta::advance`]).
     fn advance(&self, u: f64, v: f64, a: f64, u_hat: f64) -> (f64, f64, f64) {
-        crokf_kernel::wilson::advance(self.dt, self.theta, u, v, a, u_hat)
+        self.scheme.advance(u, v, a, u_hat)
     }
 }
 
 fn wilson(model: &TierModel) -> Wilson {
-    let tau = model.theta * model.dt;
-    Wilson {
+    let scheme = WilsonTheta {
         dt: model.dt,
         theta: model.theta,
-        tau,
-        a0: 6.0 / (tau * tau),
-        a2: 3.0 / tau,
+    };
+    Wilson {
+        scheme,
+        tau: scheme.tau(),
+        a0: scheme.mass_coefficient(),
+        a1: scheme.velocity_coefficient(),
+        a2: scheme.damping_coefficient(),
     }
 }

@@ -129,7 +129,7 @@ pub fn full_order(tetrahedra: usize, steps: bool, samples: usize) -> FullOrderBe
     });
     let fem = fem.expect("assembled at least once");
     let ops = Operators::build(&mesh, &scene, &fem, 1.0).expect("benchmark operators");
-    let wilson = WilsonTheta::from_time(&scene.time);
+    let wilson = WilsonTheta::from(&scene.time);
     let (mut linear_step_s, mut corotational_step_s) = (f64::NAN, f64::NAN);
     if steps {
         // A tip load of 1 N along z: small enough that one Newton iteration suffices.

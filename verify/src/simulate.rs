@@ -239,7 +239,7 @@ pub fn simulate(
         return Err(SimulateError::Options("--every must be ≥ 1".into()));
     }
     let n = fem.dof_count();
-    let wilson = WilsonTheta::from_time(&scene.time);
+    let wilson = WilsonTheta::from(&scene.time);
     let dt = wilson.dt;
     let mut corotational = None;
     let mut linear = None;

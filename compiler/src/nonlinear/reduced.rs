@@ -454,7 +454,11 @@ impl ReducedStepper {
         }
         let w = self.model.wilson;
         let tau = w.tau();
-        let (a0, a2) = (w.mass_coefficient(), w.damping_coefficient());
+        let (a0, a1, a2) = (
+            w.mass_coefficient(),
+            w.velocity_coefficient(),
+            w.damping_coefficient(),
+        );
         let (alpha, beta) = (self.model.alpha, self.model.beta);
         let mut q_hat = self.q.clone();
         if self.newton.predictor {
@@ -469,7 +473,7 @@ impl ReducedStepper {
         let mut force = std::mem::replace(&mut self.force, DVector::zeros(0));
         while iterations < self.newton.max_iterations {
             let du = &q_hat - &self.q;
-            let acc = &du * a0 - &self.v * (6.0 / tau) - &self.a * 2.0;
+            let acc = &du * a0 - &self.v * a1 - &self.a * 2.0;
             let vel = &du * a2 - &self.v * 2.0 - &self.a * (0.5 * tau);
             self.model.force_with_damping(
                 q_hat.as_slice(),

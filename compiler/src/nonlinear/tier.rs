@@ -771,7 +771,7 @@ impl LinearisedTier {
         let mut rhs = DMatrix::zeros(r, n);
         rhs.view_mut((0, 0), (r, r)).copy_from(&(m * a0 + &c * a2));
         rhs.view_mut((0, r), (r, r))
-            .copy_from(&(m * (6.0 / tau) + &c * 2.0));
+            .copy_from(&(m * w.velocity_coefficient() + &c * 2.0));
         rhs.view_mut((0, 2 * r), (r, r))
             .copy_from(&(m * 2.0 + &c * (0.5 * tau)));
         for (k, col) in self.force_columns.iter().enumerate() {

@@ -635,10 +635,14 @@ impl CorotationalSimulator {
     fn theta_rates(&self, u_hat: &[f64], vel: &mut [f64], y: &mut [f64]) {
         let w = self.wilson;
         let tau = w.tau();
-        let (a0, a2) = (w.mass_coefficient(), w.damping_coefficient());
+        let (a0, a1, a2) = (
+            w.mass_coefficient(),
+            w.velocity_coefficient(),
+            w.damping_coefficient(),
+        );
         for i in 0..u_hat.len() {
             let du = u_hat[i] - self.u[i];
-            let acc = a0 * du - 6.0 / tau * self.v[i] - 2.0 * self.a[i];
+            let acc = a0 * du - a1 * self.v[i] - 2.0 * self.a[i];
             vel[i] = a2 * du - 2.0 * self.v[i] - 0.5 * tau * self.a[i];
             y[i] = acc + self.alpha * vel[i];
         }
@@ -846,7 +850,7 @@ mod tests {
         let fem = FemModel::assemble(&mesh, &scene, 1.0).expect("assembles");
         let ops = Operators::build(&mesh, &scene, &fem, 1.0).expect("operators");
         let column = &ops.inputs[2].column;
-        let wilson = WilsonTheta::from_time(&scene.time);
+        let wilson = WilsonTheta::from(&scene.time);
         let options = NewtonOptions::default();
         let mut full = CorotationalSimulator::new(&fem, wilson, options).expect("simulator");
         let mut modified = CorotationalSimulator::new(&fem, wilson, options).expect("simulator");

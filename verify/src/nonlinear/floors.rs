@@ -176,7 +176,7 @@ pub fn linear_basis(full: &FullOrder) -> Result<ModalBasis, TierError> {
         .collect();
     let b = Mat::from_fn(n, cols.len(), |i, j| cols[j][i]);
     let options = reduce::ModalOptions {
-        max_frequency_hz: Some(0.25 / full.wilson.dt),
+        max_frequency_hz: Some(full.wilson.highest_resolved_hz()),
         max_modes: MAX_MODES,
         ..reduce::ModalOptions::default()
     };
