@@ -179,7 +179,7 @@ mod tests {
     use super::*;
     use crate::full_order::FullOrder;
     use crate::mesh::procedural::{box_mesh, write_msh22, BeamScene};
-    use crate::report::StageTimer;
+    use crate::timer::StageTimer;
 
     /// A 1 m × 0.1 m × 0.1 m cantilever (12 × 2 × 2 cells, E = 1 MPa), tip load on x = 1,
     /// sensors at the end and mid-span (top face), the end face displayed; `extra` appended.

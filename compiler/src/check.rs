@@ -9,7 +9,7 @@ use crate::compile::{compile_reduced, CompileOptions};
 use crate::error::CompileError;
 use crate::full_order::{FullOrder, COMPILER_VERSION};
 use crate::reductor::Reductor;
-use crate::report::StageTimer;
+use crate::timer::StageTimer;
 
 /// Result of `crokf-compile --check`.
 #[derive(Clone, Debug, PartialEq, Eq)]

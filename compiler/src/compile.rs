@@ -15,7 +15,8 @@ use crate::nonlinear::tier::{self, RuntimeNewton};
 use crate::nonlinear::training::TrainingPlan;
 use crate::outputs::Measurements;
 use crate::reductor::Reductor;
-use crate::report::{self, Sizes, StageTimer};
+use crate::report::{self, Sizes};
+use crate::timer::StageTimer;
 use crate::scene::ModelTier;
 
 /// Factor on the largest training ‖q‖ beyond which the runtime reports the state outside the

@@ -10,7 +10,7 @@ use crate::error::CompileError;
 use crate::fem::operators::Operators;
 use crate::fem::FemModel;
 use crate::mesh::{read_mesh_bytes, Mesh};
-use crate::report::StageTimer;
+use crate::timer::StageTimer;
 use crate::scene::{ForceModel, SceneFile};
 
 /// The compiler's version string, part of every model's input digest.

@@ -10,7 +10,7 @@
 //!
 //! Beside the stages: [`full_order`] (the front end, built once), [`reductor`] (build once,
 //! reduce at many orders), [`reduced`] (one reduced system), [`accuracy`] (measured error
-//! against the full-order reference), [`report`], [`check`] (`--check`), and [`compile()`], which
+//! against the full-order reference), [`timer`] (stage costs), [`report`], [`check`] (`--check`), and [`compile()`], which
 //! only wires them. Stages never import the wiring; [`error`] holds the boundary error type.
 //! Verification (scenarios, comparison reports, benchmarks) lives in the `crokf-verify` crate.
 
@@ -43,6 +43,7 @@ pub mod error;
 pub mod full_order;
 pub mod reductor;
 pub mod report;
+pub mod timer;
 
 pub use compile::{compile, CompileOptions, Compiled};
 pub use error::CompileError;

@@ -19,7 +19,7 @@ use crate::kalman::{self, PeriodicSchedule};
 use crate::outputs::{columns, stack_rows, Measurements, OutputRows};
 use crate::reduce::{self, ModalBasis, ModalSystem, Order};
 use crate::reduced::ReducedModel;
-use crate::report::StageTimer;
+use crate::timer::StageTimer;
 
 /// Tolerance σ_{r+1}/σ₁ when neither order nor tolerance is given and no measured error is
 /// computed (`--no-measure`).

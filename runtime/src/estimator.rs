@@ -459,7 +459,7 @@ impl Estimator {
         if let (Some(t), Some(tm)) = (&mut self.tier, &self.shared.tier) {
             // Constant-gain extended filter: ν = y − V_s q (world frame, linear), s += K_p ν,
             // with the same innovation gate as the warped tier (docs/design.md §6, §11.4).
-            let gate = crate::tier::Gate {
+            let gate = crate::covariance::Gate {
                 sigmas: self.gate,
                 step: self.k,
                 last_accepted: &self.last_accepted,
@@ -523,7 +523,7 @@ impl Estimator {
                 let missed = step
                     .saturating_sub(self.last_accepted[j])
                     .saturating_sub(ch.every);
-                if crate::tier::gate_rejects(nu, sigmas, variance0, missed, ch.variance_growth) {
+                if crate::covariance::gate_rejects(nu, sigmas, variance0, missed, ch.variance_growth) {
                     *verdict = Verdict::Gated;
                     continue;
                 }

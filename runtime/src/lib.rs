@@ -15,6 +15,7 @@
 //! ```
 
 pub mod capi;
+mod covariance;
 mod estimator;
 mod prepared;
 mod simd;

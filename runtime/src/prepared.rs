@@ -17,6 +17,7 @@
 //!   displacement rows in single precision, rotation rows in single precision or, for large
 //!   sets, 16-bit fixed point ([`DisplayRowFormat`]): 1/2 or 3/8 of the bytes of f64 rows.
 
+use crate::covariance::{gate_variances, row_std};
 use crate::simd;
 use crate::RuntimeError;
 use crokf_formats::{InputKind, Matrix, Model};
@@ -92,54 +93,6 @@ pub struct PreparedModel {
     pub(crate) rotation_scale: Vec<f32>,
     /// The co-rotational tier (docs/design.md §10), when the model has one.
     pub(crate) tier: Option<crate::tier::TierModel>,
-}
-
-/// c P cᵀ for a row c of length k ≤ n and the leading k×k block of the n×n P (the whole P when
-/// k = n; the displacement block P_qq of the co-rotational tier's (q, q̇, q̈, f) covariance):
-/// Σ_i c_i (Σ_j P_ij c_j). Used at load only (read-out σ, the gate's variances).
-pub(crate) fn quadratic(c: &[f64], p: &Matrix) -> f64 {
-    let n = p.cols as usize;
-    c.iter()
-        .zip(p.data.chunks_exact(n.max(1)))
-        .map(|(ci, row)| ci * row.iter().zip(c).map(|(a, b)| a * b).sum::<f64>())
-        .sum()
-}
-
-/// sqrt(diag(C P Cᵀ)) for the rows C (row-major, `c.len()` = k·rows, k ≤ n) and the leading
-/// k×k block of P (see [`quadratic`]), appended to `out`.
-pub(crate) fn row_std(rows: &[f64], k: usize, p: &Matrix, out: &mut Vec<f64>) {
-    out.extend(
-        rows.chunks_exact(k.max(1))
-            .map(|c| quadratic(c, p).max(0.0).sqrt()),
-    );
-}
-
-/// The innovation gate's variances of a Kalman section (docs/design.md §6), h_j = `h_row(j)`
-/// the row of measurement channel j (over the leading block of P and Q): per phase and active
-/// channel j, s_j = h_j P⁻_p h_jᵀ + R_jj (m²), and per channel (all `channels`) the growth per
-/// step without an accepted value, g_j = max(h_j Q h_jᵀ, 0) (m²).
-pub(crate) fn gate_variances<'a>(
-    kalman: &crokf_formats::KalmanGains,
-    channels: usize,
-    h_row: impl Fn(usize) -> &'a [f64],
-) -> (Vec<Vec<f64>>, Vec<f64>) {
-    let innovation_variance = kalman
-        .phases
-        .iter()
-        .map(|ph| {
-            ph.measured
-                .iter()
-                .map(|&j| {
-                    let j = j as usize;
-                    quadratic(h_row(j), &ph.prior_covariance) + kalman.measurement_variance[j]
-                })
-                .collect()
-        })
-        .collect();
-    let variance_growth = (0..channels)
-        .map(|j| quadratic(h_row(j), &kalman.process_noise).max(0.0))
-        .collect();
-    (innovation_variance, variance_growth)
 }
 
 /// Dense row-major n×n product.

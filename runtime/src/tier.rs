@@ -49,7 +49,8 @@
 //! chosen after each step; an update s⁺ = s⁻ + K_i ν is iterated to the filter i nearest to
 //! its own result s⁺ (at most one pass per filter).
 
-use crate::prepared::{gate_variances, row_std};
+pub use crate::covariance::Gate;
+use crate::covariance::{gate_rejects, gate_variances, row_std};
 use crokf_formats::{CorotationalTier, InputKind, Model};
 use crokf_kernel::wilson::WilsonTheta;
 use crokf_kernel::{self as kernel, Mat3, PolarError};
@@ -891,44 +892,6 @@ impl TierState {
         self.filter_upd = filter;
         used
     }
-}
-
-/// The innovation gate's configuration for one update (docs/design.md §6): `sigmas` g (None:
-/// off) and, per measurement channel, the steps it went without an accepted value beyond its
-/// period (n_j, from the caller's bookkeeping).
-#[derive(Clone, Copy, Debug)]
-pub struct Gate<'a> {
-    /// g, in standard deviations of the innovation; `None`: off.
-    pub sigmas: Option<f64>,
-    /// The step k being updated.
-    pub step: u64,
-    /// Per measurement channel: the step of its last accepted value (0: none yet).
-    pub last_accepted: &'a [u64],
-    /// Per measurement channel: its sensor's `every`.
-    pub every: &'a [u64],
-}
-
-impl Gate<'_> {
-    /// The gate off.
-    pub const OFF: Gate<'static> = Gate {
-        sigmas: None,
-        step: 0,
-        last_accepted: &[],
-        every: &[],
-    };
-
-    /// n_j = max(0, k − last accepted step − every_j).
-    fn missed(&self, j: usize) -> u64 {
-        match (self.last_accepted.get(j), self.every.get(j)) {
-            (Some(&last), Some(&every)) => self.step.saturating_sub(last).saturating_sub(every),
-            _ => 0,
-        }
-    }
-}
-
-/// The gate's test (docs/design.md §6): true when ν² > g² (s + n·growth).
-pub fn gate_rejects(nu: f64, sigmas: f64, variance: f64, missed: u64, growth: f64) -> bool {
-    nu * nu > sigmas * sigmas * (variance + missed as f64 * growth)
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {

@@ -3,7 +3,7 @@
 //!
 //! - [`scenario`]: scenario files (load histories, horizons, named points);
 //! - [`simulate`]: drives the compiler's full-order steppers through a scenario;
-//! - [`vtu`]: trajectories as CSV and ParaView VTU/PVD series;
+//! - [`vtu`]: ParaView VTU/PVD series of a simulation's frames;
 //! - [`comparison`]: speed against error, full-order references vs the runtime at several
 //!   orders (one modal system, truncated per order), with Markdown, CSV and SVG output;
 //! - [`mod@bench`]: structured benchmark meshes and benchmarks (medians, ratios in

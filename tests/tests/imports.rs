@@ -1,0 +1,426 @@
+//! No import circle between the source files of any crate of the repository.
+//!
+//! Every crate's `src/` is read as text: each path that starts with `crate::`, `super::` or
+//! `self::` (in `use` lines, grouped `use a::{b, c::d}` included, and written out in code) is
+//! resolved to the file that defines the module it names (the longest prefix of the path that
+//! is a file: `src/a/b.rs` or `src/a/b/mod.rs`), and gives an arrow from the file it stands in
+//! to that file. Comments are skipped; `super::` inside an inline `mod … { }` counts the inline
+//! module. The crate root (`lib.rs`, `main.rs`) only declares and re-exports its modules: its
+//! own arrows are not counted. A strongly connected set of two or more files is a circle; the
+//! test fails naming each circle's arrows and the paths behind them.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+/// The repository root (the parent of this crate's folder).
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("the tests crate has a parent folder")
+        .to_path_buf()
+}
+
+/// Every folder below `root` (two levels deep) that has a `Cargo.toml` and a `src/`.
+fn crates(root: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut visit = |dir: &Path| {
+        if dir.join("Cargo.toml").is_file() && dir.join("src").is_dir() {
+            out.push(dir.to_path_buf());
+        }
+    };
+    for entry in std::fs::read_dir(root).expect("read the repository root").flatten() {
+        let dir = entry.path();
+        let name = entry.file_name();
+        if !dir.is_dir() || name == "target" || name.to_string_lossy().starts_with('.') {
+            continue;
+        }
+        visit(&dir);
+        if let Ok(inner) = std::fs::read_dir(&dir) {
+            for e in inner.flatten() {
+                let d = e.path();
+                if d.is_dir() && e.file_name() != "target" && e.file_name() != "src" {
+                    visit(&d);
+                }
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// The `.rs` files below `dir`.
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.is_dir() {
+            rust_files(&path, out);
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            out.push(path);
+        }
+    }
+}
+
+/// The module path of a file below `src` (`a/b.rs` and `a/b/mod.rs` → [a, b]; the crate root
+/// and binaries under `bin/` → []), or None for a root (`lib.rs`, `main.rs`, `bin/*`).
+fn module_of(src: &Path, file: &Path) -> Option<Vec<String>> {
+    let rel = file.strip_prefix(src).ok()?;
+    let mut parts: Vec<String> = rel
+        .iter()
+        .map(|p| p.to_string_lossy().into_owned())
+        .collect();
+    if parts.first().is_some_and(|p| p == "bin") {
+        return None;
+    }
+    let last = parts.pop()?;
+    let stem = last.trim_end_matches(".rs");
+    if parts.is_empty() && (stem == "lib" || stem == "main") {
+        return None;
+    }
+    if stem != "mod" {
+        parts.push(stem.to_owned());
+    }
+    Some(parts)
+}
+
+/// The text of a line without its `//` comment (a `//` inside a string literal ends the line
+/// early, which only hides paths, never invents one).
+fn code_of(line: &str) -> &str {
+    let mut in_string = false;
+    let bytes = line.as_bytes();
+    let mut i = 0;
+    while i < bytes.len() {
+        match bytes[i] {
+            b'\\' if in_string => i += 1,
+            b'"' => in_string = !in_string,
+            b'/' if !in_string && bytes.get(i + 1) == Some(&b'/') => return &line[..i],
+            _ => {}
+        }
+        i += 1;
+    }
+    line
+}
+
+/// Expands a `use` tree (`a::{b, c::{d, self}}`) into full paths.
+fn expand(tree: &str, prefix: &str, out: &mut Vec<String>) {
+    let tree = tree.trim();
+    if tree.is_empty() {
+        return;
+    }
+    if let Some(open) = tree.find('{') {
+        let head = tree[..open].trim().trim_end_matches("::");
+        let inner = &tree[open + 1..tree.rfind('}').unwrap_or(tree.len())];
+        let base = join(prefix, head);
+        let mut depth = 0;
+        let mut start = 0;
+        for (i, ch) in inner.char_indices() {
+            match ch {
+                '{' => depth += 1,
+                '}' => depth -= 1,
+                ',' if depth == 0 => {
+                    expand(&inner[start..i], &base, out);
+                    start = i + 1;
+                }
+                _ => {}
+            }
+        }
+        expand(&inner[start..], &base, out);
+    } else {
+        let item = tree.split(" as ").next().unwrap_or(tree).trim();
+        out.push(if item == "self" {
+            prefix.to_owned()
+        } else {
+            join(prefix, item)
+        });
+    }
+}
+
+fn join(prefix: &str, tail: &str) -> String {
+    match (prefix.is_empty(), tail.is_empty()) {
+        (true, _) => tail.to_owned(),
+        (_, true) => prefix.to_owned(),
+        _ => format!("{prefix}::{tail}"),
+    }
+}
+
+/// The paths a file names: `(path, inline module depth)` per `crate::`/`super::`/`self::` path.
+fn paths_of(text: &str) -> Vec<(String, usize)> {
+    let mut out = Vec::new();
+    // Inline modules: the brace depth at which each one opened.
+    let mut inline: Vec<i64> = Vec::new();
+    let mut depth: i64 = 0;
+    let mut pending_use = String::new();
+    for raw in text.lines() {
+        let line = code_of(raw);
+        let trimmed = line.trim();
+        let opens_module = {
+            let t = trimmed.trim_start_matches("pub(crate) ").trim_start_matches("pub ");
+            t.starts_with("mod ") && t.ends_with('{')
+        };
+        // A `use` statement, possibly over several lines.
+        let in_use = !pending_use.is_empty();
+        let starts_use = {
+            let t = trimmed.trim_start_matches("pub(crate) ").trim_start_matches("pub ");
+            t.starts_with("use ")
+        };
+        if in_use || starts_use {
+            pending_use.push_str(line);
+            pending_use.push(' ');
+            if trimmed.ends_with(';') || !trimmed.ends_with(|c: char| "{},:".contains(c)) {
+                let statement = pending_use.trim().trim_end_matches(';');
+                let tree = statement[statement.find("use ").map_or(0, |i| i + 4)..].trim();
+                // Text that merely starts with "use " (in a string, say) is no use tree.
+                let is_tree = tree.chars().all(|c| {
+                    c.is_alphanumeric() || c.is_whitespace() || "_:{},*".contains(c)
+                });
+                let mut paths = Vec::new();
+                if is_tree {
+                    expand(tree, "", &mut paths);
+                }
+                for p in paths {
+                    if ["crate::", "super::", "self::"]
+                        .iter()
+                        .any(|s| p.starts_with(s))
+                    {
+                        out.push((p, inline.len()));
+                    }
+                }
+                pending_use.clear();
+            }
+        } else {
+            // Paths written out in code.
+            for start in ["crate::", "super::", "self::"] {
+                let mut from = 0;
+                while let Some(i) = line[from..].find(start) {
+                    let at = from + i;
+                    let before = line[..at].chars().next_back();
+                    from = at + start.len();
+                    if before.is_some_and(|c| c.is_alphanumeric() || c == '_' || c == ':') {
+                        continue;
+                    }
+                    let path: String = line[at..]
+                        .chars()
+                        .take_while(|c| c.is_alphanumeric() || *c == '_' || *c == ':')
+                        .collect();
+                    out.push((path.trim_end_matches(':').to_owned(), inline.len()));
+                }
+            }
+        }
+        for ch in line.chars() {
+            match ch {
+                '{' => depth += 1,
+                '}' => {
+                    depth -= 1;
+                    if inline.last() == Some(&depth) {
+                        inline.pop();
+                    }
+                }
+                _ => {}
+            }
+        }
+        if opens_module {
+            inline.push(depth - 1);
+        }
+    }
+    out
+}
+
+/// The file that defines the module named by the longest prefix of `path` (absolute segments).
+fn resolve(modules: &BTreeMap<Vec<String>, PathBuf>, path: &[String]) -> Option<PathBuf> {
+    (1..=path.len())
+        .rev()
+        .find_map(|n| modules.get(&path[..n]).cloned())
+}
+
+/// A crate's arrows: file → (file → the paths behind the arrow).
+type Arrows = BTreeMap<PathBuf, BTreeMap<PathBuf, BTreeSet<String>>>;
+
+/// The arrows between the files of the crate at `dir`.
+fn arrows(dir: &Path) -> Arrows {
+    let src = dir.join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    files.sort();
+    let modules: BTreeMap<Vec<String>, PathBuf> = files
+        .iter()
+        .filter_map(|f| module_of(&src, f).map(|m| (m, f.clone())))
+        .filter(|(m, _)| !m.is_empty())
+        .collect();
+    let mut out = Arrows::new();
+    for file in &files {
+        let Some(here) = module_of(&src, file) else {
+            continue;
+        };
+        let text = std::fs::read_to_string(file).expect("read a source file");
+        for (path, inline) in paths_of(&text) {
+            let mut segments: Vec<&str> = path.split("::").filter(|s| !s.is_empty()).collect();
+            let absolute: Vec<String> = match segments.first().copied() {
+                Some("crate") => segments.drain(1..).map(str::to_owned).collect(),
+                Some("self") => here
+                    .iter()
+                    .cloned()
+                    .chain(segments.drain(1..).map(str::to_owned))
+                    .collect(),
+                Some("super") => {
+                    let ups = segments.iter().take_while(|s| **s == "super").count();
+                    // Inside an inline module the first `super`s climb out of it.
+                    let climb = ups.saturating_sub(inline);
+                    if climb > here.len() {
+                        continue;
+                    }
+                    here[..here.len() - climb]
+                        .iter()
+                        .cloned()
+                        .chain(segments.drain(ups..).map(str::to_owned))
+                        .collect()
+                }
+                _ => continue,
+            };
+            if let Some(target) = resolve(&modules, &absolute) {
+                if &target != file {
+                    out.entry(file.clone())
+                        .or_default()
+                        .entry(target)
+                        .or_default()
+                        .insert(path.clone());
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Strongly connected sets of two or more files (Tarjan).
+fn circles(arrows: &Arrows) -> Vec<Vec<PathBuf>> {
+    struct Walk<'a> {
+        arrows: &'a Arrows,
+        index: BTreeMap<&'a PathBuf, usize>,
+        low: BTreeMap<&'a PathBuf, usize>,
+        stack: Vec<&'a PathBuf>,
+        on_stack: BTreeSet<&'a PathBuf>,
+        out: Vec<Vec<PathBuf>>,
+    }
+    impl<'a> Walk<'a> {
+        fn visit(&mut self, v: &'a PathBuf) {
+            let n = self.index.len();
+            self.index.insert(v, n);
+            self.low.insert(v, n);
+            self.stack.push(v);
+            self.on_stack.insert(v);
+            if let Some(targets) = self.arrows.get(v) {
+                for w in targets.keys() {
+                    if !self.index.contains_key(w) {
+                        self.visit(w);
+                        let low = self.low[v].min(self.low[w]);
+                        self.low.insert(v, low);
+                    } else if self.on_stack.contains(w) {
+                        let low = self.low[v].min(self.index[w]);
+                        self.low.insert(v, low);
+                    }
+                }
+            }
+            if self.low[v] == self.index[v] {
+                let mut set = Vec::new();
+                while let Some(w) = self.stack.pop() {
+                    self.on_stack.remove(w);
+                    set.push(w.clone());
+                    if w == v {
+                        break;
+                    }
+                }
+                if set.len() > 1 {
+                    set.sort();
+                    self.out.push(set);
+                }
+            }
+        }
+    }
+    let mut walk = Walk {
+        arrows,
+        index: BTreeMap::new(),
+        low: BTreeMap::new(),
+        stack: Vec::new(),
+        on_stack: BTreeSet::new(),
+        out: Vec::new(),
+    };
+    for v in arrows.keys() {
+        if !walk.index.contains_key(v) {
+            walk.visit(v);
+        }
+    }
+    walk.out
+}
+
+#[test]
+fn no_crate_has_an_import_circle() {
+    let root = root();
+    let crates = crates(&root);
+    assert!(
+        crates.iter().any(|c| c.ends_with("compiler")) && crates.len() >= 8,
+        "the walk found too few crates: {crates:?}"
+    );
+    let mut report = Vec::new();
+    for dir in &crates {
+        let arrows = arrows(dir);
+        for set in circles(&arrows) {
+            let name = |p: &PathBuf| p.strip_prefix(&root).unwrap_or(p).display().to_string();
+            let mut lines = vec![format!(
+                "circle of {} files in {}:",
+                set.len(),
+                name(dir)
+            )];
+            for a in &set {
+                for (b, paths) in arrows.get(a).into_iter().flatten() {
+                    if set.contains(b) {
+                        let paths: Vec<&str> = paths.iter().map(String::as_str).collect();
+                        lines.push(format!(
+                            "  {} -> {}: {}",
+                            name(a),
+                            name(b),
+                            paths.join(", ")
+                        ));
+                    }
+                }
+            }
+            report.push(lines.join("\n"));
+        }
+    }
+    assert!(report.is_empty(), "import circles:\n{}", report.join("\n"));
+}
+
+/// The walk itself: grouped `use` trees, `super` out of an inline module, a circle found.
+#[test]
+fn the_walk_reads_grouped_uses_and_finds_a_circle() {
+    let mut paths = Vec::new();
+    expand("crate::a::{self, b::{C, d}, e as f}", "", &mut paths);
+    assert_eq!(
+        paths,
+        ["crate::a", "crate::a::b::C", "crate::a::b::d", "crate::a::e"]
+    );
+    let text = "use super::x::Y;\nfn f() { crate::b::g(); } // crate::c::h\n\
+                #[cfg(test)]\nmod tests {\n    use super::*;\n}\n";
+    let found = paths_of(text);
+    assert_eq!(
+        found,
+        [
+            ("super::x::Y".to_owned(), 0),
+            ("crate::b::g".to_owned(), 0),
+            ("super::*".to_owned(), 1)
+        ]
+    );
+    let (a, b, c) = (PathBuf::from("a.rs"), PathBuf::from("b.rs"), PathBuf::from("c.rs"));
+    let mut arrows = Arrows::new();
+    for (from, to) in [(&a, &b), (&b, &c), (&c, &a)] {
+        arrows
+            .entry(from.clone())
+            .or_default()
+            .entry(to.clone())
+            .or_default()
+            .insert("x".into());
+    }
+    assert_eq!(circles(&arrows), vec![vec![a.clone(), b.clone(), c.clone()]]);
+    arrows.get_mut(&c).map(|t| t.remove(&a));
+    assert!(circles(&arrows).is_empty());
+}
