@@ -9,188 +9,12 @@ use crokf_formats as fmt;
 use crate::error::CompileError;
 use crate::full_order::FullOrder;
 use crate::model_file::assemble_model;
-use crate::nonlinear::ecsw::EcswOptions;
-use crate::nonlinear::self_check::{self, SelfCheck};
-use crate::nonlinear::tier::{self, RuntimeNewton};
-use crate::nonlinear::training::TrainingPlan;
-use crate::outputs::Measurements;
+use crate::nonlinear::self_check::SelfCheck;
+use crate::reductor::tier::TierReductor;
 use crate::reductor::Reductor;
 use crate::report::{self, Sizes};
 use crate::timer::StageTimer;
 use crate::scene::ModelTier;
-
-/// Factor on the largest training ‖q‖ beyond which the runtime reports the state outside the
-/// tier's training envelope.
-pub const TIER_STATE_MARGIN: f64 = 1.5;
-
-/// The co-rotational tier of `[reduction] model = "corotational"` (docs/design.md §10):
-/// training runs generated from `[reduction.corotational]` (progress on stderr), POD basis,
-/// ECSW, the linearised filter, the model file's tier section and the self-check of the
-/// compiled tier on its training runs ([`self_check`]: summary and any warning on stderr and in
-/// the report's notes); figures go into `report`.
-fn corotational_tier(
-    full: &FullOrder,
-    measurements: &Measurements,
-    timer: &mut StageTimer,
-    report: &mut fmt::CompileReport,
-) -> Result<(fmt::CorotationalTier, SelfCheck), CompileError> {
-    let path = full.scene_path().to_path_buf();
-    let fail = |e: &dyn std::fmt::Display| CompileError::Tier {
-        path: path.clone(),
-        message: e.to_string(),
-    };
-    let (Some(spec), Some(plan)) = (
-        full.scene.scene.reduction.corotational.as_ref(),
-        TrainingPlan::of_scene(full),
-    ) else {
-        return Err(fail(
-            &"reduction.model = \"corotational\" needs [reduction.corotational]",
-        ));
-    };
-    let mut progress = |k: usize, of: usize, label: &str| {
-        eprintln!(
-            "crokf-compile: co-rotational training run {}/{of}: {label}",
-            k + 1
-        );
-    };
-    let training = timer
-        .stage("tier_training", || {
-            crate::nonlinear::training::train(full, &plan, &mut progress)
-        })
-        .map_err(|e| fail(&e))?;
-    for (label, failed) in &training.runs {
-        if let Some(why) = failed {
-            report.notes.push(format!(
-                "co-rotational training run '{label}' failed and was skipped: {why}"
-            ));
-        }
-    }
-    let ecsw = EcswOptions {
-        tolerance: spec.ecsw_tolerance,
-        max_elements: spec.ecsw_max_elements,
-        ..EcswOptions::default()
-    };
-    let choice = tier::BasisChoice {
-        order: spec.order,
-        tolerance: spec.basis_tolerance,
-        max_order: spec.largest_order(),
-    };
-    let built = timer
-        .stage("tier_reduction", || {
-            tier::from_training_with(full, training, &choice, &ecsw)
-        })
-        .map_err(|e| fail(&e))?;
-    let filter = timer
-        .stage("tier_kalman", || {
-            tier::linearised_filter(full, &built, measurements)
-        })
-        .map_err(|e| fail(&e))?;
-    let env = &built.training.envelope;
-    let r = built.model.order();
-    if let (Some(eps), Some((added, worst))) = (spec.basis_tolerance, built.enrichment) {
-        report.notes.push(format!(
-            "co-rotational tier basis: {} pooled POD vectors + {added} added for the per-run \
-             tolerance {eps:e} in the energy norm; worst training run {worst:.2e}{} (r ≤ {})",
-            r - added,
-            if worst > eps {
-                ", NOT reached: max_order stopped the enrichment"
-            } else {
-                ""
-            },
-            spec.largest_order()
-        ));
-    }
-    report.notes.push(format!(
-        "co-rotational tier: r = {r} POD vectors of {} training snapshots ({} of {} runs), {} \
-         sampled elements of {} (ECSW residual {:.2e}, tolerance {:.0e}); envelope: {}",
-        env.snapshots,
-        env.runs.0,
-        env.runs.1,
-        built.model.elements.len(),
-        full.fem.elements.len(),
-        built.sampling.relative_residual,
-        spec.ecsw_tolerance,
-        plan.ranges
-            .iter()
-            .map(|(n, f)| format!("{n} ≤ {:.4} N", f * plan.max_multiple()))
-            .collect::<Vec<_>>()
-            .join(", ")
-    ));
-    report.notes.push(format!(
-        "co-rotational tier filter (linearised at rest, state (q, q̇, q̈, f[, ḟ]) = {}, {} force \
-         (and rate) states): closed-loop spectral radius {:.6}, Riccati residual {:.1e}, static residual \
-         of the force channels at the markers {:.1e}; gain schedule: {} of {} operating points \
-         (training states, ‖q*‖ {:.3e} … {:.3e})",
-        filter.schedule.phases[0].gain.nrows(),
-        filter.schedule.phases[0].gain.nrows() - 3 * r,
-        filter.schedule.closed_loop_spectral_radius,
-        filter.schedule.worst_relative_residual,
-        filter.static_residual,
-        filter.scheduled.len(),
-        tier::SCHEDULE_POINTS,
-        filter
-            .scheduled
-            .iter()
-            .map(|(q, _)| q.norm())
-            .fold(f64::INFINITY, f64::min),
-        filter
-            .scheduled
-            .iter()
-            .map(|(q, _)| q.norm())
-            .fold(0.0, f64::max)
-    ));
-    report.notes.push(format!(
-        "co-rotational tier model error at the markers (basis projection of the training \
-         snapshots, RMS per channel in units of the channel's σ): largest {:.2e}, median {:.2e} \
-         (not added to R: against the markers' own noise it is negligible below ≈ 0.1)",
-        filter
-            .marker_model_error
-            .iter()
-            .copied()
-            .fold(0.0, f64::max),
-        {
-            let mut e = filter.marker_model_error.clone();
-            e.sort_by(f64::total_cmp);
-            e.get(e.len() / 2).copied().unwrap_or(0.0)
-        }
-    ));
-    let newton = self_check::runtime_newton(spec.newton_tolerance, spec.newton_iterations);
-    let check = timer
-        .stage("tier_self_check", || {
-            self_check::self_check(
-                full,
-                &plan,
-                &built,
-                newton,
-                self_check::SELF_CHECK_THRESHOLD,
-            )
-        })
-        .map_err(|e| fail(&e))?;
-    let steps: usize = check.runs.iter().map(|r| r.steps).sum();
-    eprintln!(
-        "crokf-compile: {} ({steps} reduced steps in {:.2} s)",
-        check.note(),
-        check.seconds
-    );
-    report.notes.push(check.note());
-    if let Some(warning) = check.warning() {
-        eprintln!("crokf-compile: {warning}");
-        report.notes.push(warning);
-    }
-    let section = tier::tier_section(
-        full,
-        &built,
-        &plan,
-        &filter,
-        measurements,
-        RuntimeNewton {
-            tolerance: spec.newton_tolerance,
-            iterations: spec.newton_iterations,
-            state_margin: TIER_STATE_MARGIN,
-        },
-    );
-    Ok((section, check))
-}
 
 /// Options of a compile run; `None` falls back to the scene's `[reduction]` table, then defaults.
 #[derive(Clone, Debug, Default)]
@@ -311,9 +135,13 @@ pub fn compile_reduced(
     let mut model = model;
     let mut self_check = None;
     if full.scene.scene.reduction.model == ModelTier::Corotational {
-        let (section, check) =
-            corotational_tier(full, &reductor.measurements, &mut timer, &mut model.report)?;
-        model.tier = Some(section);
+        let tier = TierReductor::new(full, &reductor.measurements, &mut timer)?;
+        let check = tier.self_check(&mut timer)?;
+        let notes = &mut model.report.notes;
+        notes.extend(tier.notes.iter().cloned());
+        notes.push(check.note());
+        notes.extend(check.warning());
+        model.tier = Some(tier.section());
         self_check = Some(check);
         model.validate().map_err(|e| CompileError::Tier {
             path: full.scene_path().to_path_buf(),

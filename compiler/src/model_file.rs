@@ -1,5 +1,8 @@
 //! Model-file assembly (docs/model-format.md): the reduced system, the Kalman schedule and the
-//! output rows of one order, laid out as the runtime reads them.
+//! output rows of one order, laid out as the runtime reads them; the co-rotational tier's
+//! section in [`tier`].
+
+pub mod tier;
 
 use faer::Mat;
 

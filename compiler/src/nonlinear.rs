@@ -1,24 +1,37 @@
 //! The co-rotational tier (docs/design.md §10): a small nonlinear reduced model that evaluates
 //! the same co-rotational element forces as the full-order reference
 //! ([`crate::stepping::corotational`]) in a displacement basis V, on a few weighted elements.
+//! One module per job, data flowing down the list:
 //!
-//! - [`basis`]: candidate bases (modes + static correction, static modal derivatives, POD of
-//!   co-rotational snapshots), M-orthonormalisation and projection errors min_q ‖Vq − u‖_M;
-//! - [`ecsw`]: element sampling and non-negative weights (ECSW, Lawson–Hanson NNLS);
-//! - [`reduced`]: the reduced co-rotational Wilson-θ stepper on q with Newton on the reduced
-//!   tangent;
 //! - [`training`]: the compiler's training runs (full-order co-rotational, generated from the
 //!   scene's `[reduction.corotational]` envelope);
-//! - [`tier`]: training → POD → ECSW → reduced model, its linearised filter and the model
-//!   file's tier section (wired into `compile` by `[reduction] model = "corotational"`);
+//! - [`basis`]: candidate bases (modes + static correction, static modal derivatives, POD of
+//!   co-rotational snapshots), M-orthonormalisation, projection errors and the tier's choice
+//!   ([`basis::BasisChoice`]: pooled POD, per-run enrichment in the energy norm);
+//! - [`ecsw`]: element sampling and non-negative weights (ECSW, Lawson–Hanson NNLS);
+//! - [`cubature`]: the sampled elements and their weights as one object (trained by ECSW,
+//!   evaluated by the reduced model, stored by the model file);
+//! - [`reduced`]: the reduced co-rotational Wilson-θ stepper on q with Newton on the reduced
+//!   tangent;
+//! - [`tier`]: training → basis → cubature → reduced model;
+//! - [`noise`]: the noise model of the tier's filter (force and rate states, white channels);
+//! - [`filter`]: the filter design (linearisation at rest and at training states, DARE in
+//!   scaled modal coordinates, gain schedule);
+//! - [`identify`]: the noise model's σ identified from a filter run's innovations;
 //! - [`self_check`]: the compiled tier re-run on its own training loads against the training
 //!   snapshots (in-sample error per run, a warning above 5 %).
 //!
-//! The floors of candidate bases and the scenario-driven open-loop comparisons live in
-//! `crokf-verify` (`crokf_verify::nonlinear`), which reuses [`training`] and [`tier`].
+//! The model file's tier section lives with the other sections (`crate::model_file::tier`);
+//! `crate::reductor::tier::TierReductor` wires the tier into a compile. The floors of candidate
+//! bases and the scenario-driven open-loop comparisons live in `crokf-verify`
+//! (`crokf_verify::nonlinear`), which reuses [`training`] and [`tier`].
 
 pub mod basis;
+pub mod cubature;
 pub mod ecsw;
+pub mod filter;
+pub mod identify;
+pub mod noise;
 pub mod reduced;
 pub mod self_check;
 pub mod tier;

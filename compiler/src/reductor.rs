@@ -1,7 +1,9 @@
 //! Build once, reduce many times (pyMOR's reductor pattern): the full-order model's output
 //! layout, its modal basis and modal Wilson-θ system are computed once; balanced truncations
 //! of any order r, their Kalman schedules and model files are derived from them
-//! (docs/design.md §4, §6).
+//! (docs/design.md §4, §6). The co-rotational tier's reductor is [`tier::TierReductor`].
+
+pub mod tier;
 
 use std::cell::OnceCell;
 use std::collections::BTreeMap;

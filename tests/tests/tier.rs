@@ -10,7 +10,9 @@ use std::sync::OnceLock;
 use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
 use crokf_compile::nonlinear::ecsw::EcswOptions;
 use crokf_compile::nonlinear::reduced::{ReducedModel, ReducedNewton, ReducedStepper, Refresh};
-use crokf_compile::nonlinear::tier;
+use crokf_compile::model_file::tier as section;
+use crokf_compile::nonlinear::identify::identify_noise;
+use crokf_compile::nonlinear::{filter, tier};
 use crokf_compile::nonlinear::training::TrainingPlan;
 use crokf_compile::report::StageTimer;
 use crokf_compile::{compile, CompileOptions, FullOrder};
@@ -539,7 +541,7 @@ fn a_v4_model_file_is_refused_with_recompile() {
 /// which the envelope records independently), each stored filter solves the Riccati equation
 /// of the tier linearised at its point (F from `LinearisedTier::transition`, assembled in s
 /// coordinates, not the compiler's scaled modal route) and is stable there, the runtime picks
-/// each point's own filter at that point and the rest filter at rest, and `tier::refilter`
+/// each point's own filter at that point and the rest filter at rest, and `section::refilter`
 /// recomputes the same schedule from the file.
 #[test]
 fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
@@ -547,7 +549,7 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
     let t = model.tier.as_ref().unwrap();
     let r = t.order as usize;
     assert!(
-        !t.scheduled.is_empty() && t.scheduled.len() <= tier::SCHEDULE_POINTS,
+        !t.scheduled.is_empty() && t.scheduled.len() <= filter::SCHEDULE_POINTS,
         "{} points",
         t.scheduled.len()
     );
@@ -566,12 +568,12 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
         .iter()
         .all(|&n| n > 0.0 && n <= largest * (1.0 + 1e-12)));
     let full = FullOrder::build(random_walk_scene(), &mut StageTimer::default()).unwrap();
-    let (lin, _) = tier::linearised_of_file(&full, model).unwrap();
-    let reduced = tier::reduced_model_of_file(&full, t).unwrap();
+    let (lin, _) = section::linearised_of_file(&full, model).unwrap();
+    let reduced = section::reduced_model_of_file(&full, t).unwrap();
     let prepared = TierModel::new(model, t);
     assert_eq!(prepared.filter_count(), 1 + t.scheduled.len());
     assert_eq!(prepared.nearest_filter(&vec![0.0; r]), 0);
-    let q_noise = tier::file_matrix(&t.kalman.process_noise);
+    let q_noise = section::file_matrix(&t.kalman.process_noise);
     let mut rest_radius_at_points = Vec::new();
     for (i, s) in t.scheduled.iter().enumerate() {
         assert_eq!(prepared.nearest_filter(&s.point), i + 1);
@@ -579,8 +581,8 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
         let (f, h) = lin.at(&reduced, &q).transition().unwrap();
         let phase = &s.kalman.phases[0];
         assert_eq!(s.kalman.period, 1);
-        let prior = tier::file_matrix(&phase.prior_covariance);
-        let posterior = tier::file_matrix(&phase.posterior_covariance);
+        let prior = section::file_matrix(&phase.prior_covariance);
+        let posterior = section::file_matrix(&phase.posterior_covariance);
         let riccati = &f * &posterior * f.transpose() + &q_noise;
         let residual = (&riccati - &prior).norm() / prior.norm();
         assert!(residual < 1e-6, "point {i}: Riccati residual {residual:e}");
@@ -593,9 +595,9 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
                 .map(|z| z.norm())
                 .fold(0.0, f64::max)
         };
-        let own = radius(&tier::file_matrix(&phase.gain));
+        let own = radius(&section::file_matrix(&phase.gain));
         assert!(own < 1.0, "point {i}: closed-loop spectral radius {own}");
-        rest_radius_at_points.push((own, radius(&tier::file_matrix(&t.kalman.phases[0].gain))));
+        rest_radius_at_points.push((own, radius(&section::file_matrix(&t.kalman.phases[0].gain))));
     }
     eprintln!(
         "schedule: {} points, ‖q*‖ = {norms:.3?}; closed-loop spectral radius at each point \
@@ -603,14 +605,14 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
         t.scheduled.len()
     );
     let mut again = model.clone();
-    tier::refilter(&full, &mut again).unwrap();
+    section::refilter(&full, &mut again).unwrap();
     let again = again.tier.unwrap();
     assert_eq!(again.scheduled.len(), t.scheduled.len());
     for (a, b) in again.scheduled.iter().zip(&t.scheduled) {
         assert_eq!(a.point, b.point);
         let (ga, gb) = (
-            tier::file_matrix(&a.kalman.phases[0].gain),
-            tier::file_matrix(&b.kalman.phases[0].gain),
+            section::file_matrix(&a.kalman.phases[0].gain),
+            section::file_matrix(&b.kalman.phases[0].gain),
         );
         assert!((&ga - &gb).norm() <= 1e-9 * gb.norm());
     }
@@ -789,7 +791,7 @@ fn the_update_uses_the_gain_of_the_filter_nearest_to_its_result() {
                 .iter()
                 .map(|&j| y[j as usize] - predicted[j as usize]),
         );
-        let expected = DVector::from_column_slice(&prior) + tier::file_matrix(&phase.gain) * nu;
+        let expected = DVector::from_column_slice(&prior) + section::file_matrix(&phase.gain) * nu;
         let error = (&expected - DVector::from_column_slice(&posterior)).norm() / expected.norm();
         eprintln!(
             "iterated update, markers × {c}: filter {used} of {}, relative difference {error:.1e}",
@@ -1172,7 +1174,7 @@ fn identify_noise_recovers_the_random_walk_of_a_known_truth() {
     let inputs = vec![vec![0.0; model.inputs.len()]; recording.len()];
     let run = filter_run(model, &inputs, &recording).unwrap();
     let (innovations, filters) = (&run.innovations, &run.filters);
-    let found = tier::identify_noise(&full, model, innovations, filters, 100, 20).unwrap();
+    let found = identify_noise(&full, model, innovations, filters, 100, 20).unwrap();
     let load = &found.loads[0];
     let switches = run.switches();
     let used: std::collections::BTreeSet<usize> = filters.iter().map(|f| f.0).collect();

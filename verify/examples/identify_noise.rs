@@ -2,7 +2,7 @@
 //! squares, docs/design.md §11.6). The tier of MODEL, its filters (gain schedule included)
 //! recomputed for SCENE's noise, runs from rest over a recording; its innovations ν = y − ŷ⁻
 //! after the first SKIP steps give the sample autocovariances, the schedule's filter and phase
-//! in use at each step give the model's, and `crokf_compile::nonlinear::tier::identify_noise`
+//! in use at each step give the model's, and `crokf_compile::nonlinear::identify::identify_noise`
 //! the σ that explain them: each random-walk load's force σ_f (and rate σ_ḟ), and the markers'
 //! σ as a factor on the scene's.
 //!
@@ -38,7 +38,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use crokf_compile::nonlinear::tier::IdentifiedNoise;
+use crokf_compile::nonlinear::identify::IdentifiedNoise;
 use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
 use crokf_runtime::load_model;
@@ -274,10 +274,10 @@ impl Run<'_> {
                 t.scheduled.clear();
             }
         }
-        crokf_compile::nonlinear::tier::refilter(full, &mut model)?;
+        crokf_compile::model_file::tier::refilter(full, &mut model)?;
         model.validate()?;
         let run = filter_run(&model, self.inputs, self.measurements)?;
-        let noise = crokf_compile::nonlinear::tier::identify_noise(
+        let noise = crokf_compile::nonlinear::identify::identify_noise(
             full,
             &model,
             &run.innovations,

@@ -415,7 +415,7 @@ fn ensemble(
 }
 
 /// A model file, or `FILE@SCENE`: FILE's co-rotational tier with its filter recomputed for
-/// SCENE's sensors and noise model (`crokf_compile::nonlinear::tier::refilter`: same training,
+/// SCENE's sensors and noise model (`crokf_compile::model_file::tier::refilter`: same training,
 /// e.g. the scene's 30 Hz or 1 mm variant). FILE may then be a format-v3 or v4 tier file (read
 /// past its header; its tier gets the force states of SCENE, and no gain schedule).
 fn read_model(arg: &str) -> Result<crokf_formats::Model, Box<dyn std::error::Error>> {
@@ -431,7 +431,7 @@ fn read_model(arg: &str) -> Result<crokf_formats::Model, Box<dyn std::error::Err
         Err(e) => return Err(e.into()),
     };
     let full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
-    let rho = crokf_compile::nonlinear::tier::refilter(&full, &mut model)?;
+    let rho = crokf_compile::model_file::tier::refilter(&full, &mut model)?;
     eprintln!("{arg}: tier filter recomputed, closed-loop spectral radius {rho:.6}");
     model.validate()?;
     Ok(model)

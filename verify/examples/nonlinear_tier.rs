@@ -218,7 +218,7 @@ fn report(
         "\ncomponents (median of 200, at the last training state): reduced force {:.1} µs, reduced tangent {:.1} µs ({} elements, r = {})",
         force * 1e6,
         tangent * 1e6,
-        built.model.elements.len(),
+        built.model.cubature.len(),
         built.model.order()
     );
     Ok(())

@@ -22,7 +22,8 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use crokf_compile::nonlinear::tier::{self, file_matrix};
+use crokf_compile::model_file::tier::{self, file_matrix};
+use crokf_compile::nonlinear::filter::filter_of;
 use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
 use crokf_runtime::{load_model, Estimator};
@@ -176,7 +177,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         } else {
             [f64::INFINITY; 3]
         };
-        let optimal = match tier::filter_of(&lin, &measurements) {
+        let optimal = match filter_of(&lin, &measurements) {
             Ok(filter) => tip_sigma(
                 &tip_rows,
                 &faer_to(&filter.schedule.phases[0].posterior_covariance),

@@ -12,6 +12,7 @@ use nalgebra::{DMatrix, DVector};
 use crate::fem::{sparse_mul, FemModel};
 use crate::stepping::{static_solve, CorotationalSimulator};
 
+use super::training::Training;
 use super::NonlinearError;
 
 /// An M-orthonormal basis (n × r, columns in the order they were accepted) with a label per
@@ -408,5 +409,83 @@ pub fn enrich_per_run(
         pooled,
         run_errors,
         enriched_from,
+    }
+}
+
+/// How the tier's basis is chosen from the training snapshots.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BasisChoice {
+    /// Pooled POD vectors (M inner product), first.
+    pub order: usize,
+    /// Per-run tolerance ε in the energy norm, enrichment up to `max_order` columns
+    /// ([`enrich_per_run`] with K; docs/corotational-tier.md §8); None: r = `order`.
+    pub tolerance: Option<f64>,
+    /// Largest r with a tolerance.
+    pub max_order: usize,
+}
+
+impl BasisChoice {
+    /// The first `order` pooled POD vectors only.
+    pub fn pod(order: usize) -> Self {
+        BasisChoice {
+            order,
+            tolerance: None,
+            max_order: order,
+        }
+    }
+}
+
+/// The tier's basis chosen from training snapshots ([`BasisChoice::choose`]).
+#[derive(Clone, Debug)]
+pub struct ChosenBasis {
+    /// V (n × r, M-orthonormal), each pooled column's largest-magnitude entry positive.
+    pub basis: Basis,
+    /// POD eigenvalues of the snapshots (m²·kg), descending.
+    pub pod_values: Vec<f64>,
+    /// With a per-run tolerance: the vectors added after the pooled POD and the worst per-run
+    /// relative error in the energy norm reached.
+    pub enrichment: Option<(usize, f64)>,
+}
+
+impl BasisChoice {
+    /// The basis of the training snapshots `training`: the pooled POD (M inner product, signs
+    /// normalised) and, with a tolerance ε, the per-run enrichment in the energy norm: while
+    /// some training run k has e_k = (Σ_t ‖(I − P_K) u_t‖²_K / Σ_t ‖u_t‖²_K)^½ > ε (P_K the
+    /// K-orthogonal projector on V), the leading K-POD vector of the worst run's residuals is
+    /// appended; the result is M-orthonormalised (same span). The energy norm because the
+    /// Galerkin step solves for the K-orthogonal projection, not the M-orthogonal one: on the
+    /// twist hard case a basis that fits the trajectory to 1–3 % in M left the linear static
+    /// Galerkin solution 87 % off (docs/corotational-tier.md §8).
+    pub fn choose(&self, fem: &FemModel, training: &Training) -> ChosenBasis {
+        let order = self.order;
+        let (mut modes, pod_values) = pod(&fem.mass, &training.snapshots, order, 1e-14);
+        normalise_signs(&mut modes);
+        let mut basis = m_orthonormalise(&fem.mass, &modes, 1e-8, order);
+        let mut enrichment = None;
+        if let Some(tolerance) = self.tolerance {
+            let stiffness = &fem.stiffness;
+            let energy = m_orthonormalise(stiffness, &modes, 1e-8, order);
+            let enriched = enrich_per_run(
+                stiffness,
+                &training.snapshots,
+                &training.run_of,
+                training.runs.len(),
+                energy,
+                tolerance,
+                self.max_order.max(order),
+            );
+            let columns: Vec<(String, Vec<f64>)> = enriched.basis.columns();
+            // The pooled columns first, unchanged (same M-orthonormal vectors as without the
+            // tolerance), then the enrichment M-orthogonalised against them.
+            let mut all: Vec<(String, Vec<f64>)> = basis.columns();
+            all.extend(columns.into_iter().skip(enriched.pooled));
+            enrichment = Some((enriched.enriched_from.len(), enriched.worst()));
+            basis = m_orthonormalise(&fem.mass, &all, 1e-10, all.len());
+        }
+        ChosenBasis {
+            basis,
+            pod_values,
+            enrichment,
+        }
     }
 }

@@ -23,38 +23,18 @@
 use nalgebra::{DMatrix, DVector};
 
 use crate::dynamics::WilsonTheta;
-use crate::fem::{FemModel, TetGeometry};
+use crate::fem::FemModel;
 use crate::stepping::{element_force, element_tangent};
 
+use super::cubature::Cubature;
 use super::NonlinearError;
-
-/// One sampled element: rest geometry, rest stiffness, its basis rows and weight.
-#[derive(Clone, Debug)]
-pub struct SampledElement {
-    /// Index into the full model's elements.
-    pub element: usize,
-    /// ECSW weight wₑ ≥ 0.
-    pub weight: f64,
-    /// Rest geometry (shape-function gradients, volume).
-    pub geometry: TetGeometry,
-    /// Rest stiffness Kₑ (12 × 12, N/m, node-major).
-    pub stiffness: [[f64; 12]; 12],
-    /// Rest vertex positions Xₑ, m.
-    pub rest: [[f64; 3]; 4],
-    /// V_e: the 12 rows of V at the element's DOFs (12 × r; zero rows where fixed).
-    pub rows: DMatrix<f64>,
-    /// The same rows flattened row-major (12·r), for the allocation-free force loop.
-    pub flat: Vec<f64>,
-    /// V_eᵀ flattened row-major (r·12) ([`crokf_kernel::Element::cols`]).
-    pub flat_t: Vec<f64>,
-}
 
 /// A reduced co-rotational model: what the model file would store (with the basis rows of
 /// the read-out and the training envelope).
 #[derive(Clone, Debug)]
 pub struct ReducedModel {
-    /// Sampled elements.
-    pub elements: Vec<SampledElement>,
+    /// The sampled elements and their weights.
+    pub cubature: Cubature,
     /// M_r = VᵀMV (r × r, kg per q²).
     pub mass: DMatrix<f64>,
     /// Rayleigh α (1/s).
@@ -74,47 +54,19 @@ impl ReducedModel {
         sampled: &[(usize, f64)],
         wilson: WilsonTheta,
     ) -> Result<Self, NonlinearError> {
-        let n = fem.dof_count();
-        if v.nrows() != n {
-            return Err(NonlinearError::Invalid(format!(
-                "basis has {} rows, the model {} free DOFs",
-                v.nrows(),
-                n
-            )));
-        }
+        let cubature = Cubature::new(fem, v, sampled)?;
+        Ok(Self::with_cubature(fem, v, cubature, wilson))
+    }
+
+    /// The model of `fem` on the basis `v` (n × r, the rows of `cubature`'s elements):
+    /// M_r = vᵀ M v, Rayleigh damping from `fem`.
+    pub fn with_cubature(
+        fem: &FemModel,
+        v: &DMatrix<f64>,
+        cubature: Cubature,
+        wilson: WilsonTheta,
+    ) -> Self {
         let r = v.ncols();
-        let mut elements = Vec::with_capacity(sampled.len());
-        for &(e, weight) in sampled {
-            let Some(el) = fem.elements.get(e) else {
-                return Err(NonlinearError::Invalid(format!(
-                    "sampled element {e} does not exist ({} elements)",
-                    fem.elements.len()
-                )));
-            };
-            if !(weight.is_finite() && weight >= 0.0) {
-                return Err(NonlinearError::Invalid(format!(
-                    "sampled element {e} (tag {}): weight {weight} is not ≥ 0",
-                    el.tag
-                )));
-            }
-            let dofs = fem.dofs.element(&el.nodes);
-            let rows = DMatrix::from_fn(12, r, |i, j| dofs[i].map_or(0.0, |d| v[(d, j)]));
-            let flat: Vec<f64> = (0..12)
-                .flat_map(|i| (0..r).map(move |j| (i, j)))
-                .map(|(i, j)| rows[(i, j)])
-                .collect();
-            let flat_t = crokf_kernel::transpose_rows(&flat);
-            elements.push(SampledElement {
-                flat,
-                flat_t,
-                element: e,
-                weight,
-                geometry: el.geometry,
-                stiffness: fem.element_stiffness(e),
-                rest: el.nodes.map(|node| fem.positions[node]),
-                rows,
-            });
-        }
         let mv = DMatrix::from_columns(
             &(0..r)
                 .map(|j| {
@@ -128,13 +80,13 @@ impl ReducedModel {
         } else {
             v.tr_mul(&mv)
         };
-        Ok(ReducedModel {
-            elements,
+        ReducedModel {
+            cubature,
             mass,
             alpha: fem.alpha,
             beta: fem.beta,
             wilson,
-        })
+        }
     }
 
     /// Order r.
@@ -153,7 +105,7 @@ impl ReducedModel {
     ) {
         force.fill(0.0);
         damping.fill(0.0);
-        for el in &self.elements {
+        for el in &self.cubature.elements {
             let u = &el.rows * q;
             let current = current_positions(&el.rest, &u);
             let (f, rot) = element_force(&el.geometry, &el.stiffness, &el.rest, &current);
@@ -187,7 +139,7 @@ impl ReducedModel {
     /// elements (where the runtime refuses the step).
     pub fn force_with_damping(&self, q: &[f64], velocity: &[f64], beta: f64, out: &mut [f64]) {
         out.iter_mut().for_each(|v| *v = 0.0);
-        for el in &self.elements {
+        for el in &self.cubature.elements {
             let e = crokf_kernel::Element {
                 weight: el.weight,
                 rest: &el.rest,
@@ -214,7 +166,7 @@ impl ReducedModel {
     pub fn tangent(&self, q: &DVector<f64>, c_w: f64, consistent: bool) -> DMatrix<f64> {
         let r = self.order();
         let mut out = DMatrix::zeros(r, r);
-        for el in &self.elements {
+        for el in &self.cubature.elements {
             let u = &el.rows * q;
             let current = current_positions(&el.rest, &u);
             let kw = element_tangent(&el.geometry, &el.stiffness, &el.rest, &current, false);

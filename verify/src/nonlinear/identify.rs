@@ -1,5 +1,5 @@
 //! A filter run as the noise identification needs it (docs/design.md §11.6,
-//! `crokf_compile::nonlinear::tier::identify_noise`): the innovations of every step and the
+//! `crokf_compile::nonlinear::identify::identify_noise`): the innovations of every step and the
 //! gain-schedule filter and phase that updated it, from rest, the innovation gate off.
 
 use crokf_runtime::{Estimator, Model, RuntimeError};

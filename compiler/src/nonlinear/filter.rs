@@ -1,0 +1,549 @@
+//! The co-rotational tier's filter design (docs/design.md §11.4–11.5): the reduced model
+//! linearised at rest and at training states ([`LinearisedTier`], [`LinearisedTier::at`]),
+//! augmented with the force (and rate) states of the noise model ([`super::noise`]), its DARE
+//! solved in scaled modal coordinates ([`filter_of`]), the gain schedule's operating points
+//! ([`schedule_points`]) and the checks measured on every compile (static residual of the force
+//! channels, the basis's model error at the markers): [`linearised_filter`].
+
+use faer::linalg::solvers::Solve as _;
+use faer::Mat;
+use nalgebra::{DMatrix, DVector};
+
+use crate::full_order::FullOrder;
+use crate::kalman::{self, PeriodicSchedule};
+use crate::outputs::Measurements;
+
+use super::noise::NoiseModel;
+use super::reduced::ReducedModel;
+use super::tier::{point_rows, Tier};
+use super::NonlinearError;
+
+/// The tier linearised at rest in reduced coordinates: everything its filter needs, which is
+/// also what the model file's tier section stores (so a filter can be recomputed from a model
+/// file for other sensors' noise or rates without retraining, [`refilter`]).
+#[derive(Clone, Debug)]
+pub struct LinearisedTier {
+    /// M_r (r × r, kg per q²).
+    pub mass: DMatrix<f64>,
+    /// K_r at rest (r × r): Σ wₑ V_eᵀ Kₑ V_e, N/m per q².
+    pub stiffness: DMatrix<f64>,
+    /// Rayleigh α (1/s) and β (s).
+    pub alpha: f64,
+    /// Rayleigh β, s.
+    pub beta: f64,
+    /// Δt and θ.
+    pub wilson: crate::dynamics::WilsonTheta,
+    /// VᵀB of each force state's input channel (r each; 3 per random-walk group).
+    pub force_columns: Vec<DVector<f64>>,
+    /// σ per force state, N per step.
+    pub force_sigma: Vec<f64>,
+    /// σ of each force state's rate random walk, N/s per step (docs/design.md §11.5); empty:
+    /// no rate states.
+    pub rate_sigma: Vec<f64>,
+    /// VᵀB_w of each white process-noise channel (r each; σ included).
+    pub noise_columns: Vec<DVector<f64>>,
+    /// H V: the measured channels' rows of V (channels × r).
+    pub measured_rows: DMatrix<f64>,
+}
+
+impl LinearisedTier {
+    /// The same tier linearised at q (r) instead of rest: K_r ← K_N,r(q), the consistent
+    /// reduced tangent of `model` (docs/design.md §11.5).
+    pub fn at(&self, model: &ReducedModel, q: &DVector<f64>) -> LinearisedTier {
+        LinearisedTier {
+            stiffness: model.tangent(q, 0.0, true),
+            ..self.clone()
+        }
+    }
+
+    /// The linearised step in s = (q, q̇, q̈, f) coordinates (n = 3r + force states):
+    /// s_{k+1} = F s_k (+ inputs), F = [[A, Γ_f], [0, I]], and the measured rows
+    /// H = [H V, 0, 0, 0] (channels × n). A is the Wilson-θ recursion of
+    /// M q̈ + (αM + βK) q̇ + K q = f_r with f_r held over the step (module docs of
+    /// `crokf_runtime::tier`): q̂ = J⁻¹ (M(a₀q + (6/τ)q̇ + 2q̈) + C(a₂q + 2q̇ + (τ/2)q̈) + f_r),
+    /// J = K + a₂C + a₀M, then [`crate::dynamics::WilsonTheta::advance`] per coordinate.
+    pub fn transition(&self) -> Result<(DMatrix<f64>, DMatrix<f64>), NonlinearError> {
+        let r = self.mass.nrows();
+        let nf = self.force_columns.len();
+        let nr = self.rate_sigma.len();
+        let n = 3 * r + nf + nr;
+        let w = self.wilson;
+        let (tau, a0, a2) = (w.tau(), w.mass_coefficient(), w.damping_coefficient());
+        let m = &self.mass;
+        let c = m * self.alpha + &self.stiffness * self.beta;
+        let j = &self.stiffness + &c * a2 + m * a0;
+        let chol = j.cholesky().ok_or_else(|| {
+            NonlinearError::Invalid("tier transition: J is not positive definite".into())
+        })?;
+        // q̂ = G s, G = J⁻¹ [M a₀ + C a₂, M 6/τ + 2C, 2M + C τ/2, VᵀB_f].
+        let mut rhs = DMatrix::zeros(r, n);
+        rhs.view_mut((0, 0), (r, r)).copy_from(&(m * a0 + &c * a2));
+        rhs.view_mut((0, r), (r, r))
+            .copy_from(&(m * w.velocity_coefficient() + &c * 2.0));
+        rhs.view_mut((0, 2 * r), (r, r))
+            .copy_from(&(m * 2.0 + &c * (0.5 * tau)));
+        for (k, col) in self.force_columns.iter().enumerate() {
+            rhs.column_mut(3 * r + k).copy_from(col);
+        }
+        let g = chol.solve(&rhs);
+        // advance(u, v, a, û) is linear: its coefficients from unit arguments.
+        let unit = |k: usize| {
+            let mut x = [0.0; 4];
+            x[k] = 1.0;
+            crokf_kernel::wilson::advance(w.dt, w.theta, x[0], x[1], x[2], x[3])
+        };
+        let coeff: Vec<(f64, f64, f64)> = (0..4).map(unit).collect();
+        let mut f = DMatrix::zeros(n, n);
+        for blk in 0..3 {
+            let pick = |t: (f64, f64, f64)| [t.0, t.1, t.2][blk];
+            for i in 0..r {
+                for src in 0..3 {
+                    f[(blk * r + i, src * r + i)] += pick(coeff[src]);
+                }
+                for col in 0..n {
+                    f[(blk * r + i, col)] += pick(coeff[3]) * g[(i, col)];
+                }
+            }
+        }
+        for k in 0..nf {
+            f[(3 * r + k, 3 * r + k)] = 1.0;
+        }
+        for k in 0..nr {
+            f[(3 * r + k, 3 * r + nf + k)] = w.dt;
+            f[(3 * r + nf + k, 3 * r + nf + k)] = 1.0;
+        }
+        let mut h = DMatrix::zeros(self.measured_rows.nrows(), n);
+        h.view_mut((0, 0), (self.measured_rows.nrows(), r))
+            .copy_from(&self.measured_rows);
+        Ok((f, h))
+    }
+}
+
+/// The tier's filter in s = (q, q̇, q̈, f[, ḟ]) coordinates: the one designed at rest and its
+/// gain schedule.
+#[derive(Clone, Debug)]
+pub struct TierFilter {
+    /// Periodic steady-state gains (n × measured) and covariances (n × n), n = 3r + 3 per
+    /// random-walk load group.
+    pub schedule: PeriodicSchedule,
+    /// Q_s, n × n: process noise per step of the linearised model.
+    pub process_noise: Mat<f64>,
+    /// The random-walk load groups (indices into the scene's loads) whose force states follow
+    /// the 3r kinematic states, 3 each.
+    pub force_loads: Vec<usize>,
+    /// Whether the force states' rates follow them (3 more per group, docs/design.md §11.5).
+    pub force_rates: bool,
+    /// Worst relative static residual of the measured response to a force channel
+    /// (`static_residual`; 0 without force states).
+    pub static_residual: f64,
+    /// The basis's error at the markers over the training snapshots, per measurement channel:
+    /// RMS of H(u − V VᵀM u) divided by the channel's σ ([`marker_model_error`]).
+    pub marker_model_error: Vec<f64>,
+    /// The gain schedule (docs/design.md §11.5): per operating point q* (r), the same filter
+    /// on the tier linearised at q* ([`LinearisedTier::at`]); `schedule` is the point q = 0.
+    pub scheduled: Vec<(DVector<f64>, PeriodicSchedule)>,
+}
+
+/// The tier's filter (docs/design.md §11.4) for the noise model `noise`: the reduced model
+/// linearised at rest
+/// (K_r = reduced consistent tangent at q = 0, C_r = αM_r + βK_r), stepped by the same Wilson-θ
+/// recursion on s = (q, q̇, q̈) (3r), augmented with 3 random-walk force states f per
+/// random-walk load group (world force, N; f_{k+1} = f_k + w, w ~ N(0, σ² I₃), σ the load's
+/// `force_noise_std`), which enter the step as a load f_r = VᵀB f (the group's nodal
+/// distribution, held over the step like an input):
+/// ```text
+/// s_{k+1} = A s_k + Γ Vᵀ(B u_k + B_f f_k) + Γ Vᵀ B_w w_k,   f_{k+1} = f_k + w_f,k
+/// y_k = H V q_k + v_k
+/// ```
+/// Process noise: the scene's white noise channels projected on V (VᵀB_w), except those of the
+/// random-walk groups, which the force increments replace (as on the warped tier,
+/// `ReducedModel::with_force_states`). The force states have no output columns: the static
+/// response of the linearised tier to each force channel, H V K_r⁻¹ Vᵀ b, is compared with the
+/// full-order H K⁻¹ b and the worst relative residual returned (`static_residual`), so that
+/// the choice is measured on every compile.
+///
+/// With force rates (a load's `force_rate_noise_std` σ_ḟ > 0, docs/design.md §11.5) each force
+/// state also has its rate: f_{k+1} = f_k + Δt ḟ_k + w_f,k, ḟ_{k+1} = ḟ_k + w_ḟ,k,
+/// w_ḟ ~ N(0, σ_ḟ² I₃) (N/s). Gain schedule (§11.5): the same filter is also designed on the
+/// tier linearised at up to [`SCHEDULE_POINTS`] training states ([`schedule_points`],
+/// [`LinearisedTier::at`]), returned in `scheduled`.
+pub fn linearised_filter(
+    full: &FullOrder,
+    tier: &Tier,
+    noise: &NoiseModel,
+    measurements: &Measurements,
+) -> Result<TierFilter, NonlinearError> {
+    let model = &tier.model;
+    let r = model.order();
+    let v = &tier.basis.vectors;
+    let channels = noise.force_channels();
+    let project = |column: &[f64]| v.tr_mul(&DVector::from_column_slice(column));
+    let ops = &full.operators;
+    let lin = LinearisedTier {
+        mass: model.mass.clone(),
+        stiffness: model.tangent(&DVector::zeros(r), 0.0, true),
+        alpha: model.alpha,
+        beta: model.beta,
+        wilson: full.wilson,
+        force_columns: channels
+            .iter()
+            .map(|&ch| project(&ops.inputs[ch].column))
+            .collect(),
+        force_sigma: noise.force_sigma(),
+        rate_sigma: noise.rate_sigma(),
+        noise_columns: noise
+            .white
+            .iter()
+            .map(|&j| project(&ops.noise[j].column))
+            .collect(),
+        measured_rows: measured_rows(measurements, |s| {
+            point_rows(full, v, &ops.sensors[s].weights)
+        }),
+    };
+    let residual = static_residual(
+        full,
+        v,
+        &lin.stiffness,
+        &lin.measured_rows,
+        &channels,
+        measurements,
+    )?;
+    let mut filter = filter_of(&lin, measurements)?;
+    filter.force_loads = noise.force_loads();
+    filter.static_residual = residual;
+    filter.marker_model_error = marker_model_error(full, tier, &lin.measured_rows, measurements);
+    let points = schedule_points(&tier.projected, SCHEDULE_POINTS);
+    filter.scheduled = scheduled_filters(&lin, model, &points, measurements);
+    Ok(filter)
+}
+
+/// The model error of the tier at the markers that its basis alone makes (docs/design.md
+/// §11.5, a check of the noise model against the training runs): per measurement channel j,
+/// sqrt(mean over the training snapshots u of (h_j (u − V q))²) / σ_j, q = VᵀM u the snapshot's
+/// projection (`tier.projected`), h_j the channel's row of the sensor interpolation (h_j V the
+/// row j of `measured_rows`), σ_j its noise.
+/// Small against 1: the markers' noise, not the basis, dominates their error budget.
+pub fn marker_model_error(
+    full: &FullOrder,
+    tier: &Tier,
+    measured_rows: &DMatrix<f64>,
+    measurements: &Measurements,
+) -> Vec<f64> {
+    let count = tier.training.snapshots.len().max(1) as f64;
+    measurements
+        .channels
+        .iter()
+        .zip(&measurements.variance)
+        .enumerate()
+        .map(|(j, (&channel, &variance))| {
+            let row = measured_rows.row(j);
+            let sum: f64 = tier
+                .training
+                .snapshots
+                .iter()
+                .zip(&tier.projected)
+                .map(|(u, q)| {
+                    (measured_value(full, channel, |d| u[d]) - row.dot(&q.transpose())).powi(2)
+                })
+                .sum();
+            (sum / count / variance).sqrt()
+        })
+        .collect()
+}
+
+/// The full-order value of measurement channel (sensor, component) `channel` for the
+/// displacement `u` (by DOF index): the sensor's barycentric interpolation.
+fn measured_value(full: &FullOrder, (s, c): (usize, usize), u: impl Fn(usize) -> f64) -> f64 {
+    full.operators.sensors[s]
+        .weights
+        .iter()
+        .filter_map(|&(node, w)| full.fem.dofs.index[node][c].map(|d| w * u(d)))
+        .sum()
+}
+
+/// Operating points of the tier's gain schedule besides rest (docs/design.md §11.5).
+pub const SCHEDULE_POINTS: usize = 8;
+
+/// Up to `count` operating points among the training states `states` (projected snapshots,
+/// r each): greedy farthest-point (k-centre) selection in the M-norm of q (= ‖q‖ for an
+/// M-orthonormal basis), starting from rest (not returned): each point is the state farthest
+/// from rest and the points already chosen; deterministic (the first of equal distances).
+/// Fewer when the states run out or coincide with chosen points.
+pub fn schedule_points(states: &[DVector<f64>], count: usize) -> Vec<DVector<f64>> {
+    let mut distance: Vec<f64> = states.iter().map(|q| q.norm()).collect();
+    let mut points: Vec<DVector<f64>> = Vec::with_capacity(count);
+    while points.len() < count {
+        let Some((far, &d)) = distance.iter().enumerate().fold(
+            None,
+            |best: Option<(usize, &f64)>, (i, d)| match best {
+                Some((_, b)) if *b >= *d => best,
+                _ => Some((i, d)),
+            },
+        ) else {
+            break;
+        };
+        if d.is_nan() || d <= 0.0 {
+            break;
+        }
+        let point = states[far].clone();
+        for (dist, q) in distance.iter_mut().zip(states) {
+            *dist = dist.min((q - &point).norm());
+        }
+        points.push(point);
+    }
+    points
+}
+
+/// The filter of `lin` re-linearised at each of `points` ([`LinearisedTier::at`] on `model`);
+/// a point whose tangent or DARE fails is left out (the runtime then uses its neighbours).
+pub(crate) fn scheduled_filters(
+    lin: &LinearisedTier,
+    model: &ReducedModel,
+    points: &[DVector<f64>],
+    measurements: &Measurements,
+) -> Vec<(DVector<f64>, PeriodicSchedule)> {
+    points
+        .iter()
+        .filter_map(|q| {
+            filter_of(&lin.at(model, q), measurements)
+                .ok()
+                .map(|f| (q.clone(), f.schedule))
+        })
+        .collect()
+}
+
+/// H V (channels × r) from each sensor's 3 × r rows.
+pub(crate) fn measured_rows(
+    measurements: &Measurements,
+    rows_of: impl Fn(usize) -> DMatrix<f64>,
+) -> DMatrix<f64> {
+    let mut h = DMatrix::zeros(measurements.channels.len(), 0);
+    for (row, &(s, c)) in measurements.channels.iter().enumerate() {
+        let rows = rows_of(s);
+        if h.ncols() == 0 {
+            h = DMatrix::zeros(measurements.channels.len(), rows.ncols());
+        }
+        h.row_mut(row).copy_from(&rows.row(c));
+    }
+    h
+}
+
+/// The augmented model of a [`LinearisedTier`] in scaled modal coordinates x̃ (see
+/// [`filter_of`]): x̃⁺ = F x̃ + G w, y = H x̃ + v, w ~ N(0, I), and the map s = T x̃ back to
+/// s = (q, q̇, q̈, f, ḟ).
+pub(crate) struct ScaledSystem {
+    /// F (n × n).
+    pub(crate) f: Mat<f64>,
+    /// H (channels × n).
+    pub(crate) h: Mat<f64>,
+    /// G (n × (white + force + rate)): columns of the white channels, then of the force
+    /// states, then of their rates, σ included.
+    pub(crate) noise: Mat<f64>,
+    /// T (n × n) = diag(Φ, Φ, Φ, I) D.
+    pub(crate) t: Mat<f64>,
+}
+
+/// The [`ScaledSystem`] of `lin` for `measurements`.
+///
+/// Route: mass-normalised modes of (K_r, M_r) (Φ, λ) decouple the recursion into 3×3 blocks
+/// ([`crate::dynamics::WilsonTheta::modal_block`]); scaled so that F's entries are O(1).
+pub(crate) fn scaled_system(
+    lin: &LinearisedTier,
+    measurements: &Measurements,
+) -> Result<ScaledSystem, NonlinearError> {
+    let r = lin.mass.nrows();
+    let chol = lin.mass.clone().cholesky().ok_or_else(|| {
+        NonlinearError::Invalid("tier filter: reduced mass matrix is not positive definite".into())
+    })?;
+    let l = chol.l();
+    let l_inv = l.clone().try_inverse().ok_or_else(|| {
+        NonlinearError::Invalid("tier filter: reduced mass matrix is singular".into())
+    })?;
+    let kt = &l_inv * &lin.stiffness * l_inv.transpose();
+    let kt = (&kt + kt.transpose()) * 0.5;
+    let eig = kt.symmetric_eigen();
+    let mut order: Vec<usize> = (0..r).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    // Φ = L⁻ᵀ Φ̃ (ΦᵀMΦ = I), columns in ascending λ.
+    let phi_t = DMatrix::from_fn(r, r, |i, j| eig.eigenvectors[(i, order[j])]);
+    let phi = l_inv.transpose() * phi_t;
+    let lambda: Vec<f64> = order.iter().map(|&j| eig.eigenvalues[j]).collect();
+    if let Some(bad) = lambda.iter().find(|&&x| !(x.is_finite() && x > 0.0)) {
+        return Err(NonlinearError::Invalid(format!(
+            "tier filter: the reduced stiffness at rest is not positive definite (eigenvalue {bad:e})"
+        )));
+    }
+    let w = lin.wilson;
+    let n3 = 3 * r;
+    let nf = lin.force_columns.len();
+    let nr = lin.rate_sigma.len();
+    let n = n3 + nf + nr;
+    let mut f = Mat::<f64>::zeros(n, n);
+    let mut gamma = vec![[0.0; 3]; r];
+    for i in 0..r {
+        let (a, g) = w.modal_block(lambda[i], lin.alpha + lin.beta * lambda[i]);
+        for k1 in 0..3 {
+            for k2 in 0..3 {
+                f[(k1 * r + i, k2 * r + i)] = a[k1][k2];
+            }
+        }
+        gamma[i] = g;
+    }
+    // Modal image Γ Φᵀ (Vᵀb) of a reduced load column into column `col` of `out`.
+    let modal_load = |reduced: &DVector<f64>, out: &mut Mat<f64>, col: usize| {
+        let modal = phi.tr_mul(reduced);
+        for i in 0..r {
+            for k1 in 0..3 {
+                out[(k1 * r + i, col)] = gamma[i][k1] * modal[i];
+            }
+        }
+    };
+    for (j, column) in lin.force_columns.iter().enumerate() {
+        modal_load(column, &mut f, n3 + j);
+        f[(n3 + j, n3 + j)] = 1.0;
+    }
+    // Force rates (§11.5): f⁺ = f + Δt ḟ, ḟ⁺ = ḟ.
+    for j in 0..nr {
+        f[(n3 + j, n3 + nf + j)] = w.dt;
+        f[(n3 + nf + j, n3 + nf + j)] = 1.0;
+    }
+    let nw = lin.noise_columns.len();
+    let mut gw = Mat::<f64>::zeros(n, nw + nf + nr);
+    for (c, column) in lin.noise_columns.iter().enumerate() {
+        modal_load(column, &mut gw, c);
+    }
+    for (j, &sigma) in lin.force_sigma.iter().enumerate() {
+        gw[(n3 + j, nw + j)] = sigma;
+    }
+    for (j, &sigma) in lin.rate_sigma.iter().enumerate() {
+        gw[(n3 + nf + j, nw + nf + j)] = sigma;
+    }
+    // Diagonal scaling D (x_m = D x̃) so that F's entries are O(1) and the PBH tests of the
+    // DARE are meaningful: (1, ω_i, ω_i²) for mode i's (η, η̇, η̈), and for a force state the
+    // force whose static modal response max_i |(Φᵀ Vᵀ b)_i| / λ_i is 1 (in N, f is otherwise
+    // seen through responses of 1e-4…1e-1 per N).
+    let mut d = vec![1.0; n];
+    for i in 0..r {
+        let omega = lambda[i].sqrt();
+        d[r + i] = omega;
+        d[2 * r + i] = omega * omega;
+    }
+    for (j, column) in lin.force_columns.iter().enumerate() {
+        let modal = phi.tr_mul(column);
+        let response = (0..r).fold(0.0f64, |m, i| m.max(modal[i].abs() / lambda[i]));
+        if response > 0.0 {
+            d[n3 + j] = 1.0 / response;
+        }
+    }
+    // A rate's unit: the rate that changes its force by one unit of d in one step.
+    for j in 0..nr {
+        d[n3 + nf + j] = d[n3 + j] / w.dt;
+    }
+    let f = Mat::<f64>::from_fn(n, n, |i, j| f[(i, j)] * d[j] / d[i]);
+    let gw = Mat::<f64>::from_fn(n, gw.ncols(), |i, j| gw[(i, j)] / d[i]);
+    let modal_rows = &lin.measured_rows * &phi;
+    let h = Mat::<f64>::from_fn(measurements.channels.len(), n, |i, j| {
+        if j < r {
+            modal_rows[(i, j)] * d[j]
+        } else {
+            0.0
+        }
+    });
+    // Back to s = (q, q̇, q̈, f): x_s = T D x̃, T = diag(Φ, Φ, Φ, I).
+    let mut t = Mat::<f64>::zeros(n, n);
+    for blk in 0..3 {
+        for i in 0..r {
+            for j in 0..r {
+                t[(blk * r + i, blk * r + j)] = phi[(i, j)] * d[blk * r + j];
+            }
+        }
+    }
+    for j in n3..n {
+        t[(j, j)] = d[j];
+    }
+    Ok(ScaledSystem { f, h, noise: gw, t })
+}
+
+/// The filter of a [`LinearisedTier`] (see [`linearised_filter`]): the DARE of the augmented
+/// pair is solved in scaled modal coordinates x̃ (`ScaledSystem`, `kalman::periodic_gains`)
+/// and mapped back with T.
+pub fn filter_of(
+    lin: &LinearisedTier,
+    measurements: &Measurements,
+) -> Result<TierFilter, NonlinearError> {
+    let ScaledSystem { f, h, noise, t } = scaled_system(lin, measurements)?;
+    let nr = lin.rate_sigma.len();
+    let q = &noise * noise.transpose();
+    let schedule = kalman::periodic_gains(
+        f.as_ref(),
+        h.as_ref(),
+        q.as_ref(),
+        &measurements.variance,
+        &measurements.every,
+    )
+    .map_err(|e| NonlinearError::Invalid(format!("tier filter: {e}")))?;
+    let back = |p: &Mat<f64>| &t * p * t.transpose();
+    let mut schedule = schedule;
+    for phase in &mut schedule.phases {
+        phase.gain = &t * &phase.gain;
+        phase.prior_covariance = back(&phase.prior_covariance);
+        phase.posterior_covariance = back(&phase.posterior_covariance);
+    }
+    Ok(TierFilter {
+        process_noise: back(&q),
+        schedule,
+        force_loads: Vec::new(),
+        force_rates: nr > 0,
+        static_residual: 0.0,
+        marker_model_error: Vec::new(),
+        scheduled: Vec::new(),
+    })
+}
+
+/// Worst relative static residual of the linearised tier's measured response to the force
+/// channels (docs/design.md §11.4): max over channels j of ‖H K⁻¹ b_j − H V K_r⁻¹ Vᵀ b_j‖ /
+/// ‖H K⁻¹ b_j‖ (H the measured rows, K the full-order stiffness, K_r the reduced tangent at
+/// rest). 0 without force channels.
+fn static_residual(
+    full: &FullOrder,
+    v: &DMatrix<f64>,
+    k_r: &DMatrix<f64>,
+    h_red: &DMatrix<f64>,
+    channels: &[usize],
+    measurements: &Measurements,
+) -> Result<f64, NonlinearError> {
+    if channels.is_empty() {
+        return Ok(0.0);
+    }
+    let fem = &full.fem;
+    let n = fem.dof_count();
+    let llt = fem.stiffness.sp_cholesky(faer::Side::Lower).map_err(|e| {
+        NonlinearError::Invalid(format!(
+            "tier filter: the stiffness K is not positive definite ({e:?})"
+        ))
+    })?;
+    let inputs = &full.operators.inputs;
+    let mut u = Mat::from_fn(n, channels.len(), |i, j| inputs[channels[j]].column[i]);
+    llt.solve_in_place(u.as_mut());
+    let reduced_tangent = k_r.clone().cholesky().ok_or_else(|| {
+        NonlinearError::Invalid(
+            "tier filter: the reduced tangent at rest is not positive definite".into(),
+        )
+    })?;
+    let mut worst: f64 = 0.0;
+    for (j, &ch) in channels.iter().enumerate() {
+        let load = v.tr_mul(&DVector::from_column_slice(&inputs[ch].column));
+        let reduced = h_red * reduced_tangent.solve(&load);
+        let (mut diff, mut size) = (0.0, 0.0);
+        for (row, &channel) in measurements.channels.iter().enumerate() {
+            let exact = measured_value(full, channel, |d| u[(d, j)]);
+            diff += (exact - reduced[row]).powi(2);
+            size += exact * exact;
+        }
+        if size > 0.0 {
+            worst = worst.max((diff / size).sqrt());
+        }
+    }
+    Ok(worst)
+}
+

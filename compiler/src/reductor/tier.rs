@@ -1,0 +1,259 @@
+//! The co-rotational tier's reductor (docs/design.md §10–11), beside the linear
+//! [`Reductor`](super::Reductor): built once from the scene's `[reduction.corotational]`
+//! table, it owns the training runs, the basis, the cubature, the noise model and the filter
+//! design, and hands the compile its report notes, its self-check and the model file's tier
+//! section.
+//!
+//! ```text
+//! training ─▶ basis ─▶ cubature ─▶ reduced model ─▶ filter (noise model, gain schedule)
+//!                                        └──▶ self-check         └──▶ model-file section
+//! ```
+
+use crokf_formats as fmt;
+
+use crate::error::CompileError;
+use crate::full_order::FullOrder;
+use crate::model_file::tier::{tier_section, RuntimeNewton};
+use crate::nonlinear::basis::BasisChoice;
+use crate::nonlinear::ecsw::EcswOptions;
+use crate::nonlinear::filter::{linearised_filter, TierFilter, SCHEDULE_POINTS};
+use crate::nonlinear::noise::NoiseModel;
+use crate::nonlinear::self_check::{self, SelfCheck};
+use crate::nonlinear::tier::{self, Tier};
+use crate::nonlinear::training::{self, TrainingPlan};
+use crate::outputs::Measurements;
+use crate::scene::CorotationalSpec;
+use crate::timer::StageTimer;
+
+/// Factor on the largest training ‖q‖ beyond which the runtime reports the state outside the
+/// tier's training envelope.
+pub const TIER_STATE_MARGIN: f64 = 1.5;
+
+/// A co-rotational tier trained, reduced and filtered for one scene.
+pub struct TierReductor<'a> {
+    /// The full-order model.
+    pub full: &'a FullOrder,
+    /// The scene's `[reduction.corotational]` table.
+    pub spec: &'a CorotationalSpec,
+    /// The training runs generated from it.
+    pub plan: TrainingPlan,
+    /// The filter's noise model (force and rate states, white channels), built once.
+    pub noise: NoiseModel,
+    /// Training, basis, cubature and reduced model.
+    pub tier: Tier,
+    /// The filter designed on the tier linearised at rest and its gain schedule.
+    pub filter: TierFilter,
+    /// What the build decided and measured, for the compile report (training runs skipped,
+    /// basis, cubature, filter, model error at the markers).
+    pub notes: Vec<String>,
+    /// The measurement channels the filter was designed for.
+    pub measurements: &'a Measurements,
+}
+
+impl<'a> TierReductor<'a> {
+    /// Trains on the scene's envelope (progress on stderr), chooses the basis, trains the
+    /// cubature and designs the filter for `measurements`; stage costs go to `timer`
+    /// ("tier_training", "tier_reduction", "tier_kalman").
+    pub fn new(
+        full: &'a FullOrder,
+        measurements: &'a Measurements,
+        timer: &mut StageTimer,
+    ) -> Result<Self, CompileError> {
+        let fail = |e: &dyn std::fmt::Display| tier_error(full, e);
+        let (Some(spec), Some(plan)) = (
+            full.scene.scene.reduction.corotational.as_ref(),
+            TrainingPlan::of_scene(full),
+        ) else {
+            return Err(fail(
+                &"reduction.model = \"corotational\" needs [reduction.corotational]",
+            ));
+        };
+        let noise = NoiseModel::of_scene(full).map_err(|e| fail(&e))?;
+        let mut progress = |k: usize, of: usize, label: &str| {
+            eprintln!(
+                "crokf-compile: co-rotational training run {}/{of}: {label}",
+                k + 1
+            );
+        };
+        let training = timer
+            .stage("tier_training", || {
+                training::train(full, &plan, &mut progress)
+            })
+            .map_err(|e| fail(&e))?;
+        let mut notes = Vec::new();
+        for (label, failed) in &training.runs {
+            if let Some(why) = failed {
+                notes.push(format!(
+                    "co-rotational training run '{label}' failed and was skipped: {why}"
+                ));
+            }
+        }
+        let ecsw = EcswOptions {
+            tolerance: spec.ecsw_tolerance,
+            max_elements: spec.ecsw_max_elements,
+            ..EcswOptions::default()
+        };
+        let choice = BasisChoice {
+            order: spec.order,
+            tolerance: spec.basis_tolerance,
+            max_order: spec.largest_order(),
+        };
+        let built = timer
+            .stage("tier_reduction", || {
+                tier::from_training_with(full, training, &choice, &ecsw)
+            })
+            .map_err(|e| fail(&e))?;
+        let filter = timer
+            .stage("tier_kalman", || {
+                linearised_filter(full, &built, &noise, measurements)
+            })
+            .map_err(|e| fail(&e))?;
+        let mut reductor = TierReductor {
+            full,
+            spec,
+            plan,
+            noise,
+            tier: built,
+            filter,
+            notes,
+            measurements,
+        };
+        reductor.notes.extend(reductor.build_notes());
+        Ok(reductor)
+    }
+
+    /// The notes on the basis, the cubature and the filter.
+    fn build_notes(&self) -> Vec<String> {
+        let (full, spec, plan, built, filter) =
+            (self.full, self.spec, &self.plan, &self.tier, &self.filter);
+        let mut notes = Vec::new();
+        let env = &built.training.envelope;
+        let r = built.model.order();
+        if let (Some(eps), Some((added, worst))) = (spec.basis_tolerance, built.enrichment) {
+            notes.push(format!(
+                "co-rotational tier basis: {} pooled POD vectors + {added} added for the per-run \
+                 tolerance {eps:e} in the energy norm; worst training run {worst:.2e}{} (r ≤ {})",
+                r - added,
+                if worst > eps {
+                    ", NOT reached: max_order stopped the enrichment"
+                } else {
+                    ""
+                },
+                spec.largest_order()
+            ));
+        }
+        notes.push(format!(
+            "co-rotational tier: r = {r} POD vectors of {} training snapshots ({} of {} runs), {} \
+             sampled elements of {} (ECSW residual {:.2e}, tolerance {:.0e}); envelope: {}",
+            env.snapshots,
+            env.runs.0,
+            env.runs.1,
+            built.model.cubature.len(),
+            full.fem.elements.len(),
+            built.sampling.relative_residual,
+            spec.ecsw_tolerance,
+            plan.ranges
+                .iter()
+                .map(|(n, f)| format!("{n} ≤ {:.4} N", f * plan.max_multiple()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+        notes.push(format!(
+            "co-rotational tier filter (linearised at rest, state (q, q̇, q̈, f[, ḟ]) = {}, {} force \
+             (and rate) states): closed-loop spectral radius {:.6}, Riccati residual {:.1e}, static residual \
+             of the force channels at the markers {:.1e}; gain schedule: {} of {} operating points \
+             (training states, ‖q*‖ {:.3e} … {:.3e})",
+            filter.schedule.phases[0].gain.nrows(),
+            filter.schedule.phases[0].gain.nrows() - 3 * r,
+            filter.schedule.closed_loop_spectral_radius,
+            filter.schedule.worst_relative_residual,
+            filter.static_residual,
+            filter.scheduled.len(),
+            SCHEDULE_POINTS,
+            filter
+                .scheduled
+                .iter()
+                .map(|(q, _)| q.norm())
+                .fold(f64::INFINITY, f64::min),
+            filter
+                .scheduled
+                .iter()
+                .map(|(q, _)| q.norm())
+                .fold(0.0, f64::max)
+        ));
+        notes.push(format!(
+            "co-rotational tier model error at the markers (basis projection of the training \
+             snapshots, RMS per channel in units of the channel's σ): largest {:.2e}, median {:.2e} \
+             (not added to R: against the markers' own noise it is negligible below ≈ 0.1)",
+            filter
+                .marker_model_error
+                .iter()
+                .copied()
+                .fold(0.0, f64::max),
+            {
+                let mut e = filter.marker_model_error.clone();
+                e.sort_by(f64::total_cmp);
+                e.get(e.len() / 2).copied().unwrap_or(0.0)
+            }
+        ));
+        notes
+    }
+
+    /// How the runtime steps the tier: the scene's Newton settings and [`TIER_STATE_MARGIN`].
+    pub fn runtime_newton(&self) -> RuntimeNewton {
+        RuntimeNewton {
+            tolerance: self.spec.newton_tolerance,
+            iterations: self.spec.newton_iterations,
+            state_margin: TIER_STATE_MARGIN,
+        }
+    }
+
+    /// The compiled tier re-run on its training runs with the runtime's Newton settings
+    /// ([`self_check`]); its summary and any warning on stderr, its cost in `timer`
+    /// ("tier_self_check").
+    pub fn self_check(&self, timer: &mut StageTimer) -> Result<SelfCheck, CompileError> {
+        let newton =
+            self_check::runtime_newton(self.spec.newton_tolerance, self.spec.newton_iterations);
+        let check = timer
+            .stage("tier_self_check", || {
+                self_check::self_check(
+                    self.full,
+                    &self.plan,
+                    &self.tier,
+                    newton,
+                    self_check::SELF_CHECK_THRESHOLD,
+                )
+            })
+            .map_err(|e| tier_error(self.full, &e))?;
+        let steps: usize = check.runs.iter().map(|r| r.steps).sum();
+        eprintln!(
+            "crokf-compile: {} ({steps} reduced steps in {:.2} s)",
+            check.note(),
+            check.seconds
+        );
+        if let Some(warning) = check.warning() {
+            eprintln!("crokf-compile: {warning}");
+        }
+        Ok(check)
+    }
+
+    /// The model file's tier section ([`tier_section`]).
+    pub fn section(&self) -> fmt::CorotationalTier {
+        tier_section(
+            self.full,
+            &self.tier,
+            &self.plan,
+            &self.filter,
+            self.measurements,
+            self.runtime_newton(),
+        )
+    }
+}
+
+/// A tier error of the scene of `full`.
+fn tier_error(full: &FullOrder, e: &dyn std::fmt::Display) -> CompileError {
+    CompileError::Tier {
+        path: full.scene_path().to_path_buf(),
+        message: e.to_string(),
+    }
+}
