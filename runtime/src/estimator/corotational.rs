@@ -1,0 +1,162 @@
+//! The co-rotational tier's step (docs/design.md §10–11): the nonlinear Wilson-θ step of
+//! [`TierState`] as the prediction, the constant-gain extended update ν = y − V_s q (world
+//! frame, linear) with the gain schedule, and the read-outs V q.
+
+use crate::covariance::Gate;
+use crate::prepared::PreparedModel;
+use crate::tier::{TierModel, TierState, TierStatus};
+use crate::warp::Vec3;
+use crate::RuntimeError;
+
+use super::step::{first_non_finite, CovarianceKind, TierStep, Verdict};
+
+/// The tier's state with the update's per-channel gate flags (allocated once).
+#[derive(Clone, Debug)]
+pub(crate) struct CorotationalStep {
+    state: TierState,
+    /// Status of the last completed step.
+    status: TierStatus,
+    /// Per active channel of the current phase: gated in this update.
+    gated: Vec<bool>,
+}
+
+impl CorotationalStep {
+    /// At rest.
+    pub(crate) fn new(tier: &TierModel, loads: usize) -> Self {
+        CorotationalStep {
+            state: TierState::new(tier, loads),
+            status: TierStatus::default(),
+            gated: vec![false; tier.max_measured()],
+        }
+    }
+}
+
+/// The prepared model's tier (present whenever this step is).
+fn tier(shared: &PreparedModel) -> &TierModel {
+    shared
+        .tier
+        .as_ref()
+        .expect("a co-rotational step exists only for a model with a tier")
+}
+
+impl TierStep for CorotationalStep {
+    fn boxed_clone(&self) -> Box<dyn TierStep> {
+        Box::new(self.clone())
+    }
+
+    fn is_corotational(&self) -> bool {
+        true
+    }
+
+    fn state(&self) -> &[f64] {
+        &self.state.s
+    }
+
+    fn set_state(&mut self, _shared: &PreparedModel, x: &[f64]) {
+        self.state.s.copy_from_slice(x);
+    }
+
+    fn reset(&mut self) {
+        self.state.reset();
+        self.status = TierStatus::default();
+    }
+
+    fn period(&self, shared: &PreparedModel) -> u64 {
+        shared.model.tier.as_ref().map_or(1, |t| t.kalman.period) as u64
+    }
+
+    fn active<'a>(&self, shared: &'a PreparedModel, phase: usize) -> &'a [u32] {
+        tier(shared).measured(phase)
+    }
+
+    /// The tier's step leaves s unchanged on error and its previous value in s_prev.
+    fn predict(
+        &mut self,
+        shared: &PreparedModel,
+        inputs: &[f64],
+        step: u64,
+    ) -> Result<(), RuntimeError> {
+        self.status = self.state.step(tier(shared), inputs, step)?;
+        Ok(())
+    }
+
+    /// Constant-gain extended filter: ν = y − V_s q (world frame, linear), s += K_p ν, with the
+    /// same innovation gate as the warped tier (docs/design.md §6, §11.4).
+    fn update(
+        &mut self,
+        shared: &PreparedModel,
+        phase: usize,
+        get: &dyn Fn(usize) -> Option<f64>,
+        gate: &Gate<'_>,
+        verdicts: &mut [Verdict],
+    ) -> Result<usize, RuntimeError> {
+        let tm = tier(shared);
+        let used = self
+            .state
+            .update_gated(tm, phase, &get, gate, &mut self.gated);
+        if let Some(index) = first_non_finite(&self.state.s_upd) {
+            return Err(RuntimeError::NonFiniteState {
+                step: gate.step,
+                stage: "update",
+                index,
+            });
+        }
+        self.state.commit_update();
+        for ((&j, &rejected), verdict) in tm
+            .measured(phase)
+            .iter()
+            .zip(&self.gated)
+            .zip(verdicts.iter_mut())
+        {
+            *verdict = if rejected {
+                Verdict::Gated
+            } else if get(j as usize).is_some() {
+                Verdict::Accepted
+            } else {
+                Verdict::Missing
+            };
+        }
+        Ok(used)
+    }
+
+    fn rollback(&mut self, _shared: &PreparedModel) {
+        self.state.rollback();
+    }
+
+    /// V_s q.
+    fn sensor_world(&self, shared: &PreparedModel, s: usize) -> Vec3 {
+        self.state.sensor(tier(shared), s)
+    }
+
+    fn std<'a>(
+        &self,
+        shared: &'a PreparedModel,
+        kind: CovarianceKind,
+        phase: usize,
+    ) -> (&'a [f64], &'a [Vec<f64>]) {
+        let kind = match kind {
+            CovarianceKind::Prior => 0,
+            CovarianceKind::Posterior => 1,
+        };
+        tier(shared).std(self.state.filter, kind, phase)
+    }
+
+    /// V q at the set's nodes (the tier has one read-out, in f64).
+    fn node_displacements(
+        &self,
+        shared: &PreparedModel,
+        set: usize,
+        _exact: bool,
+        out: &mut [f64],
+    ) {
+        self.state.nodes(tier(shared), set, out);
+    }
+
+    fn schedule_filter(&self) -> Option<usize> {
+        Some(self.state.filter())
+    }
+
+    fn status(&self) -> TierStatus {
+        self.status
+    }
+}
