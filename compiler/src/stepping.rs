@@ -9,6 +9,7 @@
 
 pub mod corotational;
 pub mod linear;
+pub mod load_stepping;
 mod sparse;
 
 pub use corotational::{

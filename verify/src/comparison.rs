@@ -229,6 +229,18 @@ pub struct ReducedRow {
     pub order: usize,
     /// Random-walk force states appended to the balanced ones (3 per such load group).
     pub force_states: usize,
+    /// Step times, errors and the filtered runs' consistency.
+    pub figures: RowFigures,
+    /// The compiler's measured errors (empty unless `measure_compile_error`).
+    pub compile_measured_errors: std::collections::BTreeMap<String, f64>,
+    /// Compile wall time, s.
+    pub compile_s: f64,
+}
+
+/// The runtime's figures of one row (a warped order or the co-rotational tier): its open-loop
+/// and filtered runs, their consistency and the noise draws.
+#[derive(Clone, Debug)]
+pub struct RowFigures {
     /// Step times and errors.
     pub runtime: RuntimeFigures,
     /// NIS, NEES, 2σ coverage and the tip trace of the filtered run (docs/design.md §11).
@@ -239,10 +251,19 @@ pub struct ReducedRow {
     pub ensemble: Option<SeedEnsemble>,
     /// The same for the run with the loads withheld.
     pub withheld_ensemble: Option<SeedEnsemble>,
-    /// The compiler's measured errors (empty unless `measure_compile_error`).
-    pub compile_measured_errors: std::collections::BTreeMap<String, f64>,
-    /// Compile wall time, s.
-    pub compile_s: f64,
+}
+
+impl RowFigures {
+    /// The row's figures from its step times and errors and its filtered runs.
+    fn new(runtime: RuntimeFigures, filter: FilteredRuns) -> Self {
+        RowFigures {
+            runtime,
+            consistency: filter.given_consistency,
+            withheld_consistency: filter.withheld_consistency,
+            ensemble: filter.given_ensemble,
+            withheld_ensemble: filter.withheld_ensemble,
+        }
+    }
 }
 
 /// Result of [`run`]: one scene, one scenario, full-order references and the runtime at
@@ -471,18 +492,10 @@ pub struct TierRow {
     pub force_states: usize,
     /// Compile wall time with training, s.
     pub compile_s: f64,
-    /// Step times and errors, as for the warped rows.
-    pub runtime: RuntimeFigures,
-    /// NIS, NEES, 2σ coverage and the tip trace of the filtered run, from the tier's own
-    /// stored filters (the gain schedule's filter in use at each step; docs/design.md §11.3,
-    /// §11.5), by the same [`ConsistencyAccumulator`] as the warped rows.
-    pub consistency: Consistency,
-    /// The same for the run with the loads withheld.
-    pub withheld_consistency: Consistency,
-    /// The filtered run over the options' noise draws (`None` below 2 draws).
-    pub ensemble: Option<SeedEnsemble>,
-    /// The same for the run with the loads withheld.
-    pub withheld_ensemble: Option<SeedEnsemble>,
+    /// Step times, errors and the filtered runs' consistency, as for the warped rows; the
+    /// consistency from the tier's own stored filters (the gain schedule's filter in use at
+    /// each step; docs/design.md §11.3, §11.5), by the same [`ConsistencyAccumulator`].
+    pub figures: RowFigures,
     /// Filters of the tier's gain schedule (1: the constant gain designed at rest).
     pub filters: usize,
     /// Envelope and Newton work of the open-loop run.
@@ -1136,11 +1149,10 @@ fn run_tier(
         sampled_elements: tier.sampled_elements(),
         force_states,
         compile_s: tier.compile_s,
-        runtime: RuntimeFigures::new(times, &open, &filter.given, &filter.withheld),
-        consistency: filter.given_consistency,
-        withheld_consistency: filter.withheld_consistency,
-        ensemble: filter.given_ensemble,
-        withheld_ensemble: filter.withheld_ensemble,
+        figures: RowFigures::new(
+            RuntimeFigures::new(times, &open, &filter.given, &filter.withheld),
+            filter,
+        ),
         filters: model.tier.as_ref().map_or(1, |t| 1 + t.scheduled.len()),
         envelope: open.envelope,
     })
@@ -1437,11 +1449,10 @@ pub fn run(
                 requested_order: order,
                 order: r,
                 force_states: r.saturating_sub(model.report.order as usize),
-                runtime: RuntimeFigures::new(times, &open, &filter.given, &filter.withheld),
-                consistency: filter.given_consistency,
-                withheld_consistency: filter.withheld_consistency,
-                ensemble: filter.given_ensemble,
-                withheld_ensemble: filter.withheld_ensemble,
+                figures: RowFigures::new(
+                    RuntimeFigures::new(times, &open, &filter.given, &filter.withheld),
+                    filter,
+                ),
                 compile_measured_errors: model.report.measured_errors.clone(),
                 compile_s,
             })

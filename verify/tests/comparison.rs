@@ -206,7 +206,7 @@ fn tiny_load_runtime_error_matches_compile_report_and_linear_reference() {
     assert!(c
         .reduced
         .iter()
-        .all(|r| r.ensemble.is_none() && r.withheld_ensemble.is_none()));
+        .all(|r| r.figures.ensemble.is_none() && r.figures.withheld_ensemble.is_none()));
     assert!(!c.markdown().contains("noise draws"));
     assert_eq!((c.dofs, c.tetrahedra, c.steps), (324, 288, 60));
     assert_eq!(c.tip.as_deref(), Some("tip"));
@@ -224,33 +224,33 @@ fn tiny_load_runtime_error_matches_compile_report_and_linear_reference() {
     for row in &c.reduced {
         assert_eq!(row.order, row.requested_order);
         let step = row.compile_measured_errors["step"];
-        let ratio = row.runtime.error_vs_linear / step;
+        let ratio = row.figures.runtime.error_vs_linear / step;
         assert!(
             (0.1..10.0).contains(&ratio),
             "r = {}: runtime error vs linear {:.3e}, compiler's step error {step:.3e}",
             row.order,
-            row.runtime.error_vs_linear
+            row.figures.runtime.error_vs_linear
         );
         // Triangle inequality: the two references differ by c.linear.error (relative).
         assert!(
-            (row.runtime.error - row.runtime.error_vs_linear).abs() <= 2.0 * c.linear.error + 1e-12,
+            (row.figures.runtime.error - row.figures.runtime.error_vs_linear).abs() <= 2.0 * c.linear.error + 1e-12,
             "r = {}: {} vs {}",
             row.order,
-            row.runtime.error,
-            row.runtime.error_vs_linear
+            row.figures.runtime.error,
+            row.figures.runtime.error_vs_linear
         );
         assert!(
-            row.runtime.step_s > 0.0 && row.runtime.step_s < 1e-3,
+            row.figures.runtime.step_s > 0.0 && row.figures.runtime.step_s < 1e-3,
             "{}",
-            row.runtime.step_s
+            row.figures.runtime.step_s
         );
-        assert!(row.runtime.tip_error.is_finite() && row.runtime.filtered_error.is_finite());
+        assert!(row.figures.runtime.tip_error.is_finite() && row.figures.runtime.filtered_error.is_finite());
     }
     assert!(
-        c.reduced[1].runtime.error < 0.5 * c.reduced[0].runtime.error,
+        c.reduced[1].figures.runtime.error < 0.5 * c.reduced[0].figures.runtime.error,
         "error must fall with r: {} (r = 4) vs {} (r = 8)",
-        c.reduced[0].runtime.error,
-        c.reduced[1].runtime.error
+        c.reduced[0].figures.runtime.error,
+        c.reduced[1].figures.runtime.error
     );
     assert!(c.corotational.step_s > c.linear.step_s);
 
@@ -279,7 +279,7 @@ fn tiny_load_runtime_error_matches_compile_report_and_linear_reference() {
     assert_eq!(r8[0], "runtime");
     assert_eq!(r8[1], "8");
     let error: f64 = r8[5].parse().expect("error column");
-    assert!((error - c.reduced[1].runtime.error).abs() <= 1e-12 * error);
+    assert!((error - c.reduced[1].figures.runtime.error).abs() <= 1e-12 * error);
     let svg = c.svg();
     assert_eq!(check_svg(&svg), 2 * 2 + 2, "{svg}");
 }
@@ -300,24 +300,24 @@ fn filter_tracks_a_withheld_load_from_the_measurements() {
     assert_eq!(c.tip.as_deref(), Some("end_marker"));
     let row = &c.reduced[0];
     assert!(
-        (row.runtime.error - 1.0).abs() < 1e-12,
+        (row.figures.runtime.error - 1.0).abs() < 1e-12,
         "{}",
-        row.runtime.error
+        row.figures.runtime.error
     );
     assert!(
-        (row.runtime.tip_error - 1.0).abs() < 1e-12,
+        (row.figures.runtime.tip_error - 1.0).abs() < 1e-12,
         "{}",
-        row.runtime.tip_error
+        row.figures.runtime.tip_error
     );
     assert!(
-        row.runtime.filtered_error < 0.3,
+        row.figures.runtime.filtered_error < 0.3,
         "filtered {}",
-        row.runtime.filtered_error
+        row.figures.runtime.filtered_error
     );
     assert!(
-        row.runtime.filtered_tip_error < 0.3,
+        row.figures.runtime.filtered_tip_error < 0.3,
         "filtered tip {}",
-        row.runtime.filtered_tip_error
+        row.figures.runtime.filtered_tip_error
     );
     // Another seed gives another noise draw but a similar error.
     let other = comparison::run(
@@ -331,9 +331,9 @@ fn filter_tracks_a_withheld_load_from_the_measurements() {
         &mut |_| {},
     )
     .expect("comparison");
-    let f2 = other.reduced[0].runtime.filtered_error;
+    let f2 = other.reduced[0].figures.runtime.filtered_error;
     assert!(
-        f2 != row.runtime.filtered_error && (f2 / row.runtime.filtered_error - 1.0).abs() < 0.5,
+        f2 != row.figures.runtime.filtered_error && (f2 / row.figures.runtime.filtered_error - 1.0).abs() < 0.5,
         "{f2}"
     );
 }
@@ -353,27 +353,27 @@ fn nis_and_coverage_hold_when_the_model_is_right_and_fail_when_it_is_not() {
     let (scene, scenario) = beam_case("consistent", 0.01, 200, 0.01);
     let c = run(&scene, &scenario, &options);
     let row = &c.reduced[0];
-    let nis = row.consistency.nis;
+    let nis = row.figures.consistency.nis;
     let (lo, hi) = nis.bounds();
     eprintln!(
         "small load: ANIS {:.3} [{lo:.3}, {hi:.3}], D = {}, coverage {:.3} / {:.3}, ANEES {:.3}",
         nis.mean(),
         nis.dof,
-        row.consistency.coverage_runtime,
-        row.consistency.coverage_world,
-        row.consistency.nees_tip.mean()
+        row.figures.consistency.coverage_runtime,
+        row.figures.consistency.coverage_world,
+        row.figures.consistency.nees_tip.mean()
     );
     assert_eq!(nis.dof, 200 * 6, "two sensors × 3 components × 200 steps");
     assert!(nis.inside(), "ANIS {} outside [{lo}, {hi}]", nis.mean());
     assert!(
-        (0.85..=1.0).contains(&row.consistency.coverage_world),
+        (0.85..=1.0).contains(&row.figures.consistency.coverage_world),
         "coverage {}",
-        row.consistency.coverage_world
+        row.figures.consistency.coverage_world
     );
-    assert_eq!(row.consistency.tip.len(), 200);
-    assert!(row.withheld_consistency.nis.dof > 0);
+    assert_eq!(row.figures.consistency.tip.len(), 200);
+    assert!(row.figures.withheld_consistency.nis.dof > 0);
     // The N-run test over the default 20 noise draws (docs/design.md §11.3) agrees.
-    for e in [&row.ensemble, &row.withheld_ensemble] {
+    for e in [&row.figures.ensemble, &row.figures.withheld_ensemble] {
         let e = e.as_ref().expect("20 noise draws by default");
         assert_eq!((e.draws(), e.errors.len()), (20, 20));
         let f = e.nis.fractions();
@@ -403,10 +403,11 @@ fn nis_and_coverage_hold_when_the_model_is_right_and_fail_when_it_is_not() {
 
     let (scene, scenario) = beam_case("inconsistent", 20.0, 200, 0.01);
     let c = run(&scene, &scenario, &options);
-    let nis = c.reduced[0].consistency.nis;
+    let nis = c.reduced[0].figures.consistency.nis;
     eprintln!("large load: ANIS {:.3}", nis.mean());
     assert!(nis.mean() > 2.0 * nis.bounds().1, "ANIS {}", nis.mean());
     let f = c.reduced[0]
+        .figures
         .ensemble
         .as_ref()
         .expect("draws")
@@ -681,29 +682,29 @@ fn the_tier_is_a_row_and_beats_warping_at_large_rotation() {
     assert!(t.sampled_elements > 0 && t.sampled_elements < c.tetrahedra);
     // The tier against the same reference as the warped row: below it, and below 2 %.
     assert!(
-        t.runtime.error < 0.5 * warped.runtime.error && t.runtime.error < 0.02,
+        t.figures.runtime.error < 0.5 * warped.figures.runtime.error && t.figures.runtime.error < 0.02,
         "tier {} vs warped {}",
-        t.runtime.error,
-        warped.runtime.error
+        t.figures.runtime.error,
+        warped.figures.runtime.error
     );
     assert!(
-        t.runtime.tip_error < warped.runtime.tip_error,
+        t.figures.runtime.tip_error < warped.figures.runtime.tip_error,
         "{} vs {}",
-        t.runtime.tip_error,
-        warped.runtime.tip_error
+        t.figures.runtime.tip_error,
+        warped.figures.runtime.tip_error
     );
-    assert!(t.runtime.error < c.linear.error);
+    assert!(t.figures.runtime.error < c.linear.error);
     // Filtered with the loads given: below the warped filter. Withheld: whatever the tier's
     // filter makes of the markers alone (it has no force states in this scene's white force
     // model), but a figure.
     assert!(
-        t.runtime.filtered_error < warped.runtime.filtered_error,
+        t.figures.runtime.filtered_error < warped.figures.runtime.filtered_error,
         "{} vs {}",
-        t.runtime.filtered_error,
-        warped.runtime.filtered_error
+        t.figures.runtime.filtered_error,
+        warped.figures.runtime.filtered_error
     );
-    assert!(t.runtime.withheld_filtered_error.is_finite());
-    assert!(t.runtime.step_s > 0.0 && t.runtime.step_s.is_finite());
+    assert!(t.figures.runtime.withheld_filtered_error.is_finite());
+    assert!(t.figures.runtime.step_s > 0.0 && t.figures.runtime.step_s.is_finite());
     // Inside its envelope: 30 N against 37.5 N trained, and the runtime says so.
     assert!(!t.envelope.outside(), "{:?}", t.envelope);
     assert!(
@@ -732,7 +733,7 @@ fn the_tier_is_a_row_and_beats_warping_at_large_rotation() {
     let tier_line: Vec<&str> = lines[4].split(',').collect();
     assert_eq!(tier_line[0], "corotational_tier");
     let error: f64 = tier_line[5].parse().expect("error column");
-    assert!((error - t.runtime.error).abs() <= 1e-12 * error);
+    assert!((error - t.figures.runtime.error).abs() <= 1e-12 * error);
     let svg = c.svg();
     assert_eq!(check_svg(&svg), 2 + 2 + 2, "{svg}");
     assert!(svg.contains("co-rotational tier, open loop"));
@@ -1016,8 +1017,8 @@ fn the_tier_rows_carry_consistency_from_the_tiers_own_filters() {
     assert_eq!(t.force_states, 3);
     assert!(t.filters > 1, "a gain schedule: {}", t.filters);
     for (label, ours, withhold) in [
-        ("given", &t.consistency, false),
-        ("withheld", &t.withheld_consistency, true),
+        ("given", &t.figures.consistency, false),
+        ("withheld", &t.figures.withheld_consistency, true),
     ] {
         let hand = hand_consistency(&scene, &scenario, &tier.model, options.seed, withhold);
         eprintln!(
@@ -1056,10 +1057,10 @@ fn the_tier_rows_carry_consistency_from_the_tiers_own_filters() {
     // steps is 3 N per step, 6× the force states' random-walk σ (0.5 N per step), so the
     // filter lags during the ramp and its innovations say so: ANIS above the upper bound
     // (measured 2.26), but not diverging (< 5).
-    let anis = t.consistency.nis.mean();
+    let anis = t.figures.consistency.nis.mean();
     assert!((0.7..=1.5).contains(&anis), "ANIS given {anis}");
-    let anis = t.withheld_consistency.nis.mean();
-    let (_, hi) = t.withheld_consistency.nis.bounds();
+    let anis = t.figures.withheld_consistency.nis.mean();
+    let (_, hi) = t.figures.withheld_consistency.nis.bounds();
     assert!(anis > hi && anis < 5.0, "ANIS withheld {anis}");
     // Rendering: the tier's filter-table rows show the figures, the CSV line carries them,
     // and the tier has its own tip plot.
@@ -1067,7 +1068,7 @@ fn the_tier_rows_carry_consistency_from_the_tiers_own_filters() {
     assert_eq!(rows.len(), 2 + 2, "{md}");
     for (row, cons) in rows[2..]
         .iter()
-        .zip([&t.consistency, &t.withheld_consistency])
+        .zip([&t.figures.consistency, &t.figures.withheld_consistency])
     {
         let (lo, hi) = cons.nis.bounds();
         let anis = format!("| {:.3} [{lo:.3}, {hi:.3}]", cons.nis.mean());
@@ -1098,13 +1099,13 @@ fn the_tier_rows_carry_consistency_from_the_tiers_own_filters() {
             .parse()
             .unwrap_or_else(|_| panic!("{name}: {}", tier_line[i]))
     };
-    assert!((field("anis") - t.consistency.nis.mean()).abs() <= 1e-12 * field("anis"));
+    assert!((field("anis") - t.figures.consistency.nis.mean()).abs() <= 1e-12 * field("anis"));
     assert!(
-        (field("anees_tip") - t.consistency.nees_tip.mean()).abs() <= 1e-12 * field("anees_tip")
+        (field("anees_tip") - t.figures.consistency.nees_tip.mean()).abs() <= 1e-12 * field("anees_tip")
     );
     assert_eq!(
         field("withheld_coverage_runtime"),
-        t.withheld_consistency.coverage_runtime
+        t.figures.withheld_consistency.coverage_runtime
     );
     let svg = c.tier_tip_svg().expect("tier tip plot");
     check_svg(&svg);

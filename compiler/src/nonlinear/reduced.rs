@@ -24,6 +24,9 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::dynamics::WilsonTheta;
 use crate::fem::FemModel;
+use std::convert::Infallible;
+
+use crate::stepping::load_stepping::{load_steps, LoadStepError};
 use crate::stepping::{element_force, element_tangent};
 
 use super::cubature::Cubature;
@@ -185,7 +188,7 @@ impl ReducedModel {
 
 impl ReducedModel {
     /// Reduced quasi-static equilibrium f_r,int(q) = `load` (r) by Newton on K_N,r with
-    /// adaptive load stepping (λ from 0 to 1; an increment that does not converge in 30
+    /// adaptive load stepping ([`load_steps`]: an increment that does not converge in 30
     /// iterations is halved, one that converges in ≤ 6 lets the next grow by 1.5), as the
     /// full-order `CorotationalSimulator::static_solve`. Converged when ‖δ‖ ≤ `tolerance`‖q‖.
     pub fn static_solve(
@@ -200,13 +203,9 @@ impl ReducedModel {
                 load.len()
             )));
         }
-        let mut q = DVector::zeros(r);
-        let (mut lambda, mut increment) = (0.0f64, 1.0f64);
         let (mut force, mut unused) = (DVector::zeros(r), DVector::zeros(r));
-        while lambda < 1.0 {
-            let target = (lambda + increment).min(1.0);
+        let solve = |q: &DVector<f64>, target: f64| {
             let mut trial = q.clone();
-            let mut converged = None;
             for it in 1..=30 {
                 self.internal_force(&trial, None, &mut force, &mut unused);
                 let res = load * target - &force;
@@ -223,29 +222,18 @@ impl ReducedModel {
                     break;
                 }
                 if delta.norm() <= tolerance * trial.norm() {
-                    converged = Some(it);
-                    break;
+                    return Ok::<_, Infallible>(Some((trial, it)));
                 }
             }
-            match converged {
-                Some(it) => {
-                    q = trial;
-                    lambda = target;
-                    if it <= 6 {
-                        increment *= 1.5;
-                    }
-                }
-                None => {
-                    increment *= 0.5;
-                    if increment < 1e-4 {
-                        return Err(NonlinearError::Invalid(format!(
-                            "reduced static solve stuck at load factor {lambda:.4}"
-                        )));
-                    }
-                }
-            }
+            Ok(None)
+        };
+        match load_steps(DVector::zeros(r), solve) {
+            Ok(q) => Ok(q),
+            Err(LoadStepError::Stuck { load_factor }) => Err(NonlinearError::Invalid(format!(
+                "reduced static solve stuck at load factor {load_factor:.4}"
+            ))),
+            Err(LoadStepError::Solve(never)) => match never {},
         }
-        Ok(q)
     }
 }
 

@@ -10,6 +10,7 @@ use nalgebra::{Matrix3, Vector3};
 use crate::dynamics::WilsonTheta;
 use crate::fem::{FemModel, TetGeometry};
 
+use super::load_stepping::{load_steps, LoadStepError};
 use super::sparse::Pattern;
 use super::{advance_all, check_len, norm, Simulator, SteppingError};
 
@@ -560,22 +561,17 @@ impl CorotationalSimulator {
     }
 
     /// Quasi-static equilibrium f_int(u) = f (f: n, N, world-frame dead load) by Newton with
-    /// adaptive load stepping (λ from 0 to 1; an increment that does not converge in 30 solves
+    /// adaptive load stepping ([`load_steps`], λ from 0 to 1; an increment that does not converge in 30 solves
     /// is halved, one that converges in ≤ 6 lets the next grow by 1.5). Converged when
     /// ‖δ‖ ≤ `tolerance` ‖u‖. The dynamic state is left unchanged.
     pub fn static_solve(&mut self, f: &[f64], tolerance: f64) -> Result<Vec<f64>, SteppingError> {
         let n = self.pattern.n;
         check_len("load vector f", n, f.len())?;
         const MAX_SOLVES: usize = 30;
-        let mut u = vec![0.0; n];
-        let mut lambda: f64 = 0.0;
-        let mut increment = 1.0;
         let mut total_solves = 0;
         let mut r = vec![0.0; n];
-        while lambda < 1.0 {
-            let target = (lambda + increment).min(1.0);
+        let solve = |u: &Vec<f64>, target: f64| -> Result<Option<(Vec<f64>, usize)>, SteppingError> {
             let mut trial = u.clone();
-            let mut converged = None;
             let mut first = f64::INFINITY;
             for it in 1..=MAX_SOLVES {
                 self.assemble(&trial);
@@ -595,30 +591,19 @@ impl CorotationalSimulator {
                     break;
                 }
                 if step <= tolerance * norm(&trial) || step <= self.floor {
-                    converged = Some(it);
-                    break;
+                    return Ok(Some((trial, it)));
                 }
             }
-            match converged {
-                Some(it) => {
-                    u = trial;
-                    lambda = target;
-                    if it <= 6 {
-                        increment *= 1.5;
-                    }
-                }
-                None => {
-                    increment *= 0.5;
-                    if increment < 1e-4 {
-                        return Err(SteppingError::StaticDiverged {
-                            load_factor: lambda,
-                            solves: total_solves,
-                        });
-                    }
-                }
-            }
+            Ok(None)
+        };
+        match load_steps(vec![0.0; n], solve) {
+            Ok(u) => Ok(u),
+            Err(LoadStepError::Stuck { load_factor }) => Err(SteppingError::StaticDiverged {
+                load_factor,
+                solves: total_solves,
+            }),
+            Err(LoadStepError::Solve(e)) => Err(e),
         }
-        Ok(u)
     }
 }
 

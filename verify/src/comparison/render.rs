@@ -6,7 +6,7 @@ use crate::bench::STEP_CLOCK;
 
 use super::{
     breakdown_rotation, breakdown_rotation_of, spread, verdict, ChiSquare, Comparison, Consistency,
-    Ensemble, ReducedRow, RuntimeFigures, SeedEnsemble, SweepPoint, TierPoint,
+    Ensemble, ReducedRow, RowFigures, RuntimeFigures, SeedEnsemble, SweepPoint, TierPoint,
 };
 
 /// The sweep as a markdown table, with the 2 %, 5 % and 10 % breakdown rotations of the warped
@@ -363,7 +363,7 @@ impl Comparison {
             } else {
                 r
             };
-            self.speed_row(&mut out, "runtime", &r, &row.runtime);
+            self.speed_row(&mut out, "runtime", &r, &row.figures.runtime);
         }
         for failure in &self.failures {
             let _ = writeln!(
@@ -373,7 +373,7 @@ impl Comparison {
             );
         }
         if let Some(t) = &self.tier {
-            self.speed_row(&mut out, "co-rotational tier", &tier_order(t), &t.runtime);
+            self.speed_row(&mut out, "co-rotational tier", &tier_order(t), &t.figures.runtime);
         } else if self.tier_failure.is_some() {
             let _ = writeln!(
                 out,
@@ -400,16 +400,14 @@ impl Comparison {
                 self.filter_rows(
                     &mut out,
                     &(row.order - row.force_states).to_string(),
-                    &row.runtime,
-                    [&row.consistency, &row.withheld_consistency],
+                    &row.figures,
                 );
             }
             if let Some(t) = &self.tier {
                 self.filter_rows(
                     &mut out,
                     &format!("tier {}", tier_order(t)),
-                    &t.runtime,
-                    [&t.consistency, &t.withheld_consistency],
+                    &t.figures,
                 );
             }
             self.ensemble_table(&mut out);
@@ -509,16 +507,16 @@ impl Comparison {
             csv_number(self.linear.tip_error)
         );
         for row in &self.reduced {
-            let consistency = csv_consistency(&row.consistency, &row.withheld_consistency);
-            self.csv_row(&mut out, "runtime", row.order, &row.runtime, &consistency);
+            let consistency = csv_consistency(&row.figures.consistency, &row.figures.withheld_consistency);
+            self.csv_row(&mut out, "runtime", row.order, &row.figures.runtime, &consistency);
         }
         if let Some(t) = &self.tier {
-            let consistency = csv_consistency(&t.consistency, &t.withheld_consistency);
+            let consistency = csv_consistency(&t.figures.consistency, &t.figures.withheld_consistency);
             self.csv_row(
                 &mut out,
                 "corotational_tier",
                 t.basis_order,
-                &t.runtime,
+                &t.figures.runtime,
                 &consistency,
             );
         }
@@ -528,14 +526,9 @@ impl Comparison {
     /// The filter table's lines of one row (a warped order or the tier, labelled `r`): per
     /// filtered run ([`RuntimeFigures::filter_runs`]) its errors, ANIS and tip ANEES with their
     /// 95 % bounds and the 2σ coverages of `consistency` (given, withheld).
-    fn filter_rows(
-        &self,
-        out: &mut String,
-        r: &str,
-        runtime: &RuntimeFigures,
-        consistency: [&Consistency; 2],
-    ) {
-        let runs = runtime.filter_runs(self.withheld_loads);
+    fn filter_rows(&self, out: &mut String, r: &str, figures: &RowFigures) {
+        let runs = figures.runtime.filter_runs(self.withheld_loads);
+        let consistency = [&figures.consistency, &figures.withheld_consistency];
         for ((label, e, tip), c) in runs.into_iter().zip(consistency) {
             let _ = writeln!(
                 out,
@@ -559,14 +552,14 @@ impl Comparison {
             .map(|row| {
                 (
                     (row.order - row.force_states).to_string(),
-                    [&row.ensemble, &row.withheld_ensemble],
+                    [&row.figures.ensemble, &row.figures.withheld_ensemble],
                 )
             })
             .collect();
         if let Some(t) = &self.tier {
             rows.push((
                 format!("tier {}", tier_order(t)),
-                [&t.ensemble, &t.withheld_ensemble],
+                [&t.figures.ensemble, &t.figures.withheld_ensemble],
             ));
         }
         if rows.iter().all(|(_, e)| e.iter().all(|e| e.is_none())) {
@@ -700,8 +693,8 @@ impl Comparison {
         let finite_pos = |v: f64| v.is_finite() && v > 0.0;
         let mut times = vec![self.corotational.step_s, self.linear.step_s];
         let mut errors = vec![self.linear.error];
-        let runtime = self.reduced.iter().map(|r| &r.runtime);
-        for f in runtime.chain(self.tier.iter().map(|t| &t.runtime)) {
+        let runtime = self.reduced.iter().map(|r| &r.figures.runtime);
+        for f in runtime.chain(self.tier.iter().map(|t| &t.figures.runtime)) {
             times.push(f.step_s);
             errors.push(f.error);
             errors.push(f.filtered_error);
@@ -822,12 +815,12 @@ impl Comparison {
         let series = |pick: &dyn Fn(&ReducedRow) -> f64| -> Vec<(f64, f64, usize)> {
             self.reduced
                 .iter()
-                .filter(|r| finite_pos(r.runtime.step_s) && finite_pos(pick(r)))
-                .map(|r| (sx(r.runtime.step_s), sy(pick(r)), r.order))
+                .filter(|r| finite_pos(r.figures.runtime.step_s) && finite_pos(pick(r)))
+                .map(|r| (sx(r.figures.runtime.step_s), sy(pick(r)), r.order))
                 .collect()
         };
-        let open = series(&|r| r.runtime.error);
-        let filtered = series(&|r| r.runtime.filtered_error);
+        let open = series(&|r| r.figures.runtime.error);
+        let filtered = series(&|r| r.figures.runtime.filtered_error);
         const OPEN: &str = "#1f77b4";
         const FILTERED: &str = "#ff7f0e";
         const LINEAR: &str = "#2ca02c";
@@ -878,7 +871,7 @@ impl Comparison {
         const TIER_FILTERED: &str = "#d62728";
         if let Some(t) = &self.tier {
             let mut top = f64::INFINITY;
-            let f = &t.runtime;
+            let f = &t.figures.runtime;
             for (e, colour) in [(f.error, TIER_OPEN), (f.filtered_error, TIER_FILTERED)] {
                 if finite_pos(f.step_s) && finite_pos(e) {
                     let (x, y) = (sx(f.step_s), sy(e));
@@ -987,7 +980,7 @@ impl Comparison {
             row.order - row.force_states,
             row.force_states
         );
-        self.tip_plot(&label, &row.consistency, &row.withheld_consistency)
+        self.tip_plot(&label, &row.figures.consistency, &row.figures.withheld_consistency)
     }
 
     /// The same plot for the co-rotational tier's row ([`Comparison::tip_svg`]; σ from the
@@ -995,7 +988,7 @@ impl Comparison {
     pub fn tier_tip_svg(&self) -> Option<String> {
         let t = self.tier.as_ref()?;
         let label = format!("co-rotational tier {}", tier_order(t));
-        self.tip_plot(&label, &t.consistency, &t.withheld_consistency)
+        self.tip_plot(&label, &t.figures.consistency, &t.figures.withheld_consistency)
     }
 
     /// The tip plot of one row, `label` naming it in the title.
