@@ -13,8 +13,8 @@ use crate::nonlinear::self_check::SelfCheck;
 use crate::reductor::tier::TierReductor;
 use crate::reductor::Reductor;
 use crate::report::{self, Sizes};
-use crate::timer::StageTimer;
 use crate::scene::ModelTier;
+use crate::timer::StageTimer;
 
 /// Options of a compile run; `None` falls back to the scene's `[reduction]` table, then defaults.
 #[derive(Clone, Debug, Default)]

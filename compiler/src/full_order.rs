@@ -10,8 +10,8 @@ use crate::error::CompileError;
 use crate::fem::operators::Operators;
 use crate::fem::FemModel;
 use crate::mesh::{read_mesh_bytes, Mesh};
-use crate::timer::StageTimer;
 use crate::scene::{ForceModel, SceneFile};
+use crate::timer::StageTimer;
 
 /// The compiler's version string, part of every model's input digest.
 pub const COMPILER_VERSION: &str = concat!("crokf-compile ", env!("CARGO_PKG_VERSION"));

@@ -19,6 +19,30 @@ pub fn to_matrix(m: faer::MatRef<f64>) -> fmt::Matrix {
     fmt::Matrix::from_fn(m.nrows() as u32, m.ncols() as u32, |i, j| m[(i, j)])
 }
 
+/// The model file's Kalman gains (a model's `kalman` or its tier's) of a periodic schedule
+/// with process noise `process_noise` per step.
+pub fn kalman_gains(
+    schedule: &kalman::PeriodicSchedule,
+    process_noise: &Mat<f64>,
+    measurements: &Measurements,
+) -> fmt::KalmanGains {
+    fmt::KalmanGains {
+        period: schedule.period as u32,
+        phases: schedule
+            .phases
+            .iter()
+            .map(|p| fmt::KalmanPhase {
+                measured: p.measured.iter().map(|&i| i as u32).collect(),
+                gain: to_matrix(p.gain.as_ref()),
+                prior_covariance: to_matrix(p.prior_covariance.as_ref()),
+                posterior_covariance: to_matrix(p.posterior_covariance.as_ref()),
+            })
+            .collect(),
+        process_noise: to_matrix(process_noise.as_ref()),
+        measurement_variance: measurements.variance.clone(),
+    }
+}
+
 /// Builds the model file's contents from the reduced system and the Kalman schedule.
 pub fn assemble_model(
     full: &FullOrder,
@@ -95,17 +119,6 @@ pub fn assemble_model(
             },
         })
         .collect();
-    let q = reduced.process_noise();
-    let phases = schedule
-        .phases
-        .iter()
-        .map(|p| fmt::KalmanPhase {
-            measured: p.measured.iter().map(|&i| i as u32).collect(),
-            gain: to_matrix(p.gain.as_ref()),
-            prior_covariance: to_matrix(p.prior_covariance.as_ref()),
-            posterior_covariance: to_matrix(p.posterior_covariance.as_ref()),
-        })
-        .collect();
     fmt::Model {
         dt: full.wilson.dt,
         theta: full.wilson.theta,
@@ -123,12 +136,7 @@ pub fn assemble_model(
                 component: component as u8,
             })
             .collect(),
-        kalman: fmt::KalmanGains {
-            period: schedule.period as u32,
-            phases,
-            process_noise: to_matrix(q.as_ref()),
-            measurement_variance: measurements.variance.clone(),
-        },
+        kalman: kalman_gains(schedule, &reduced.process_noise(), measurements),
         node_sets,
         report,
         inputs_digest: full.digest(),

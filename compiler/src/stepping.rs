@@ -8,13 +8,14 @@
 //! reduced model's s₀ = 0.
 
 pub mod corotational;
+pub mod element;
 pub mod linear;
 pub mod load_stepping;
 mod sparse;
 
-pub use corotational::{
+pub use corotational::{CorotationalSimulator, ModifiedNewton, NewtonOptions, NewtonStats};
+pub use element::{
     deformation_gradient, element_force, element_tangent, polar_rotation, polar_rotation_svd,
-    CorotationalSimulator, ModifiedNewton, NewtonOptions, NewtonStats,
 };
 pub use linear::{static_solve, LinearSimulator};
 

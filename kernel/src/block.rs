@@ -1,3 +1,4 @@
+// Over 800 lines, one job: the packed kernel is 510 lines; the rest is its tests against the scalar kernel.
 //! The reduced element force of [`crate::gather`], [`crate::polar_rotation`] and
 //! [`crate::scatter`] over many sampled elements at once (docs/design.md §10): the elements
 //! packed by [`LANES`] into blocks, structure of arrays (entry k of element l of a block at

@@ -28,7 +28,10 @@ fn crates(root: &Path) -> Vec<PathBuf> {
             out.push(dir.to_path_buf());
         }
     };
-    for entry in std::fs::read_dir(root).expect("read the repository root").flatten() {
+    for entry in std::fs::read_dir(root)
+        .expect("read the repository root")
+        .flatten()
+    {
         let dir = entry.path();
         let name = entry.file_name();
         if !dir.is_dir() || name == "target" || name.to_string_lossy().starts_with('.') {
@@ -156,13 +159,17 @@ fn paths_of(text: &str) -> Vec<(String, usize)> {
         let line = code_of(raw);
         let trimmed = line.trim();
         let opens_module = {
-            let t = trimmed.trim_start_matches("pub(crate) ").trim_start_matches("pub ");
+            let t = trimmed
+                .trim_start_matches("pub(crate) ")
+                .trim_start_matches("pub ");
             t.starts_with("mod ") && t.ends_with('{')
         };
         // A `use` statement, possibly over several lines.
         let in_use = !pending_use.is_empty();
         let starts_use = {
-            let t = trimmed.trim_start_matches("pub(crate) ").trim_start_matches("pub ");
+            let t = trimmed
+                .trim_start_matches("pub(crate) ")
+                .trim_start_matches("pub ");
             t.starts_with("use ")
         };
         if in_use || starts_use {
@@ -172,9 +179,9 @@ fn paths_of(text: &str) -> Vec<(String, usize)> {
                 let statement = pending_use.trim().trim_end_matches(';');
                 let tree = statement[statement.find("use ").map_or(0, |i| i + 4)..].trim();
                 // Text that merely starts with "use " (in a string, say) is no use tree.
-                let is_tree = tree.chars().all(|c| {
-                    c.is_alphanumeric() || c.is_whitespace() || "_:{},*".contains(c)
-                });
+                let is_tree = tree
+                    .chars()
+                    .all(|c| c.is_alphanumeric() || c.is_whitespace() || "_:{},*".contains(c));
                 let mut paths = Vec::new();
                 if is_tree {
                     expand(tree, "", &mut paths);
@@ -366,11 +373,7 @@ fn no_crate_has_an_import_circle() {
         let arrows = arrows(dir);
         for set in circles(&arrows) {
             let name = |p: &PathBuf| p.strip_prefix(&root).unwrap_or(p).display().to_string();
-            let mut lines = vec![format!(
-                "circle of {} files in {}:",
-                set.len(),
-                name(dir)
-            )];
+            let mut lines = vec![format!("circle of {} files in {}:", set.len(), name(dir))];
             for a in &set {
                 for (b, paths) in arrows.get(a).into_iter().flatten() {
                     if set.contains(b) {
@@ -397,7 +400,12 @@ fn the_walk_reads_grouped_uses_and_finds_a_circle() {
     expand("crate::a::{self, b::{C, d}, e as f}", "", &mut paths);
     assert_eq!(
         paths,
-        ["crate::a", "crate::a::b::C", "crate::a::b::d", "crate::a::e"]
+        [
+            "crate::a",
+            "crate::a::b::C",
+            "crate::a::b::d",
+            "crate::a::e"
+        ]
     );
     let text = "use super::x::Y;\nfn f() { crate::b::g(); } // crate::c::h\n\
                 #[cfg(test)]\nmod tests {\n    use super::*;\n}\n";
@@ -410,7 +418,11 @@ fn the_walk_reads_grouped_uses_and_finds_a_circle() {
             ("super::*".to_owned(), 1)
         ]
     );
-    let (a, b, c) = (PathBuf::from("a.rs"), PathBuf::from("b.rs"), PathBuf::from("c.rs"));
+    let (a, b, c) = (
+        PathBuf::from("a.rs"),
+        PathBuf::from("b.rs"),
+        PathBuf::from("c.rs"),
+    );
     let mut arrows = Arrows::new();
     for (from, to) in [(&a, &b), (&b, &c), (&c, &a)] {
         arrows
@@ -420,7 +432,10 @@ fn the_walk_reads_grouped_uses_and_finds_a_circle() {
             .or_default()
             .insert("x".into());
     }
-    assert_eq!(circles(&arrows), vec![vec![a.clone(), b.clone(), c.clone()]]);
+    assert_eq!(
+        circles(&arrows),
+        vec![vec![a.clone(), b.clone(), c.clone()]]
+    );
     arrows.get_mut(&c).map(|t| t.remove(&a));
     assert!(circles(&arrows).is_empty());
 }

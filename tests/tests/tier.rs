@@ -8,12 +8,12 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
-use crokf_compile::nonlinear::ecsw::EcswOptions;
-use crokf_compile::nonlinear::reduced::{ReducedModel, ReducedNewton, ReducedStepper, Refresh};
 use crokf_compile::model_file::tier as section;
+use crokf_compile::nonlinear::ecsw::EcswOptions;
 use crokf_compile::nonlinear::identify::identify_noise;
-use crokf_compile::nonlinear::{filter, tier};
+use crokf_compile::nonlinear::reduced::{ReducedModel, ReducedNewton, ReducedStepper, Refresh};
 use crokf_compile::nonlinear::training::TrainingPlan;
+use crokf_compile::nonlinear::{filter, tier};
 use crokf_compile::report::StageTimer;
 use crokf_compile::{compile, CompileOptions, FullOrder};
 use crokf_formats::synthetic::SplitMix64;

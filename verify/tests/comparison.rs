@@ -233,7 +233,8 @@ fn tiny_load_runtime_error_matches_compile_report_and_linear_reference() {
         );
         // Triangle inequality: the two references differ by c.linear.error (relative).
         assert!(
-            (row.figures.runtime.error - row.figures.runtime.error_vs_linear).abs() <= 2.0 * c.linear.error + 1e-12,
+            (row.figures.runtime.error - row.figures.runtime.error_vs_linear).abs()
+                <= 2.0 * c.linear.error + 1e-12,
             "r = {}: {} vs {}",
             row.order,
             row.figures.runtime.error,
@@ -244,7 +245,10 @@ fn tiny_load_runtime_error_matches_compile_report_and_linear_reference() {
             "{}",
             row.figures.runtime.step_s
         );
-        assert!(row.figures.runtime.tip_error.is_finite() && row.figures.runtime.filtered_error.is_finite());
+        assert!(
+            row.figures.runtime.tip_error.is_finite()
+                && row.figures.runtime.filtered_error.is_finite()
+        );
     }
     assert!(
         c.reduced[1].figures.runtime.error < 0.5 * c.reduced[0].figures.runtime.error,
@@ -333,7 +337,8 @@ fn filter_tracks_a_withheld_load_from_the_measurements() {
     .expect("comparison");
     let f2 = other.reduced[0].figures.runtime.filtered_error;
     assert!(
-        f2 != row.figures.runtime.filtered_error && (f2 / row.figures.runtime.filtered_error - 1.0).abs() < 0.5,
+        f2 != row.figures.runtime.filtered_error
+            && (f2 / row.figures.runtime.filtered_error - 1.0).abs() < 0.5,
         "{f2}"
     );
 }
@@ -682,7 +687,8 @@ fn the_tier_is_a_row_and_beats_warping_at_large_rotation() {
     assert!(t.sampled_elements > 0 && t.sampled_elements < c.tetrahedra);
     // The tier against the same reference as the warped row: below it, and below 2 %.
     assert!(
-        t.figures.runtime.error < 0.5 * warped.figures.runtime.error && t.figures.runtime.error < 0.02,
+        t.figures.runtime.error < 0.5 * warped.figures.runtime.error
+            && t.figures.runtime.error < 0.02,
         "tier {} vs warped {}",
         t.figures.runtime.error,
         warped.figures.runtime.error
@@ -1101,7 +1107,8 @@ fn the_tier_rows_carry_consistency_from_the_tiers_own_filters() {
     };
     assert!((field("anis") - t.figures.consistency.nis.mean()).abs() <= 1e-12 * field("anis"));
     assert!(
-        (field("anees_tip") - t.figures.consistency.nees_tip.mean()).abs() <= 1e-12 * field("anees_tip")
+        (field("anees_tip") - t.figures.consistency.nees_tip.mean()).abs()
+            <= 1e-12 * field("anees_tip")
     );
     assert_eq!(
         field("withheld_coverage_runtime"),

@@ -5,14 +5,12 @@
 //! scene (the reduced model, the linearised tier its filter is designed on), and [`refilter`]
 //! redesigns a file's filter for another scene's sensors and noise without retraining.
 
-use faer::Mat;
 use nalgebra::{DMatrix, DVector};
 
 use crokf_formats as fmt;
 
 use crate::fem::operators::InputKind;
 use crate::full_order::FullOrder;
-use crate::kalman::PeriodicSchedule;
 use crate::nonlinear::cubature::{Cubature, SampledElement};
 use crate::nonlinear::filter::{
     filter_of, measured_rows, scheduled_filters, LinearisedTier, TierFilter,
@@ -24,7 +22,7 @@ use crate::nonlinear::training::{History, TrainingPlan};
 use crate::nonlinear::NonlinearError;
 use crate::outputs::Measurements;
 
-use super::to_matrix;
+use super::kalman_gains;
 
 /// How the runtime steps the tier (stored in the model file).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -144,31 +142,8 @@ pub fn tier_section(
         },
         force_loads: filter.force_loads.iter().map(|&g| g as u32).collect(),
         force_rates: filter.force_rates,
-        kalman: kalman_section(&filter.schedule, &filter.process_noise, measurements),
+        kalman: kalman_gains(&filter.schedule, &filter.process_noise, measurements),
         scheduled: scheduled_section(filter, measurements),
-    }
-}
-
-/// The section's `kalman` of a periodic schedule with process noise `process_noise`.
-fn kalman_section(
-    schedule: &PeriodicSchedule,
-    process_noise: &Mat<f64>,
-    measurements: &Measurements,
-) -> fmt::KalmanGains {
-    fmt::KalmanGains {
-        period: schedule.period as u32,
-        phases: schedule
-            .phases
-            .iter()
-            .map(|p| fmt::KalmanPhase {
-                measured: p.measured.iter().map(|&i| i as u32).collect(),
-                gain: to_matrix(p.gain.as_ref()),
-                prior_covariance: to_matrix(p.prior_covariance.as_ref()),
-                posterior_covariance: to_matrix(p.posterior_covariance.as_ref()),
-            })
-            .collect(),
-        process_noise: to_matrix(process_noise.as_ref()),
-        measurement_variance: measurements.variance.clone(),
     }
 }
 
@@ -182,7 +157,7 @@ fn scheduled_section(
         .iter()
         .map(|(q, schedule)| fmt::ScheduledFilter {
             point: q.iter().copied().collect(),
-            kalman: kalman_section(schedule, &filter.process_noise, measurements),
+            kalman: kalman_gains(schedule, &filter.process_noise, measurements),
         })
         .collect()
 }
@@ -348,7 +323,7 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
     }
     t.force_loads = filter.force_loads.iter().map(|&g| g as u32).collect();
     t.force_rates = filter.force_rates;
-    t.kalman = kalman_section(&filter.schedule, &filter.process_noise, &measurements);
+    t.kalman = kalman_gains(&filter.schedule, &filter.process_noise, &measurements);
     t.scheduled = scheduled_section(&filter, &measurements);
     Ok(filter.schedule.closed_loop_spectral_radius)
 }

@@ -102,13 +102,8 @@ impl Cubature {
         snapshots: &[Vec<f64>],
         options: &EcswOptions,
     ) -> Result<(Self, NnlsSolution), NonlinearError> {
-        let sampling = ecsw::sample_elements(
-            fem,
-            &basis.vectors,
-            &basis.mass_vectors,
-            snapshots,
-            options,
-        )?;
+        let sampling =
+            ecsw::sample_elements(fem, &basis.vectors, &basis.mass_vectors, snapshots, options)?;
         let cubature = Cubature::new(fem, &basis.vectors, &sampling.weights)?;
         Ok((cubature, sampling))
     }

@@ -546,4 +546,3 @@ fn static_residual(
     }
     Ok(worst)
 }
-

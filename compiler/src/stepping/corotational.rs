@@ -5,186 +5,15 @@
 //! External loads are world-frame dead loads: a force on a load group keeps its world direction
 //! while the body rotates (it is not a follower load).
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Vector3;
 
 use crate::dynamics::WilsonTheta;
 use crate::fem::{FemModel, TetGeometry};
 
+use super::element::Kinematics;
 use super::load_stepping::{load_steps, LoadStepError};
 use super::sparse::Pattern;
 use super::{advance_all, check_len, norm, Simulator, SteppingError};
-
-/// The rotation R (det R = +1) of the polar decomposition F = R S: the runtime kernel's
-/// scaled Newton iteration ([`crokf_kernel::polar_rotation`], converged to round-off) where
-/// det F > 0, else [`polar_rotation_svd`] (robust to inverted elements). The two agree to
-/// round-off where both apply (test `kernel_polar_matches_the_svd_polar_rotation`); the kernel's is 3–4 Newton
-/// steps with one 3×3 inverse each instead of a Jacobi SVD.
-pub fn polar_rotation(f: &Matrix3<f64>) -> Matrix3<f64> {
-    let m: crokf_kernel::Mat3 = std::array::from_fn(|i| std::array::from_fn(|j| f[(i, j)]));
-    match crokf_kernel::polar_rotation(&m) {
-        Ok(r) => Matrix3::from_fn(|i, j| r[i][j]),
-        Err(_) => polar_rotation_svd(f),
-    }
-}
-
-/// The rotation R (det R = +1) of the polar decomposition F = R S, robust to inverted elements
-/// (det F ≤ 0): SVD F = U Σ Vᵀ, and where det U or det V is negative the column belonging to the
-/// smallest singular value is negated (Irving, Teran and Fedkiw 2004), then R = U Vᵀ.
-pub fn polar_rotation_svd(f: &Matrix3<f64>) -> Matrix3<f64> {
-    let svd = f.svd(true, true);
-    let (Some(mut u), Some(mut v_t)) = (svd.u, svd.v_t) else {
-        return Matrix3::identity();
-    };
-    let s = svd.singular_values;
-    let k = if s[0] <= s[1] && s[0] <= s[2] {
-        0
-    } else if s[1] <= s[2] {
-        1
-    } else {
-        2
-    };
-    if u.determinant() < 0.0 {
-        u.column_mut(k).neg_mut();
-    }
-    if v_t.determinant() < 0.0 {
-        v_t.row_mut(k).neg_mut();
-    }
-    u * v_t
-}
-
-/// Deformation gradient F = Σₐ xₐ ⊗ ∇Nₐ (= Ds Dm⁻¹) of a linear tetrahedron with rest
-/// geometry `geometry` and current vertex positions `x` (m).
-pub fn deformation_gradient(geometry: &TetGeometry, x: &[[f64; 3]; 4]) -> Matrix3<f64> {
-    let mut f = Matrix3::zeros();
-    for (xa, g) in x.iter().zip(&geometry.gradients) {
-        for i in 0..3 {
-            for j in 0..3 {
-                f[(i, j)] += xa[i] * g[j];
-            }
-        }
-    }
-    f
-}
-
-/// Co-rotated kinematics of one element: R and S = RᵀF of F = R S, the unrotated relative
-/// positions pₐ = Rᵀ(xₐ − x₀) and the element-frame forces z = Kₑ (p − (X − X₀)).
-struct Kinematics {
-    r: Matrix3<f64>,
-    s: Matrix3<f64>,
-    p: [Vector3<f64>; 4],
-    z: [Vector3<f64>; 4],
-}
-
-impl Kinematics {
-    fn new(
-        geometry: &TetGeometry,
-        ke: &[[f64; 12]; 12],
-        rest: &[[f64; 3]; 4],
-        current: &[[f64; 3]; 4],
-    ) -> Self {
-        let f = deformation_gradient(geometry, current);
-        let r = polar_rotation(&f);
-        let s = r.tr_mul(&f);
-        let p: [Vector3<f64>; 4] = std::array::from_fn(|a| {
-            r.tr_mul(&Vector3::from_fn(|i, _| current[a][i] - current[0][i]))
-        });
-        let mut y = [0.0; 12];
-        for a in 0..4 {
-            for i in 0..3 {
-                y[3 * a + i] = p[a][i] - (rest[a][i] - rest[0][i]);
-            }
-        }
-        let z = crate::fem::element::mul12(ke, &y);
-        let z = std::array::from_fn(|a| Vector3::new(z[3 * a], z[3 * a + 1], z[3 * a + 2]));
-        Kinematics { r, s, p, z }
-    }
-
-    /// World-frame force on node a: R zₐ.
-    fn force(&self, a: usize) -> Vector3<f64> {
-        self.r * self.z[a]
-    }
-
-    /// Calls `out(a, b, warped, consistent)` with the 3×3 tangent blocks ∂fₐ/∂x_b:
-    /// warped R Kₐᵦ Rᵀ, and (if `consistent`) the exact derivative
-    /// R Kₐᵦ Rᵀ + R (Σ_c Kₐ_c [p_c]× − [zₐ]×)(tr S·I − S)⁻¹ [∇N_b]× Rᵀ
-    /// (from δR = R[w]×, (tr S·I − S) w = Σ_b ∇N_b × Rᵀδx_b), else a copy of the warped one.
-    fn tangents(
-        &self,
-        geometry: &TetGeometry,
-        ke: &[[f64; 12]; 12],
-        consistent: bool,
-        mut out: impl FnMut(usize, usize, &Matrix3<f64>, &Matrix3<f64>),
-    ) {
-        let block = |a: usize, b: usize| Matrix3::from_fn(|i, j| ke[3 * a + i][3 * b + j]);
-        let rt = self.r.transpose();
-        let spin = (Matrix3::identity() * self.s.trace() - self.s).try_inverse();
-        let (left, right) = match (consistent, spin) {
-            (true, Some(spin_inv)) => {
-                let left: [Matrix3<f64>; 4] = std::array::from_fn(|a| {
-                    let mut h = -self.z[a].cross_matrix();
-                    for c in 0..4 {
-                        h += block(a, c) * self.p[c].cross_matrix();
-                    }
-                    self.r * h * spin_inv
-                });
-                let right: [Matrix3<f64>; 4] = std::array::from_fn(|b| {
-                    Vector3::from(geometry.gradients[b]).cross_matrix() * rt
-                });
-                (Some(left), Some(right))
-            }
-            _ => (None, None),
-        };
-        for a in 0..4 {
-            for b in 0..4 {
-                let warped = self.r * block(a, b) * rt;
-                match (&left, &right) {
-                    (Some(l), Some(r)) => out(a, b, &warped, &(warped + l[a] * r[b])),
-                    _ => out(a, b, &warped, &warped),
-                }
-            }
-        }
-    }
-}
-
-/// Co-rotational internal force of one element, fₑ = R Kₑ (Rᵀ xₑ − Xₑ) (12, N, node-major),
-/// and its rotation R. `ke` is the rest stiffness (12×12, N/m), `rest` and `current` the vertex
-/// positions Xₑ and xₑ (m). Positions enter relative to vertex 0, which Kₑ (translation-free)
-/// does not see but which keeps the difference Rᵀxₑ − Xₑ accurate for tiny displacements.
-pub fn element_force(
-    geometry: &TetGeometry,
-    ke: &[[f64; 12]; 12],
-    rest: &[[f64; 3]; 4],
-    current: &[[f64; 3]; 4],
-) -> ([f64; 12], Matrix3<f64>) {
-    let kin = Kinematics::new(geometry, ke, rest, current);
-    let mut f = [0.0; 12];
-    for a in 0..4 {
-        f[3 * a..3 * a + 3].copy_from_slice(kin.force(a).as_slice());
-    }
-    (f, kin.r)
-}
-
-/// Element tangent ∂fₑ/∂xₑ (12×12, N/m): the warped stiffness R Kₑ Rᵀ, or with `consistent`
-/// the exact derivative of [`element_force`] including the change of R (symmetric for the
-/// isotropic material: fₑ is the gradient of Vₑ[λ/2 tr²(S − I) + μ‖S − I‖²]).
-pub fn element_tangent(
-    geometry: &TetGeometry,
-    ke: &[[f64; 12]; 12],
-    rest: &[[f64; 3]; 4],
-    current: &[[f64; 3]; 4],
-    consistent: bool,
-) -> [[f64; 12]; 12] {
-    let kin = Kinematics::new(geometry, ke, rest, current);
-    let mut t = [[0.0; 12]; 12];
-    kin.tangents(geometry, ke, consistent, |a, b, _, k| {
-        for i in 0..3 {
-            for j in 0..3 {
-                t[3 * a + i][3 * b + j] = k[(i, j)];
-            }
-        }
-    });
-    t
-}
 
 /// Newton settings of the co-rotational solvers.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -570,32 +399,33 @@ impl CorotationalSimulator {
         const MAX_SOLVES: usize = 30;
         let mut total_solves = 0;
         let mut r = vec![0.0; n];
-        let solve = |u: &Vec<f64>, target: f64| -> Result<Option<(Vec<f64>, usize)>, SteppingError> {
-            let mut trial = u.clone();
-            let mut first = f64::INFINITY;
-            for it in 1..=MAX_SOLVES {
-                self.assemble(&trial);
-                for i in 0..n {
-                    r[i] = target * f[i] - self.internal[i];
+        let solve =
+            |u: &Vec<f64>, target: f64| -> Result<Option<(Vec<f64>, usize)>, SteppingError> {
+                let mut trial = u.clone();
+                let mut first = f64::INFINITY;
+                for it in 1..=MAX_SOLVES {
+                    self.assemble(&trial);
+                    for i in 0..n {
+                        r[i] = target * f[i] - self.internal[i];
+                    }
+                    let factor =
+                        self.factor_newton(1.0, 0.0, 0.0, "tangent stiffness (static solve)")?;
+                    timed_solve(&mut self.stats, &factor, &mut r);
+                    total_solves += 1;
+                    trial.iter_mut().zip(&r).for_each(|(t, d)| *t += d);
+                    let step = norm(&r);
+                    if it == 1 {
+                        first = step;
+                    }
+                    if !step.is_finite() || step > 10.0 * first {
+                        break;
+                    }
+                    if step <= tolerance * norm(&trial) || step <= self.floor {
+                        return Ok(Some((trial, it)));
+                    }
                 }
-                let factor =
-                    self.factor_newton(1.0, 0.0, 0.0, "tangent stiffness (static solve)")?;
-                timed_solve(&mut self.stats, &factor, &mut r);
-                total_solves += 1;
-                trial.iter_mut().zip(&r).for_each(|(t, d)| *t += d);
-                let step = norm(&r);
-                if it == 1 {
-                    first = step;
-                }
-                if !step.is_finite() || step > 10.0 * first {
-                    break;
-                }
-                if step <= tolerance * norm(&trial) || step <= self.floor {
-                    return Ok(Some((trial, it)));
-                }
-            }
-            Ok(None)
-        };
+                Ok(None)
+            };
         match load_steps(vec![0.0; n], solve) {
             Ok(u) => Ok(u),
             Err(LoadStepError::Stuck { load_factor }) => Err(SteppingError::StaticDiverged {

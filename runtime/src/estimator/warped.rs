@@ -85,11 +85,7 @@ impl WarpedStep {
         }
     }
 
-    fn current_std<'a>(
-        shared: &'a PreparedModel,
-        kind: CovarianceKind,
-        phase: usize,
-    ) -> &'a PhaseStd {
+    fn current_std(shared: &PreparedModel, kind: CovarianceKind, phase: usize) -> &PhaseStd {
         match kind {
             CovarianceKind::Prior => &shared.std_prior[phase],
             CovarianceKind::Posterior => &shared.std_posterior[phase],

@@ -1,3 +1,4 @@
+// Over 800 lines, one job: the consistency statistics of a filtered run (100 lines are its tests).
 //! Consistency and coverage of a filtered run (docs/design.md §11.3): normalised innovation
 //! squared (NIS), normalised estimation error squared (NEES) at the tip marker, the fraction of
 //! displayed-node errors inside ±2σ, and the tip's error and σ along the trajectory. One
