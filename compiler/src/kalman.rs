@@ -75,6 +75,7 @@ const HEWER_MAX_STEPS: usize = 100;
 pub mod als;
 mod checks;
 mod error;
+pub mod lag;
 mod sda;
 
 use checks::*;
