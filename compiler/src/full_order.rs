@@ -10,6 +10,7 @@ use crate::error::CompileError;
 use crate::fem::operators::Operators;
 use crate::fem::FemModel;
 use crate::mesh::{read_mesh_bytes, Mesh};
+use crate::noise::{ForceSigma, ForceStatement};
 use crate::scene::{ForceModel, SceneFile};
 use crate::timer::StageTimer;
 
@@ -36,27 +37,23 @@ pub struct FullOrder {
 }
 
 impl FullOrder {
-    /// The scene's random-walk load groups (docs/design.md §11): `(group, σ per step, N)` for
-    /// each load with `force_model = "random_walk"` and `force_noise_std > 0`, in scene order.
-    /// One list for the warped tier's force states (`Reductor`) and the co-rotational tier's.
-    pub fn random_walk_loads(&self) -> Vec<(usize, f64)> {
+    /// What the scene states about its estimated load groups (docs/design.md §11.4, §11.8),
+    /// in scene order: each load with `force_model = "random_walk"` and a force σ, stated by
+    /// `force_noise_std` > 0, with its rate σ (`force_rate_noise_std`, 0: no rate states).
+    /// One list for the warped tier's force states and the co-rotational tier's
+    /// ([`crate::noise::NoiseModel`]).
+    pub fn force_statements(&self) -> Vec<ForceStatement> {
         self.scene
             .scene
             .loads
             .iter()
             .enumerate()
             .filter(|(_, l)| l.force_model == ForceModel::RandomWalk && l.force_noise_std > 0.0)
-            .map(|(i, l)| (i, l.force_noise_std))
-            .collect()
-    }
-
-    /// The σ of the force rates' random walk of the random-walk load groups, N/s per step, in
-    /// the order of [`FullOrder::random_walk_loads`] (0: no rate states for that group;
-    /// co-rotational tier only, docs/design.md §11.5).
-    pub fn force_rate_sigmas(&self) -> Vec<f64> {
-        self.random_walk_loads()
-            .iter()
-            .map(|&(g, _)| self.scene.scene.loads[g].force_rate_noise_std)
+            .map(|(i, l)| ForceStatement {
+                load: i,
+                sigma: ForceSigma::Stated(l.force_noise_std),
+                rate_sigma: l.force_rate_noise_std,
+            })
             .collect()
     }
 

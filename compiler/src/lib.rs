@@ -28,6 +28,7 @@ pub mod reduce;
 pub mod reduced;
 
 pub mod kalman;
+pub mod noise;
 
 pub mod model_file;
 

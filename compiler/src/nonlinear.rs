@@ -14,7 +14,6 @@
 //! - [`reduced`]: the reduced co-rotational Wilson-θ stepper on q with Newton on the reduced
 //!   tangent;
 //! - [`tier`]: training → basis → cubature → reduced model;
-//! - [`noise`]: the noise model of the tier's filter (force and rate states, white channels);
 //! - [`filter`]: the filter design (linearisation at rest and at training states, DARE in
 //!   scaled modal coordinates, gain schedule);
 //! - [`identify`]: the noise model's σ identified from a filter run's innovations;
@@ -31,7 +30,6 @@ pub mod cubature;
 pub mod ecsw;
 pub mod filter;
 pub mod identify;
-pub mod noise;
 pub mod reduced;
 pub mod self_check;
 pub mod tier;
@@ -53,6 +51,9 @@ pub enum NonlinearError {
     /// Modal basis.
     #[error(transparent)]
     Reduce(#[from] ReduceError),
+    /// The scene's noise model.
+    #[error("tier filter: {0}")]
+    Noise(#[from] crate::noise::NoiseError),
     /// Inconsistent arguments (what is wrong, naming the offending item).
     #[error("{0}")]
     Invalid(String),

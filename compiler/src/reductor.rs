@@ -18,6 +18,7 @@ use crate::accuracy::{self, ReferenceResponses};
 use crate::error::CompileError;
 use crate::full_order::FullOrder;
 use crate::kalman::{self, PeriodicSchedule};
+use crate::noise::NoiseModel;
 use crate::outputs::{columns, stack_rows, Measurements, OutputRows};
 use crate::reduce::{self, ModalBasis, ModalSystem, Order};
 use crate::reduced::ReducedModel;
@@ -172,7 +173,8 @@ impl<'a> Reductor<'a> {
     }
 
     /// Balanced truncation of the given order, unweighted and sign-normalised, with the force
-    /// states of the scene's random-walk load groups appended.
+    /// states of the scene's estimated load groups appended ([`NoiseModel`]); a derived force σ
+    /// is fixed on this truncation's filter (docs/design.md §11.8) and noted in `warnings`.
     pub fn reduce(&self, order: Order) -> Result<ReducedModel, CompileError> {
         let truncation =
             self.system
@@ -183,13 +185,47 @@ impl<'a> Reductor<'a> {
                 })?;
         let ops = &self.full.operators;
         let reduced = ReducedModel::from_truncation(truncation, ops.inputs.len(), &self.weights);
-        let random_walk = self.full.random_walk_loads();
-        Ok(if random_walk.is_empty() {
-            reduced
-        } else {
-            let exact = self.static_outputs()?;
-            reduced.with_force_states(ops, &random_walk, Some(exact))
-        })
+        let mut noise = NoiseModel::of_scene(self.full).map_err(|e| self.noise_error(e))?;
+        if noise.groups.is_empty() {
+            return Ok(reduced);
+        }
+        let exact = self.static_outputs()?;
+        let r = reduced.transition.nrows();
+        let with_forces = |noise: &NoiseModel| {
+            let loads: Vec<(usize, f64)> = noise.groups.iter().map(|g| (g.load, g.sigma)).collect();
+            reduced.clone().with_force_states(ops, &loads, Some(exact))
+        };
+        let derived = noise.derive(self.full.wilson.dt, |trial, k, delta| {
+            let augmented = with_forces(trial);
+            let schedule = self.kalman(&augmented)?;
+            let h = self
+                .measurements
+                .rows_of(&self.rows, augmented.outputs.as_ref());
+            let block = r + 3 * k..r + 3 * k + 3;
+            kalman::lag::ramp_lag(
+                augmented.transition.as_ref(),
+                h.as_ref(),
+                &schedule,
+                block,
+                delta,
+            )
+            .map_err(|e| self.noise_error(e))
+        })?;
+        let mut augmented = with_forces(&noise);
+        augmented.warnings.extend(
+            derived
+                .iter()
+                .map(|d| d.note(&self.full.scene.scene.loads[d.load].name)),
+        );
+        Ok(augmented)
+    }
+
+    /// A noise-model error of this scene.
+    fn noise_error(&self, e: impl std::fmt::Display) -> CompileError {
+        CompileError::Reduce {
+            path: self.full.scene_path().to_owned(),
+            source: reduce::ReduceError::InvalidOption(format!("force states: {e}")),
+        }
     }
 
     /// The reduced model by the scene's order rule (docs/design.md §4.3): an explicit order,

@@ -568,7 +568,7 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
         .iter()
         .all(|&n| n > 0.0 && n <= largest * (1.0 + 1e-12)));
     let full = FullOrder::build(random_walk_scene(), &mut StageTimer::default()).unwrap();
-    let (lin, _) = section::linearised_of_file(&full, model).unwrap();
+    let (lin, _, _) = section::linearised_of_file(&full, model).unwrap();
     let reduced = section::reduced_model_of_file(&full, t).unwrap();
     let prepared = TierModel::new(model, t);
     assert_eq!(prepared.filter_count(), 1 + t.scheduled.len());

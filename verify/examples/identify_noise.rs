@@ -136,7 +136,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     };
     let mut full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
     if let Some(sigma) = force_sigma {
-        let loads: Vec<usize> = full.random_walk_loads().iter().map(|&(g, _)| g).collect();
+        let loads: Vec<usize> = full.force_statements().iter().map(|s| s.load).collect();
         if loads.is_empty() {
             return Err(format!("--force-sigma: {scene} has no random-walk load").into());
         }

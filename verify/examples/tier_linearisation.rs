@@ -79,7 +79,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         .tier
         .as_ref()
         .ok_or("the model has no co-rotational tier")?;
-    let (lin0, measurements) = tier::linearised_of_file(&full, &model)?;
+    let (lin0, measurements, _) = tier::linearised_of_file(&full, &model)?;
     let reduced = tier::reduced_model_of_file(&full, t)?;
     let r = t.order as usize;
     let ops = &full.operators;

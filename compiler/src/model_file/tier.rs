@@ -11,11 +11,11 @@ use crokf_formats as fmt;
 
 use crate::fem::operators::InputKind;
 use crate::full_order::FullOrder;
+use crate::noise::{load_channel, NoiseModel};
 use crate::nonlinear::cubature::{Cubature, SampledElement};
 use crate::nonlinear::filter::{
-    filter_of, measured_rows, scheduled_filters, LinearisedTier, TierFilter,
+    derive_force_sigma, filter_of, measured_rows, scheduled_filters, LinearisedTier, TierFilter,
 };
-use crate::nonlinear::noise::{load_channel, NoiseModel};
 use crate::nonlinear::reduced::ReducedModel;
 use crate::nonlinear::tier::{point_rows, Tier};
 use crate::nonlinear::training::{History, TrainingPlan};
@@ -170,13 +170,18 @@ fn dense_matrix(m: &DMatrix<f64>) -> fmt::Matrix {
 /// The [`LinearisedTier`] of a model file's tier at rest for the scene `full` (same mesh and
 /// loads; the scene gives the sensors' noise and rates and the force-noise σ) and the scene's
 /// [`Measurements`]: K_r at rest = Σ wₑ V_eᵀ Kₑ V_e over the sampled elements, M_r, VᵀB and the
-/// sensor rows from the file, the noise model from the scene. The scene's distributed force
+/// sensor rows from the file, the noise model from the scene with its derived σ fixed on this
+/// linearisation ([`derive_force_sigma`], as the compile did). The scene's distributed force
 /// noise is not in the file (no VᵀB_w): refused.
 pub fn linearised_of_file(
     full: &FullOrder,
     model: &fmt::Model,
-) -> Result<(LinearisedTier, Measurements), NonlinearError> {
-    linearised_of_file_with(full, model, &NoiseModel::of_scene(full)?)
+) -> Result<(LinearisedTier, Measurements, NoiseModel), NonlinearError> {
+    let mut noise = NoiseModel::of_scene(full)?;
+    let (mut lin, measurements) = linearised_of_file_with(full, model, &noise)?;
+    derive_force_sigma(&lin, &mut noise, &measurements)?;
+    lin.force_sigma = noise.force_sigma();
+    Ok((lin, measurements, noise))
 }
 
 /// [`linearised_of_file`] with the scene's noise model `noise` ([`NoiseModel::of_scene`]).
@@ -215,7 +220,7 @@ pub fn linearised_of_file_with(
         let column = match ch.kind {
             InputKind::Noise { load: Some(g) } => (0..3)
                 .find(|&c| ch.label.ends_with(["x", "y", "z"][c]))
-                .and_then(|c| load_channel(full, g, c))
+                .and_then(|c| load_channel(&full.operators, g, c))
                 .map(|k| {
                     DVector::from(input.column(k)) * full.scene.scene.loads[g].force_noise_std
                 }),
@@ -303,8 +308,7 @@ pub fn reduced_model_of_file(
 /// `force_loads` and `kalman` are replaced. The scene's distributed force noise is not in the
 /// file (no VᵀB_w): refused. Returns the new filter's closed-loop spectral radius.
 pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, NonlinearError> {
-    let noise = NoiseModel::of_scene(full)?;
-    let (lin, measurements) = linearised_of_file_with(full, model, &noise)?;
+    let (lin, measurements, noise) = linearised_of_file(full, model)?;
     let Some(t) = model.tier.as_mut() else {
         return Err(NonlinearError::Invalid(
             "refilter: the model has no tier".into(),

@@ -13,10 +13,10 @@ use crate::full_order::FullOrder;
 use crate::kalman::{self, PeriodicSchedule};
 use crate::outputs::Measurements;
 
-use super::noise::NoiseModel;
 use super::reduced::ReducedModel;
 use super::tier::{point_rows, Tier};
 use super::NonlinearError;
+use crate::noise::{Derivation, NoiseModel};
 
 /// The tier linearised at rest in reduced coordinates: everything its filter needs, which is
 /// also what the model file's tier section stores (so a filter can be recomputed from a model
@@ -173,19 +173,45 @@ pub fn linearised_filter(
     noise: &NoiseModel,
     measurements: &Measurements,
 ) -> Result<TierFilter, NonlinearError> {
+    let lin = linearise_at_rest(full, tier, noise, measurements);
+    let channels = noise.force_channels();
+    let residual = static_residual(
+        full,
+        &tier.basis.vectors,
+        &lin.stiffness,
+        &lin.measured_rows,
+        &channels,
+        measurements,
+    )?;
+    let mut filter = filter_of(&lin, measurements)?;
+    filter.force_loads = noise.force_loads();
+    filter.static_residual = residual;
+    filter.marker_model_error = marker_model_error(full, tier, &lin.measured_rows, measurements);
+    let points = schedule_points(&tier.projected, SCHEDULE_POINTS);
+    filter.scheduled = scheduled_filters(&lin, &tier.model, &points, measurements);
+    Ok(filter)
+}
+
+/// The tier linearised at rest with the noise model `noise` (see [`linearised_filter`]).
+pub fn linearise_at_rest(
+    full: &FullOrder,
+    tier: &Tier,
+    noise: &NoiseModel,
+    measurements: &Measurements,
+) -> LinearisedTier {
     let model = &tier.model;
     let r = model.order();
     let v = &tier.basis.vectors;
-    let channels = noise.force_channels();
     let project = |column: &[f64]| v.tr_mul(&DVector::from_column_slice(column));
     let ops = &full.operators;
-    let lin = LinearisedTier {
+    LinearisedTier {
         mass: model.mass.clone(),
         stiffness: model.tangent(&DVector::zeros(r), 0.0, true),
         alpha: model.alpha,
         beta: model.beta,
         wilson: full.wilson,
-        force_columns: channels
+        force_columns: noise
+            .force_channels()
             .iter()
             .map(|&ch| project(&ops.inputs[ch].column))
             .collect(),
@@ -199,22 +225,35 @@ pub fn linearised_filter(
         measured_rows: measured_rows(measurements, |s| {
             point_rows(full, v, &ops.sensors[s].weights)
         }),
-    };
-    let residual = static_residual(
-        full,
-        v,
-        &lin.stiffness,
-        &lin.measured_rows,
-        &channels,
-        measurements,
-    )?;
-    let mut filter = filter_of(&lin, measurements)?;
-    filter.force_loads = noise.force_loads();
-    filter.static_residual = residual;
-    filter.marker_model_error = marker_model_error(full, tier, &lin.measured_rows, measurements);
-    let points = schedule_points(&tier.projected, SCHEDULE_POINTS);
-    filter.scheduled = scheduled_filters(&lin, model, &points, measurements);
-    Ok(filter)
+    }
+}
+
+/// Fixes the derived force σ of `noise` on the tier linearised at rest `lin` (docs/design.md
+/// §11.8): per derived group, the smallest σ whose filter's steady lag on the stated ramp stays
+/// within one σ of its force states ([`crate::kalman::lag::ramp_lag`], group k's force block
+/// 3r + 3k … 3r + 3k + 2). The derivation's filter has no rate states (with rates a ramp has no
+/// steady lag); `lin`'s own σ are not used. Returns what was derived (empty when every σ is
+/// stated).
+pub fn derive_force_sigma(
+    lin: &LinearisedTier,
+    noise: &mut NoiseModel,
+    measurements: &Measurements,
+) -> Result<Vec<Derivation>, NonlinearError> {
+    let r = lin.mass.nrows();
+    noise.derive(lin.wilson.dt, |trial, k, delta| {
+        let trial = LinearisedTier {
+            force_sigma: trial.force_sigma(),
+            rate_sigma: Vec::new(),
+            ..lin.clone()
+        };
+        let filter = filter_of(&trial, measurements)?;
+        let (f, h) = trial.transition()?;
+        let f = Mat::<f64>::from_fn(f.nrows(), f.ncols(), |i, j| f[(i, j)]);
+        let h = Mat::<f64>::from_fn(h.nrows(), h.ncols(), |i, j| h[(i, j)]);
+        let block = 3 * r + 3 * k..3 * r + 3 * k + 3;
+        kalman::lag::ramp_lag(f.as_ref(), h.as_ref(), &filter.schedule, block, delta)
+            .map_err(|e| NonlinearError::Invalid(format!("force σ derivation: {e}")))
+    })
 }
 
 /// The model error of the tier at the markers that its basis alone makes (docs/design.md

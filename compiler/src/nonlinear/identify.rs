@@ -10,10 +10,9 @@ use crokf_formats as fmt;
 
 use crate::full_order::FullOrder;
 use crate::kalman;
-use crate::model_file::tier::{linearised_of_file_with, reduced_model_of_file};
+use crate::model_file::tier::{linearised_of_file, reduced_model_of_file};
 
 use super::filter::scaled_system;
-use super::noise::NoiseModel;
 use super::NonlinearError;
 
 /// What [`identify_noise`] found for one random-walk load group: σ in the scene and σ
@@ -64,8 +63,7 @@ pub fn identify_noise(
     skip: usize,
     lags: usize,
 ) -> Result<IdentifiedNoise, NonlinearError> {
-    let noise = NoiseModel::of_scene(full)?;
-    let (lin, measurements) = linearised_of_file_with(full, model, &noise)?;
+    let (lin, measurements, noise) = linearised_of_file(full, model)?;
     let Some(t) = model.tier.as_ref() else {
         return Err(NonlinearError::Invalid("the model has no tier".into()));
     };

@@ -14,10 +14,12 @@ use crokf_formats as fmt;
 use crate::error::CompileError;
 use crate::full_order::FullOrder;
 use crate::model_file::tier::{tier_section, RuntimeNewton};
+use crate::noise::{Derivation, NoiseModel};
 use crate::nonlinear::basis::BasisChoice;
 use crate::nonlinear::ecsw::EcswOptions;
-use crate::nonlinear::filter::{linearised_filter, TierFilter, SCHEDULE_POINTS};
-use crate::nonlinear::noise::NoiseModel;
+use crate::nonlinear::filter::{
+    derive_force_sigma, linearise_at_rest, linearised_filter, TierFilter, SCHEDULE_POINTS,
+};
 use crate::nonlinear::self_check::{self, SelfCheck};
 use crate::nonlinear::tier::{self, Tier};
 use crate::nonlinear::training::{self, TrainingPlan};
@@ -37,8 +39,11 @@ pub struct TierReductor<'a> {
     pub spec: &'a CorotationalSpec,
     /// The training runs generated from it.
     pub plan: TrainingPlan,
-    /// The filter's noise model (force and rate states, white channels), built once.
+    /// The filter's noise model (force and rate states, white channels), built once, its
+    /// derived σ fixed on the tier (docs/design.md §11.8).
     pub noise: NoiseModel,
+    /// The force σ derived from the scene's load statements (empty when all are stated).
+    pub derived: Vec<Derivation>,
     /// Training, basis, cubature and reduced model.
     pub tier: Tier,
     /// The filter designed on the tier linearised at rest and its gain schedule.
@@ -68,7 +73,7 @@ impl<'a> TierReductor<'a> {
                 &"reduction.model = \"corotational\" needs [reduction.corotational]",
             ));
         };
-        let noise = NoiseModel::of_scene(full).map_err(|e| fail(&e))?;
+        let mut noise = NoiseModel::of_scene(full).map_err(|e| fail(&e))?;
         let mut progress = |k: usize, of: usize, label: &str| {
             eprintln!(
                 "crokf-compile: co-rotational training run {}/{of}: {label}",
@@ -103,9 +108,11 @@ impl<'a> TierReductor<'a> {
                 tier::from_training_with(full, training, &choice, &ecsw)
             })
             .map_err(|e| fail(&e))?;
-        let filter = timer
+        let (derived, filter) = timer
             .stage("tier_kalman", || {
-                linearised_filter(full, &built, &noise, measurements)
+                let rest = linearise_at_rest(full, &built, &noise, measurements);
+                let derived = derive_force_sigma(&rest, &mut noise, measurements)?;
+                linearised_filter(full, &built, &noise, measurements).map(|f| (derived, f))
             })
             .map_err(|e| fail(&e))?;
         let mut reductor = TierReductor {
@@ -113,6 +120,7 @@ impl<'a> TierReductor<'a> {
             spec,
             plan,
             noise,
+            derived,
             tier: built,
             filter,
             notes,
@@ -181,6 +189,11 @@ impl<'a> TierReductor<'a> {
                 .map(|(q, _)| q.norm())
                 .fold(0.0, f64::max)
         ));
+        notes.extend(
+            self.derived
+                .iter()
+                .map(|d| d.note(&full.scene.scene.loads[d.load].name)),
+        );
         notes.push(format!(
             "co-rotational tier model error at the markers (basis projection of the training \
              snapshots, RMS per channel in units of the channel's σ): largest {:.2e}, median {:.2e} \
