@@ -6,7 +6,7 @@
 //! linearised rotation ω_p = Ω_p d (rad per N; Ω_p the 3×3 block of the ω rows of
 //! [`Reductor::static_outputs`] against the group's x, y, z channels). The largest rotation per
 //! newton over directions and points is θ′_g = max_p σ_max(Ω_p) (rad/N), and at the group's
-//! range F_g (from `[reduction.corotational] ranges`, when given) θ_g = F_g θ′_g. One sparse
+//! range F_g (the load's `range`, or its `[reduction.corotational] ranges` entry, when given) θ_g = F_g θ′_g. One sparse
 //! Cholesky of K, shared with the force states' static residual.
 //!
 //! The rule compares θ_g with the rotation up to which the warped tier's open-loop error stayed
@@ -41,7 +41,7 @@ pub struct GroupRotation {
     pub name: String,
     /// θ′_g: largest rotation per newton over directions and output points, degrees/N.
     pub per_newton_deg: f64,
-    /// The group's range F_g from `[reduction.corotational]`, N, if given.
+    /// The group's range F_g (the load's `range` or its tier `ranges` entry), N, if given.
     pub range: Option<f64>,
 }
 
@@ -66,13 +66,7 @@ pub fn linear_rotations(reductor: &Reductor) -> Result<Vec<GroupRotation>, Strin
     for (set, nodes) in rows.node_sets.iter().enumerate() {
         omega_rows.extend((0..nodes.len()).map(|i| rows.node_row(set, i) + 3));
     }
-    let ranges = full
-        .scene
-        .scene
-        .reduction
-        .corotational
-        .as_ref()
-        .map(|c| &c.ranges);
+    let scene = &full.scene.scene;
     let mut out = Vec::new();
     for (g, load) in ops.loads.iter().enumerate() {
         let mut columns: [Option<usize>; 3] = [None; 3];
@@ -97,7 +91,11 @@ pub fn linear_rotations(reductor: &Reductor) -> Result<Vec<GroupRotation>, Strin
         out.push(GroupRotation {
             name: load.name.clone(),
             per_newton_deg: largest.to_degrees(),
-            range: ranges.and_then(|r| r.get(&load.name).copied()),
+            range: scene
+                .loads
+                .iter()
+                .find(|l| l.name == load.name)
+                .and_then(|l| scene.load_range(l)),
         });
     }
     Ok(out)

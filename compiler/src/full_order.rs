@@ -10,8 +10,8 @@ use crate::error::CompileError;
 use crate::fem::operators::Operators;
 use crate::fem::FemModel;
 use crate::mesh::{read_mesh_bytes, Mesh};
-use crate::noise::{ForceSigma, ForceStatement};
-use crate::scene::{ForceModel, SceneFile};
+use crate::noise::{ForceSigma, ForceStatement, NoiseError, NoiseModel};
+use crate::scene::SceneFile;
 use crate::timer::StageTimer;
 
 /// The compiler's version string, part of every model's input digest.
@@ -38,23 +38,40 @@ pub struct FullOrder {
 
 impl FullOrder {
     /// What the scene states about its estimated load groups (docs/design.md §11.4, §11.8),
-    /// in scene order: each load with `force_model = "random_walk"` and a force σ, stated by
-    /// `force_noise_std` > 0, with its rate σ (`force_rate_noise_std`, 0: no rate states).
-    /// One list for the warped tier's force states and the co-rotational tier's
-    /// ([`crate::noise::NoiseModel`]).
+    /// in scene order: each load with `force_model = "random_walk"` (the default), its force σ
+    /// stated by `force_noise_std` > 0 or derived from its range (`range`, else the tier's
+    /// `ranges` entry) and `rise_time`, with its rate σ (`force_rate_noise_std`, 0: no rate
+    /// states). One list for the warped tier's force states and the co-rotational tier's
+    /// ([`crate::noise::NoiseModel`]). The scene's checks guarantee a range where σ is derived.
     pub fn force_statements(&self) -> Vec<ForceStatement> {
-        self.scene
-            .scene
+        let scene = &self.scene.scene;
+        scene
             .loads
             .iter()
             .enumerate()
-            .filter(|(_, l)| l.force_model == ForceModel::RandomWalk && l.force_noise_std > 0.0)
-            .map(|(i, l)| ForceStatement {
-                load: i,
-                sigma: ForceSigma::Stated(l.force_noise_std),
-                rate_sigma: l.force_rate_noise_std,
+            .filter(|(_, l)| l.is_estimated())
+            .filter_map(|(i, l)| {
+                let sigma = if l.force_noise_std > 0.0 {
+                    ForceSigma::Stated(l.force_noise_std)
+                } else {
+                    ForceSigma::Derived {
+                        range: scene.load_range(l)?,
+                        rise_time: l.rise_time(),
+                    }
+                };
+                Some(ForceStatement {
+                    load: i,
+                    sigma,
+                    rate_sigma: l.force_rate_noise_std,
+                })
             })
             .collect()
+    }
+
+    /// The scene's noise model ([`FullOrder::force_statements`] on its operators), derived σ
+    /// not yet fixed ([`NoiseModel::derive`]).
+    pub fn noise_model(&self) -> Result<NoiseModel, NoiseError> {
+        NoiseModel::new(&self.force_statements(), &self.operators, self.wilson.dt)
     }
 
     /// Reads the scene and mesh, assembles K and M and builds the operators; stage costs go to

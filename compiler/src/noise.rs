@@ -1,6 +1,6 @@
 //! The noise model of both tiers' filters (docs/design.md §6, §11.4–11.5, §11.8): which
 //! stochastic states a filter carries beyond the model's own and their σ, built once from the
-//! scene ([`NoiseModel::of_scene`]), its derived σ fixed by [`NoiseModel::derive`], and read by
+//! scene (`FullOrder::noise_model`), its derived σ fixed by [`NoiseModel::derive`], and read by
 //! the warped tier's force states (`crate::reduced::ReducedModel::with_force_states`), the
 //! co-rotational tier's filter design (`crate::nonlinear::filter`), the model file's tier
 //! section (refiltering a file for a scene) and the noise identification
@@ -180,11 +180,6 @@ impl NoiseModel {
             rates,
             white,
         })
-    }
-
-    /// The scene's noise model ([`crate::full_order::FullOrder::force_statements`]).
-    pub fn of_scene(full: &crate::full_order::FullOrder) -> Result<Self, NoiseError> {
-        NoiseModel::new(&full.force_statements(), &full.operators, full.wilson.dt)
     }
 
     /// The same noise model without rate states (the derivation's filter, §11.8).

@@ -185,7 +185,7 @@ impl<'a> Reductor<'a> {
                 })?;
         let ops = &self.full.operators;
         let reduced = ReducedModel::from_truncation(truncation, ops.inputs.len(), &self.weights);
-        let mut noise = NoiseModel::of_scene(self.full).map_err(|e| self.noise_error(e))?;
+        let mut noise = self.full.noise_model().map_err(|e| self.noise_error(e))?;
         if noise.groups.is_empty() {
             return Ok(reduced);
         }

@@ -8,7 +8,8 @@
 //! the accepted range): E in [1, 1e13] Pa, ν in (−1, 0.5), ρ in [1e-3, 1e6] kg/m³, α in
 //! [0, 1e6] 1/s, β in [0, 1e3] s, |g| ≤ 1e4 m/s², force noise σ in [0, 1e9] N, sensor noise σ in
 //! [1e-12, 1e3] m, Δt in [1e-7, 10] s, θ in [1.37, 10], coordinates finite and |x| ≤ 1e9 mesh
-//! units. [`Scene::warnings`] lists what is legal but suspect (ν ≥ 0.49 on linear tetrahedra).
+//! units (the mesh's own coordinates too, `crate::mesh`). A `[[fixed]]` entry with
+//! `components = []` is refused (it would fix nothing). [`Scene::warnings`] lists what is legal but suspect (ν ≥ 0.49 on linear tetrahedra).
 //!
 //! **Where a group is accepted** (`[[material]]`, `[[fixed]]`, `[[load]]`, `[[force_noise]]`,
 //! `[[display]]`), give either `group = "name"` (a gmsh physical name, `"<dim>:<tag>"` for an
@@ -32,7 +33,8 @@
 //! - `nodes` (required with a shape or `everything` outside `[[material]]`): `"boundary"` takes
 //!   only nodes on the boundary of the tetrahedral mesh, `"all"` every node of a tetrahedron.
 //! - `node_list`: a text file of node tags (gmsh node tags; 0-based point ids for VTK files),
-//!   separated by spaces, commas or newlines; `#` starts a comment.
+//!   separated by spaces, commas or newlines; `#` starts a comment; a tag listed twice is an
+//!   error naming both lines.
 //! - In `[[material]]` a shape takes the tetrahedra whose centroid lies inside it; `nodes` and
 //!   `node_list` do not apply there.
 //! - Loads with `distribution = "area"` and displays use the boundary faces whose three nodes
@@ -63,9 +65,11 @@
 //! name = "tip"
 //! group = "tip"                 # nodes receiving the force
 //! distribution = "area"         # "area" (by surface triangle area) or "uniform" (equal shares)
-//! force_noise_std = 0.01        # N per world component, process noise
-//! force_model = "white"         # or "random_walk": the filter estimates a persistent force
-//! force_rate_noise_std = 0.0    # N/s per step: random walk of the force's rate (tier only)
+//! range = 20.0                  # N: the largest total force; the filter estimates the load
+//! rise_time = 0.2               # s: the shortest time from 0 to `range` (default 0.2)
+//! # force_model = "random_walk" # the default; "white": a load the runtime is always told
+//! # force_noise_std = 0.5       # N per step: a stated σ instead of the derived one
+//! # force_rate_noise_std = 0.0  # N/s per step: random walk of the force's rate (tier only)
 //!
 //! [[sensor]]
 //! name = "marker_1"
@@ -240,7 +244,7 @@ pub struct Fixed {
     /// Union of node selectors (instead of `group`).
     #[serde(default)]
     pub select: Option<Vec<Selector>>,
-    /// Fixed components (default all three).
+    /// Fixed components (default all three; an empty list is refused).
     #[serde(default = "all_components")]
     pub components: Vec<Component>,
 }
@@ -272,13 +276,24 @@ pub struct Load {
     /// Distribution of the total force.
     #[serde(default)]
     pub distribution: LoadDistribution,
+    /// The largest total force this load reaches, N (> 0): with `rise_time`, what the
+    /// compiler derives the estimated force's σ from (docs/design.md §11.8), and the
+    /// co-rotational tier's training range unless `[reduction.corotational] ranges` names it.
+    #[serde(default)]
+    pub range: Option<f64>,
+    /// The shortest time in which the load goes from zero to its `range`, s (default
+    /// [`DEFAULT_RISE_TIME`]); estimated loads only.
+    #[serde(default)]
+    pub rise_time: Option<f64>,
     /// Standard deviation of the force process noise per world component, N (0: none): of the
-    /// force itself (`force_model = "white"`) or of its change per step (`"random_walk"`).
+    /// force itself (`force_model = "white"`) or of its change per step (`"random_walk"`,
+    /// instead of the σ derived from `range` and `rise_time`).
     #[serde(default)]
     pub force_noise_std: f64,
-    /// How the Kalman filter models the unknown part of this load.
-    #[serde(default)]
-    pub force_model: ForceModel,
+    /// How the Kalman filter models the unknown part of this load (default
+    /// [`ForceModel::RandomWalk`]: the load is estimated); [`Load::force_model`] resolves it.
+    #[serde(default, rename = "force_model")]
+    pub force_model_stated: Option<ForceModel>,
     /// Co-rotational tier with `force_model = "random_walk"` only: standard deviation of the
     /// change per step of the force's rate, N/s per world component (0: none). The tier's
     /// filter then also carries the rate ḟ, f⁺ = f + Δt ḟ + w, ḟ⁺ = ḟ + w_ḟ (an integrated
@@ -287,15 +302,38 @@ pub struct Load {
     pub force_rate_noise_std: f64,
 }
 
+/// The rise time of a load that states none, s: a load applied by hand or by an instrument
+/// (docs/scene.md).
+pub const DEFAULT_RISE_TIME: f64 = 0.2;
+
+impl Load {
+    /// The force model: the scene's, or [`ForceModel::RandomWalk`] (estimated) by default.
+    pub fn force_model(&self) -> ForceModel {
+        self.force_model_stated.unwrap_or(ForceModel::RandomWalk)
+    }
+
+    /// Whether the filter estimates this load with force states.
+    pub fn is_estimated(&self) -> bool {
+        self.force_model() == ForceModel::RandomWalk
+    }
+
+    /// The rise time, s (the scene's or [`DEFAULT_RISE_TIME`]).
+    pub fn rise_time(&self) -> f64 {
+        self.rise_time.unwrap_or(DEFAULT_RISE_TIME)
+    }
+}
+
 /// Process-noise model of a load group's unknown force.
 #[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
 #[serde(rename_all = "snake_case")]
 pub enum ForceModel {
-    /// White noise: an independent force each step (no memory).
-    #[default]
+    /// White noise: an independent force each step (no memory); the runtime is told the load
+    /// and `force_noise_std` is the noise on it.
     White,
-    /// Random walk: the filter carries the force as 3 extra states, f⁺ = f + w; a persistent
-    /// unknown force (or a persistent model error at the load) is then estimated, not lagged.
+    /// Random walk (the default): the filter carries the force as 3 extra states, f⁺ = f + w;
+    /// a load the runtime is not told (or the part of a given load that the input does not
+    /// explain, such as a persistent model error at the load) is estimated, not lagged.
+    #[default]
     RandomWalk,
 }
 
@@ -589,8 +627,10 @@ pub enum ModelTier {
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct CorotationalSpec {
-    /// Load range per load group (scene load name → largest total force magnitude, N). Groups
-    /// not named are not trained on (and refused by the runtime's envelope check if loaded).
+    /// Load range per load group (scene load name → largest total force magnitude, N); by
+    /// default every load's `range`. Groups without one are not trained on (and refused by the
+    /// runtime's envelope check if loaded).
+    #[serde(default)]
     pub ranges: std::collections::BTreeMap<String, f64>,
     /// Length of each training run, s.
     pub duration: f64,
@@ -678,7 +718,8 @@ impl CorotationalSpec {
         let f = |name: &str| format!("reduction.corotational.{name}");
         if self.ranges.is_empty() {
             return Err(format!(
-                "{}: name at least one load group and its force range in N",
+                "{}: name at least one load group and its force range in N (or state `range` on \
+                 the load)",
                 f("ranges")
             ));
         }
@@ -1010,6 +1051,41 @@ fn check_target(
 }
 
 impl Scene {
+    /// The range of load `l`, N: its own `range`, else the co-rotational tier's `ranges` entry.
+    pub fn load_range(&self, l: &Load) -> Option<f64> {
+        l.range.or_else(|| {
+            self.reduction
+                .corotational
+                .as_ref()
+                .and_then(|c| c.ranges.get(&l.name).copied())
+        })
+    }
+
+    /// The co-rotational tier trains on every load that states a `range` unless its
+    /// `[reduction.corotational] ranges` names the load already (which must then agree).
+    fn resolve_ranges(&mut self) -> Result<(), String> {
+        let Some(spec) = self.reduction.corotational.as_mut() else {
+            return Ok(());
+        };
+        for l in &self.loads {
+            let Some(range) = l.range else { continue };
+            match spec.ranges.get(&l.name) {
+                Some(&tier) if tier != range => {
+                    return Err(format!(
+                        "load '{}': range = {range} N but reduction.corotational.ranges.{} = \
+                         {tier} N: state the range once (the load's `range` is enough)",
+                        l.name, l.name
+                    ))
+                }
+                Some(_) => {}
+                None => {
+                    spec.ranges.insert(l.name.clone(), range);
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Parses scene text; `path` names the file in messages and anchors relative `node_list`
     /// paths. A leading UTF-8 byte-order mark is skipped.
     pub fn parse(text: &str, path: &Path) -> Result<Self, SceneError> {
@@ -1018,10 +1094,13 @@ impl Scene {
             path: path.to_owned(),
             message: e.to_string(),
         })?;
-        scene.check().map_err(|what| SceneError::Invalid {
-            path: path.to_owned(),
-            what,
-        })?;
+        scene
+            .resolve_ranges()
+            .and_then(|()| scene.check())
+            .map_err(|what| SceneError::Invalid {
+                path: path.to_owned(),
+                what,
+            })?;
         if let Some(dir) = path.parent() {
             for sel in scene.selectors_mut() {
                 if let Some(f) = &mut sel.node_list {
@@ -1145,6 +1224,12 @@ impl Scene {
                 None => format!("fixed {}", i + 1),
             };
             check_target(&context, &f.group, &f.select, false)?;
+            if f.components.is_empty() {
+                return Err(format!(
+                    "{context}: components = [] fixes nothing; list the fixed components \
+                     (e.g. components = [\"z\"]) or leave the key out to fix all three"
+                ));
+            }
         }
         let mut names = std::collections::BTreeSet::new();
         for l in &self.loads {
@@ -1164,15 +1249,63 @@ impl Scene {
                 limits::FORCE_NOISE,
                 "N/s",
             )?;
+            if let Some(range) = l.range {
+                in_range(
+                    &format!("load '{}': range", l.name),
+                    range,
+                    (1e-9, 1e9),
+                    "N",
+                )?;
+                if range <= 0.0 {
+                    return Err(format!("load '{}': range must be > 0 N", l.name));
+                }
+            }
+            if let Some(t) = l.rise_time {
+                in_range(
+                    &format!("load '{}': rise_time", l.name),
+                    t,
+                    (1e-6, 1e4),
+                    "s",
+                )?;
+                if t <= 0.0 {
+                    return Err(format!("load '{}': rise_time must be > 0 s", l.name));
+                }
+            }
+            if l.force_noise_std > 0.0 && l.force_model_stated.is_none() {
+                return Err(format!(
+                    "load '{}': force_noise_std without force_model: loads are estimated by \
+                     default (force_model = \"random_walk\", force σ derived from `range` and \
+                     `rise_time`); write force_model = \"random_walk\" to state the σ of the \
+                     force's change per step, or force_model = \"white\" for white noise on a \
+                     load the runtime is told",
+                    l.name
+                ));
+            }
+            if l.is_estimated() && l.force_noise_std <= 0.0 && self.load_range(l).is_none() {
+                return Err(format!(
+                    "load '{}': the filter estimates this load (force_model = \"random_walk\", \
+                     the default) and needs what it may do: state its range (N, the largest \
+                     total force it reaches) and, if not {DEFAULT_RISE_TIME} s, its rise_time (s, \
+                     the shortest time from zero to the range), from which the compiler derives \
+                     the force σ; or force_noise_std (N per step); or force_model = \"white\" \
+                     for a load the runtime is always told",
+                    l.name
+                ));
+            }
+            if !l.is_estimated() && l.rise_time.is_some() {
+                return Err(format!(
+                    "load '{}': rise_time is for estimated loads (force_model = \"random_walk\"); \
+                     remove it or the force_model = \"white\"",
+                    l.name
+                ));
+            }
             if l.force_rate_noise_std > 0.0
-                && (l.force_model != ForceModel::RandomWalk
-                    || l.force_noise_std <= 0.0
-                    || self.reduction.model != ModelTier::Corotational)
+                && (!l.is_estimated() || self.reduction.model != ModelTier::Corotational)
             {
                 return Err(format!(
-                    "load '{}': force_rate_noise_std needs force_model = \"random_walk\" with \
-                     force_noise_std > 0 and reduction.model = \"corotational\" (the rate \
-                     states are the co-rotational tier's)",
+                    "load '{}': force_rate_noise_std needs force_model = \"random_walk\" (the \
+                     default) and reduction.model = \"corotational\" (the rate states are the \
+                     co-rotational tier's)",
                     l.name
                 ));
             }

@@ -88,6 +88,7 @@ fn check_sees_a_changed_node_list() {
     let mut text = std::fs::read_to_string(&scene).expect("scene");
     text.push_str(
         "[[load]]\nname = \"push\"\ngroup = \"body\"\ndistribution = \"uniform\"\n\
+         force_model = \"white\"\n\
          [[display]]\nname = \"few\"\nselect = [{ node_list = \"few.txt\" }]\n",
     );
     std::fs::write(&scene, text).expect("write scene");

@@ -199,7 +199,8 @@ fn load_columns_carry_unit_total_force_and_gravity_carries_weight() {
         "gravity = [0.0, 0.0, -9.81]",
         r#"[[load]]
         name = "tip"
-        group = "xmax""#,
+        group = "xmax"
+        force_model = "white""#,
     );
     let fem = FemModel::assemble(&mesh, &s, 1.0).unwrap();
     let ops = Operators::build(&mesh, &s, &fem, 1.0).unwrap();

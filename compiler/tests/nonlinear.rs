@@ -40,6 +40,7 @@ fn scene(clamped: bool) -> Scene {
         [[load]]
         name = "tip"
         group = "xmax"
+        force_model = "white"
         [time]
         dt = 5e-3
         theta = 1.4

@@ -186,6 +186,7 @@ fn area_load_on_a_selected_face_has_the_face_centroid_as_first_moment() {
         r#"
 [[load]]
 name = "top"
+force_model = "white"
 select = [{ box = { min = [0.0, 0.0, 0.99], max = [1.0, 1.0, 1.01] }, nodes = "boundary" }]
 distribution = "area"
 "#,
@@ -255,10 +256,11 @@ fn centroid_x(fem: &FemModel, e: &crokf_compile::fem::Element) -> f64 {
 fn same_group_by_name_or_by_select_gives_identical_operators() {
     let mesh = cube_mesh();
     let by_name = scene(&format!(
-        "{FIX_BOTTOM}\n[[load]]\nname = \"all\"\ngroup = \"3:1\"\ndistribution = \"uniform\"\n"
+        "{FIX_BOTTOM}\n[[load]]\nname = \"all\"\ngroup = \"3:1\"\ndistribution = \"uniform\"\n\
+         force_model = \"white\"\n"
     ));
     let by_select = scene(&format!(
-        "{FIX_BOTTOM}\n[[load]]\nname = \"all\"\nselect = [{{ group = \"3:1\" }}]\n\
+        "{FIX_BOTTOM}\n[[load]]\nname = \"all\"\nselect = [{{ group = \"3:1\" }}]\nforce_model = \"white\"\n\
          distribution = \"uniform\"\n"
     ));
     let fem = FemModel::assemble(&mesh, &by_name, 1.0).unwrap();

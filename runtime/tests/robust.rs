@@ -322,13 +322,15 @@ fn read_outs_never_return_non_finite_values() {
 }
 
 /// The committed example models, driven by their own process and measurement noise: the
-/// default 5σ gate skips nothing.
+/// default 5σ gate skips nothing. The horizon keeps the force states' random walk inside the
+/// load's range, which it leaves after about (F/σ)² steps: the cantilever's derived σ (1.5 N
+/// per step against 20 N) allows 180 (beyond, its own noise turns the beam past 90°, where the
+/// warp no longer describes it); the meniscus's 5 mN against 0.5 N allows 10⁴.
 #[test]
 fn example_models_gate_nothing_on_their_own_noise() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models");
-    for name in ["cantilever", "meniscus"] {
+    for (name, steps) in [("cantilever", 150), ("meniscus", 1000)] {
         let model = crokf_runtime::load_model(root.join(name).join("model.crokf")).unwrap();
-        let steps = 1000;
         let history = simulate(&model, steps, 0.0, 21);
         let mut est = Estimator::new(&model).unwrap();
         run(&mut est, &history, |_, _| {});

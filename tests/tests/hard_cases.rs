@@ -96,6 +96,7 @@ beta = {beta:e}
 name = "end"
 group = "xmax"
 distribution = "area"
+force_model = "white"
 force_noise_std = 0.01
 {sensors}
 [[display]]

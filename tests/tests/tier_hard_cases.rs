@@ -266,8 +266,8 @@ fn twist_scene(name: &str, extra: &str) -> PathBuf {
         "[mesh]\nfile = \"beam.msh\"\n[[material]]\ngroup = \"body\"\nyoung_modulus = 1e6\n\
          poisson_ratio = 0.3\ndensity = 1000.0\n[damping]\nalpha = 0.5\nbeta = 1e-3\n\
          [[fixed]]\ngroup = \"xmin\"\n\
-         [[load]]\nname = \"upper\"\nselect = [{{ box = {{ min = [0.99, -1, 0.05], max = [1.01, 1, 1] }}, nodes = \"boundary\" }}]\nforce_noise_std = 0.01\n\
-         [[load]]\nname = \"lower\"\nselect = [{{ box = {{ min = [0.99, -1, -1], max = [1.01, 1, 0.05] }}, nodes = \"boundary\" }}]\nforce_noise_std = 0.01\n\
+         [[load]]\nname = \"upper\"\nselect = [{{ box = {{ min = [0.99, -1, 0.05], max = [1.01, 1, 1] }}, nodes = \"boundary\" }}]\nforce_model = \"white\"\nforce_noise_std = 0.01\n\
+         [[load]]\nname = \"lower\"\nselect = [{{ box = {{ min = [0.99, -1, -1], max = [1.01, 1, 0.05] }}, nodes = \"boundary\" }}]\nforce_model = \"white\"\nforce_noise_std = 0.01\n\
          [[sensor]]\nname = \"corner\"\nposition = [1.0, 0.1, 0.1]\nnoise_std = 1e-3\n\
          [[display]]\nname = \"end\"\ngroup = \"xmax\"\n[time]\ndt = {DT:e}\n\
          [reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\

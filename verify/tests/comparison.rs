@@ -1003,8 +1003,8 @@ fn the_tier_rows_carry_consistency_from_the_tiers_own_filters() {
     let (scene, scenario) = beam_case("tier_consistency", 30.0, 30, 0.05);
     let tier_scene = scene.with_file_name("scene_corotational.toml");
     let text = scene_text(0.5, "tip").replace(
-        "force_noise_std = 5e-1\n",
-        "force_noise_std = 5e-1\nforce_model = \"random_walk\"\n",
+        "force_model = \"white\"\n",
+        "force_model = \"random_walk\"\n",
     );
     assert!(text.contains("random_walk"), "{text}");
     std::fs::write(&tier_scene, text + TIER).expect("tier scene");

@@ -299,6 +299,7 @@ fn crokf_verify_simulate_writes_csv_and_a_vtu_series() {
             [[load]]
             name = "push"
             group = "top"
+            force_model = "white"
             [[sensor]]
             name = "top_centre"
             position = [0.5, 0.5, 1.0]

@@ -167,7 +167,8 @@ pub struct BeamScene {
     pub beta: f64,
     /// Force-noise σ of the tip load, N (none: no process noise).
     pub force_noise_std: Option<f64>,
-    /// `force_model` of the tip load (`"white"` or `"random_walk"`; none: the default).
+    /// `force_model` of the tip load (`"white"` or `"random_walk"`; none: the scene default,
+    /// `"random_walk"`, which needs a range or `force_noise_std`).
     pub force_model: Option<String>,
     /// Sensors: name and position, m (all three components).
     pub sensors: Vec<(String, [f64; 3])>,
@@ -180,8 +181,9 @@ pub struct BeamScene {
 }
 
 impl Default for BeamScene {
-    /// The benchmark beam: E = 1 MPa, ν = 0.3, ρ = 1000 kg/m³, α = 0.5 1/s, β = 1e-3 s, 0.01 N
-    /// force noise, a `tip` sensor, the surface displayed, Δt = 1 ms.
+    /// The benchmark beam: E = 1 MPa, ν = 0.3, ρ = 1000 kg/m³, α = 0.5 1/s, β = 1e-3 s, a tip
+    /// load the runtime is told with 0.01 N white force noise, a `tip` sensor, the surface
+    /// displayed, Δt = 1 ms.
     fn default() -> Self {
         BeamScene {
             mesh_file: "beam.msh".into(),
@@ -191,7 +193,7 @@ impl Default for BeamScene {
             alpha: 0.5,
             beta: 1.0e-3,
             force_noise_std: Some(0.01),
-            force_model: None,
+            force_model: Some("white".into()),
             sensors: vec![("tip".into(), [0.99, 0.05, 0.1])],
             sensor_noise_std: 1.0e-3,
             displays: vec![("surface".into(), "surface".into())],

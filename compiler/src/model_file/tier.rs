@@ -177,14 +177,14 @@ pub fn linearised_of_file(
     full: &FullOrder,
     model: &fmt::Model,
 ) -> Result<(LinearisedTier, Measurements, NoiseModel), NonlinearError> {
-    let mut noise = NoiseModel::of_scene(full)?;
+    let mut noise = full.noise_model()?;
     let (mut lin, measurements) = linearised_of_file_with(full, model, &noise)?;
     derive_force_sigma(&lin, &mut noise, &measurements)?;
     lin.force_sigma = noise.force_sigma();
     Ok((lin, measurements, noise))
 }
 
-/// [`linearised_of_file`] with the scene's noise model `noise` ([`NoiseModel::of_scene`]).
+/// [`linearised_of_file`] with the scene's noise model `noise` (`FullOrder::noise_model`).
 pub fn linearised_of_file_with(
     full: &FullOrder,
     model: &fmt::Model,

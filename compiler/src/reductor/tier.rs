@@ -73,7 +73,7 @@ impl<'a> TierReductor<'a> {
                 &"reduction.model = \"corotational\" needs [reduction.corotational]",
             ));
         };
-        let mut noise = NoiseModel::of_scene(full).map_err(|e| fail(&e))?;
+        let mut noise = full.noise_model().map_err(|e| fail(&e))?;
         let mut progress = |k: usize, of: usize, label: &str| {
             eprintln!(
                 "crokf-compile: co-rotational training run {}/{of}: {label}",
