@@ -8,7 +8,8 @@
 //! the accepted range): E in [1, 1e13] Pa, ν in (−1, 0.5), ρ in [1e-3, 1e6] kg/m³, α in
 //! [0, 1e6] 1/s, β in [0, 1e3] s, |g| ≤ 1e4 m/s², force noise σ in [0, 1e9] N, sensor noise σ in
 //! [1e-12, 1e3] m, Δt in [1e-7, 10] s, θ in [1.37, 10], coordinates finite and |x| ≤ 1e9 mesh
-//! units. [`Scene::warnings`] lists what is legal but suspect (ν ≥ 0.49 on linear tetrahedra).
+//! units (the mesh's own coordinates too, `crate::mesh`). A `[[fixed]]` entry with
+//! `components = []` is refused (it would fix nothing). [`Scene::warnings`] lists what is legal but suspect (ν ≥ 0.49 on linear tetrahedra).
 //!
 //! **Where a group is accepted** (`[[material]]`, `[[fixed]]`, `[[load]]`, `[[force_noise]]`,
 //! `[[display]]`), give either `group = "name"` (a gmsh physical name, `"<dim>:<tag>"` for an
@@ -32,7 +33,8 @@
 //! - `nodes` (required with a shape or `everything` outside `[[material]]`): `"boundary"` takes
 //!   only nodes on the boundary of the tetrahedral mesh, `"all"` every node of a tetrahedron.
 //! - `node_list`: a text file of node tags (gmsh node tags; 0-based point ids for VTK files),
-//!   separated by spaces, commas or newlines; `#` starts a comment.
+//!   separated by spaces, commas or newlines; `#` starts a comment; a tag listed twice is an
+//!   error naming both lines.
 //! - In `[[material]]` a shape takes the tetrahedra whose centroid lies inside it; `nodes` and
 //!   `node_list` do not apply there.
 //! - Loads with `distribution = "area"` and displays use the boundary faces whose three nodes
@@ -240,7 +242,7 @@ pub struct Fixed {
     /// Union of node selectors (instead of `group`).
     #[serde(default)]
     pub select: Option<Vec<Selector>>,
-    /// Fixed components (default all three).
+    /// Fixed components (default all three; an empty list is refused).
     #[serde(default = "all_components")]
     pub components: Vec<Component>,
 }
@@ -1145,6 +1147,12 @@ impl Scene {
                 None => format!("fixed {}", i + 1),
             };
             check_target(&context, &f.group, &f.select, false)?;
+            if f.components.is_empty() {
+                return Err(format!(
+                    "{context}: components = [] fixes nothing; list the fixed components \
+                     (e.g. components = [\"z\"]) or leave the key out to fix all three"
+                ));
+            }
         }
         let mut names = std::collections::BTreeSet::new();
         for l in &self.loads {
