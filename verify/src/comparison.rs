@@ -64,8 +64,8 @@ pub use metrics::{
 };
 pub use render::{format_seconds, sweep_markdown};
 use runs::{
-    compile_at, filtered_runs, run_reference, run_runtime, runtime_inputs, synthetic_measurements,
-    time_row, FilteredRuns, ReferenceRun, RunErrors,
+    compile_at, filtered_runs, row_inputs, run_reference, run_runtime, runtime_inputs,
+    synthetic_measurements, time_row, FilteredRuns, ReferenceRun, RunErrors,
 };
 use setup::{scaled, Setup};
 use tier::{check_tier_matches, run_tier};
@@ -122,8 +122,10 @@ pub struct ComparisonOptions {
     /// Also compute the compiler's measured error (step/chirp against the linear reference)
     /// for each order (costs a full-order linear run per test).
     pub measure_compile_error: bool,
-    /// Give the runtime no load inputs (open loop and filter): the force is unknown to the
-    /// estimator, only the measurements carry it. The references still get the loads.
+    /// Give the filter no load inputs: the force is unknown to the estimator, only the
+    /// measurements carry it (the filtered run with the loads given is then not made). The
+    /// references and the open-loop runs still get the loads: without inputs and without
+    /// measurements the runtime stays at rest, an error of 1 that says nothing of the model.
     pub withhold_loads: bool,
     /// Timing samples (batches) of the runtime step.
     pub timing_samples: usize,
@@ -177,10 +179,11 @@ pub struct RuntimeFigures {
     /// Median runtime step, predict + update with the measurements, s (batched; thread CPU
     /// time, [`crate::bench::step_clock_seconds`]).
     pub step_s: f64,
-    /// Median runtime step without measurements (predict + empty update), s (batched; thread
-    /// CPU time).
+    /// Median runtime step without measurements (predict + empty update) on the open-loop
+    /// run's inputs, s (batched; thread CPU time).
     pub open_loop_step_s: f64,
-    /// Open loop: relative L2 error over displayed nodes vs the co-rotational reference.
+    /// Open loop (with the scenario's loads, also when the comparison withholds them from the
+    /// filter): relative L2 error over displayed nodes vs the co-rotational reference.
     pub error: f64,
     /// Open loop: relative L2 error at the tip vs the co-rotational reference.
     pub tip_error: f64,
@@ -311,7 +314,7 @@ pub struct Comparison {
     pub seed: u64,
     /// Noise draws of the N-run consistency test (`ComparisonOptions::seeds`).
     pub seeds: usize,
-    /// Whether the runtime got the loads.
+    /// Whether the filter got the loads (the open-loop runs always get them).
     pub withheld_loads: bool,
     /// What the compiler said about the scene, once for all orders: scene warnings, mesh
     /// notes, what each selection took, the modal basis' warnings.
@@ -534,12 +537,12 @@ pub fn run(
             // of 10 % and more at large rotation the 5σ gate would skip true measurements and the
             // figures would mix two effects (the README's tables were made without a gate).
             est.set_innovation_gate(None);
-            let inputs = runtime_inputs(&setup, &setup.scenario, &model, options.withhold_loads)?;
+            let (given, inputs) = row_inputs(&setup, &model, options.withhold_loads)?;
             let none = vec![vec![None; model.measurements.len()]; setup.steps];
             let open = run_runtime(
                 &setup,
                 &mut est,
-                &inputs,
+                &given,
                 &none,
                 &corot,
                 Some(&linear),
@@ -561,9 +564,8 @@ pub fn run(
             )?;
             let times = time_row(
                 &mut est,
-                &inputs,
-                &measurements,
-                &none,
+                (&inputs, &measurements),
+                (&given, &none),
                 options.timing_samples,
                 &format!("timing r = {order}"),
                 progress,

@@ -256,7 +256,8 @@ impl Comparison {
             self.tip.as_deref().unwrap_or("—"),
             self.seed,
             if self.withheld_loads {
-                "; the runtime got NO load inputs (loads withheld)"
+                "; the filter got NO load inputs (loads withheld), the open-loop rows ran with \
+                 the scenario's loads (without inputs or measurements the runtime stays at rest)"
             } else {
                 ""
             }
