@@ -49,24 +49,27 @@ mod consistency;
 mod metrics;
 mod render;
 mod runs;
+pub mod segments;
 mod setup;
 mod svg;
 mod tier;
 
 use crate::scenario::ScenarioError;
 pub use consistency::{
-    chi_square_quantile, spread, verdict, ChiSquare, Consistency, ConsistencyAccumulator, Ensemble,
-    FilterBlocks, RunLengthMismatch, SeedEnsemble, StepFractions, TipSample,
+    chi_square_quantile, spread, verdict, ChiSquare, Consistency, ConsistencyAccumulator,
+    CoverageCount, Ensemble, FilterBlocks, RunLengthMismatch, SeedEnsemble, StepFractions,
+    TipSample,
 };
 use metrics::ErrorSum;
 pub use metrics::{
     breakdown_rotation, breakdown_rotation_of, relative_l2, rotation_angle, Gaussian,
 };
-pub use render::{format_seconds, sweep_markdown};
+pub use render::{format_seconds, segment_table, sweep_markdown};
 use runs::{
     compile_at, filtered_runs, row_inputs, run_reference, run_runtime, runtime_inputs,
     synthetic_measurements, time_row, FilteredRuns, ReferenceRun, RunErrors,
 };
+use segments::Segment;
 use setup::{scaled, Setup};
 use tier::{check_tier_matches, run_tier};
 pub use tier::{compile_tier, TierModel};
@@ -316,6 +319,11 @@ pub struct Comparison {
     pub seeds: usize,
     /// Whether the filter got the loads (the open-loop runs always get them).
     pub withheld_loads: bool,
+    /// The scenario cut at its load breakpoints ([`segments::segments`]), for the per-segment
+    /// consistency and the advice.
+    pub segments: Vec<Segment>,
+    /// The scenario's loads that are not zero throughout (scene `[[load]]` names).
+    pub loads: Vec<String>,
     /// What the compiler said about the scene, once for all orders: scene warnings, mesh
     /// notes, what each selection took, the modal basis' warnings.
     pub notes: Vec<String>,
@@ -622,6 +630,14 @@ pub fn run(
         seed: options.seed,
         seeds: options.seeds,
         withheld_loads: options.withhold_loads,
+        segments: segments::segments(&setup.scenario, setup.dt(), setup.steps),
+        loads: setup
+            .scenario
+            .loads
+            .iter()
+            .filter(|l| l.forces.iter().flatten().any(|&f| f != 0.0))
+            .map(|l| l.name.clone())
+            .collect(),
         notes: setup
             .full
             .fem

@@ -408,8 +408,41 @@ fn nis_and_coverage_hold_when_the_model_is_right_and_fail_when_it_is_not() {
         assert_eq!(f.steps, 200);
         assert!(f.inside > 0.85, "{f:?}");
         assert_eq!(comparison::verdict(&f), "consistent");
+        // Per segment (the ramp to 0.05 s, the hold): the steps and the fractions add up to
+        // the whole run's, and the NIS is consistent in each; the coverage is the run's mean.
+        assert_eq!(c.segments.len(), 2, "{:?}", c.segments);
+        let segments = comparison::segments::segment_figures(e, &c.segments);
+        assert_eq!(
+            segments.iter().map(|s| s.nis.steps).collect::<Vec<_>>(),
+            vec![11, 189]
+        );
+        for (part, whole) in [
+            (segments.iter().map(|s| s.nis).collect::<Vec<_>>(), f),
+            (
+                segments.iter().map(|s| s.nees_tip).collect(),
+                e.nees_tip.fractions(),
+            ),
+        ] {
+            let above: f64 = part.iter().map(|p| p.above * p.steps as f64).sum();
+            assert!((above - whole.above * whole.steps as f64).abs() < 1e-9);
+        }
+        assert!(segments.iter().all(|s| s.nis.inside > 0.8), "{segments:?}");
+        let covered: f64 = segments
+            .iter()
+            .map(|s| s.coverage * s.segment.steps.len() as f64)
+            .sum::<f64>()
+            / 200.0;
+        let mean = comparison::spread(&e.coverage).expect("draws").0;
+        assert!((covered - mean).abs() < 1e-12, "{covered} vs {mean}");
     }
     let md = c.markdown();
+    // The per-segment table of the row: the ramp and the hold, for both runs.
+    for (loads, segment) in [
+        ("given", "| 0–0.05 s: load rises 0 N → 0.01 N | 11 |"),
+        ("withheld", "| 0.05–1 s: load holds at 0.01 N | 189 |"),
+    ] {
+        assert!(md.contains(&format!("\n| {loads} {segment}")), "{md}");
+    }
     let table: Vec<&str> = md
         .lines()
         .skip_while(|l| !l.contains("noise draws"))

@@ -4,6 +4,7 @@ use std::fmt::Write as _;
 
 use crate::bench::STEP_CLOCK;
 
+use super::segments::{segment_figures, SegmentFigures, MERGE_STEPS};
 use super::{
     breakdown_rotation, breakdown_rotation_of, spread, verdict, ChiSquare, Comparison, Consistency,
     Ensemble, RowFigures, RuntimeFigures, SeedEnsemble, SweepPoint, TierPoint,
@@ -346,6 +347,7 @@ impl Comparison {
                 self.filter_rows(&mut out, &format!("tier {}", tier_order(t)), &t.figures);
             }
             self.ensemble_table(&mut out);
+            self.segment_tables(&mut out);
         }
         if let Some(t) = &self.tier {
             let e = &t.envelope;
@@ -411,6 +413,82 @@ impl Comparison {
             }
         }
         out
+    }
+
+    /// Every filtered run of every row: (row label, loads, its ensemble over the noise draws,
+    /// or of its one run below 2 draws). Runs whose ensemble is empty (every draw refused) are
+    /// left out.
+    fn filtered_runs(&self) -> Vec<(String, &'static str, SeedEnsemble)> {
+        let mut rows: Vec<(String, &RowFigures)> = self
+            .reduced
+            .iter()
+            .map(|row| {
+                (
+                    format!("r = {}", row.order - row.force_states),
+                    &row.figures,
+                )
+            })
+            .collect();
+        if let Some(t) = &self.tier {
+            rows.push((
+                format!("co-rotational tier ({})", tier_order(t)),
+                &t.figures,
+            ));
+        }
+        let mut out = Vec::new();
+        for (label, figures) in rows {
+            let runs = figures.runtime.filter_runs(self.withheld_loads);
+            let single = [&figures.consistency, &figures.withheld_consistency];
+            let drawn = [&figures.ensemble, &figures.withheld_ensemble];
+            for (((loads, error, _), one), drawn) in runs.into_iter().zip(single).zip(drawn) {
+                let ensemble = match drawn {
+                    Some(e) => e.clone(),
+                    None => match SeedEnsemble::of_run(error, one) {
+                        Ok(e) => e,
+                        Err(_) => continue,
+                    },
+                };
+                if ensemble.nis.runs() > 0 {
+                    out.push((label.clone(), loads, ensemble));
+                }
+            }
+        }
+        out
+    }
+
+    /// The per-segment tables: one per row (a warped order or the tier), its filtered runs'
+    /// figures in each segment of the scenario.
+    fn segment_tables(&self, out: &mut String) {
+        let runs = self.filtered_runs();
+        if runs.is_empty() || self.segments.is_empty() {
+            return;
+        }
+        let _ = writeln!(
+            out,
+            "\nPer segment: the scenario cut at its load times (breakpoints closer than \
+             {MERGE_STEPS} steps merged); in each segment, {}, the steps whose NIS and tip NEES \
+             lie below / inside / above their 95 % bounds, and the 2σ coverage (runtime σ).",
+            if self.seeds >= 2 {
+                format!(
+                    "over the {} noise draws of the table above (N-run means)",
+                    self.seeds
+                )
+            } else {
+                "in the one filtered run (per-step bounds of one run, χ²(d)/d)".to_owned()
+            }
+        );
+        let mut i = 0;
+        while i < runs.len() {
+            let label = &runs[i].0;
+            let rows: Vec<(String, Vec<SegmentFigures>)> = runs[i..]
+                .iter()
+                .take_while(|r| &r.0 == label)
+                .map(|(_, loads, e)| (loads.to_string(), segment_figures(e, &self.segments)))
+                .collect();
+            i += rows.len();
+            let _ = writeln!(out, "\n{label}:\n");
+            out.push_str(&segment_table("loads", &rows));
+        }
     }
 
     /// CSV, one row per model and order; empty fields where a figure does not apply.
@@ -660,4 +738,52 @@ fn chi(c: &ChiSquare) -> String {
     let (lo, hi) = c.bounds();
     let flag = if c.inside() { "" } else { " ✗" };
     format!("{:.3} [{:.3}, {:.3}]{flag}", c.mean(), lo, hi)
+}
+
+/// A per-segment table ([`super::segments`]): one line per run (`rows`: the run's label, in a
+/// first column headed `first`, and its segments' figures) and segment: the segment's time
+/// span and what the load does, its steps, the fractions of its steps below / inside / above
+/// the 95 % bounds of the N-run NIS and tip NEES (%), and its 2σ coverage.
+pub fn segment_table(first: &str, rows: &[(String, Vec<SegmentFigures>)]) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "| {first} | segment | steps | NIS % below / inside / above | tip NEES % below / inside / above | 2σ coverage |"
+    );
+    let _ = writeln!(out, "|---|---|---:|---|---|---:|");
+    let fractions = |f: &super::StepFractions| {
+        if f.steps == 0 {
+            "—".to_owned()
+        } else {
+            format!(
+                "{:.1} / {:.1} / {:.1}",
+                100.0 * f.below,
+                100.0 * f.inside,
+                100.0 * f.above
+            )
+        }
+    };
+    for (label, segments) in rows {
+        for s in segments {
+            let seg = &s.segment;
+            let _ = writeln!(
+                out,
+                "| {label} | {}–{} s: {} | {} | {} | {} | {} |",
+                seconds(seg.start),
+                seconds(seg.end),
+                seg.change.describe(),
+                seg.steps.len(),
+                fractions(&s.nis),
+                fractions(&s.nees_tip),
+                percent(s.coverage)
+            );
+        }
+    }
+    out
+}
+
+/// A time in seconds with at most 4 decimals, trailing zeros dropped: `0`, `0.5`, `1.005`.
+fn seconds(t: f64) -> String {
+    let s = format!("{t:.4}");
+    s.trim_end_matches('0').trim_end_matches('.').to_owned()
 }
