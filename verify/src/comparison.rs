@@ -45,6 +45,7 @@ use crokf_compile::report::StageTimer;
 use crokf_compile::stepping::{NewtonOptions, NewtonStats, SteppingError};
 use crokf_compile::{CompileError, Reductor};
 
+pub mod advice;
 mod consistency;
 mod metrics;
 mod render;

@@ -4,6 +4,7 @@ use std::fmt::Write as _;
 
 use crate::bench::STEP_CLOCK;
 
+use super::advice::{self, AdviceFigures, Context, Tier};
 use super::segments::{segment_figures, SegmentFigures, MERGE_STEPS};
 use super::{
     breakdown_rotation, breakdown_rotation_of, spread, verdict, ChiSquare, Comparison, Consistency,
@@ -412,19 +413,20 @@ impl Comparison {
                 let _ = writeln!(out, "- {note}");
             }
         }
+        self.advice_section(&mut out);
         out
     }
 
-    /// Every filtered run of every row: (row label, loads, its ensemble over the noise draws,
-    /// or of its one run below 2 draws). Runs whose ensemble is empty (every draw refused) are
-    /// left out.
-    fn filtered_runs(&self) -> Vec<(String, &'static str, SeedEnsemble)> {
-        let mut rows: Vec<(String, &RowFigures)> = self
+    /// Every filtered run of every row, with its ensemble over the noise draws (or of its one
+    /// run below 2 draws). Runs whose ensemble is empty (every draw refused) are left out.
+    fn filtered_runs(&self) -> Vec<FilteredRun> {
+        let mut rows: Vec<(String, Tier, &RowFigures)> = self
             .reduced
             .iter()
             .map(|row| {
                 (
                     format!("r = {}", row.order - row.force_states),
+                    Tier::Warped,
                     &row.figures,
                 )
             })
@@ -432,11 +434,12 @@ impl Comparison {
         if let Some(t) = &self.tier {
             rows.push((
                 format!("co-rotational tier ({})", tier_order(t)),
+                Tier::Corotational,
                 &t.figures,
             ));
         }
         let mut out = Vec::new();
-        for (label, figures) in rows {
+        for (label, tier, figures) in rows {
             let runs = figures.runtime.filter_runs(self.withheld_loads);
             let single = [&figures.consistency, &figures.withheld_consistency];
             let drawn = [&figures.ensemble, &figures.withheld_ensemble];
@@ -449,11 +452,80 @@ impl Comparison {
                     },
                 };
                 if ensemble.nis.runs() > 0 {
-                    out.push((label.clone(), loads, ensemble));
+                    out.push(FilteredRun {
+                        row: label.clone(),
+                        tier,
+                        loads,
+                        ensemble,
+                        open_loop_error: figures.runtime.error,
+                    });
                 }
             }
         }
         out
+    }
+
+    /// The advice of every filtered run ([`advice::advise`]), one line per problem, each
+    /// starting with the row and the loads (`r = 16, loads withheld: …`); empty when every run
+    /// is within its bounds.
+    pub fn advice(&self) -> Vec<String> {
+        let mut lines = Vec::new();
+        for run in self.filtered_runs() {
+            let ensemble = &run.ensemble;
+            let segments = segment_figures(ensemble, &self.segments);
+            let figures = AdviceFigures {
+                tier: run.tier,
+                markers_from_noise_std: true,
+                loads_given: run.loads == "given",
+                nis: ensemble.nis.fractions(),
+                nees_tip: ensemble.nees_tip.fractions(),
+                coverage: ensemble.coverage_in(0..self.steps),
+                filtered_error: spread(&ensemble.errors).map_or(f64::NAN, |s| s.0),
+                model_error: Some(run.open_loop_error),
+                segments: &segments,
+                loads: &self.loads,
+            };
+            let context = Context::from(&figures);
+            for a in advice::advise(&figures) {
+                let (row, loads) = (&run.row, run.loads);
+                lines.push(format!("{row}, loads {loads}: {}", a.line(&context)));
+            }
+        }
+        lines
+    }
+
+    /// The advice section: the rules' thresholds and one line per problem.
+    fn advice_section(&self, out: &mut String) {
+        if self.reduced.is_empty() && self.tier.is_none() {
+            return;
+        }
+        let lines = self.advice();
+        let _ = writeln!(
+            out,
+            "\nWhat to change: from each filtered run's figures {}, a statistic is off when more than {:.0} % of its steps lie beyond one of its 95 % \
+             bounds or the 2σ coverage is outside {:.0}–{:.0} %; tip NEES above is laid to the \
+             load's changes or holds by the segments above (a rate {d}× higher in one kind), \
+             and not to the model when the filtered error is more than {d}× the row's open-loop \
+             error (the model's own, loads given). The markers here are drawn with the scene's \
+             noise_std, so R is right by construction.{}",
+            if self.seeds >= 2 {
+                format!("over its {} noise draws", self.seeds)
+            } else {
+                "in its one run (per-step bounds of one run)".to_owned()
+            },
+            100.0 * advice::OUTSIDE_LIMIT,
+            100.0 * advice::COVERAGE_LOW,
+            100.0 * advice::COVERAGE_HIGH,
+            if lines.is_empty() {
+                " Every filtered run is within these bounds: nothing to change."
+            } else {
+                "\n"
+            },
+            d = advice::DOMINANCE,
+        );
+        for line in lines {
+            let _ = writeln!(out, "- {line}");
+        }
     }
 
     /// The per-segment tables: one per row (a warped order or the tier), its filtered runs'
@@ -479,14 +551,19 @@ impl Comparison {
         );
         let mut i = 0;
         while i < runs.len() {
-            let label = &runs[i].0;
+            let row = &runs[i].row;
             let rows: Vec<(String, Vec<SegmentFigures>)> = runs[i..]
                 .iter()
-                .take_while(|r| &r.0 == label)
-                .map(|(_, loads, e)| (loads.to_string(), segment_figures(e, &self.segments)))
+                .take_while(|r| &r.row == row)
+                .map(|r| {
+                    (
+                        r.loads.to_string(),
+                        segment_figures(&r.ensemble, &self.segments),
+                    )
+                })
                 .collect();
             i += rows.len();
-            let _ = writeln!(out, "\n{label}:\n");
+            let _ = writeln!(out, "\n{row}:\n");
             out.push_str(&segment_table("loads", &rows));
         }
     }
@@ -698,6 +775,19 @@ impl Comparison {
             csv_number(f.withheld_filtered_tip_error),
         );
     }
+}
+
+/// A filtered run of a row, for the per-segment tables and the advice.
+struct FilteredRun {
+    /// `r = 16`, `co-rotational tier (…)`.
+    row: String,
+    tier: Tier,
+    /// `given` or `withheld`.
+    loads: &'static str,
+    /// Over the noise draws, or of the one run.
+    ensemble: SeedEnsemble,
+    /// The row's open-loop error (the model's own, loads given).
+    open_loop_error: f64,
 }
 
 impl RuntimeFigures {
