@@ -831,7 +831,8 @@ fn chi(c: &ChiSquare) -> String {
 }
 
 /// A per-segment table ([`super::segments`]): one line per run (`rows`: the run's label, in a
-/// first column headed `first`, and its segments' figures) and segment: the segment's time
+/// first column headed `first` — or several, `first` and the labels split by ` | ` alike — and
+/// its segments' figures) and segment: the segment's time
 /// span and what the load does, its steps, the fractions of its steps below / inside / above
 /// the 95 % bounds of the N-run NIS and tip NEES (%), and its 2σ coverage.
 pub fn segment_table(first: &str, rows: &[(String, Vec<SegmentFigures>)]) -> String {
@@ -840,7 +841,12 @@ pub fn segment_table(first: &str, rows: &[(String, Vec<SegmentFigures>)]) -> Str
         out,
         "| {first} | segment | steps | NIS % below / inside / above | tip NEES % below / inside / above | 2σ coverage |"
     );
-    let _ = writeln!(out, "|---|---|---:|---|---|---:|");
+    // `first` may name several columns (`model | run`).
+    let _ = writeln!(
+        out,
+        "|{}---|---:|---|---|---:|",
+        "---|".repeat(first.matches('|').count() + 1)
+    );
     let fractions = |f: &super::StepFractions| {
         if f.steps == 0 {
             "—".to_owned()
@@ -876,4 +882,47 @@ pub fn segment_table(first: &str, rows: &[(String, Vec<SegmentFigures>)]) -> Str
 fn seconds(t: f64) -> String {
     let s = format!("{t:.4}");
     s.trim_end_matches('0').trim_end_matches('.').to_owned()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::comparison::segments::{LoadChange, Segment};
+    use crate::comparison::StepFractions;
+
+    #[test]
+    fn a_segment_table_has_as_many_columns_in_every_line() {
+        let f = StepFractions {
+            steps: 100,
+            below: 0.01,
+            inside: 0.95,
+            above: 0.04,
+        };
+        let figures = SegmentFigures {
+            segment: Segment {
+                steps: 0..101,
+                start: 0.0,
+                end: 0.5,
+                change: LoadChange::Rises(0.0, 20.0),
+            },
+            nis: f,
+            nees_tip: StepFractions { steps: 0, ..f },
+            coverage: 0.9612,
+        };
+        for (first, label) in [("loads", "given"), ("model | run", "m.crokf | withheld")] {
+            let table = segment_table(first, &[(label.to_owned(), vec![figures.clone()])]);
+            let pipes: Vec<usize> = table.lines().map(|l| l.matches('|').count()).collect();
+            assert_eq!(pipes.len(), 3, "{table}");
+            assert!(pipes.iter().all(|&p| p == pipes[0]), "{table}");
+            assert!(
+                table.ends_with(&format!(
+                    "| {label} | 0–0.5 s: load rises 0 N → 20 N | 101 | 1.0 / 95.0 / 4.0 | — | 96.1 % |\n"
+                )),
+                "{table}"
+            );
+        }
+        assert_eq!(seconds(1.005), "1.005");
+        assert_eq!(seconds(0.0), "0");
+        assert_eq!(seconds(1.5), "1.5");
+    }
 }
