@@ -198,11 +198,12 @@ impl<'a> TierReductor<'a> {
                 .map(|(q, _)| q.norm())
                 .fold(0.0, f64::max)
         ));
-        notes.extend(
-            self.derived
-                .iter()
-                .map(|d| d.note(&full.scene.scene.loads[d.load].name)),
-        );
+        notes.extend(self.derived.iter().map(|d| {
+            format!(
+                "co-rotational tier: {}",
+                d.note(&full.scene.scene.loads[d.load].name)
+            )
+        }));
         notes.push(format!(
             "co-rotational tier model error at the markers (basis projection of the training \
              snapshots, RMS per channel in units of the channel's σ): largest {:.2e}, median {:.2e} \
