@@ -49,6 +49,15 @@ pyo3::create_exception!(
     "The runtime refused a call (wrong length, non-finite value, update without predict, ...)."
 );
 
+pyo3::create_exception!(
+    crokf,
+    IdentifyError,
+    CrokfError,
+    "`identify` refused: the recording too short or not exciting enough, the markers' factor \
+     outside [0.8, 1.25], a model without estimated loads, a CSV error (file, line, column), \
+     or an output over an input or outside the scene's folder. Nothing was written."
+);
+
 /// `ChannelError(CrokfError, KeyError)` and `InputError(CrokfError, TypeError)`: crokf errors
 /// that existing `except KeyError` / `except TypeError` code still catches. Created once, in
 /// Python (a class with two bases), and raised from here.
@@ -543,6 +552,101 @@ fn compile<'py>(
     PyTuple::new(py, [Py::new(py, model)?.into_any(), report.unbind()])
 }
 
+/// `{"value", "uncertainty", "blocks"}` of an identified parameter.
+fn estimate_dict<'py>(
+    py: Python<'py>,
+    e: &crokf_verify::identify::Estimate,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("value", e.value)?;
+    d.set_item("uncertainty", e.uncertainty)?;
+    d.set_item("blocks", e.blocks.clone())?;
+    Ok(d)
+}
+
+/// Identifies the force σ of a co-rotational model's estimated loads from a recording
+/// (`crokf-verify identify`; autocovariance least squares on the tier filter's innovations).
+///
+/// `scene`: the scene the model was compiled from; `model`: the `.crokf` file; `measurements`
+/// and `inputs`: `crokf-run`'s CSV files (no inputs: the loads withheld); `out`: a copy of the
+/// scene with each identified load's `force_noise_std` (in the scene's folder). Options:
+/// `lags` (30), `skip` (50), `fixed_point` (False). Uncertainties are standard errors over 4
+/// disjoint blocks of the recording after `skip`. Returns a dict (`loads`, `markers_factor`,
+/// …, `report`: the command's text, `written`). Raises `IdentifyError` on a refusal (nothing
+/// written); the GIL is released while it runs.
+#[pyfunction]
+#[pyo3(signature = (scene, model, measurements, inputs=None, out=None, *, lags=30, skip=50, fixed_point=false))]
+#[allow(clippy::too_many_arguments)]
+fn identify<'py>(
+    py: Python<'py>,
+    scene: PathBuf,
+    model: PathBuf,
+    measurements: PathBuf,
+    inputs: Option<PathBuf>,
+    out: Option<PathBuf>,
+    lags: usize,
+    skip: usize,
+    fixed_point: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    use crokf_verify::identify as id;
+    let options = id::IdentifyOptions {
+        lags,
+        skip,
+        fixed_point,
+        ..id::IdentifyOptions::default()
+    };
+    let files = id::Files {
+        scene: &scene,
+        model: &model,
+        measurements: &measurements,
+        inputs: inputs.as_deref(),
+        out: out.as_deref(),
+    };
+    let result = py.detach(|| {
+        id::identify_files(&files, &options).map_err(|r| match r.found {
+            Some(found) => format!("{}\n\n{}", r.error, found.report()),
+            None => r.error.to_string(),
+        })
+    });
+    let found = result.map_err(IdentifyError::new_err)?;
+    let d = PyDict::new(py);
+    let mut loads = Vec::new();
+    for l in &found.loads {
+        let load = estimate_dict(py, &l.force)?;
+        load.set_item("name", &l.name)?;
+        load.set_item("scene_sigma", l.scene_sigma)?;
+        load.set_item("stated", l.stated)?;
+        load.set_item("filter_sigma", l.filter_sigma)?;
+        load.set_item("excited", l.force.excited())?;
+        match &l.rate {
+            Some((scene_rate, rate)) => {
+                let r = estimate_dict(py, rate)?;
+                r.set_item("scene_sigma", *scene_rate)?;
+                load.set_item("rate", r)?;
+            }
+            None => load.set_item("rate", py.None())?,
+        }
+        loads.push(load);
+    }
+    d.set_item("loads", loads)?;
+    d.set_item("markers_factor", estimate_dict(py, &found.markers)?)?;
+    match &found.white {
+        Some(w) => d.set_item("white_factor", estimate_dict(py, w)?)?,
+        None => d.set_item("white_factor", py.None())?,
+    }
+    d.set_item("steps", found.steps)?;
+    d.set_item("samples", found.samples)?;
+    d.set_item("lags", found.lags)?;
+    d.set_item("skip", found.skip)?;
+    d.set_item("blocks", id::BLOCKS)?;
+    d.set_item("block_bounds", found.block_bounds.clone())?;
+    d.set_item("relative_residual", found.relative_residual)?;
+    d.set_item("switches", found.switches)?;
+    d.set_item("report", found.report())?;
+    d.set_item("written", out.as_ref().map(|p| p.display().to_string()))?;
+    Ok(d)
+}
+
 /// The runtime's steady-state (periodic) Kalman filter over one model.
 ///
 /// Each step is `predict(inputs)` then at most one `update(measurements)` (or `step`, both).
@@ -991,10 +1095,12 @@ fn _crokf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Model>()?;
     m.add_class::<Estimator>()?;
     m.add_function(wrap_pyfunction!(compile, m)?)?;
+    m.add_function(wrap_pyfunction!(identify, m)?)?;
     m.add("CrokfError", py.get_type::<CrokfError>())?;
     m.add("CompileError", py.get_type::<CompileError>())?;
     m.add("ModelFileError", py.get_type::<ModelFileError>())?;
     m.add("EstimatorError", py.get_type::<EstimatorError>())?;
+    m.add("IdentifyError", py.get_type::<IdentifyError>())?;
     m.add("ChannelError", channel_error_type(py)?)?;
     m.add("InputError", input_error_type(py)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

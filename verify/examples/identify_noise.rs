@@ -15,7 +15,10 @@
 //!   `crokf-run`'s CSV formats (`run/src/table.rs`; without an inputs file every input is 0:
 //!   the loads are withheld).
 //!
-//! The markers' factor is the check of the result: the markers' noise is known (a tracking
+//! The identification, its uncertainty over disjoint blocks and its verdict are
+//! `crokf_verify::identify` (the product command is `crokf-verify identify`, for a user's
+//! recording); this example adds the simulated recording and the filter flags below. The
+//! markers' factor is the check of the result: the markers' noise is known (a tracking
 //! system's specification; the scene's by construction when simulated), so a factor outside
 //! [0.8, 1.25] says that the linearised filters do not explain the innovations, and the σ are
 //! printed as not identified.
@@ -38,12 +41,11 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use crokf_compile::nonlinear::identify::IdentifiedNoise;
 use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
 use crokf_runtime::load_model;
 use crokf_verify::comparison::Gaussian;
-use crokf_verify::nonlinear::identify::filter_run;
+use crokf_verify::identify::{identify, IdentifyOptions, Recording};
 use crokf_verify::nonlinear::reference::Reference;
 use crokf_verify::scenario::{Horizon, Scenario};
 
@@ -56,9 +58,6 @@ const USAGE: &str =
      SCENE MODEL --recording \
      MEASUREMENTS.csv [--inputs INPUTS.csv]; and [--no-schedule] [--fixed-point] [--lags L] \
      [--skip S] [--force-sigma S]";
-
-/// The markers' factor outside which the identification is flagged (module docs).
-const MARKER_FACTOR_RANGE: (f64, f64) = (0.8, 1.25);
 
 fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut positional = Vec::new();
@@ -131,165 +130,38 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         .into());
     }
     let base = load_model(model_path)?;
-    let Some(tier) = base.tier.as_ref() else {
+    if base.tier.is_none() {
         return Err(format!("{model_path} has no co-rotational tier").into());
-    };
-    let mut full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
-    if let Some(sigma) = force_sigma {
-        let loads: Vec<usize> = full.force_statements().iter().map(|s| s.load).collect();
-        if loads.is_empty() {
-            return Err(format!("--force-sigma: {scene} has no random-walk load").into());
-        }
-        for g in loads {
-            full.scene.scene.loads[g].force_noise_std = sigma;
-        }
     }
-    let (inputs, measurements) = match (scenario, &recording) {
+    let mut full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
+    let recording = match (scenario, &recording) {
         (Some(scenario), _) => {
-            let simulated = simulated(&full, &base, &PathBuf::from(scenario), given, seed)?;
+            let (inputs, measurements) =
+                simulated(&full, &base, &PathBuf::from(scenario), given, seed)?;
             if let Some(path) = &write_recording {
-                write_measurements(path, &base, &simulated.1)?;
+                write_measurements(path, &base, &measurements)?;
                 eprintln!("markers written to {}", path.display());
             }
-            simulated
+            Recording {
+                inputs,
+                measurements,
+                name: format!("{scenario} (simulated, seed {seed})"),
+                loads_given: given,
+            }
         }
-        (None, Some(path)) => recorded(&base, path, inputs_file.as_deref())?,
+        (None, Some(path)) => Recording::read(&base, path, inputs_file.as_deref())?,
         (None, None) => return Err(USAGE.into()),
     };
-    let steps = inputs.len();
-    if steps <= skip {
-        return Err(format!("the recording has {steps} steps, fewer than --skip {skip}").into());
-    }
-    let points = if schedule { tier.scheduled.len() } else { 0 };
-    let run = Run {
-        inputs: &inputs,
-        measurements: &measurements,
-        schedule,
-        skip,
+    let options = IdentifyOptions {
         lags,
+        skip,
+        fixed_point,
+        schedule,
+        filter_sigma: force_sigma,
     };
-    for iteration in 1..=if fixed_point { MAX_ITERATIONS } else { 1 } {
-        let found = run.identify(&full, &base)?;
-        println!(
-            "{}{steps} steps ({} innovations after {skip}), lags {lags}, loads {}, {} filter(s), \
-             {} switches; fit: relative residual {:.3}\n",
-            if fixed_point {
-                format!("iteration {iteration}: ")
-            } else {
-                String::new()
-            },
-            found.noise.estimate.samples,
-            match (&recording, given) {
-                (Some(_), _) => "as recorded",
-                (None, true) => "given",
-                (None, false) => "withheld",
-            },
-            1 + points,
-            found.switches,
-            found.noise.estimate.relative_residual
-        );
-        print_table(&full, &found.noise);
-        let (lo, hi) = MARKER_FACTOR_RANGE;
-        if !(lo..=hi).contains(&found.noise.measurement_scale) {
-            println!(
-                "\nNOT IDENTIFIED: the markers' factor {:.2} is outside [{lo}, {hi}]: the \
-                 linearised filters do not explain these innovations; try another \
-                 --force-sigma, or a recording nearer the trained states.",
-                found.noise.measurement_scale
-            );
-            break;
-        }
-        if !fixed_point {
-            break;
-        }
-        // The fixed point: the filter's σ := the identified σ, until they agree to 1 %.
-        let mut change = 0.0f64;
-        for l in &found.noise.loads {
-            let load = &mut full.scene.scene.loads[l.load];
-            let mut next = vec![(l.force_sigma, &mut load.force_noise_std)];
-            if let Some(rate) = l.rate_sigma {
-                next.push((rate, &mut load.force_rate_noise_std));
-            }
-            for ((old, new), field) in next {
-                if new <= 0.0 {
-                    println!(
-                        "\nσ → 0 for load '{}': a held load; no fixed point (the filter needs \
-                         σ > 0)",
-                        load.name
-                    );
-                    return Ok(());
-                }
-                change = change.max((new / old - 1.0).abs());
-                *field = new;
-            }
-        }
-        println!();
-        if change < FIXED_POINT_TOLERANCE {
-            println!(
-                "fixed point: the identified σ agree with the filter's to {:.2} %",
-                100.0 * change
-            );
-            break;
-        }
-        if iteration == MAX_ITERATIONS {
-            println!("no fixed point in {MAX_ITERATIONS} iterations (last change {change:.3})");
-        }
-    }
+    let found = identify(&mut full, &base, &recording, &options)?;
+    print!("{}", found.report());
     Ok(())
-}
-
-/// Iterations of `--fixed-point` at most.
-const MAX_ITERATIONS: usize = 10;
-/// `--fixed-point` stops when no σ changes by more than this fraction.
-const FIXED_POINT_TOLERANCE: f64 = 0.01;
-
-/// One identification run's settings: the recording (one row per step, model order) and the
-/// identification's.
-struct Run<'a> {
-    inputs: &'a [Vec<f64>],
-    measurements: &'a [Vec<Option<f64>>],
-    schedule: bool,
-    skip: usize,
-    lags: usize,
-}
-
-/// What one run identified.
-struct Found {
-    noise: IdentifiedNoise,
-    /// Changes of the schedule's filter between steps.
-    switches: usize,
-}
-
-impl Run<'_> {
-    /// The tier of `base` with its filters recomputed for `full`'s noise, run over the
-    /// recording, and the noise its innovations identify.
-    fn identify(
-        &self,
-        full: &FullOrder,
-        base: &crokf_formats::Model,
-    ) -> Result<Found, Box<dyn std::error::Error>> {
-        let mut model = base.clone();
-        if let Some(t) = model.tier.as_mut() {
-            if !self.schedule {
-                t.scheduled.clear();
-            }
-        }
-        crokf_compile::model_file::tier::refilter(full, &mut model)?;
-        model.validate()?;
-        let run = filter_run(&model, self.inputs, self.measurements)?;
-        let noise = crokf_compile::nonlinear::identify::identify_noise(
-            full,
-            &model,
-            &run.innovations,
-            &run.filters,
-            self.skip,
-            self.lags,
-        )?;
-        Ok(Found {
-            noise,
-            switches: run.switches(),
-        })
-    }
 }
 
 /// Inputs and markers per step of the simulated recording: the full-order co-rotational
@@ -302,7 +174,7 @@ fn simulated(
     scenario: &std::path::Path,
     given: bool,
     seed: u64,
-) -> Result<Recording, Box<dyn std::error::Error>> {
+) -> Result<Simulated, Box<dyn std::error::Error>> {
     let scenario = Scenario::read(scenario)?;
     let steps = match scenario.horizon(full.wilson.dt) {
         Horizon::Steps(k) => k,
@@ -344,42 +216,6 @@ fn simulated(
     Ok((inputs, measurements))
 }
 
-/// Inputs and markers per step of a user's recording in `crokf-run`'s CSV formats: steps
-/// 1 … n (n: the inputs' rows, else the last measured step); without an inputs file every
-/// input is 0.
-fn recorded(
-    model: &crokf_formats::Model,
-    measurements: &std::path::Path,
-    inputs: Option<&std::path::Path>,
-) -> Result<Recording, Box<dyn std::error::Error>> {
-    let table = crokf_run::table::read_measurements(measurements, model)?;
-    let rows = match inputs {
-        Some(path) => crokf_run::table::read_inputs(path, model)?.rows,
-        None => {
-            let last = table.keys().next_back().copied().unwrap_or(0) as usize;
-            vec![vec![0.0; model.inputs.len()]; last]
-        }
-    };
-    if let Some((&k, row)) = table.iter().find(|(&k, _)| k as usize > rows.len()) {
-        return Err(format!(
-            "{}: line {}: step {k} is beyond the inputs' {} steps",
-            measurements.display(),
-            row.line,
-            rows.len()
-        )
-        .into());
-    }
-    let none = vec![None; model.measurements.len()];
-    let values = (1..=rows.len() as u64)
-        .map(|k| {
-            table
-                .get(&k)
-                .map_or_else(|| none.clone(), |r| r.values.clone())
-        })
-        .collect();
-    Ok((rows, values))
-}
-
 /// Writes `measurements` (one row per step, steps 1, 2, …) as a `crokf-run` measurements file
 /// (`step`, then the model's measurement labels; an empty cell for a missing value), atomically.
 fn write_measurements(
@@ -403,26 +239,4 @@ fn write_measurements(
 }
 
 /// Inputs and measurements (`None`: missing) per step, model order.
-type Recording = (Vec<Vec<f64>>, Vec<Vec<Option<f64>>>);
-
-/// The identified σ against those of the filter run, as a Markdown table.
-fn print_table(full: &FullOrder, found: &IdentifiedNoise) {
-    println!("| parameter | σ of the filter run | identified σ |\n|---|---:|---:|");
-    for l in &found.loads {
-        let name = &full.scene.scene.loads[l.load].name;
-        println!(
-            "| force of '{name}' (N per step) | {:.4e} | {:.4e} |",
-            l.force_sigma.0, l.force_sigma.1
-        );
-        if let Some((scene, identified)) = l.rate_sigma {
-            println!("| force rate of '{name}' (N/s per step) | {scene:.4e} | {identified:.4e} |");
-        }
-    }
-    if let Some(w) = found.white_scale {
-        println!("| white process noise (factor) | 1 | {w:.4} |");
-    }
-    println!(
-        "| markers (factor on the scene's σ) | 1 | {:.4} |",
-        found.measurement_scale
-    );
-}
+type Simulated = (Vec<Vec<f64>>, Vec<Vec<Option<f64>>>);
