@@ -99,8 +99,10 @@ pub fn compile_reduced(
     notes.extend(reduced.warnings.iter().cloned());
     notes.extend(order_note);
     notes.extend(crate::advice::tier_advice(reductor));
-    if ops.noise.is_empty() {
-        notes.push("no process noise declared (force_noise_std / force_noise): Q = 0, so the steady-state gain is zero and measurements are ignored".to_owned());
+    // Force states come from the loads (estimated by default), white channels from `force_noise`.
+    let estimated_loads = full.noise_model().is_ok_and(|n| !n.groups.is_empty());
+    if ops.noise.is_empty() && !estimated_loads {
+        notes.push("no process noise: no load is estimated (every load is force_model = \"white\" without force_noise_std) and no [[force_noise]] channel, so Q = 0, the steady-state gain is zero and measurements are ignored".to_owned());
     }
     let measured_errors = if options.skip_measured_error {
         notes.push("measured error against the full-order reference skipped (--no-measure)".into());

@@ -20,11 +20,17 @@
 //!   (e.g. `"MaterialIds:2"`).
 //!
 //! Element types 4 (tet4) and 2 (tri3) are kept; 15 (point) and 1 (line2) only contribute nodes
-//! to their groups. Any other type is an error naming it. Node coordinates must be finite.
+//! to their groups. Any other type is an error naming it. Node coordinates must be finite with
+//! |x| ≤ 1e9 mesh units ([`limits::COORDINATE`]); every size a file claims is checked before it
+//! is allocated ([`limits`], docs/limits.md), and a panic inside a third-party parser is caught
+//! without its message ([`caught_panics`] counts them).
 //! Nodes that belong to no tetrahedron ([`Mesh::orphan_nodes`]) stay in the mesh but not in the
 //! model (the FEM numbers only the nodes of tetrahedra).
 
+mod blocks;
 pub mod geometry;
+mod guard;
+pub mod limits;
 pub mod msh1;
 mod msh2;
 mod msh41;
@@ -32,6 +38,9 @@ mod msh_text;
 pub mod procedural;
 pub mod selection;
 pub mod vtk;
+mod vtu;
+
+pub use guard::caught_panics;
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -329,7 +338,19 @@ pub enum MeshError {
         /// Coordinates as read.
         position: [f64; 3],
     },
-    /// A VTK file that is not a serial unstructured grid, or that vtkio cannot parse.
+    /// A node coordinate beyond the documented range |x| ≤ 1e9 mesh units.
+    #[error("{}: node {node} has a coordinate out of range ({:?}, {:?}, {:?}); coordinates must \
+        be finite with |x| ≤ {:e} mesh units (docs/limits.md)", .path.display(), .position[0],
+        .position[1], .position[2], limits::COORDINATE)]
+    NodeOutOfRange {
+        /// Mesh path.
+        path: PathBuf,
+        /// Node tag (gmsh tag, or 0-based VTK point id).
+        node: u64,
+        /// Coordinates as read.
+        position: [f64; 3],
+    },
+    /// A VTK file that is not a serial unstructured grid, or that cannot be parsed.
     #[error("{}: {message}", .path.display())]
     Vtk {
         /// Mesh path.
@@ -629,6 +650,18 @@ fn assemble(raw: RawMesh, path: &Path) -> Result<Mesh, MeshError> {
         .find(|(_, p)| p.iter().any(|v| !v.is_finite()))
     {
         return Err(MeshError::NonFiniteNode {
+            path: path.to_owned(),
+            node,
+            position,
+        });
+    }
+    if let Some((&node, &position)) = raw
+        .node_tags
+        .iter()
+        .zip(&raw.nodes)
+        .find(|(_, p)| p.iter().any(|v| v.abs() > limits::COORDINATE))
+    {
+        return Err(MeshError::NodeOutOfRange {
             path: path.to_owned(),
             node,
             position,

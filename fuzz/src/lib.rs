@@ -1,7 +1,9 @@
 //! Structure-aware mutation fuzzing of the readers a user's files go through (issue 14 item 4):
 //! the scene reader (TOML → range checks → group and selection resolution → assembly and
 //! operators on a small mesh), the mesh readers (gmsh MSH 1.0 / 2.2 / 4.1 ASCII and binary,
-//! legacy VTK, VTU) and `crokf-run`'s CSV readers. The model-file decoder has its own long run
+//! legacy VTK, VTU), `crokf-run`'s CSV readers, and (issue 26) VTK files whose claimed sizes
+//! are mutated ([`grid`]: binary, zlib, LZ4 and base64 blocks, appended data, legacy counts;
+//! a panic a reader catches from a dependency counts as a failure) and node-list files. The model-file decoder has its own long run
 //! in `crokf-formats` (`cargo run --release -p crokf-formats --example mutate`).
 //!
 //! Each target takes bytes and returns [`Outcome::Accepted`] or [`Outcome::Refused`]; an
@@ -11,6 +13,8 @@
 //! numbers are replaced by boundary values (0, −0, 1e300, NaN, inf, huge integers), names by
 //! names the readers know, lines deleted, duplicated, swapped or inserted from a dictionary of
 //! scene and mesh keywords, besides byte flips, insertions, deletions and repeats.
+
+pub mod grid;
 
 use crokf_compile::fem::operators::Operators;
 use crokf_compile::fem::FemModel;
@@ -46,11 +50,21 @@ pub enum Target {
     Mesh,
     /// `crokf-run` inputs and measurements CSV.
     Csv,
+    /// VTK files (XML and legacy) with mutated claimed sizes ([`grid::case`]).
+    Vtu,
+    /// Node-list files of a `[[fixed]]` selection.
+    NodeList,
 }
 
 impl Target {
     /// All targets, in the order the driver runs them.
-    pub const ALL: [Target; 3] = [Target::Scene, Target::Mesh, Target::Csv];
+    pub const ALL: [Target; 5] = [
+        Target::Scene,
+        Target::Mesh,
+        Target::Csv,
+        Target::Vtu,
+        Target::NodeList,
+    ];
 
     /// Lower-case name (command line, crash file names).
     pub fn name(self) -> &'static str {
@@ -58,6 +72,8 @@ impl Target {
             Target::Scene => "scene",
             Target::Mesh => "mesh",
             Target::Csv => "csv",
+            Target::Vtu => "vtu",
+            Target::NodeList => "node_list",
         }
     }
 }
@@ -453,6 +469,140 @@ pub fn mesh(data: &[u8], name: &str) -> Result<Outcome, Violation> {
     Ok(Outcome::Accepted)
 }
 
+/// The VTK target: [`mesh`]'s invariants, and no panic caught inside a dependency (a reader's
+/// own checks must refuse the file before a third-party parser panics on it).
+pub fn vtu(data: &[u8]) -> Result<Outcome, Violation> {
+    let before = crokf_compile::mesh::caught_panics();
+    let name = if data.starts_with(b"# vtk") {
+        "fuzz.vtk"
+    } else {
+        "fuzz.vtu"
+    };
+    let outcome = mesh(data, name)?;
+    if crokf_compile::mesh::caught_panics() != before {
+        return Err(Violation(
+            "a third-party parser panicked (caught at the reader's boundary)".into(),
+        ));
+    }
+    Ok(outcome)
+}
+
+/// Lines inserted into node lists.
+const NODE_LINES: &[&str] = &[
+    "1",
+    "2, 3",
+    "4 5 6",
+    "# comment",
+    "1 # again",
+    "7,8,,9",
+    "0",
+    "-1",
+    "999999",
+    "18446744073709551615",
+    "18446744073709551616",
+    "1e3",
+    "0x10",
+    "\u{feff}3",
+    "\t10\t",
+    "",
+];
+
+/// Node-list seeds for [`scene_mesh`] (node tags 1 to 20).
+pub fn node_list_seeds() -> Vec<Vec<u8>> {
+    vec![
+        b"1 2 3\n".to_vec(),
+        b"# the x = 0 end\n1, 6\n11 16 # last\n".to_vec(),
+        "\u{feff}5\n10\n15\n".as_bytes().to_vec(),
+        (1..=15)
+            .map(|t| t.to_string())
+            .collect::<Vec<_>>()
+            .join("\n")
+            .into_bytes(),
+    ]
+}
+
+/// The node-list target: the list is written to a file that a `[[fixed]]` selection of the
+/// beam scene reads, and the scene is assembled on [`scene_mesh`]. The list is also parsed
+/// here, independently (UTF-8, a leading byte-order mark skipped, `#` comments, tags separated
+/// by commas or whitespace): an accepted list must fix exactly its tags, each a node of the mesh
+/// and listed once; a list that passes the independent parse must be accepted.
+pub fn node_list(data: &[u8], mesh: &Mesh) -> Result<Outcome, Violation> {
+    use std::sync::OnceLock;
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    let dir = DIR.get_or_init(|| {
+        let d = std::env::temp_dir().join(format!("crokf-fuzz-{}", std::process::id()));
+        let _ = std::fs::create_dir_all(&d);
+        d
+    });
+    let file = dir.join(format!("nodes-{:?}.txt", std::thread::current().id()));
+    std::fs::write(&file, data).map_err(|e| Violation(format!("cannot write {file:?}: {e}")))?;
+    let beam = BeamScene::default().toml().replace(
+        "[[fixed]]\ngroup = \"xmin\"",
+        &format!(
+            "[[fixed]]\nselect = [{{ node_list = {:?} }}]",
+            file.display().to_string()
+        ),
+    );
+    let scene = Scene::parse(&beam, &dir.join("scene.toml"))
+        .map_err(|e| Violation(format!("the node-list scene does not parse: {e}")))?;
+    let expected = independent_node_list(data, mesh);
+    let fem = match FemModel::assemble(mesh, &scene, scene.mesh.units.to_metres()) {
+        Ok(fem) => fem,
+        // A valid list may still make a scene the assembly refuses (every node fixed): only a
+        // refusal of the list itself breaks the invariant.
+        Err(e) => {
+            let message = e.to_string();
+            return match expected {
+                Some(tags) if message.contains("node_list") => Err(Violation(format!(
+                    "refused a valid node list of {} tags: {message}",
+                    tags.len()
+                ))),
+                _ => Ok(Outcome::Refused),
+            };
+        }
+    };
+    let Some(tags) = expected else {
+        return Err(Violation("accepted a node list that is not valid".into()));
+    };
+    let fixed: Vec<u64> = fem
+        .dofs
+        .index
+        .iter()
+        .enumerate()
+        .filter(|(_, d)| d.iter().all(Option::is_none))
+        .map(|(i, _)| mesh.node_tags[i])
+        .collect();
+    let mut want = tags;
+    want.sort_unstable();
+    if fixed != want {
+        return Err(Violation(format!(
+            "fixed nodes {fixed:?}, the list names {want:?}"
+        )));
+    }
+    Ok(Outcome::Accepted)
+}
+
+/// The tags of a valid node list (see [`node_list`]), `None` for an invalid one.
+fn independent_node_list(data: &[u8], mesh: &Mesh) -> Option<Vec<u64>> {
+    let text = std::str::from_utf8(data).ok()?;
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let mut tags = Vec::new();
+    for line in text.lines() {
+        let content = line.split('#').next().unwrap_or("");
+        for token in content
+            .split(|c: char| c == ',' || c.is_whitespace())
+            .filter(|t| !t.is_empty())
+        {
+            let tag: u64 = token.parse().ok()?;
+            if !mesh.node_tags.contains(&tag) || tags.contains(&tag) {
+                return None;
+            }
+            tags.push(tag);
+        }
+    }
+    (!tags.is_empty()).then_some(tags)
+}
+
 /// CSV seeds (inputs, measurements) for the committed cantilever model: its channels are
 /// `tip.x,tip.y,tip.z` (inputs) and three markers × three components (measurements).
 pub fn csv_seeds(model: &Model) -> (Vec<u8>, Vec<u8>) {
@@ -559,6 +709,7 @@ pub fn run(target: Target, cases: u64, seed: u64, fixtures: &Fixtures) -> Tally 
     let scenes = scene_seeds();
     let meshes = mesh_seeds();
     let (csv_inputs, csv_measurements) = csv_seeds(&fixtures.model);
+    let lists = node_list_seeds();
     let hook = std::panic::take_hook();
     std::panic::set_hook(Box::new(|_| {}));
     let start = Instant::now();
@@ -572,11 +723,37 @@ pub fn run(target: Target, cases: u64, seed: u64, fixtures: &Fixtures) -> Tally 
                 (bytes, Vec::new(), name)
             }
             Target::Csv => (csv_inputs.clone(), csv_measurements.clone(), String::new()),
+            Target::Vtu => {
+                // The generator runs outside the checked call: a panic in it is reported too
+                // (the hook is silent during the run).
+                match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    grid::case(&mut rng)
+                })) {
+                    Ok(data) => (data, Vec::new(), String::new()),
+                    Err(_) => {
+                        tally.cases += 1;
+                        tally.failures.push((
+                            case,
+                            "the VTK case generator panicked".into(),
+                            Vec::new(),
+                        ));
+                        continue;
+                    }
+                }
+            }
+            Target::NodeList => (rng.pick(&lists).clone(), Vec::new(), String::new()),
         };
         let (mut data, mut second) = (data, second);
         let lines = match target {
             Target::Scene | Target::Csv => SCENE_LINES,
-            Target::Mesh => MESH_LINES,
+            Target::Mesh | Target::Vtu => MESH_LINES,
+            Target::NodeList => NODE_LINES,
+        };
+        // The VTK cases carry their own mutations of the claimed sizes; one text mutation on
+        // top in a quarter of them.
+        let mutations = match target {
+            Target::Vtu => usize::from(case % 4 == 0),
+            _ => mutations,
         };
         for _ in 0..mutations {
             mutate(&mut data, &mut rng, lines);
@@ -588,6 +765,8 @@ pub fn run(target: Target, cases: u64, seed: u64, fixtures: &Fixtures) -> Tally 
             Target::Scene => scene(&data, &fixtures.mesh),
             Target::Mesh => mesh(&data, &name),
             Target::Csv => csv(&data, &second, &fixtures.model),
+            Target::Vtu => vtu(&data),
+            Target::NodeList => node_list(&data, &fixtures.mesh),
         }));
         tally.cases += 1;
         match result {

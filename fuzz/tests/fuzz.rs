@@ -39,6 +39,31 @@ fn mutated_csv() {
     check(Target::Csv, 3000, 200, 200);
 }
 
+#[test]
+fn vtk_files_with_mutated_claims() {
+    check(Target::Vtu, 3000, 300, 1000);
+}
+
+#[test]
+fn mutated_node_lists() {
+    check(Target::NodeList, 2000, 200, 200);
+}
+
+/// Every VTK layout of the generator reads as the box it encodes when nothing is mutated
+/// (checked through a seed of cases: some have no mutation).
+#[test]
+fn unmutated_vtk_cases_are_accepted() {
+    let mut rng = crokf_fuzz::Rng(3);
+    let mut accepted = 0;
+    for _ in 0..400 {
+        let data = crokf_fuzz::grid::case(&mut rng);
+        if crokf_fuzz::vtu(&data).expect("invariants") == crokf_fuzz::Outcome::Accepted {
+            accepted += 1;
+        }
+    }
+    assert!(accepted >= 100, "{accepted} of 400 accepted");
+}
+
 /// The seeds themselves are valid, so that mutations start from inputs that get past every check.
 #[test]
 fn seeds_are_accepted() {
@@ -55,6 +80,10 @@ fn seeds_are_accepted() {
     for (name, bytes) in crokf_fuzz::mesh_seeds() {
         let outcome = crokf_fuzz::mesh(&bytes, &name).expect("invariants");
         assert_eq!(outcome, crokf_fuzz::Outcome::Accepted, "mesh seed {name}");
+    }
+    for (i, list) in crokf_fuzz::node_list_seeds().iter().enumerate() {
+        let outcome = crokf_fuzz::node_list(list, &fixtures.mesh).expect("invariants");
+        assert_eq!(outcome, crokf_fuzz::Outcome::Accepted, "node-list seed {i}");
     }
     let (inputs, measurements) = crokf_fuzz::csv_seeds(&fixtures.model);
     let outcome = crokf_fuzz::csv(&inputs, &measurements, &fixtures.model).expect("invariants");

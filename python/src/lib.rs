@@ -19,9 +19,10 @@ use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{
     AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayLike1, PyArrayLike2,
 };
-use pyo3::exceptions::{PyException, PyKeyError, PyValueError};
+use pyo3::exceptions::{PyException, PyKeyError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::{PyBytes, PyDict, PyList, PyTuple};
+use pyo3::sync::PyOnceLock;
+use pyo3::types::{PyBytes, PyComplex, PyDict, PyString, PyTuple, PyType};
 
 pyo3::create_exception!(
     crokf,
@@ -47,6 +48,148 @@ pyo3::create_exception!(
     CrokfError,
     "The runtime refused a call (wrong length, non-finite value, update without predict, ...)."
 );
+
+/// `ChannelError(CrokfError, KeyError)` and `InputError(CrokfError, TypeError)`: crokf errors
+/// that existing `except KeyError` / `except TypeError` code still catches. Created once, in
+/// Python (a class with two bases), and raised from here.
+static CHANNEL_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+static INPUT_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+
+fn two_base_error(
+    py: Python<'_>,
+    cell: &'static PyOnceLock<Py<PyType>>,
+    name: &str,
+    second: Bound<'_, PyType>,
+    doc: &str,
+) -> PyResult<Py<PyType>> {
+    cell.get_or_try_init(py, || {
+        let namespace = PyDict::new(py);
+        namespace.set_item("__doc__", doc)?;
+        namespace.set_item("__module__", "crokf")?;
+        // The message as given (KeyError's own __str__ would print its repr, quotes escaped).
+        namespace.set_item(
+            "__str__",
+            py.get_type::<pyo3::exceptions::PyBaseException>()
+                .getattr("__str__")?,
+        )?;
+        let bases = PyTuple::new(py, [py.get_type::<CrokfError>(), second])?;
+        py.get_type::<PyType>()
+            .call1((name, bases, namespace))?
+            .cast_into::<PyType>()
+            .map(Bound::unbind)
+            .map_err(PyErr::from)
+    })
+    .map(|t| t.clone_ref(py))
+}
+
+fn channel_error_type(py: Python<'_>) -> PyResult<Py<PyType>> {
+    two_base_error(
+        py,
+        &CHANNEL_ERROR,
+        "ChannelError",
+        py.get_type::<PyKeyError>(),
+        "A channel, sensor, node set or phase the model does not have (also a KeyError).",
+    )
+}
+
+fn input_error_type(py: Python<'_>) -> PyResult<Py<PyType>> {
+    two_base_error(
+        py,
+        &INPUT_ERROR,
+        "InputError",
+        py.get_type::<PyTypeError>(),
+        "A value that is not a real number: complex, a string, a boolean (also a TypeError).",
+    )
+}
+
+/// A `ChannelError` with `message`.
+fn channel_error(message: String) -> PyErr {
+    Python::attach(|py| match channel_error_type(py) {
+        Ok(t) => PyErr::from_type(t.into_bound(py), message),
+        Err(e) => e,
+    })
+}
+
+/// An `InputError` with `message`.
+fn input_error(message: String) -> PyErr {
+    Python::attach(|py| match input_error_type(py) {
+        Ok(t) => PyErr::from_type(t.into_bound(py), message),
+        Err(e) => e,
+    })
+}
+
+/// What a NumPy dtype kind holds, for messages.
+fn kind_name(kind: &str) -> &'static str {
+    match kind {
+        "c" => "complex numbers",
+        "U" | "S" => "strings",
+        "b" => "booleans",
+        "O" => "Python objects",
+        "M" | "m" => "dates or durations",
+        "V" => "raw bytes",
+        _ => "values that are not real numbers",
+    }
+}
+
+/// Whether one Python value is a real number (int, float or a NumPy real scalar; not bool,
+/// str, bytes or complex).
+fn is_real(v: &Bound<'_, PyAny>) -> bool {
+    if v.is_instance_of::<PyString>()
+        || v.is_instance_of::<PyBytes>()
+        || v.is_instance_of::<PyComplex>()
+        || v.is_instance_of::<pyo3::types::PyBool>()
+    {
+        return false;
+    }
+    match v.getattr("dtype").and_then(|d| d.getattr("kind")) {
+        Ok(kind) => kind
+            .extract::<String>()
+            .is_ok_and(|k| matches!(k.as_str(), "f" | "i" | "u")),
+        Err(_) => v.extract::<f64>().is_ok(),
+    }
+}
+
+/// `obj` as a float64 NumPy array of real numbers: refuses complex numbers, strings,
+/// booleans and other objects (`InputError`, naming `what` and the element), and `None`
+/// elements unless `none_allowed` (they become NaN, "missing").
+fn real_array<'py>(
+    obj: &Bound<'py, PyAny>,
+    what: &str,
+    none_allowed: bool,
+) -> PyResult<Bound<'py, PyAny>> {
+    let py = obj.py();
+    let np = py.import("numpy")?;
+    let array = np
+        .call_method1("asarray", (obj,))
+        .map_err(|e| input_error(format!("{what}: not an array of numbers ({e})")))?;
+    let dtype = array.getattr("dtype")?;
+    let kind: String = dtype.getattr("kind")?.extract()?;
+    match kind.as_str() {
+        "f" | "i" | "u" => {}
+        "O" => {
+            let flat = array.call_method0("ravel")?;
+            for (i, v) in flat.try_iter()?.enumerate() {
+                let v = v?;
+                if (none_allowed && v.is_none()) || is_real(&v) {
+                    continue;
+                }
+                let shown = v.repr().map_or_else(|_| "?".into(), |r| r.to_string());
+                return Err(input_error(format!(
+                    "{what}: element {i} is {shown}, not a real number{}",
+                    if none_allowed { " or None" } else { "" }
+                )));
+            }
+        }
+        other => {
+            return Err(input_error(format!(
+                "{what}: expected real numbers (float or int), got an array of {} (dtype {})",
+                kind_name(other),
+                dtype
+            )))
+        }
+    }
+    np.call_method1("asarray", (array, "float64"))
+}
 
 fn runtime_err(e: crokf_runtime::RuntimeError) -> PyErr {
     use crokf_runtime::RuntimeError as E;
@@ -129,7 +272,7 @@ fn node_set_index(model: &FormatModel, set: &Bound<'_, PyAny>) -> PyResult<usize
             .position(|s| s.name == name)
             .ok_or_else(|| {
                 let names: Vec<&str> = model.node_sets.iter().map(|s| s.name.as_str()).collect();
-                PyKeyError::new_err(format!(
+                channel_error(format!(
                     "node set '{name}' does not exist; the model has {names:?}"
                 ))
             });
@@ -140,7 +283,7 @@ fn node_set_index(model: &FormatModel, set: &Bound<'_, PyAny>) -> PyResult<usize
     if index < model.node_sets.len() {
         Ok(index)
     } else {
-        Err(PyKeyError::new_err(format!(
+        Err(channel_error(format!(
             "node set {index} does not exist (the model has {})",
             model.node_sets.len()
         )))
@@ -197,11 +340,17 @@ impl Model {
         self.model.r()
     }
 
-    /// Model tier: "warped_linear" (reduced linear model with co-rotational warping of the
-    /// read-outs, docs/design.md §5). The co-rotational tier (§10) is not in the model format yet.
+    /// Model tier: "corotational" when the model file carries the co-rotational tier
+    /// (docs/design.md §10: a reduced co-rotational model stepped by Newton, with its own
+    /// filter; `reduction.model = "corotational"` in the scene), else "warped_linear" (the
+    /// reduced linear model with co-rotational warping of the read-outs, §5).
     #[getter]
     fn tier(&self) -> &'static str {
-        "warped_linear"
+        if self.model.tier.is_some() {
+            "corotational"
+        } else {
+            "warped_linear"
+        }
     }
 
     /// Input channel labels, the columns of the inputs array (`"probe.x"`, `"gravity"`, ...).
@@ -302,7 +451,7 @@ impl Model {
     /// `posterior_covariance` P_p (r, r). Step k uses phase k mod period (docs/design.md §6).
     fn kalman_phase<'py>(&self, py: Python<'py>, phase: usize) -> PyResult<Bound<'py, PyDict>> {
         let p = self.model.kalman.phases.get(phase).ok_or_else(|| {
-            PyKeyError::new_err(format!(
+            channel_error(format!(
                 "phase {phase} does not exist (the period is {})",
                 self.model.kalman.period
             ))
@@ -324,7 +473,7 @@ impl Model {
             .iter()
             .find(|s| s.name == name)
             .ok_or_else(|| {
-                PyKeyError::new_err(format!(
+                channel_error(format!(
                     "sensor '{name}' does not exist; the model has {:?}",
                     self.sensors()
                 ))
@@ -420,16 +569,22 @@ fn input_vector(est: &Estimator, obj: &Bound<'_, PyAny>) -> PyResult<Vec<f64>> {
         for (k, v) in d.iter() {
             let label: String = k.extract()?;
             let j = *est.input_index.get(&label).ok_or_else(|| {
-                PyKeyError::new_err(format!(
+                channel_error(format!(
                     "no input channel '{label}'; the model's inputs are {:?}",
                     est.model.input_labels()
                 ))
             })?;
+            if !is_real(&v) {
+                return Err(input_error(format!(
+                    "input '{label}': {} is not a real number",
+                    v.repr().map_or_else(|_| "?".into(), |r| r.to_string())
+                )));
+            }
             u[j] = v.extract()?;
         }
         return Ok(u);
     }
-    let a: PyArrayLike1<f64, AllowTypeChange> = obj.extract()?;
+    let a: PyArrayLike1<f64, AllowTypeChange> = real_array(obj, "inputs", false)?.extract()?;
     Ok(a.as_array().to_vec())
 }
 
@@ -444,28 +599,22 @@ fn measurement_vector(est: &Estimator, obj: &Bound<'_, PyAny>) -> PyResult<Vec<O
         for (k, v) in d.iter() {
             let label: String = k.extract()?;
             let j = *est.channel_index.get(&label).ok_or_else(|| {
-                PyKeyError::new_err(format!(
+                channel_error(format!(
                     "no measurement channel '{label}'; the model's channels are {:?}",
                     est.model.measurement_labels()
                 ))
             })?;
+            if !(v.is_none() || is_real(&v)) {
+                return Err(input_error(format!(
+                    "measurement '{label}': {} is not a real number or None",
+                    v.repr().map_or_else(|_| "?".into(), |r| r.to_string())
+                )));
+            }
             y[j] = v.extract::<Option<f64>>()?.and_then(present);
         }
         return Ok(y);
     }
-    if let Ok(l) = obj.cast::<PyList>() {
-        return l
-            .iter()
-            .map(|v| Ok(v.extract::<Option<f64>>()?.and_then(present)))
-            .collect();
-    }
-    if let Ok(t) = obj.cast::<PyTuple>() {
-        return t
-            .iter()
-            .map(|v| Ok(v.extract::<Option<f64>>()?.and_then(present)))
-            .collect();
-    }
-    let a: PyArrayLike1<f64, AllowTypeChange> = obj.extract()?;
+    let a: PyArrayLike1<f64, AllowTypeChange> = real_array(obj, "measurements", true)?.extract()?;
     Ok(a.as_array().iter().map(|&v| present(v)).collect())
 }
 
@@ -563,23 +712,34 @@ impl Estimator {
 
     /// Runs a whole history in one call (no Python loop; the GIL is released).
     ///
-    /// `inputs`: (T, m) world-frame inputs per step. `measurements`: (T, q) with NaN where
-    /// missing, or None (open loop). `node_set`: optionally a node set (name or index) whose
+    /// `inputs`: (T, m) world-frame inputs per step. `measurements`: (T, q) with NaN (or None)
+    /// where missing, or None (open loop). Real numbers only: complex values, strings and
+    /// booleans raise `InputError`. `node_set`: optionally a node set (name or index) whose
     /// world positions are recorded every step. Returns a dict of arrays: `time` (T,) s,
     /// `measurements` (T, q) estimated measurement channels, `sensors` (T, S, 3) world
     /// displacements and `sensor_std` (T, S, 3) their standard deviations (m), and with
-    /// `node_set` also `node_positions` (T, n, 3) m. The estimator keeps its final state.
+    /// `node_set` also `node_positions` (T, n, 3) m.
+    ///
+    /// All or nothing, like `step`: the estimator keeps the final state of a run that
+    /// succeeds; when row k fails, `EstimatorError` names row k (0-based) with the runtime's
+    /// reason, and the estimator is exactly as it was before the call (no row is taken).
     #[pyo3(signature = (inputs, measurements=None, node_set=None))]
     fn run<'py>(
         &mut self,
         py: Python<'py>,
-        inputs: PyArrayLike2<'py, f64, AllowTypeChange>,
-        measurements: Option<PyArrayLike2<'py, f64, AllowTypeChange>>,
+        inputs: &Bound<'py, PyAny>,
+        measurements: Option<&Bound<'py, PyAny>>,
         node_set: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let m = self.model.inputs.len();
         let q = self.model.measurements.len();
         let s = self.model.sensors.len();
+        let inputs: PyArrayLike2<'py, f64, AllowTypeChange> =
+            real_array(inputs, "inputs", false)?.extract()?;
+        let measurements: Option<PyArrayLike2<'py, f64, AllowTypeChange>> = match measurements {
+            Some(obj) if !obj.is_none() => Some(real_array(obj, "measurements", true)?.extract()?),
+            _ => None,
+        };
         let u = inputs.as_array();
         let steps = u.nrows();
         if u.ncols() != m {
@@ -609,6 +769,9 @@ impl Estimator {
             None => None,
         };
         let dt = self.model.dt;
+        // All or nothing: a failing row puts the estimator back as it was (the prepared model
+        // is shared, so the copy is the state and its scratch, O(r + q)).
+        let before = self.inner.clone();
         let inner = &mut self.inner;
         let out = py.detach(move || -> Result<RunOutput, String> {
             let mut out = RunOutput {
@@ -625,7 +788,7 @@ impl Estimator {
                         *o = if v.is_nan() { None } else { Some(v) };
                     }
                 }
-                let at = |e: crokf_runtime::RuntimeError| format!("row {k} (step {}): {e}", k + 1);
+                let at = |e: crokf_runtime::RuntimeError| format!("row {k} of {steps}: {e}");
                 inner.step(&u[k * m..(k + 1) * m], &yk).map_err(at)?;
                 out.time.push(inner.step_index() as f64 * dt);
                 inner
@@ -645,7 +808,16 @@ impl Estimator {
             }
             Ok(out)
         });
-        let out = out.map_err(EstimatorError::new_err)?;
+        let out = match out {
+            Ok(out) => out,
+            Err(message) => {
+                self.inner = before;
+                return Err(EstimatorError::new_err(format!(
+                    "{message}; Estimator.run took no row: the estimator is as it was before \
+                     the call"
+                )));
+            }
+        };
         let d = PyDict::new(py);
         d.set_item("time", Array1::from(out.time).into_pyarray(py))?;
         d.set_item("measurements", to_array2(py, steps, q, out.meas)?)?;
@@ -680,11 +852,22 @@ impl Estimator {
         Array1::from(self.inner.state().to_vec()).into_pyarray(py)
     }
 
-    /// Sets the reduced state x (length r).
+    /// Sets the state (length of `state`: r, or the co-rotational tier's state). Refused
+    /// (`EstimatorError`, the estimator unchanged) when an entry is not finite, or when the
+    /// state is not one the filter can go on from: a sensor or displayed node displaced beyond
+    /// the runtime's plausibility bound of a measurement (10 × the body's size: no measurement
+    /// could be accepted from it), or a next prediction that would not be finite. Real numbers
+    /// only (`InputError` otherwise).
     #[setter]
-    fn set_state(&mut self, x: PyArrayLike1<'_, f64, AllowTypeChange>) -> PyResult<()> {
+    fn set_state(&mut self, x: &Bound<'_, PyAny>) -> PyResult<()> {
+        let x: PyArrayLike1<'_, f64, AllowTypeChange> = real_array(x, "state", false)?.extract()?;
         let x: Vec<f64> = x.as_array().to_vec();
-        self.inner.set_state(&x).map_err(runtime_err)
+        let mut trial = self.inner.clone();
+        trial.set_state(&x).map_err(runtime_err)?;
+        check_state(&trial)
+            .map_err(|m| EstimatorError::new_err(format!("state: {m}; state unchanged")))?;
+        self.inner = trial;
+        Ok(())
     }
 
     /// World-frame displacement of every sensor, u = R̃(W_s x) C_s x, (S, 3), m.
@@ -751,6 +934,47 @@ impl Estimator {
     }
 }
 
+/// Whether the filter can go on from `est`'s state: every sensor and displayed node within the
+/// plausibility bound of a measurement (`PreparedModel::measurement_bound`, 10 × the body's
+/// size) and finite read-outs, and a next prediction (inputs 0) with a finite result. The
+/// runtime documents no range for a state and the C ABI sets none, so this is the boundary's
+/// check (docs/limits.md); the message names the first read-out out of range.
+fn check_state(est: &crokf_runtime::Estimator) -> Result<(), String> {
+    let model = est.model();
+    let bound = est.prepared().measurement_bound();
+    let mut u = vec![0.0; 3 * model.sensors.len()];
+    let unreadable = |e: crokf_runtime::RuntimeError| format!("its read-outs are not finite ({e})");
+    est.sensor_displacements(&mut u).map_err(unreadable)?;
+    for (i, v) in u.chunks_exact(3).enumerate() {
+        if let Some(c) = v.iter().position(|c| !c.is_finite() || c.abs() > bound) {
+            return Err(format!(
+                "it displaces sensor '{}' by {:e} m along {}, beyond the plausibility bound \
+                 ±{bound:.3e} m (10 × the body's size)",
+                model.sensors[i].name,
+                v[c],
+                ["x", "y", "z"][c]
+            ));
+        }
+    }
+    for (set, ns) in model.node_sets.iter().enumerate() {
+        let mut d = vec![0.0; 3 * ns.node_tags.len()];
+        est.node_displacements(set, &mut d).map_err(unreadable)?;
+        if let Some(i) = d.iter().position(|c| !c.is_finite() || c.abs() > bound) {
+            return Err(format!(
+                "it displaces node {} of node set '{}' by {:e} m, beyond the plausibility bound \
+                 ±{bound:.3e} m (10 × the body's size)",
+                ns.node_tags[i / 3],
+                ns.name,
+                d[i]
+            ));
+        }
+    }
+    let mut next = est.clone();
+    next.predict(&vec![0.0; model.inputs.len()])
+        .map_err(|e| format!("the next prediction from it fails ({e})"))?;
+    Ok(())
+}
+
 /// Buffers filled by `Estimator.run` with the GIL released.
 struct RunOutput {
     time: Vec<f64>,
@@ -771,6 +995,8 @@ fn _crokf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("CompileError", py.get_type::<CompileError>())?;
     m.add("ModelFileError", py.get_type::<ModelFileError>())?;
     m.add("EstimatorError", py.get_type::<EstimatorError>())?;
+    m.add("ChannelError", channel_error_type(py)?)?;
+    m.add("InputError", input_error_type(py)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

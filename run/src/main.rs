@@ -30,7 +30,9 @@ struct Args {
     /// Output CSV: step, t, estimated sensor displacements, their standard deviations.
     #[arg(long, required_unless_present = "serve")]
     out: Option<PathBuf>,
-    /// Also write one .vtu per step and estimates.pvd into this directory.
+    /// Also write one .vtu per step and estimates.pvd into this existing folder (the series
+    /// replaces an older one whole: its step files that the new run does not write are
+    /// removed; other files in the folder are left alone).
     #[arg(long)]
     vtu: Option<PathBuf>,
     /// Innovation gate in standard deviations of the innovation: a measurement beyond it is
@@ -59,7 +61,9 @@ struct Args {
     vtu_every: u64,
 }
 
-/// Refuses outputs that are inputs or collide, before any work.
+/// Refuses outputs that are inputs or collide, a `--vtu` folder that does not exist, and a
+/// series file inside it that is an input or `--out`, before any work; then removes (and
+/// names) the temporaries an earlier, killed run left next to the outputs.
 fn check_outputs(args: &Args, inputs_path: &Path, out_path: &Path) -> Result<(), RunError> {
     let mut inputs: Vec<(&str, &Path)> = vec![("model", &args.model), ("--inputs", inputs_path)];
     if let Some(m) = &args.measurements {
@@ -74,28 +78,31 @@ fn check_outputs(args: &Args, inputs_path: &Path, out_path: &Path) -> Result<(),
         outputs.push(Output {
             role: "--vtu",
             path: dir,
-            kind: OutputKind::Folder,
+            kind: OutputKind::ExistingFolder,
         });
     }
     output::check_paths(&inputs, &outputs)?;
-    // A file of the VTU series inside --vtu must not be --out or an input either.
-    if let Some(dir) = args.vtu.as_deref().and_then(output::canonical) {
-        for (role, path) in inputs.iter().copied().chain([("--out", out_path)]) {
-            let Some(c) = output::canonical(path) else {
-                continue;
-            };
-            let name = c.file_name().map(|n| n.to_string_lossy().into_owned());
-            if c.parent() == Some(dir.as_path())
-                && name.is_some_and(|n| vtu::is_series_file_name(&n))
-            {
-                return Err(output::OutputError::SameOutput {
-                    first_role: "--vtu".into(),
-                    second_role: role.into(),
-                    path: path.to_path_buf(),
-                }
-                .into());
+    // A file of the VTU series inside --vtu must not be an input or --out either.
+    if let Some(dir) = &args.vtu {
+        output::check_folder_inputs(&inputs, "--vtu", dir, vtu::is_series_file_name)?;
+        if output::check_folder_inputs(
+            &[("--out", out_path)],
+            "--vtu",
+            dir,
+            vtu::is_series_file_name,
+        )
+        .is_err()
+        {
+            return Err(output::OutputError::SameOutput {
+                first_role: "--vtu".into(),
+                second_role: "--out".into(),
+                path: out_path.to_path_buf(),
             }
+            .into());
         }
+    }
+    for note in output::sweep_stale_temporaries(&outputs) {
+        eprintln!("crokf-run: {note}");
     }
     Ok(())
 }
@@ -149,7 +156,7 @@ fn run(args: &Args) -> Result<(), RunError> {
     let mut out = AtomicFile::create(out_path)?;
     writeln!(out, "{}", table::estimates_header(&model)).map_err(write_err)?;
     let mut staged = match &args.vtu {
-        Some(dir) => Some(StagedDir::create(dir)?),
+        Some(dir) => Some(StagedDir::create_owning(dir, vtu::is_series_file_name)?),
         None => None,
     };
     let mut pvd = Vec::new();
@@ -260,6 +267,10 @@ fn main() -> ExitCode {
                 ExitCode::FAILURE
             }
         };
+    }
+    #[cfg(unix)]
+    if let Err(e) = output::install_interrupt_cleanup("crokf-run") {
+        eprintln!("crokf-run: warning: no cleanup on interrupt: {e}");
     }
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,

@@ -39,6 +39,8 @@ fn crokf_run_matches_the_library() {
     std::fs::write(&yp, meas_csv).unwrap();
     let op = dir.join("estimates.csv");
     let vd = dir.join("vtu");
+    // --vtu writes into an existing folder (a missing one is refused, tests/hardening.rs).
+    std::fs::create_dir_all(&vd).unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_crokf-run"))
         .arg(&mp)
         .arg("--inputs")

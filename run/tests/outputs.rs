@@ -117,6 +117,7 @@ fn a_failed_run_leaves_the_old_files_and_nothing_else() {
     let c = case("failed-run", 8);
     let out = c.dir.join("estimates.csv");
     let vtu = c.dir.join("vtu");
+    std::fs::create_dir(&vtu).unwrap();
     let ok = crokf_run(&[
         &c.model,
         &"--inputs",

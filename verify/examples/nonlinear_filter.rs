@@ -29,6 +29,12 @@
 //! where one run's errors are correlated in time, unlike the single-run bounds of the first
 //! table; and the 2σ coverage's mean and range.
 //!
+//! Then, per segment of the scenario (cut at its load times, `crokf_verify::comparison::segments`)
+//! and with `--seeds`, the same fractions and the coverage of each filtered run; and one line of
+//! advice per problem of each filtered run (`crokf_verify::comparison::advice`, the rules of
+//! `crokf-verify report`; with `CROKF_NOISE_SCALE` ≠ 1 the markers are not drawn with the
+//! model's σ and the advice says so).
+//!
 //! `--imm P` (a measuring prototype, docs/design.md §11.5–11.6): exactly two MODEL arguments,
 //! the same tier with two load models (without and with force rates, or two force σ), run as an
 //! interacting-multiple-model filter, stay probability P per step (`imm_rows`): the error, the
@@ -51,9 +57,11 @@ use std::process::ExitCode;
 use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
 use crokf_runtime::{load_model, Estimator};
+use crokf_verify::comparison::advice::{self, AdviceFigures, Context, Tier};
+use crokf_verify::comparison::segments::{segment_figures, segments, MERGE_STEPS};
 use crokf_verify::comparison::{
-    spread, ChiSquare, Consistency, ConsistencyAccumulator, Ensemble, FilterBlocks, Gaussian,
-    SeedEnsemble,
+    segment_table, spread, ChiSquare, Consistency, ConsistencyAccumulator, Ensemble, FilterBlocks,
+    Gaussian, SeedEnsemble,
 };
 use crokf_verify::nonlinear::reference::{displayed, Reference};
 use crokf_verify::scenario::{Horizon, Scenario};
@@ -115,6 +123,9 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         "| model | tier | run | nodes | sensors | tip | ANIS [95 % bounds] | tip ANEES [95 % bounds] | 2σ coverage | > 5σ innovations | final f (N) | median step (µs) |\n|---|---|---|---:|---:|---:|---|---|---:|---:|---|---:|"
     );
     let mut ensembles = Vec::new();
+    // Every filtered run, for the per-segment table and the advice: (label, tier, its
+    // ensemble over the seeds, or of its one run, the model's open-loop error when run).
+    let mut advised: Vec<Advised> = Vec::new();
     for path in &args[2..] {
         let mut model = read_model(path)?;
         // CROKF_NO_SCHEDULE=1 (a measuring aid): the tier's filter designed at rest only, as
@@ -131,6 +142,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         };
         // CROKF_RUNS=open,given,withheld (a measuring aid): only the runs named.
         let only = std::env::var("CROKF_RUNS").ok();
+        let mut open_loop = None;
         for run in [Run::OpenLoop, Run::Given, Run::Withheld] {
             if only
                 .as_deref()
@@ -145,10 +157,28 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
                     continue;
                 }
             };
-            if seeds > 1 && run != Run::OpenLoop {
-                ensembles.push((
-                    format!("{path} | {}", run.label()),
-                    ensemble(&model, run, &reference, tip, seeds),
+            let label = format!("{path} | {}", run.label());
+            let tier_kind = if model.tier.is_some() {
+                Tier::Corotational
+            } else {
+                Tier::Warped
+            };
+            if run == Run::OpenLoop {
+                open_loop = Some(out.nodes);
+            } else if seeds > 1 {
+                let e = ensemble(&model, run, &reference, tip, seeds);
+                if let Ok(e) = &e {
+                    if e.nis.runs() > 0 {
+                        advised.push((label.clone(), tier_kind, e.clone(), open_loop));
+                    }
+                }
+                ensembles.push((label, e));
+            } else if let Some(c) = &out.consistency {
+                advised.push((
+                    label,
+                    tier_kind,
+                    SeedEnsemble::of_run(out.nodes, c)?,
+                    open_loop,
                 ));
             }
             let stat = |c: &Option<ChiSquare>| match c {
@@ -198,7 +228,89 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             }
         }
     }
+    let cuts = segments(&scenario, full.wilson.dt, steps);
+    if seeds > 1 && !advised.is_empty() {
+        println!(
+            "\nPer segment (the scenario cut at its load times, breakpoints closer than \
+             {MERGE_STEPS} steps merged): steps whose {seeds}-run NIS and tip NEES lie below / \
+             inside / above their 95 % bounds, 2σ coverage\n"
+        );
+        let rows: Vec<(String, Vec<_>)> = advised
+            .iter()
+            .map(|(label, _, e, _)| (label.clone(), segment_figures(e, &cuts)))
+            .collect();
+        print!("{}", segment_table("model | run", &rows));
+    }
+    print_advice(&advised, &cuts, &scenario, seeds)?;
     Ok(())
+}
+
+/// A filtered run for the advice: label, tier, its ensemble over the seeds (or of its one run),
+/// the model's open-loop error (loads given) when that run was made.
+type Advised = (String, Tier, SeedEnsemble, Option<f64>);
+
+/// One line of advice per problem of each filtered run (`crokf_verify::comparison::advice`),
+/// from its figures over the seeds (or its one run).
+fn print_advice(
+    advised: &[Advised],
+    cuts: &[crokf_verify::comparison::segments::Segment],
+    scenario: &Scenario,
+    seeds: u64,
+) -> Result<(), Box<dyn std::error::Error>> {
+    if advised.is_empty() {
+        return Ok(());
+    }
+    let loads: Vec<String> = scenario
+        .loads
+        .iter()
+        .filter(|l| l.forces.iter().flatten().any(|&f| f != 0.0))
+        .map(|l| l.name.clone())
+        .collect();
+    let markers_from_noise_std = noise_scale()? == 1.0;
+    let mut lines = Vec::new();
+    for (label, tier, e, open_loop) in advised {
+        let segments = segment_figures(e, cuts);
+        let figures = AdviceFigures {
+            tier: *tier,
+            markers_from_noise_std,
+            loads_given: label.ends_with(Run::Given.label()),
+            nis: e.nis.fractions(),
+            nees_tip: e.nees_tip.fractions(),
+            coverage: e.coverage_in(0..e.coverage_steps.len()),
+            filtered_error: spread(&e.errors).map_or(f64::NAN, |s| s.0),
+            model_error: *open_loop,
+            segments: &segments,
+            loads: &loads,
+        };
+        let context = Context::from(&figures);
+        for a in advice::advise(&figures) {
+            lines.push(format!("{label}: {}", a.line(&context)));
+        }
+    }
+    let over = if seeds > 1 {
+        format!("{seeds} seeds")
+    } else {
+        "one seed (--seeds N for N)".to_owned()
+    };
+    if lines.is_empty() {
+        println!("\nWhat to change ({over}): nothing, every filtered run is within its bounds.");
+    } else {
+        println!("\nWhat to change ({over}):\n");
+        for line in lines {
+            println!("- {line}");
+        }
+    }
+    Ok(())
+}
+
+/// `CROKF_NOISE_SCALE` (a measuring aid, see [`Drive`]): the factor on the markers' σ, 1 unset.
+fn noise_scale() -> Result<f64, String> {
+    match std::env::var("CROKF_NOISE_SCALE") {
+        Ok(v) => v
+            .parse()
+            .map_err(|_| format!("CROKF_NOISE_SCALE={v}: not a number")),
+        Err(_) => Ok(1.0),
+    }
 }
 
 /// `--imm P` (a measuring prototype, docs/design.md §11.5–11.6): the two MODEL files (the same
@@ -499,12 +611,7 @@ impl<'a> Drive<'a> {
     ) -> Result<Self, Box<dyn std::error::Error>> {
         // CROKF_NOISE_SCALE=c (a measuring aid): markers with c times the model's σ (0:
         // noise-free), the filter unchanged; separates the noise-driven part of the error.
-        let noise_scale: f64 = match std::env::var("CROKF_NOISE_SCALE") {
-            Ok(v) => v
-                .parse()
-                .map_err(|_| format!("CROKF_NOISE_SCALE={v}: not a number"))?,
-            Err(_) => 1.0,
-        };
+        let noise_scale = noise_scale()?;
         let variance = &model
             .tier
             .as_ref()

@@ -45,28 +45,32 @@ use crokf_compile::report::StageTimer;
 use crokf_compile::stepping::{NewtonOptions, NewtonStats, SteppingError};
 use crokf_compile::{CompileError, Reductor};
 
+pub mod advice;
 mod consistency;
 mod metrics;
 mod render;
 mod runs;
+pub mod segments;
 mod setup;
 mod svg;
 mod tier;
 
 use crate::scenario::ScenarioError;
 pub use consistency::{
-    chi_square_quantile, spread, verdict, ChiSquare, Consistency, ConsistencyAccumulator, Ensemble,
-    FilterBlocks, RunLengthMismatch, SeedEnsemble, StepFractions, TipSample,
+    chi_square_quantile, spread, verdict, ChiSquare, Consistency, ConsistencyAccumulator,
+    CoverageCount, Ensemble, FilterBlocks, RunLengthMismatch, SeedEnsemble, StepFractions,
+    TipSample,
 };
 use metrics::ErrorSum;
 pub use metrics::{
     breakdown_rotation, breakdown_rotation_of, relative_l2, rotation_angle, Gaussian,
 };
-pub use render::{format_seconds, sweep_markdown};
+pub use render::{format_seconds, segment_table, sweep_markdown};
 use runs::{
-    compile_at, filtered_runs, run_reference, run_runtime, runtime_inputs, synthetic_measurements,
-    time_row, FilteredRuns, ReferenceRun, RunErrors,
+    compile_at, filtered_runs, row_inputs, run_reference, run_runtime, runtime_inputs,
+    synthetic_measurements, time_row, FilteredRuns, ReferenceRun, RunErrors,
 };
+use segments::Segment;
 use setup::{scaled, Setup};
 use tier::{check_tier_matches, run_tier};
 pub use tier::{compile_tier, TierModel};
@@ -122,8 +126,10 @@ pub struct ComparisonOptions {
     /// Also compute the compiler's measured error (step/chirp against the linear reference)
     /// for each order (costs a full-order linear run per test).
     pub measure_compile_error: bool,
-    /// Give the runtime no load inputs (open loop and filter): the force is unknown to the
-    /// estimator, only the measurements carry it. The references still get the loads.
+    /// Give the filter no load inputs: the force is unknown to the estimator, only the
+    /// measurements carry it (the filtered run with the loads given is then not made). The
+    /// references and the open-loop runs still get the loads: without inputs and without
+    /// measurements the runtime stays at rest, an error of 1 that says nothing of the model.
     pub withhold_loads: bool,
     /// Timing samples (batches) of the runtime step.
     pub timing_samples: usize,
@@ -177,10 +183,11 @@ pub struct RuntimeFigures {
     /// Median runtime step, predict + update with the measurements, s (batched; thread CPU
     /// time, [`crate::bench::step_clock_seconds`]).
     pub step_s: f64,
-    /// Median runtime step without measurements (predict + empty update), s (batched; thread
-    /// CPU time).
+    /// Median runtime step without measurements (predict + empty update) on the open-loop
+    /// run's inputs, s (batched; thread CPU time).
     pub open_loop_step_s: f64,
-    /// Open loop: relative L2 error over displayed nodes vs the co-rotational reference.
+    /// Open loop (with the scenario's loads, also when the comparison withholds them from the
+    /// filter): relative L2 error over displayed nodes vs the co-rotational reference.
     pub error: f64,
     /// Open loop: relative L2 error at the tip vs the co-rotational reference.
     pub tip_error: f64,
@@ -311,8 +318,13 @@ pub struct Comparison {
     pub seed: u64,
     /// Noise draws of the N-run consistency test (`ComparisonOptions::seeds`).
     pub seeds: usize,
-    /// Whether the runtime got the loads.
+    /// Whether the filter got the loads (the open-loop runs always get them).
     pub withheld_loads: bool,
+    /// The scenario cut at its load breakpoints ([`segments::segments`]), for the per-segment
+    /// consistency and the advice.
+    pub segments: Vec<Segment>,
+    /// The scenario's loads that are not zero throughout (scene `[[load]]` names).
+    pub loads: Vec<String>,
     /// What the compiler said about the scene, once for all orders: scene warnings, mesh
     /// notes, what each selection took, the modal basis' warnings.
     pub notes: Vec<String>,
@@ -534,12 +546,12 @@ pub fn run(
             // of 10 % and more at large rotation the 5σ gate would skip true measurements and the
             // figures would mix two effects (the README's tables were made without a gate).
             est.set_innovation_gate(None);
-            let inputs = runtime_inputs(&setup, &setup.scenario, &model, options.withhold_loads)?;
+            let (given, inputs) = row_inputs(&setup, &model, options.withhold_loads)?;
             let none = vec![vec![None; model.measurements.len()]; setup.steps];
             let open = run_runtime(
                 &setup,
                 &mut est,
-                &inputs,
+                &given,
                 &none,
                 &corot,
                 Some(&linear),
@@ -561,9 +573,8 @@ pub fn run(
             )?;
             let times = time_row(
                 &mut est,
-                &inputs,
-                &measurements,
-                &none,
+                (&inputs, &measurements),
+                (&given, &none),
                 options.timing_samples,
                 &format!("timing r = {order}"),
                 progress,
@@ -620,6 +631,14 @@ pub fn run(
         seed: options.seed,
         seeds: options.seeds,
         withheld_loads: options.withhold_loads,
+        segments: segments::segments(&setup.scenario, setup.dt(), setup.steps),
+        loads: setup
+            .scenario
+            .loads
+            .iter()
+            .filter(|l| l.forces.iter().flatten().any(|&f| f != 0.0))
+            .map(|l| l.name.clone())
+            .collect(),
         notes: setup
             .full
             .fem

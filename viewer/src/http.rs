@@ -146,14 +146,28 @@ fn handle(mut request: tiny_http::Request, state: &State) {
     }
 }
 
-/// Applies a control message `{"forces": {"group": [fx, fy, fz]}, "playing": bool,
-/// "reset": bool, "gravity": scale}` (forces in N, world frame).
+/// Applies a control message: a JSON object with any of `"forces": {"group": [fx, fy, fz]}`
+/// (N, world frame), `"playing": bool`, `"reset": bool` and `"gravity": scale`. Anything else
+/// (not an object, an unknown key, a value of the wrong type, a force or gravity scale beyond
+/// the runtime's plausibility bound for its channel, a gravity scale on a model without a
+/// gravity input) is refused with the reason, and nothing is applied.
 fn control(body: &[u8], state: &State) -> Result<(), String> {
+    const KEYS: &str = "\"forces\", \"playing\", \"reset\", \"gravity\"";
     let value: serde_json::Value =
         serde_json::from_slice(body).map_err(|e| format!("control message is not JSON: {e}"))?;
+    let object = value.as_object().ok_or_else(|| {
+        format!("control message must be a JSON object with any of {KEYS}, got {value}")
+    })?;
+    if let Some(key) = object
+        .keys()
+        .find(|k| !["forces", "playing", "reset", "gravity"].contains(&k.as_str()))
+    {
+        return Err(format!("unknown control {key:?}; the controls are {KEYS}"));
+    }
     let names = state.shared.load_names();
+    let bounds = state.shared.force_bounds();
     let mut forces = Vec::new();
-    if let Some(f) = value.get("forces") {
+    if let Some(f) = object.get("forces") {
         let f = f
             .as_object()
             .ok_or("'forces' must be an object {\"group\": [fx, fy, fz]}")?;
@@ -171,18 +185,46 @@ fn control(body: &[u8], state: &State) -> Result<(), String> {
                 force[c] = x.as_f64().filter(|x| x.is_finite()).ok_or_else(|| {
                     format!("force of '{name}': component {c} is not a finite number")
                 })?;
+                let bound = bounds.get(g).map_or(f64::INFINITY, |b| b[c]);
+                if force[c].abs() > bound {
+                    return Err(format!(
+                        "force of '{name}': component {c} = {} N is beyond the model's \
+                         plausibility bound of {bound:e} N",
+                        force[c]
+                    ));
+                }
             }
             forces.push((g, force));
         }
     }
-    let playing = value.get("playing").and_then(serde_json::Value::as_bool);
-    let reset = value.get("reset").and_then(serde_json::Value::as_bool) == Some(true);
-    let gravity = match value.get("gravity") {
-        Some(g) => Some(
-            g.as_f64()
+    let flag = |key: &str| -> Result<Option<bool>, String> {
+        match object.get(key) {
+            None => Ok(None),
+            Some(v) => v
+                .as_bool()
+                .map(Some)
+                .ok_or_else(|| format!("'{key}' must be true or false, got {v}")),
+        }
+    };
+    let playing = flag("playing")?;
+    let reset = flag("reset")? == Some(true);
+    let gravity = match object.get("gravity") {
+        Some(g) => {
+            let scale = g
+                .as_f64()
                 .filter(|g| g.is_finite())
-                .ok_or("'gravity' must be a finite number")?,
-        ),
+                .ok_or_else(|| format!("'gravity' must be a finite number, got {g}"))?;
+            let bound = state.shared.gravity_bound().ok_or(
+                "this model has no gravity input (its scene sets no gravity): 'gravity' does \
+                 not apply",
+            )?;
+            if scale.abs() > bound {
+                return Err(format!(
+                    "'gravity' = {scale} is beyond the model's plausibility bound of {bound:e}"
+                ));
+            }
+            Some(scale)
+        }
         None => None,
     };
     state.shared.with_controls(|c| {

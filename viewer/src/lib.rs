@@ -11,8 +11,10 @@
 //!
 //! Routes: `GET /` page, `GET /app.js`, `GET /three/*` (vendored three.js), `GET /model.json`
 //! (rest geometry, triangles, sensors, loads), `GET /events` (server-sent events, one JSON
-//! frame each), `POST /control` (JSON `{"forces": {"group": [fx, fy, fz]}, "playing": bool,
-//! "reset": true, "gravity": scale}`).
+//! frame each), `POST /control` (a JSON object with any of `{"forces": {"group": [fx, fy,
+//! fz]}, "playing": bool, "reset": bool, "gravity": scale}`; anything else, a value of the wrong
+//! type, a force or gravity beyond the runtime's plausibility bound, or a gravity on a model
+//! without a gravity input is answered 400 with the reason, and changes nothing).
 
 mod http;
 mod sim;
@@ -156,7 +158,11 @@ impl Server {
             .map_err(|e| ViewerError::Server(e.to_string()))?;
         let stop = Arc::new(AtomicBool::new(false));
         let model_json = sim::model_json(&model, set, &options);
-        let shared = Arc::new(sim::Shared::new(&model, options.playing));
+        let shared = Arc::new(sim::Shared::new(
+            &model,
+            options.playing,
+            estimator.prepared().input_bounds(),
+        ));
         let handover = Arc::new(sim::Handover::default());
         let view = estimator.clone();
         let sim_thread = {

@@ -66,23 +66,38 @@ struct SharedState {
 /// State shared by the simulation thread and the HTTP handlers.
 pub(crate) struct Shared {
     load_names: Vec<String>,
+    /// Per load group and world component: the plausibility bound of its input channel (N;
+    /// ∞ when the model has no channel for that component).
+    force_bounds: Vec<[f64; 3]>,
+    /// The plausibility bound of the gravity scale, `None` without a gravity input.
+    gravity_bound: Option<f64>,
     state: Mutex<SharedState>,
     new_frame: Condvar,
 }
 
 impl Shared {
-    pub fn new(model: &Model, playing: bool) -> Self {
-        let gravity = if model
-            .inputs
-            .iter()
-            .any(|i| matches!(i.kind, InputKind::Gravity { .. }))
-        {
-            1.0
-        } else {
-            0.0
-        };
+    /// `input_bounds`: per input channel of `model`, the runtime's plausibility bound
+    /// (`PreparedModel::input_bounds`).
+    pub fn new(model: &Model, playing: bool, input_bounds: &[f64]) -> Self {
+        let mut force_bounds = vec![[f64::INFINITY; 3]; model.loads.len()];
+        let mut gravity_bound: Option<f64> = None;
+        for (ch, &bound) in model.inputs.iter().zip(input_bounds) {
+            match ch.kind {
+                InputKind::Load { load, component } => {
+                    if let Some(b) = force_bounds.get_mut(load as usize) {
+                        b[(component as usize).min(2)] = bound;
+                    }
+                }
+                InputKind::Gravity { .. } => {
+                    gravity_bound = Some(gravity_bound.map_or(bound, |g| g.min(bound)));
+                }
+            }
+        }
+        let gravity = if gravity_bound.is_some() { 1.0 } else { 0.0 };
         Self {
             load_names: model.loads.iter().map(|l| l.name.clone()).collect(),
+            force_bounds,
+            gravity_bound,
             state: Mutex::new(SharedState {
                 frame: Arc::new(String::new()),
                 generation: 0,
@@ -106,6 +121,16 @@ impl Shared {
     /// Load group names, in model order.
     pub fn load_names(&self) -> &[String] {
         &self.load_names
+    }
+
+    /// Per load group, the plausibility bound of each world force component, N.
+    pub fn force_bounds(&self) -> &[[f64; 3]] {
+        &self.force_bounds
+    }
+
+    /// The plausibility bound of the gravity scale, `None` when the model has no gravity input.
+    pub fn gravity_bound(&self) -> Option<f64> {
+        self.gravity_bound
     }
 
     pub fn stats(&self) -> Stats {

@@ -1,4 +1,5 @@
-//! `crokf-compile`: gmsh mesh + scene → hashed, deterministic reduced Kalman model file.
+//! `crokf-compile`: mesh (gmsh MSH, VTK .vtu/.vtk) + scene → hashed, deterministic reduced
+//! Kalman model file.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -6,13 +7,16 @@ use std::process::ExitCode;
 use clap::Parser;
 
 use crokf_compile::check::{check, CheckOutcome};
-use crokf_compile::fem::export::export_matrices;
+use crokf_compile::fem::export::{self, export_matrices};
 use crokf_compile::report::StageTimer;
 use crokf_compile::scene::SceneFile;
 use crokf_compile::{compile, CompileOptions, FullOrder};
-use crokf_formats::output::{check_paths, AtomicFile, Output, OutputKind};
+use crokf_formats::output::{
+    check_folder_inputs, check_paths, sweep_stale_temporaries, AtomicFile, Output, OutputKind,
+};
 
-/// Compile a scene (TOML) and its gmsh mesh into a crokf model file.
+/// Compile a scene (TOML) and its tetrahedral mesh (gmsh .msh, VTK .vtu or legacy .vtk) into a
+/// crokf model file.
 #[derive(Parser, Debug)]
 #[command(version, about, long_about = None)]
 struct Args {
@@ -36,7 +40,8 @@ struct Args {
     /// Skip the measured error against the full-order linear reference (step and chirp).
     #[arg(long)]
     no_measure: bool,
-    /// Write K, M, C, B, H (Matrix Market) and dofs.csv into this directory and stop.
+    /// Write K, M, C, B, H (Matrix Market) and dofs.csv into this existing folder and stop
+    /// (the six files replace each other's old versions together, or not at all).
     #[arg(long, value_name = "DIR")]
     export_matrices: Option<PathBuf>,
     /// Check that MODEL was compiled from SCENE's current inputs by this compiler version;
@@ -47,6 +52,10 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
+    #[cfg(unix)]
+    if let Err(e) = crokf_formats::output::install_interrupt_cleanup("crokf-compile") {
+        eprintln!("crokf-compile: warning: no cleanup on interrupt: {e}");
+    }
     match run(&args) {
         Ok(code) => code,
         Err(message) => {
@@ -56,12 +65,22 @@ fn main() -> ExitCode {
     }
 }
 
-/// Refuses, before any work, an output that is the scene, its mesh or the model being checked,
-/// two outputs on one path, and an output whose folder does not exist.
+/// The files `--export-matrices` writes into its folder.
+fn is_matrix_file(name: &str) -> bool {
+    export::FILES.contains(&name)
+}
+
+/// Refuses, before any work, an output that is one of the files the command reads (the scene,
+/// its mesh, its node lists, the model being checked), two outputs on one path, an output
+/// whose folder does not exist, and an `--export-matrices` folder that does not exist or
+/// whose files would replace an input; then removes (and names) the temporaries an earlier,
+/// killed run left next to the outputs.
 fn check_outputs(args: &Args) -> Result<(), String> {
     let scene = SceneFile::read(&args.scene).map_err(|e| e.to_string())?;
     let mesh = scene.mesh_path();
     let mut inputs = vec![("scene", args.scene.as_path()), ("mesh", mesh.as_path())];
+    let lists = scene.scene.node_list_files();
+    inputs.extend(lists.iter().map(|p| ("node_list", *p)));
     if let Some(model) = &args.check {
         inputs.push(("--check model", model.as_path()));
     }
@@ -81,10 +100,27 @@ fn check_outputs(args: &Args) -> Result<(), String> {
         outputs.push(Output {
             role: "--export-matrices",
             path: dir.as_path(),
-            kind: OutputKind::Folder,
+            kind: OutputKind::ExistingFolder,
         });
     }
-    check_paths(&inputs, &outputs).map_err(|e| e.to_string())
+    check_paths(&inputs, &outputs).map_err(|e| e.to_string())?;
+    if let Some(dir) = &args.export_matrices {
+        check_folder_inputs(&inputs, "--export-matrices", dir, is_matrix_file)
+            .map_err(|e| e.to_string())?;
+        for name in export::FILES {
+            if dir.join(name).is_dir() {
+                return Err(format!(
+                    "--export-matrices {}: {} is a folder; the export writes a file of that name",
+                    dir.display(),
+                    dir.join(name).display()
+                ));
+            }
+        }
+    }
+    for note in sweep_stale_temporaries(&outputs) {
+        eprintln!("crokf-compile: {note}");
+    }
+    Ok(())
 }
 
 /// Writes `bytes` to `path` through a temporary sibling; the target appears only on commit.

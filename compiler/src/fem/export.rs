@@ -2,7 +2,7 @@
 //! other FEM code: `K.mtx`, `M.mtx`, `C.mtx` (coordinate real general), `B.mtx` (input load
 //! matrix, array real general, n × inputs), `H.mtx` (sensor displacement rows, coordinate,
 //! 3·sensors × n), and `dofs.csv` (row → node tag, component), written together through a
-//! staging folder.
+//! staging folder ([`FILES`]).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -14,10 +14,14 @@ use faer::sparse::SparseColMat;
 use crate::fem::operators::{Operators, SparseRow};
 use crate::fem::{sparse_entries, FemModel};
 
-/// Writes the operators into `dir` (created if missing) through a staging folder: the files
-/// appear together when all are written, and a failure leaves `dir` as it was.
+/// The files [`export_matrices`] writes, in order.
+pub const FILES: [&str; 6] = ["K.mtx", "M.mtx", "C.mtx", "B.mtx", "H.mtx", "dofs.csv"];
+
+/// Writes the operators into `dir` through a staging folder: the six files replace their old
+/// versions together when all are written, and a failure at any of them leaves `dir` as it was
+/// (`crokf_formats::output::StagedDir`).
 pub fn export_matrices(fem: &FemModel, ops: &Operators, dir: &Path) -> Result<(), OutputError> {
-    let mut staged = StagedDir::create(dir)?;
+    let mut staged = StagedDir::create_owning(dir, |name| FILES.contains(&name))?;
     staged.write("K.mtx", &sparse_file(&fem.stiffness, "stiffness K, N/m"))?;
     staged.write("M.mtx", &sparse_file(&fem.mass, "mass M, kg"))?;
     staged.write(

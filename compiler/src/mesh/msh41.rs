@@ -210,15 +210,17 @@ pub(super) fn read_msh41(bytes: &[u8], header: &Header, path: &Path) -> Result<R
         });
     }
     // mshio 0.4 panics on a few malformed inputs (`unimplemented!`, `expect`, overflow);
-    // those known are checked above; any other panic is reported as a parse error.
-    let parsed = std::panic::catch_unwind(|| {
+    // those known are checked above; any other panic is caught quietly and reported as a
+    // parse error.
+    let parsed = super::guard::quietly(|| {
         mshio::parse_msh_bytes(bytes).map_err(|e| describe_mshio_error(bytes, header.binary, &e))
     });
-    let gave_up = "malformed MSH 4.1 content: the mshio parser failed (its message is above)";
+    let gave_up = "malformed MSH 4.1 content: the mshio parser gave up on it (a count, tag or \
+         size that does not match the data that follows)";
     let msh = match parsed {
         Ok(Ok(msh)) => msh,
         Ok(Err((location, message))) => return Err(syntax(path, location, message)),
-        Err(_) => return Err(syntax(path, "MSH 4.1 body".into(), gave_up)),
+        Err(()) => return Err(syntax(path, "MSH 4.1 body".into(), gave_up)),
     };
 
     let mut raw = RawMesh::default();

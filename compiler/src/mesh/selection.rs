@@ -333,6 +333,8 @@ impl<'m> Selections<'m> {
             .map(|(i, &t)| (t, i))
             .collect();
         let mut out = BTreeSet::new();
+        // Tag → the line that listed it first: a tag listed twice is refused.
+        let mut first_line: BTreeMap<u64, usize> = BTreeMap::new();
         for (line_no, line) in text.lines().enumerate() {
             let line = line.split('#').next().unwrap_or("");
             for token in line
@@ -345,6 +347,14 @@ impl<'m> Selections<'m> {
                         line_no + 1
                     ))
                 })?;
+                if let Some(&first) = first_line.get(&tag) {
+                    return Err(err(format!(
+                        "line {}: node {tag} is listed twice (first on line {first}); list \
+                         every node once",
+                        line_no + 1
+                    )));
+                }
+                first_line.insert(tag, line_no + 1);
                 let &i = index.get(&tag).ok_or_else(|| {
                     err(format!(
                         "line {}: node {tag} is not in the mesh (tags run from {} to {})",

@@ -1,10 +1,6 @@
-//! VTK unstructured grids through `vtkio` 0.7: XML (`.vtu`: ASCII, base64 binary or appended
-//! raw/base64 data, zlib or LZ4 compressed) and legacy (`.vtk`: ASCII or big-endian binary, as
-//! VTK writes it; legacy 5.1 files with OFFSETS/CONNECTIVITY are not read by vtkio).
-//!
-//! vtkio 0.7 decodes appended data only when it is base64-encoded; raw appended data (what
-//! ParaView and VTK write by default) is re-encoded as base64 here first (`raw_to_base64`):
-//! every block keeps its bytes, only the encoding and the `offset` attributes change.
+//! VTK unstructured grids: XML (`.vtu`: ASCII, base64 binary or appended raw/base64 data,
+//! zlib or LZ4 compressed) by [`super::vtu`], legacy (`.vtk`: ASCII or big-endian binary, as
+//! VTK writes it; legacy 5.1 files with OFFSETS/CONNECTIVITY are not read) through `vtkio` 0.7.
 //!
 //! - Node tags are the 0-based point ids and element tags the 0-based cell ids (over all pieces,
 //!   in file order), as ParaView's spreadsheet view shows them.
@@ -16,13 +12,18 @@
 //!   per value taken on triangles, named `"MaterialIds:v:faces"`. Floating-point arrays are not
 //!   groups (a region id written as float is ambiguous). meshio's conversion of a gmsh file
 //!   stores the physical tags as `gmsh:physical`, so its groups are `"gmsh:physical:<tag>"`.
+//!
+//! The legacy reader's input is checked first where vtkio would give no useful message: an
+//! ASCII `POINTS` section with a coordinate that is not a finite number, or with fewer
+//! coordinates than it declares, is refused naming the line and the point. A panic inside
+//! vtkio is caught ([`super::guard`]) and reported as a parse error.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::path::Path;
 
-use vtkio::model::{Attribute, CellType, DataSet, IOBuffer, Piece, VertexNumbers};
+use vtkio::model::{Attribute, DataSet, IOBuffer, Piece, VertexNumbers};
 
-use super::{MeshError, RawElement, RawMesh};
+use super::{guard, vtu, MeshError, RawElement, RawMesh};
 
 fn vtk_error(path: &Path, message: impl Into<String>) -> MeshError {
     MeshError::Vtk {
@@ -31,52 +32,137 @@ fn vtk_error(path: &Path, message: impl Into<String>) -> MeshError {
     }
 }
 
+/// One piece of an unstructured grid, whatever file it came from.
+pub(super) struct GridPiece {
+    /// Point coordinates, 3 per point.
+    pub points: Vec<f64>,
+    /// Point ids of every cell, one after the other (ids local to the piece).
+    pub connectivity: Vec<u64>,
+    /// Each cell's (offset, length) in `connectivity`.
+    pub ranges: Vec<(usize, usize)>,
+    /// VTK cell type of each cell.
+    pub types: Vec<u8>,
+    /// Integer cell-data arrays of one component: (name, one value per cell).
+    pub arrays: Vec<(String, Vec<i64>)>,
+}
+
 /// Reads a VTK XML file (a `.vtu`); `bytes` start at `<?xml` or `<VTKFile`.
 pub(super) fn read_xml(bytes: &[u8], path: &Path) -> Result<RawMesh, MeshError> {
-    let converted = raw_to_base64(bytes).map_err(|m| vtk_error(path, m))?;
-    let bytes = converted.as_deref().unwrap_or(bytes);
-    let parsed = std::panic::catch_unwind(|| vtkio::Vtk::parse_xml(bytes));
-    match parsed {
-        Ok(Ok(vtk)) => convert(vtk.data, path),
-        Ok(Err(e)) => Err(vtk_error(
+    let pieces = vtu::read(bytes).map_err(|m| {
+        vtk_error(
             path,
-            format!("cannot read it as a VTK XML file (vtkio: {e})"),
-        )),
-        Err(_) => Err(vtk_error(
-            path,
-            "cannot read it as a VTK XML file (the vtkio parser failed; its message is above)",
-        )),
-    }
+            format!("cannot read it as a VTK XML unstructured grid: {m}"),
+        )
+    })?;
+    assemble_pieces(pieces, path)
 }
 
 /// Reads a legacy VTK file; `bytes` start at `# vtk DataFile`.
 pub(super) fn read_legacy(bytes: &[u8], path: &Path) -> Result<RawMesh, MeshError> {
-    let parsed = std::panic::catch_unwind(|| vtkio::Vtk::parse_legacy_be(bytes));
+    if let Some(problem) = legacy_points_problem(bytes) {
+        return Err(vtk_error(
+            path,
+            format!("cannot read it as a legacy VTK file: {problem}"),
+        ));
+    }
+    let parsed = guard::quietly(|| vtkio::Vtk::parse_legacy_be(bytes));
+    let version_hint = if legacy_version_5(bytes) {
+        "; legacy files of version 5.1 (OFFSETS/CONNECTIVITY) are not read: save as .vtu instead"
+    } else {
+        ""
+    };
     match parsed {
-        Ok(Ok(vtk)) => convert(vtk.data, path),
+        Ok(Ok(vtk)) => assemble_pieces(legacy_pieces(vtk.data, path)?, path),
         Ok(Err(e)) => Err(vtk_error(
             path,
-            format!(
-                "cannot read it as a legacy VTK file (vtkio: {e}); legacy files of version \
-                 5.1 (OFFSETS/CONNECTIVITY) are not read: save as .vtu instead"
-            ),
+            format!("cannot read it as a legacy VTK file (vtkio: {e}){version_hint}"),
         )),
-        Err(_) => Err(vtk_error(
+        Err(()) => Err(vtk_error(
             path,
-            "cannot read it as a legacy VTK file (the vtkio parser failed; its message is above)",
+            format!(
+                "cannot read it as a legacy VTK file: its content is malformed (the vtkio \
+                 parser gave up){version_hint}"
+            ),
         )),
     }
 }
 
-/// gmsh element type of a VTK cell type crokf keeps or ignores; `None` for unsupported ones.
-fn gmsh_kind(cell: CellType) -> Option<u32> {
-    match cell {
-        CellType::Tetra => Some(4),
-        CellType::Triangle => Some(2),
-        CellType::Line => Some(1),
-        CellType::Vertex => Some(15),
-        _ => None,
+/// Whether the header line says version 5.x, or the file uses the 5.1 cell layout.
+fn legacy_version_5(bytes: &[u8]) -> bool {
+    let first = bytes.split(|&b| b == b'\n').next().unwrap_or(b"");
+    let first = String::from_utf8_lossy(first);
+    first.contains("Version 5") || bytes.windows(7).any(|w| w == b"OFFSETS")
+}
+
+/// In an ASCII legacy file: the first `POINTS n type` section whose coordinates are not 3n
+/// finite numbers, described with the line and the point; `None` when the points look right
+/// (or the file is binary, or has no `POINTS` line: vtkio then reports the problem).
+fn legacy_points_problem(bytes: &[u8]) -> Option<String> {
+    let text = String::from_utf8_lossy(bytes);
+    let mut lines = text.lines().enumerate();
+    // Line 3 says ASCII or BINARY.
+    let ascii = text
+        .lines()
+        .nth(2)
+        .is_some_and(|l| l.trim().eq_ignore_ascii_case("ascii"));
+    if !ascii {
+        return None;
     }
+    let (points_line, declared) = lines.find_map(|(i, l)| {
+        let mut words = l.split_ascii_whitespace();
+        (words.next()? == "POINTS").then(|| (i + 1, words.next().map(str::to_owned)))
+    })?;
+    let Some(declared) = declared else {
+        return Some(format!("line {points_line}: POINTS without a count"));
+    };
+    let Ok(n) = declared.parse::<u64>() else {
+        return Some(format!(
+            "line {points_line}: POINTS count {declared:?} is not a non-negative integer"
+        ));
+    };
+    let want = n.saturating_mul(3);
+    let mut got = 0u64;
+    for (i, l) in lines {
+        for tok in l.split_ascii_whitespace() {
+            if got == want {
+                return None;
+            }
+            let point = got / 3;
+            let axis = ["x", "y", "z"][(got % 3) as usize];
+            match tok.parse::<f64>() {
+                Ok(v) if v.is_finite() => got += 1,
+                Ok(_) => {
+                    return Some(format!(
+                        "line {}: point {point} has a non-finite {axis} coordinate ({tok}); \
+                         every coordinate must be a finite number",
+                        i + 1
+                    ))
+                }
+                Err(_) if tok.chars().next().is_some_and(|c| c.is_ascii_alphabetic()) => {
+                    return Some(format!(
+                        "line {}: POINTS (line {points_line}) declares {n} points but the \
+                         coordinates end after {got} values, inside point {point}, where \
+                         {tok:?} begins",
+                        i + 1
+                    ))
+                }
+                Err(_) => {
+                    return Some(format!(
+                        "line {}: the {axis} coordinate of point {point}, {tok:?}, is not a \
+                         number",
+                        i + 1
+                    ))
+                }
+            }
+        }
+    }
+    (got < want).then(|| {
+        format!(
+            "POINTS (line {points_line}) declares {n} points but the file ends after {got} \
+             coordinates, inside point {}",
+            got / 3
+        )
+    })
 }
 
 /// A flat connectivity array and each cell's (offset, length) in it.
@@ -131,7 +217,8 @@ fn integer_values(data: IOBuffer) -> Option<Vec<i64>> {
     }
 }
 
-fn convert(data: DataSet, path: &Path) -> Result<RawMesh, MeshError> {
+/// The pieces of a legacy file's data set.
+fn legacy_pieces(data: DataSet, path: &Path) -> Result<Vec<GridPiece>, MeshError> {
     let DataSet::UnstructuredGrid { pieces, .. } = data else {
         return Err(vtk_error(
             path,
@@ -142,84 +229,37 @@ fn convert(data: DataSet, path: &Path) -> Result<RawMesh, MeshError> {
             ),
         ));
     };
-    let mut raw = RawMesh::default();
-    // Per array name: per cell (global id) its value, or None where the array is absent.
-    let mut arrays: BTreeMap<String, Vec<Option<i64>>> = BTreeMap::new();
-    let mut kinds: Vec<u32> = Vec::new();
-    let mut unsupported: BTreeMap<String, usize> = BTreeMap::new();
+    let mut out = Vec::with_capacity(pieces.len());
     for (k, piece) in pieces.into_iter().enumerate() {
         let piece = match piece {
             Piece::Inline(p) => *p,
             Piece::Source(file, _) => {
                 return Err(vtk_error(
                     path,
-                    format!(
-                        "piece {} is stored in another file ({file}): parallel (.pvtu) data sets \
-                         are not read; merge the pieces into one .vtu (ParaView: Merge Blocks, \
-                         then Save Data)",
-                        k + 1
-                    ),
+                    format!("piece {} is stored in another file ({file})", k + 1),
                 ))
             }
             Piece::Loaded(_) => {
                 return Err(vtk_error(path, format!("piece {}: nested data set", k + 1)))
             }
         };
-        let first_point = raw.nodes.len() as u64;
-        let first_cell = kinds.len();
-        let coords = piece
+        let points = piece
             .points
             .cast_into::<f64>()
             .ok_or_else(|| vtk_error(path, format!("piece {}: points are not numbers", k + 1)))?;
-        if coords.len() % 3 != 0 {
-            return Err(vtk_error(
-                path,
-                format!(
-                    "piece {}: {} point coordinates, not a multiple of 3",
-                    k + 1,
-                    coords.len()
-                ),
-            ));
-        }
-        for (i, p) in coords.chunks_exact(3).enumerate() {
-            raw.node_tags.push(first_point + i as u64);
-            raw.nodes.push([p[0], p[1], p[2]]);
-        }
-        let types = piece.cells.types;
+        let types: Vec<u8> = piece.cells.types.iter().map(|&c| c as u8).collect();
         let (connectivity, ranges) = cell_ranges(piece.cells.cell_verts, path)?;
-        if ranges.len() != types.len() {
+        let n_points = (points.len() / 3) as u64;
+        if let Some(&bad) = connectivity.iter().find(|&&v| v >= n_points) {
             return Err(vtk_error(
                 path,
                 format!(
-                    "piece {}: {} cells in the connectivity but {} cell types",
-                    k + 1,
-                    ranges.len(),
-                    types.len()
+                    "piece {}: a cell uses point {bad}, but there are {n_points} points",
+                    k + 1
                 ),
             ));
         }
-        for (c, (&cell, &(start, len))) in types.iter().zip(&ranges).enumerate() {
-            let tag = (first_cell + c) as u64;
-            let Some(kind) = gmsh_kind(cell) else {
-                *unsupported
-                    .entry(format!("{cell:?} ({})", cell as u8))
-                    .or_default() += 1;
-                kinds.push(0);
-                continue;
-            };
-            kinds.push(kind);
-            let nodes: Vec<u64> = connectivity[start..start + len]
-                .iter()
-                .map(|&v| first_point + v)
-                .collect();
-            raw.elements.push(RawElement {
-                tag,
-                kind,
-                physical: Vec::new(),
-                nodes,
-            });
-        }
-        let n_cells = types.len();
+        let mut arrays = Vec::new();
         for attribute in piece.data.cell {
             let candidates: Vec<(String, IOBuffer)> = match attribute {
                 Attribute::DataArray(a) => {
@@ -241,22 +281,112 @@ fn convert(data: DataSet, path: &Path) -> Result<RawMesh, MeshError> {
                     .collect(),
             };
             for (name, data) in candidates {
-                let Some(values) = integer_values(data) else {
-                    continue;
-                };
-                if values.len() != n_cells {
-                    continue;
+                if let Some(values) = integer_values(data) {
+                    arrays.push((name, values));
                 }
-                let column = arrays.entry(name).or_default();
-                column.resize(first_cell, None);
-                column.extend(values.into_iter().map(Some));
             }
+        }
+        out.push(GridPiece {
+            points,
+            connectivity,
+            ranges,
+            types,
+            arrays,
+        });
+    }
+    Ok(out)
+}
+
+/// gmsh element type of a VTK cell type crokf keeps or ignores; `None` for unsupported ones.
+fn gmsh_kind(cell: u8) -> Option<u32> {
+    match cell {
+        10 => Some(4),
+        5 => Some(2),
+        3 => Some(1),
+        1 => Some(15),
+        _ => None,
+    }
+}
+
+/// The mesh of a grid's pieces: points and cells numbered over all pieces in order, integer
+/// cell-data arrays as groups.
+pub(super) fn assemble_pieces(pieces: Vec<GridPiece>, path: &Path) -> Result<RawMesh, MeshError> {
+    let mut raw = RawMesh::default();
+    // Per array name: per cell (global id) its value, or None where the array is absent.
+    let mut arrays: BTreeMap<String, Vec<Option<i64>>> = BTreeMap::new();
+    let mut kinds: Vec<u32> = Vec::new();
+    let mut unsupported: BTreeMap<(u8, &'static str), usize> = BTreeMap::new();
+    for (k, piece) in pieces.into_iter().enumerate() {
+        let first_point = raw.nodes.len() as u64;
+        let first_cell = kinds.len();
+        let coords = piece.points;
+        if coords.len() % 3 != 0 {
+            return Err(vtk_error(
+                path,
+                format!(
+                    "piece {}: {} point coordinates, not a multiple of 3",
+                    k + 1,
+                    coords.len()
+                ),
+            ));
+        }
+        for (i, p) in coords.chunks_exact(3).enumerate() {
+            raw.node_tags.push(first_point + i as u64);
+            raw.nodes.push([p[0], p[1], p[2]]);
+        }
+        let types = piece.types;
+        let (connectivity, ranges) = (piece.connectivity, piece.ranges);
+        if ranges.len() != types.len() {
+            return Err(vtk_error(
+                path,
+                format!(
+                    "piece {}: {} cells in the connectivity but {} cell types",
+                    k + 1,
+                    ranges.len(),
+                    types.len()
+                ),
+            ));
+        }
+        for (c, (&cell, &(start, len))) in types.iter().zip(&ranges).enumerate() {
+            let tag = (first_cell + c) as u64;
+            let Some(kind) = gmsh_kind(cell) else {
+                *unsupported.entry((cell, cell_type_name(cell))).or_default() += 1;
+                kinds.push(0);
+                continue;
+            };
+            kinds.push(kind);
+            let nodes: Vec<u64> = connectivity
+                .get(start..start + len)
+                .ok_or_else(|| {
+                    vtk_error(
+                        path,
+                        format!("piece {}: cell {c} runs past the connectivity", k + 1),
+                    )
+                })?
+                .iter()
+                .map(|&v| first_point + v)
+                .collect();
+            raw.elements.push(RawElement {
+                tag,
+                kind,
+                physical: Vec::new(),
+                nodes,
+            });
+        }
+        let n_cells = types.len();
+        for (name, values) in piece.arrays {
+            if values.len() != n_cells {
+                continue;
+            }
+            let column = arrays.entry(name).or_default();
+            column.resize(first_cell, None);
+            column.extend(values.into_iter().map(Some));
         }
     }
     if !unsupported.is_empty() {
         let list: Vec<String> = unsupported
             .iter()
-            .map(|(t, n)| format!("{n} cell(s) of type {t}"))
+            .map(|((t, name), n)| format!("{n} cell(s) of type {name} ({t})"))
             .collect();
         return Err(vtk_error(
             path,
@@ -283,21 +413,19 @@ fn convert(data: DataSet, path: &Path) -> Result<RawMesh, MeshError> {
     for (name, mut column) in arrays {
         column.resize(total, None);
         for (dim, kind, suffix) in [(3u8, 4u32, ""), (2, 2, ":faces")] {
-            let values: BTreeSet<i64> = column
-                .iter()
-                .zip(&kinds)
-                .filter(|(_, &k)| k == kind)
-                .filter_map(|(v, _)| *v)
-                .collect();
-            for v in values {
+            let mut cells_of: BTreeMap<i64, Vec<usize>> = BTreeMap::new();
+            for (cell, (value, &k)) in column.iter().zip(&kinds).enumerate() {
+                if let (Some(v), true) = (value, k == kind) {
+                    cells_of.entry(*v).or_default().push(cell);
+                }
+            }
+            for (v, cells) in cells_of {
                 next_tag += 1;
                 raw.names
                     .insert((dim, next_tag), format!("{name}:{v}{suffix}"));
-                for (cell, value) in column.iter().enumerate() {
-                    if *value == Some(v) && kinds[cell] == kind {
-                        if let Some(i) = element_of_cell[cell] {
-                            raw.elements[i].physical.push(next_tag);
-                        }
+                for cell in cells {
+                    if let Some(i) = element_of_cell[cell] {
+                        raw.elements[i].physical.push(next_tag);
                     }
                 }
             }
@@ -317,148 +445,45 @@ fn data_set_name(d: &DataSet) -> &'static str {
     }
 }
 
-/// Standard base64 with padding.
-fn base64(data: &[u8]) -> String {
-    const ALPHABET: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut out = String::with_capacity(data.len().div_ceil(3) * 4);
-    for chunk in data.chunks(3) {
-        let b = [
-            chunk[0],
-            *chunk.get(1).unwrap_or(&0),
-            *chunk.get(2).unwrap_or(&0),
-        ];
-        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
-        for k in 0..4 {
-            if k <= chunk.len() {
-                out.push(char::from(ALPHABET[((n >> (18 - 6 * k)) & 63) as usize]));
-            } else {
-                out.push('=');
-            }
-        }
+/// What an XML data set element or `type` attribute holds, in words.
+pub(super) fn data_set_description(kind: &str) -> &'static str {
+    match kind {
+        "ImageData" => "image data (structured points)",
+        "StructuredGrid" => "structured grid",
+        "RectilinearGrid" => "rectilinear grid",
+        "UnstructuredGrid" => "unstructured grid",
+        "PolyData" => "poly data (surface)",
+        _ => "non-grid",
     }
-    out
 }
 
-fn attribute<'a>(tag: &'a str, name: &str) -> Option<&'a str> {
-    let key = format!(" {name}=\"");
-    let start = tag.find(&key)? + key.len();
-    let end = tag[start..].find('"')? + start;
-    Some(&tag[start..end])
-}
-
-/// Re-encodes raw appended data as base64 (VTK XML layout: an uncompressed block is a header
-/// integer n then n bytes, encoded as one base64 chunk; a compressed block is the header
-/// `[blocks, block size, last size, compressed sizes...]`, then the compressed bytes, encoded as
-/// two chunks). Returns `None` when the file has no raw appended data.
-pub(super) fn raw_to_base64(bytes: &[u8]) -> Result<Option<Vec<u8>>, String> {
-    const OPEN: &[u8] = b"<AppendedData";
-    let Some(open) = bytes.windows(OPEN.len()).position(|w| w == OPEN) else {
-        return Ok(None);
-    };
-    let Some(tag_end) = bytes[open..]
-        .iter()
-        .position(|&b| b == b'>')
-        .map(|p| open + p)
-    else {
-        return Err("unterminated <AppendedData> tag".into());
-    };
-    let tag = String::from_utf8_lossy(&bytes[open..tag_end]).into_owned();
-    if attribute(&tag, "encoding") != Some("raw") {
-        return Ok(None);
+/// Name of a VTK cell type (as VTK's `vtkCellType.h` spells it, without `VTK_`).
+fn cell_type_name(t: u8) -> &'static str {
+    match t {
+        1 => "Vertex",
+        2 => "PolyVertex",
+        3 => "Line",
+        4 => "PolyLine",
+        5 => "Triangle",
+        6 => "TriangleStrip",
+        7 => "Polygon",
+        8 => "Pixel",
+        9 => "Quad",
+        10 => "Tetra",
+        11 => "Voxel",
+        12 => "Hexahedron",
+        13 => "Wedge",
+        14 => "Pyramid",
+        21 => "QuadraticEdge",
+        22 => "QuadraticTriangle",
+        23 => "QuadraticQuad",
+        24 => "QuadraticTetra",
+        25 => "QuadraticHexahedron",
+        26 => "QuadraticWedge",
+        27 => "QuadraticPyramid",
+        42 => "Polyhedron",
+        68..=74 => "Lagrange cell",
+        75..=81 => "Bezier cell",
+        _ => "unknown cell type",
     }
-    let Some(underscore) = bytes[tag_end..].iter().position(|&b| b == b'_') else {
-        return Err("raw appended data without its leading `_`".into());
-    };
-    let data_start = tag_end + underscore + 1;
-    const CLOSE: &[u8] = b"</AppendedData>";
-    let data_end = bytes
-        .windows(CLOSE.len())
-        .rposition(|w| w == CLOSE)
-        .filter(|&e| e >= data_start)
-        .ok_or("raw appended data without </AppendedData>")?;
-    let data = &bytes[data_start..data_end];
-    let head = std::str::from_utf8(&bytes[..open])
-        .map_err(|_| "the XML before <AppendedData> is not UTF-8".to_string())?;
-    let file_tag = head
-        .find("<VTKFile")
-        .and_then(|i| head[i..].find('>').map(|e| &head[i..i + e]))
-        .ok_or("no <VTKFile> tag")?;
-    let header = match attribute(file_tag, "header_type") {
-        Some("UInt64") => 8usize,
-        Some("UInt32") | None => 4,
-        Some(other) => return Err(format!("header_type {other:?} is not UInt32 or UInt64")),
-    };
-    let big_endian = attribute(file_tag, "byte_order") == Some("BigEndian");
-    let compressed = attribute(file_tag, "compressor").is_some_and(|c| !c.is_empty());
-    let read_int = |at: usize| -> Result<usize, String> {
-        let b = data
-            .get(at..at + header)
-            .ok_or_else(|| format!("appended data ends inside a header at byte {at}"))?;
-        let mut v: u64 = 0;
-        for k in 0..header {
-            let byte = if big_endian { b[k] } else { b[header - 1 - k] };
-            v = (v << 8) | u64::from(byte);
-        }
-        usize::try_from(v).map_err(|_| format!("block size {v} out of range"))
-    };
-    // Offsets of the data arrays, in the order they appear.
-    let mut offsets = std::collections::BTreeMap::new();
-    let mut rest = head;
-    while let Some(i) = rest.find(" offset=\"") {
-        rest = &rest[i + 9..];
-        let end = rest.find('"').ok_or("unterminated offset attribute")?;
-        let v: usize = rest[..end]
-            .trim()
-            .parse()
-            .map_err(|_| format!("offset {:?} is not a number", &rest[..end]))?;
-        offsets.insert(v, 0usize);
-    }
-    let mut encoded = String::new();
-    for (&old, new) in offsets.iter_mut() {
-        *new = encoded.len();
-        if compressed {
-            let blocks = read_int(old)?;
-            let head_len = header * (3 + blocks);
-            let mut total = 0usize;
-            for k in 0..blocks {
-                total += read_int(old + header * (3 + k))?;
-            }
-            let h = data
-                .get(old..old + head_len)
-                .ok_or("appended data truncated")?;
-            let body = data
-                .get(old + head_len..old + head_len + total)
-                .ok_or("appended data truncated")?;
-            encoded.push_str(&base64(h));
-            encoded.push_str(&base64(body));
-        } else {
-            let n = read_int(old)?;
-            let block = data
-                .get(old..old + header + n)
-                .ok_or("appended data truncated")?;
-            encoded.push_str(&base64(block));
-        }
-    }
-    // Rewrite the head with the new offsets.
-    let mut out = String::with_capacity(head.len() + encoded.len() + 64);
-    let mut rest = head;
-    while let Some(i) = rest.find(" offset=\"") {
-        out.push_str(&rest[..i + 9]);
-        rest = &rest[i + 9..];
-        let end = rest.find('"').ok_or("unterminated offset attribute")?;
-        let old: usize = rest[..end]
-            .trim()
-            .parse()
-            .map_err(|_| "bad offset".to_string())?;
-        out.push_str(&offsets.get(&old).copied().unwrap_or(0).to_string());
-        rest = &rest[end..];
-    }
-    out.push_str(rest);
-    out.push_str(&tag.replace("\"raw\"", "\"base64\""));
-    out.push_str(">\n_");
-    out.push_str(&encoded);
-    out.push('\n');
-    let mut bytes_out = out.into_bytes();
-    bytes_out.extend_from_slice(&bytes[data_end..]);
-    Ok(Some(bytes_out))
 }

@@ -1,4 +1,4 @@
-//! `crokf-fuzz [--target all|scene|mesh|csv] [--cases N] [--seed S] [--crashes DIR]`: the long
+//! `crokf-fuzz [--target all|scene|mesh|csv|vtu|node_list] [--cases N] [--seed S] [--crashes DIR]`: the long
 //! structure-aware mutation run of crokf's readers (issue 14 item 4). Prints, per target, the
 //! cases, how many were accepted and refused, the time and the rate; every panic or invariant
 //! violation is written to DIR (default: the current folder) as `crash-<target>-<case>.bin` and
@@ -12,9 +12,12 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(about = "Structure-aware mutation fuzzing of the scene, mesh and CSV readers")]
+#[command(
+    about = "Structure-aware mutation fuzzing of the scene, mesh, CSV, VTK (claimed sizes) and node-list readers"
+)]
 struct Args {
-    /// `all`, `scene`, `mesh` or `csv`.
+    /// `all`, `scene`, `mesh`, `csv`, `vtu` (VTK files with mutated claimed sizes) or
+    /// `node_list`.
     #[arg(long, default_value = "all")]
     target: String,
     /// Cases per target.
@@ -35,7 +38,9 @@ fn main() -> ExitCode {
         name => match Target::ALL.iter().find(|t| t.name() == name) {
             Some(t) => vec![*t],
             None => {
-                eprintln!("error: --target {name:?}: expected all, scene, mesh or csv");
+                eprintln!(
+                    "error: --target {name:?}: expected all, scene, mesh, csv, vtu or node_list"
+                );
                 return ExitCode::from(2);
             }
         },

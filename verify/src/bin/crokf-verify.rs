@@ -15,8 +15,15 @@ use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use crokf_compile::mesh::procedural;
+use crokf_compile::scene::SceneFile;
 use crokf_compile::stepping::{Formulation, NewtonOptions};
-use crokf_formats::output::{check_paths, write_atomically, Output, OutputKind, StagedDir};
+use crokf_formats::output::{
+    check_folder_inputs, check_paths, sweep_stale_temporaries, write_atomically, Output,
+    OutputKind, StagedDir,
+};
+
+/// The files `report` writes into its `--out` folder (besides `tip_sigma_*.svg`).
+const REPORT_FILES: [&str; 4] = ["report.md", "report.csv", "report.svg", "sweep.md"];
 use crokf_verify::simulate::{self, SimulationOptions};
 use crokf_verify::{bench, comparison};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -135,20 +142,44 @@ fn report(args: &ReportArgs) -> Result<(), String> {
         withhold_loads: args.withhold_loads,
         ..comparison::ComparisonOptions::default()
     };
+    // Every file the command reads is an input: the scenes, their meshes and node lists, the
+    // scenario.
+    let scenes: Vec<SceneFile> = std::iter::once(&args.scene)
+        .chain(&args.corotational)
+        .map(|p| SceneFile::read(p).map_err(|e| e.to_string()))
+        .collect::<Result<_, _>>()?;
+    let meshes: Vec<PathBuf> = scenes.iter().map(SceneFile::mesh_path).collect();
     let mut inputs: Vec<(&str, &std::path::Path)> =
         vec![("scene", &args.scene), ("scenario", &args.scenario)];
     if let Some(tier) = &args.corotational {
         inputs.push(("--corotational", tier));
     }
-    check_paths(
-        &inputs,
-        &[Output {
-            role: "--out",
-            path: &args.out,
-            kind: OutputKind::Folder,
-        }],
-    )
-    .map_err(|e| e.to_string())?;
+    inputs.extend(meshes.iter().map(|m| ("mesh", m.as_path())));
+    for scene in &scenes {
+        inputs.extend(
+            scene
+                .scene
+                .node_list_files()
+                .into_iter()
+                .map(|p| ("node_list", p)),
+        );
+    }
+    let outputs = [Output {
+        role: "--out",
+        path: &args.out,
+        kind: OutputKind::Folder,
+    }];
+    check_paths(&inputs, &outputs).map_err(|e| e.to_string())?;
+    if args.out.is_dir() {
+        check_folder_inputs(&inputs, "--out", &args.out, |name| {
+            REPORT_FILES.contains(&name)
+                || (name.starts_with("tip_sigma_") && name.ends_with(".svg"))
+        })
+        .map_err(|e| e.to_string())?;
+    }
+    for note in sweep_stale_temporaries(&outputs) {
+        eprintln!("crokf-verify: {note}");
+    }
     let mut bar = progress_bar();
     let tier = match &args.corotational {
         Some(path) => Some(comparison::compile_tier(path, &mut bar).map_err(|e| e.to_string())?),
@@ -431,6 +462,10 @@ fn simulate(args: &SimulateArgs) -> Result<(), simulate::SimulateError> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    #[cfg(unix)]
+    if let Err(e) = crokf_formats::output::install_interrupt_cleanup("crokf-verify") {
+        eprintln!("crokf-verify: warning: no cleanup on interrupt: {e}");
+    }
     let result = match &cli.command {
         Command::Simulate(args) => simulate(args).map_err(|e| e.to_string()),
         Command::Report(args) => report(args),
@@ -440,7 +475,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e}");
+            eprintln!("crokf-verify: error: {e}");
             ExitCode::FAILURE
         }
     }

@@ -161,8 +161,16 @@ impl Ensemble {
 
     /// Where the steps' N-run averages lie against their 95 % bounds.
     pub fn fractions(&self) -> StepFractions {
+        self.fractions_in(0..self.steps.len())
+    }
+
+    /// [`Ensemble::fractions`] over the steps `steps` only (a segment of the run; clipped to
+    /// the run's steps).
+    pub fn fractions_in(&self, steps: std::ops::Range<usize>) -> StepFractions {
+        let end = steps.end.min(self.steps.len());
+        let start = steps.start.min(end);
         let (mut below, mut inside, mut above) = (0usize, 0usize, 0usize);
-        for s in self.steps.iter().filter(|s| s.dof > 0) {
+        for s in self.steps[start..end].iter().filter(|s| s.dof > 0) {
             let (lo, hi) = s.bounds();
             let m = s.mean();
             if m < lo {
@@ -210,6 +218,33 @@ pub struct TipSample {
     pub sigma: [f64; 3],
 }
 
+/// The 2σ coverage of one step: displayed-node error components inside ±2σ (runtime σ) out of
+/// all of them; summed over steps or runs by [`CoverageCount::add`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CoverageCount {
+    /// Components with |e| ≤ 2σ.
+    pub inside: usize,
+    /// Components counted.
+    pub total: usize,
+}
+
+impl CoverageCount {
+    /// inside / total; NaN without components.
+    pub fn fraction(&self) -> f64 {
+        if self.total == 0 {
+            f64::NAN
+        } else {
+            self.inside as f64 / self.total as f64
+        }
+    }
+
+    /// Adds another count.
+    pub fn add(&mut self, other: CoverageCount) {
+        self.inside += other.inside;
+        self.total += other.total;
+    }
+}
+
 /// Consistency figures of one filtered run.
 #[derive(Clone, Debug, Default)]
 pub struct Consistency {
@@ -232,6 +267,9 @@ pub struct Consistency {
     /// NEES_k at the tip of each step (one entry per [`ConsistencyAccumulator::posterior`];
     /// dof 0 without a tip), for [`Ensemble`].
     pub nees_tip_steps: Vec<ChiSquare>,
+    /// The 2σ coverage (runtime σ) of each step (one entry per
+    /// [`ConsistencyAccumulator::posterior`]), for the per-segment figures.
+    pub coverage_steps: Vec<CoverageCount>,
     /// The tip trace (empty without a tip sensor).
     pub tip: Vec<TipSample>,
 }
@@ -582,6 +620,7 @@ impl<'a> ConsistencyAccumulator<'a> {
         for (set, buf) in self.std.iter_mut().enumerate() {
             est.node_std(set, buf)?;
         }
+        let mut step = CoverageCount::default();
         for (j, &(set, i)) in self.blocks.display.iter().enumerate() {
             let w = if self.blocks.world {
                 Matrix3::identity()
@@ -592,11 +631,14 @@ impl<'a> ConsistencyAccumulator<'a> {
             let sigma = w * filter.node_post[phase][j] * w.transpose();
             for c in 0..3 {
                 let e = (display[3 * j + c] - reference[3 * j + c]).abs();
-                self.inside_runtime += (e <= 2.0 * self.std[set][3 * i + c]) as usize;
+                step.inside += (e <= 2.0 * self.std[set][3 * i + c]) as usize;
                 self.inside_world += (e <= 2.0 * sigma[(c, c)].max(0.0).sqrt()) as usize;
-                self.total += 1;
+                step.total += 1;
             }
         }
+        self.inside_runtime += step.inside;
+        self.total += step.total;
+        self.out.coverage_steps.push(step);
         Ok(())
     }
 
@@ -622,6 +664,8 @@ pub struct SeedEnsemble {
     pub nis: Ensemble,
     /// Per-step tip NEES over the completed runs.
     pub nees_tip: Ensemble,
+    /// Per-step 2σ coverage (runtime σ) summed over the completed runs.
+    pub coverage_steps: Vec<CoverageCount>,
     /// Draws whose run the runtime refused: seed and reason (the figures are over the others).
     pub refused: Vec<(u64, String)>,
 }
@@ -642,23 +686,51 @@ pub fn spread(values: &[f64]) -> Option<(f64, f64, f64)> {
 impl SeedEnsemble {
     /// Adds a completed run: its error and its consistency record.
     pub fn add(&mut self, error: f64, run: &Consistency) -> Result<(), RunLengthMismatch> {
-        // Both checked before either is changed: the two ensembles hold the same runs.
-        for (ensemble, steps) in [
-            (&self.nis, &run.nis_steps),
-            (&self.nees_tip, &run.nees_tip_steps),
+        // All checked before any is changed: the ensembles hold the same runs.
+        let first = self.nis.runs() == 0;
+        for (expected, found) in [
+            (self.nis.steps(), run.nis_steps.len()),
+            (self.nees_tip.steps(), run.nees_tip_steps.len()),
+            (self.coverage_steps.len(), run.coverage_steps.len()),
         ] {
-            if ensemble.runs() > 0 && ensemble.steps() != steps.len() {
-                return Err(RunLengthMismatch {
-                    expected: ensemble.steps(),
-                    found: steps.len(),
-                });
+            if !first && expected != found {
+                return Err(RunLengthMismatch { expected, found });
             }
         }
         self.nis.add(&run.nis_steps)?;
         self.nees_tip.add(&run.nees_tip_steps)?;
+        if first {
+            self.coverage_steps = run.coverage_steps.clone();
+        } else {
+            for (acc, &step) in self.coverage_steps.iter_mut().zip(&run.coverage_steps) {
+                acc.add(step);
+            }
+        }
         self.errors.push(error);
         self.coverage.push(run.coverage_runtime);
         Ok(())
+    }
+
+    /// The ensemble of the one run `run` of relative error `error` (the per-step bounds of
+    /// one run, χ²(d)/d, are those of N = 1: valid step by step).
+    pub fn of_run(error: f64, run: &Consistency) -> Result<Self, RunLengthMismatch> {
+        let mut e = SeedEnsemble::default();
+        e.add(error, run)?;
+        Ok(e)
+    }
+
+    /// The 2σ coverage over the steps `steps` (clipped to the run's) and all completed runs;
+    /// NaN without displayed nodes or steps.
+    pub fn coverage_in(&self, steps: std::ops::Range<usize>) -> f64 {
+        let end = steps.end.min(self.coverage_steps.len());
+        let start = steps.start.min(end);
+        self.coverage_steps[start..end]
+            .iter()
+            .fold(CoverageCount::default(), |mut t, &c| {
+                t.add(c);
+                t
+            })
+            .fraction()
     }
 
     /// Draws made (completed and refused).
@@ -787,6 +859,58 @@ mod tests {
         assert_eq!(e.refusals(), "1 of 2: seed 9: step 3: refused");
         assert_eq!(spread(&[1.0, 3.0, 2.0]), Some((2.0, 1.0, 3.0)));
         assert_eq!(spread(&[]), None);
+    }
+
+    #[test]
+    fn fractions_and_coverage_over_a_range_of_steps() {
+        // 10 steps of 3 runs: the first 4 overconfident (NEES 5 per dof), the rest consistent;
+        // coverage 1 of 2 components inside on the first 4 steps, 2 of 2 after.
+        let mut e = SeedEnsemble::default();
+        for _ in 0..3 {
+            let nees: Vec<ChiSquare> = (0..10)
+                .map(|k| ChiSquare {
+                    sum: if k < 4 { 15.0 } else { 3.0 },
+                    dof: 3,
+                })
+                .collect();
+            let coverage: Vec<CoverageCount> = (0..10)
+                .map(|k| CoverageCount {
+                    inside: if k < 4 { 1 } else { 2 },
+                    total: 2,
+                })
+                .collect();
+            let run = Consistency {
+                nis_steps: nees.clone(),
+                nees_tip_steps: nees,
+                coverage_steps: coverage,
+                ..Consistency::default()
+            };
+            e.add(0.01, &run).expect("equal lengths");
+        }
+        let f = e.nees_tip.fractions_in(0..4);
+        assert_eq!((f.steps, f.above, f.inside), (4, 1.0, 0.0));
+        let f = e.nees_tip.fractions_in(4..10);
+        assert_eq!((f.steps, f.above, f.inside), (6, 0.0, 1.0));
+        assert_eq!(e.nees_tip.fractions().above, 0.4);
+        // Ranges are clipped to the run.
+        assert_eq!(e.nees_tip.fractions_in(8..40).steps, 2);
+        assert_eq!(e.nees_tip.fractions_in(20..40).steps, 0);
+        assert_eq!(e.coverage_in(0..4), 0.5);
+        assert_eq!(e.coverage_in(4..10), 1.0);
+        assert_eq!(e.coverage_in(0..10), (12.0 + 36.0) / 60.0);
+        assert!(e.coverage_in(10..12).is_nan());
+        // A run whose coverage record is short changes nothing.
+        let short = Consistency {
+            nis_steps: vec![ChiSquare { sum: 3.0, dof: 3 }; 10],
+            nees_tip_steps: vec![ChiSquare { sum: 3.0, dof: 3 }; 10],
+            coverage_steps: vec![CoverageCount::default(); 9],
+            ..Consistency::default()
+        };
+        assert!(e.add(0.01, &short).is_err());
+        assert_eq!((e.nis.runs(), e.errors.len()), (3, 3));
+        // One run alone is an ensemble of one.
+        let one = SeedEnsemble::of_run(0.02, &short).expect("one run");
+        assert_eq!((one.nis.runs(), one.coverage_steps.len()), (1, 9));
     }
 
     #[test]

@@ -4,6 +4,8 @@ use std::fmt::Write as _;
 
 use crate::bench::STEP_CLOCK;
 
+use super::advice::{self, AdviceFigures, Context, Tier};
+use super::segments::{segment_figures, SegmentFigures, MERGE_STEPS};
 use super::{
     breakdown_rotation, breakdown_rotation_of, spread, verdict, ChiSquare, Comparison, Consistency,
     Ensemble, RowFigures, RuntimeFigures, SeedEnsemble, SweepPoint, TierPoint,
@@ -256,7 +258,8 @@ impl Comparison {
             self.tip.as_deref().unwrap_or("—"),
             self.seed,
             if self.withheld_loads {
-                "; the runtime got NO load inputs (loads withheld)"
+                "; the filter got NO load inputs (loads withheld), the open-loop rows ran with \
+                 the scenario's loads (without inputs or measurements the runtime stays at rest)"
             } else {
                 ""
             }
@@ -345,6 +348,7 @@ impl Comparison {
                 self.filter_rows(&mut out, &format!("tier {}", tier_order(t)), &t.figures);
             }
             self.ensemble_table(&mut out);
+            self.segment_tables(&mut out);
         }
         if let Some(t) = &self.tier {
             let e = &t.envelope;
@@ -409,7 +413,159 @@ impl Comparison {
                 let _ = writeln!(out, "- {note}");
             }
         }
+        self.advice_section(&mut out);
         out
+    }
+
+    /// Every filtered run of every row, with its ensemble over the noise draws (or of its one
+    /// run below 2 draws). Runs whose ensemble is empty (every draw refused) are left out.
+    fn filtered_runs(&self) -> Vec<FilteredRun> {
+        let mut rows: Vec<(String, Tier, &RowFigures)> = self
+            .reduced
+            .iter()
+            .map(|row| {
+                (
+                    format!("r = {}", row.order - row.force_states),
+                    Tier::Warped,
+                    &row.figures,
+                )
+            })
+            .collect();
+        if let Some(t) = &self.tier {
+            rows.push((
+                format!("co-rotational tier ({})", tier_order(t)),
+                Tier::Corotational,
+                &t.figures,
+            ));
+        }
+        let mut out = Vec::new();
+        for (label, tier, figures) in rows {
+            let runs = figures.runtime.filter_runs(self.withheld_loads);
+            let single = [&figures.consistency, &figures.withheld_consistency];
+            let drawn = [&figures.ensemble, &figures.withheld_ensemble];
+            for (((loads, error, _), one), drawn) in runs.into_iter().zip(single).zip(drawn) {
+                let ensemble = match drawn {
+                    Some(e) => e.clone(),
+                    None => match SeedEnsemble::of_run(error, one) {
+                        Ok(e) => e,
+                        Err(_) => continue,
+                    },
+                };
+                if ensemble.nis.runs() > 0 {
+                    out.push(FilteredRun {
+                        row: label.clone(),
+                        tier,
+                        loads,
+                        ensemble,
+                        open_loop_error: figures.runtime.error,
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    /// The advice of every filtered run ([`advice::advise`]), one line per problem, each
+    /// starting with the row and the loads (`r = 16, loads withheld: …`); empty when every run
+    /// is within its bounds.
+    pub fn advice(&self) -> Vec<String> {
+        let mut lines = Vec::new();
+        for run in self.filtered_runs() {
+            let ensemble = &run.ensemble;
+            let segments = segment_figures(ensemble, &self.segments);
+            let figures = AdviceFigures {
+                tier: run.tier,
+                markers_from_noise_std: true,
+                loads_given: run.loads == "given",
+                nis: ensemble.nis.fractions(),
+                nees_tip: ensemble.nees_tip.fractions(),
+                coverage: ensemble.coverage_in(0..self.steps),
+                filtered_error: spread(&ensemble.errors).map_or(f64::NAN, |s| s.0),
+                model_error: Some(run.open_loop_error),
+                segments: &segments,
+                loads: &self.loads,
+            };
+            let context = Context::from(&figures);
+            for a in advice::advise(&figures) {
+                let (row, loads) = (&run.row, run.loads);
+                lines.push(format!("{row}, loads {loads}: {}", a.line(&context)));
+            }
+        }
+        lines
+    }
+
+    /// The advice section: the rules' thresholds and one line per problem.
+    fn advice_section(&self, out: &mut String) {
+        if self.reduced.is_empty() && self.tier.is_none() {
+            return;
+        }
+        let lines = self.advice();
+        let _ = writeln!(
+            out,
+            "\nWhat to change: from each filtered run's figures {}, a statistic is off when more than {:.0} % of its steps lie beyond one of its 95 % \
+             bounds or the 2σ coverage is outside {:.0}–{:.0} %; tip NEES above is laid to the \
+             load's changes or holds by the segments above (a rate {d}× higher in one kind), \
+             and not to the model when the filtered error is more than {d}× the row's open-loop \
+             error (the model's own, loads given). The markers here are drawn with the scene's \
+             noise_std, so R is right by construction.{}",
+            if self.seeds >= 2 {
+                format!("over its {} noise draws", self.seeds)
+            } else {
+                "in its one run (per-step bounds of one run)".to_owned()
+            },
+            100.0 * advice::OUTSIDE_LIMIT,
+            100.0 * advice::COVERAGE_LOW,
+            100.0 * advice::COVERAGE_HIGH,
+            if lines.is_empty() {
+                " Every filtered run is within these bounds: nothing to change."
+            } else {
+                "\n"
+            },
+            d = advice::DOMINANCE,
+        );
+        for line in lines {
+            let _ = writeln!(out, "- {line}");
+        }
+    }
+
+    /// The per-segment tables: one per row (a warped order or the tier), its filtered runs'
+    /// figures in each segment of the scenario.
+    fn segment_tables(&self, out: &mut String) {
+        let runs = self.filtered_runs();
+        if runs.is_empty() || self.segments.is_empty() {
+            return;
+        }
+        let _ = writeln!(
+            out,
+            "\nPer segment: the scenario cut at its load times (breakpoints closer than \
+             {MERGE_STEPS} steps merged); in each segment, {}, the steps whose NIS and tip NEES \
+             lie below / inside / above their 95 % bounds, and the 2σ coverage (runtime σ).",
+            if self.seeds >= 2 {
+                format!(
+                    "over the {} noise draws of the table above (N-run means)",
+                    self.seeds
+                )
+            } else {
+                "in the one filtered run (per-step bounds of one run, χ²(d)/d)".to_owned()
+            }
+        );
+        let mut i = 0;
+        while i < runs.len() {
+            let row = &runs[i].row;
+            let rows: Vec<(String, Vec<SegmentFigures>)> = runs[i..]
+                .iter()
+                .take_while(|r| &r.row == row)
+                .map(|r| {
+                    (
+                        r.loads.to_string(),
+                        segment_figures(&r.ensemble, &self.segments),
+                    )
+                })
+                .collect();
+            i += rows.len();
+            let _ = writeln!(out, "\n{row}:\n");
+            out.push_str(&segment_table("loads", &rows));
+        }
     }
 
     /// CSV, one row per model and order; empty fields where a figure does not apply.
@@ -621,6 +777,19 @@ impl Comparison {
     }
 }
 
+/// A filtered run of a row, for the per-segment tables and the advice.
+struct FilteredRun {
+    /// `r = 16`, `co-rotational tier (…)`.
+    row: String,
+    tier: Tier,
+    /// `given` or `withheld`.
+    loads: &'static str,
+    /// Over the noise draws, or of the one run.
+    ensemble: SeedEnsemble,
+    /// The row's open-loop error (the model's own, loads given).
+    open_loop_error: f64,
+}
+
 impl RuntimeFigures {
     /// The filter table's runs: (loads, filtered error, tip error), "given" and "withheld", or
     /// only "withheld" when the whole comparison withholds the loads (then the filtered run is
@@ -659,4 +828,101 @@ fn chi(c: &ChiSquare) -> String {
     let (lo, hi) = c.bounds();
     let flag = if c.inside() { "" } else { " ✗" };
     format!("{:.3} [{:.3}, {:.3}]{flag}", c.mean(), lo, hi)
+}
+
+/// A per-segment table ([`super::segments`]): one line per run (`rows`: the run's label, in a
+/// first column headed `first` — or several, `first` and the labels split by ` | ` alike — and
+/// its segments' figures) and segment: the segment's time
+/// span and what the load does, its steps, the fractions of its steps below / inside / above
+/// the 95 % bounds of the N-run NIS and tip NEES (%), and its 2σ coverage.
+pub fn segment_table(first: &str, rows: &[(String, Vec<SegmentFigures>)]) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "| {first} | segment | steps | NIS % below / inside / above | tip NEES % below / inside / above | 2σ coverage |"
+    );
+    // `first` may name several columns (`model | run`).
+    let _ = writeln!(
+        out,
+        "|{}---|---:|---|---|---:|",
+        "---|".repeat(first.matches('|').count() + 1)
+    );
+    let fractions = |f: &super::StepFractions| {
+        if f.steps == 0 {
+            "—".to_owned()
+        } else {
+            format!(
+                "{:.1} / {:.1} / {:.1}",
+                100.0 * f.below,
+                100.0 * f.inside,
+                100.0 * f.above
+            )
+        }
+    };
+    for (label, segments) in rows {
+        for s in segments {
+            let seg = &s.segment;
+            let _ = writeln!(
+                out,
+                "| {label} | {}–{} s: {} | {} | {} | {} | {} |",
+                seconds(seg.start),
+                seconds(seg.end),
+                seg.change.describe(),
+                seg.steps.len(),
+                fractions(&s.nis),
+                fractions(&s.nees_tip),
+                percent(s.coverage)
+            );
+        }
+    }
+    out
+}
+
+/// A time in seconds with at most 4 decimals, trailing zeros dropped: `0`, `0.5`, `1.005`.
+fn seconds(t: f64) -> String {
+    let s = format!("{t:.4}");
+    s.trim_end_matches('0').trim_end_matches('.').to_owned()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::comparison::segments::{LoadChange, Segment};
+    use crate::comparison::StepFractions;
+
+    #[test]
+    fn a_segment_table_has_as_many_columns_in_every_line() {
+        let f = StepFractions {
+            steps: 100,
+            below: 0.01,
+            inside: 0.95,
+            above: 0.04,
+        };
+        let figures = SegmentFigures {
+            segment: Segment {
+                steps: 0..101,
+                start: 0.0,
+                end: 0.5,
+                change: LoadChange::Rises(0.0, 20.0),
+            },
+            nis: f,
+            nees_tip: StepFractions { steps: 0, ..f },
+            coverage: 0.9612,
+        };
+        for (first, label) in [("loads", "given"), ("model | run", "m.crokf | withheld")] {
+            let table = segment_table(first, &[(label.to_owned(), vec![figures.clone()])]);
+            let pipes: Vec<usize> = table.lines().map(|l| l.matches('|').count()).collect();
+            assert_eq!(pipes.len(), 3, "{table}");
+            assert!(pipes.iter().all(|&p| p == pipes[0]), "{table}");
+            assert!(
+                table.ends_with(&format!(
+                    "| {label} | 0–0.5 s: load rises 0 N → 20 N | 101 | 1.0 / 95.0 / 4.0 | — | 96.1 % |\n"
+                )),
+                "{table}"
+            );
+        }
+        assert_eq!(seconds(1.005), "1.005");
+        assert_eq!(seconds(0.0), "0");
+        assert_eq!(seconds(1.5), "1.5");
+    }
 }

@@ -216,13 +216,32 @@ pub(super) fn run_runtime(
     Ok(errors)
 }
 
-/// The row's timed steps (progress `phase`, 0/1): the median runtime step with the
-/// measurements and without (open loop), s.
+/// Input sequences of a row: (open loop, filter). The open-loop run always gets the scenario's
+/// loads (without inputs and measurements the runtime stays at rest); the filter gets none
+/// when `withhold_loads`.
+pub(super) type RowInputs = (Vec<Vec<f64>>, Vec<Vec<f64>>);
+
+/// [`RowInputs`] of `model` on the setup's scenario.
+pub(super) fn row_inputs(
+    setup: &Setup,
+    model: &fmt::Model,
+    withhold_loads: bool,
+) -> Result<RowInputs, ComparisonError> {
+    let given = runtime_inputs(setup, &setup.scenario, model, false)?;
+    let filter = if withhold_loads {
+        runtime_inputs(setup, &setup.scenario, model, true)?
+    } else {
+        given.clone()
+    };
+    Ok((given, filter))
+}
+
+/// The row's timed steps (progress `phase`, 0/1): the median runtime step of the filter, on its
+/// (inputs, measurements), and of the open loop, on its (inputs, no measurements), s.
 pub(super) fn time_row(
     est: &mut Estimator,
-    inputs: &[Vec<f64>],
-    measurements: &[Vec<Option<f64>>],
-    none: &[Vec<Option<f64>>],
+    filter: (&[Vec<f64>], &[Vec<Option<f64>>]),
+    open: (&[Vec<f64>], &[Vec<Option<f64>>]),
     samples: usize,
     phase: &str,
     progress: &mut dyn FnMut(Progress),
@@ -232,8 +251,8 @@ pub(super) fn time_row(
         done: 0,
         total: 1,
     });
-    let step_s = time_runtime(est, inputs, measurements, samples);
-    let open_loop_step_s = time_runtime(est, inputs, none, samples);
+    let step_s = time_runtime(est, filter.0, filter.1, samples);
+    let open_loop_step_s = time_runtime(est, open.0, open.1, samples);
     progress(Progress {
         phase,
         done: 1,

@@ -12,7 +12,7 @@ use crokf_compile::compile::compile;
 use crokf_compile::CompileOptions;
 
 use super::runs::{
-    filtered_runs, run_runtime, runtime_inputs, synthetic_measurements, time_row, ReferenceRun,
+    filtered_runs, row_inputs, run_runtime, synthetic_measurements, time_row, ReferenceRun,
 };
 use super::setup::Setup;
 use super::{ComparisonError, ComparisonOptions, Progress, RowFigures, RuntimeFigures, TierRow};
@@ -145,8 +145,9 @@ pub(super) fn check_tier_matches(setup: &Setup, tier: &TierModel) -> Result<(), 
     Ok(())
 }
 
-/// The tier's row: open loop, filtered with the loads given and withheld, and the timed step,
-/// through the same [`run_runtime`], inputs and synthetic measurements as the warped rows.
+/// The tier's row: open loop (the loads given), filtered with the loads given and withheld,
+/// and the timed step, through the same [`run_runtime`], inputs and synthetic measurements as
+/// the warped rows.
 pub(super) fn run_tier(
     setup: &Setup,
     tier: &TierModel,
@@ -166,12 +167,12 @@ pub(super) fn run_tier(
     // As for the warped rows: the filter itself, not the outlier gate.
     est.set_innovation_gate(None);
     let force_states = est.state().len().saturating_sub(3 * r);
-    let inputs = runtime_inputs(setup, &setup.scenario, model, options.withhold_loads)?;
+    let (given, inputs) = row_inputs(setup, model, options.withhold_loads)?;
     let none = vec![vec![None; model.measurements.len()]; setup.steps];
     let open = run_runtime(
         setup,
         &mut est,
-        &inputs,
+        &given,
         &none,
         corot,
         Some(linear),
@@ -193,9 +194,8 @@ pub(super) fn run_tier(
     )?;
     let times = time_row(
         &mut est,
-        &inputs,
-        &measurements,
-        &none,
+        (&inputs, &measurements),
+        (&given, &none),
         options.timing_samples,
         "timing tier",
         progress,
