@@ -54,7 +54,7 @@ enum Command {
 
 #[derive(Args)]
 struct ReportArgs {
-    /// Scene file (TOML).
+    /// Scene file (TOML); its mesh: gmsh .msh, VTK .vtu or legacy .vtk.
     scene: PathBuf,
     /// Scenario file (TOML) with a fixed horizon.
     scenario: PathBuf,
@@ -233,10 +233,10 @@ fn report(args: &ReportArgs) -> Result<(), String> {
         args.out.display()
     );
     for note in &result.notes {
-        eprintln!("note: {note}");
+        eprintln!("crokf-verify: note: {note}");
     }
     for note in &result.tier_notes {
-        eprintln!("note (co-rotational tier): {note}");
+        eprintln!("crokf-verify: note (co-rotational tier): {note}");
     }
     if let Some(why) = &result.tier_failure {
         eprintln!("crokf-verify: the co-rotational tier failed: {why}");
@@ -381,7 +381,7 @@ enum ModelArg {
 
 #[derive(Args)]
 struct SimulateArgs {
-    /// Scene file (TOML).
+    /// Scene file (TOML); its mesh: gmsh .msh, VTK .vtu or legacy .vtk.
     scene: PathBuf,
     /// Scenario file (TOML): load histories, duration or steady, named points.
     scenario: PathBuf,
@@ -448,7 +448,7 @@ fn simulate(args: &SimulateArgs) -> Result<(), simulate::SimulateError> {
         }
     }
     for note in &summary.notes {
-        eprintln!("note: {note}");
+        eprintln!("crokf-verify: note: {note}");
     }
     let shown = summary.files.len().min(3);
     for f in &summary.files[..shown] {
