@@ -137,7 +137,15 @@ mod tests {
 
     #[test]
     fn the_line_states_done_total_elapsed_and_left() {
-        let at = |done, secs| line("tool: training", "runs", done, 40, Duration::from_secs(secs));
+        let at = |done, secs| {
+            line(
+                "tool: training",
+                "runs",
+                done,
+                40,
+                Duration::from_secs(secs),
+            )
+        };
         assert_eq!(
             at(0, 3),
             "tool: training: 0/40 runs done, 3 s elapsed, time left not yet known"
@@ -146,6 +154,9 @@ mod tests {
             at(10, 75),
             "tool: training: 10/40 runs done, 1 min 15 s elapsed, about 3 min 45 s left"
         );
-        assert_eq!(at(40, 300), "tool: training: 40/40 runs done, 5 min 00 s elapsed");
+        assert_eq!(
+            at(40, 300),
+            "tool: training: 40/40 runs done, 5 min 00 s elapsed"
+        );
     }
 }

@@ -35,9 +35,9 @@ fn quickstart_block(readme: &str) -> Result<String, String> {
         .split_once("```sh\n")
         .ok_or(format!("README.md: no ```sh block under `{HEADING}`"))?
         .1;
-    let (block, _) = body
-        .split_once("\n```")
-        .ok_or(format!("README.md: the ```sh block under `{HEADING}` is not closed"))?;
+    let (block, _) = body.split_once("\n```").ok_or(format!(
+        "README.md: the ```sh block under `{HEADING}` is not closed"
+    ))?;
     Ok(block.to_owned() + "\n")
 }
 
@@ -102,8 +102,8 @@ struct Table {
 
 impl Table {
     fn read(path: &Path) -> Table {
-        let text = std::fs::read_to_string(path)
-            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let text =
+            std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         let mut lines = text
             .lines()
             .filter(|l| !l.trim().is_empty() && !l.starts_with('#'));
@@ -144,7 +144,8 @@ fn the_readme_quickstart_runs_as_written() {
     let tools = tools();
 
     // A temporary folder with a copy of models/quickstart/, as in a checkout.
-    let tmp = TempDir(std::env::temp_dir().join(format!("crokf-quickstart-{}", std::process::id())));
+    let tmp =
+        TempDir(std::env::temp_dir().join(format!("crokf-quickstart-{}", std::process::id())));
     let _ = std::fs::remove_dir_all(&tmp.0);
     let copy = tmp.0.join("models").join("quickstart");
     std::fs::create_dir_all(&copy).expect("temporary folder");
@@ -155,10 +156,9 @@ fn the_readme_quickstart_runs_as_written() {
         }
     }
 
-    let path = std::env::join_paths(
-        std::iter::once(tools.clone())
-            .chain(std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default())),
-    )
+    let path = std::env::join_paths(std::iter::once(tools.clone()).chain(std::env::split_paths(
+        &std::env::var_os("PATH").unwrap_or_default(),
+    )))
     .expect("PATH");
     let out = Command::new("sh")
         .arg("-euc")
@@ -186,8 +186,12 @@ fn the_readme_quickstart_runs_as_written() {
     )
     .expect("report JSON");
     let order = report["reduction"]["order"].as_u64().expect("order");
-    let step = report["measured_errors"]["step"].as_f64().expect("step error");
-    let chirp = report["measured_errors"]["chirp"].as_f64().expect("chirp error");
+    let step = report["measured_errors"]["step"]
+        .as_f64()
+        .expect("step error");
+    let chirp = report["measured_errors"]["chirp"]
+        .as_f64()
+        .expect("chirp error");
     eprintln!("compile: r = {order}, measured error step {step:.2e}, chirp {chirp:.2e}");
     assert!(order >= 1 && step <= 1e-3 && chirp <= 1e-3, "{report}");
     let notes = report["notes"].to_string();
@@ -254,7 +258,9 @@ fn the_readme_quickstart_runs_as_written() {
             assert!(std > 0.0 && std < sigma, "{label}: σ {std} against {sigma}");
         }
     }
-    eprintln!("largest marker displacement {largest_motion:.1} σ; worst RMS ratio {worst_ratio:.3}");
+    eprintln!(
+        "largest marker displacement {largest_motion:.1} σ; worst RMS ratio {worst_ratio:.3}"
+    );
     assert!(largest_motion > 20.0, "the push hardly moved the markers");
     assert!(worst_ratio < 1.5, "the estimates do not follow the markers");
 
@@ -263,7 +269,9 @@ fn the_readme_quickstart_runs_as_written() {
         .expect("vtu folder")
         .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
         .collect();
-    let steps = vtu.iter().filter(|n| n.starts_with("step_") && n.ends_with(".vtu"));
+    let steps = vtu
+        .iter()
+        .filter(|n| n.starts_with("step_") && n.ends_with(".vtu"));
     assert_eq!(steps.count(), inputs.rows.len());
     assert!(vtu.iter().any(|n| n == "estimates.pvd"), "{vtu:?}");
 }
