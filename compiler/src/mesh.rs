@@ -1,3 +1,4 @@
+// Over 800 lines, one job: the mesh type, its errors with their hints, and what every reader shares (header sniffing, element kinds, assembly of the raw mesh); each format's reader is its own module (msh1, msh2, msh41, vtk, vtu).
 //! Tetrahedral meshes read from gmsh and VTK files.
 //!
 //! Coordinates are stored as read (mesh units); the scene's unit factor is applied by the caller.

@@ -200,8 +200,11 @@ struct Block {
     data: Vec<u8>,
 }
 
+/// A block compressor of a layout.
+type Compress = fn(&[u8]) -> Vec<u8>;
+
 fn block(layout: Layout, bytes: &[u8], block_size: usize) -> Block {
-    let compress: Option<fn(&[u8]) -> Vec<u8>> = match layout {
+    let compress: Option<Compress> = match layout {
         Layout::Zlib | Layout::AppendedZlib => Some(zlib),
         Layout::Lz4 => Some(lz4_literals),
         _ => None,

@@ -219,7 +219,7 @@ def test_model_tier_names_the_corotational_tier(tmp_path, cantilever):
         '[mesh]\nfile = "beam.msh"\n[[material]]\ngroup = "body"\nyoung_modulus = 1.0e6\n'
         "poisson_ratio = 0.3\ndensity = 1000.0\n[damping]\nalpha = 0.5\nbeta = 1.0e-3\n"
         '[[fixed]]\ngroup = "xmin"\n[[load]]\nname = "tip"\ngroup = "xmax"\n'
-        'force_noise_std = 0.01\n[[sensor]]\nname = "tip"\nposition = [0.99, 0.05, 0.1]\n'
+        'force_model = "white"\nforce_noise_std = 0.01\n[[sensor]]\nname = "tip"\nposition = [0.99, 0.05, 0.1]\n'
         "noise_std = 1.0e-3\n[time]\ndt = 0.005\n"
         '[reduction]\nmodel = "corotational"\n[reduction.corotational]\n'
         "ranges = { tip = 30.0 }\nduration = 0.1\nevery = 2\norder = 6\necsw_tolerance = 1e-2\n"

@@ -300,6 +300,32 @@ fn scene_fields_are_range_checked_naming_the_field() {
     assert!(compile(&path, &options()).is_err());
 }
 
+/// An order the training snapshots cannot give is a warning naming the order, the r given and
+/// the remedy, not a silent cut (and the default order gives no such warning).
+#[test]
+fn an_order_the_snapshots_cannot_give_is_a_warning() {
+    let dir = scene().parent().unwrap().to_path_buf();
+    let base = std::fs::read_to_string(scene()).unwrap();
+    let path = dir.join("sparse.toml");
+    std::fs::write(
+        &path,
+        base.replace("every = 2\norder = 10", "every = 1000\norder = 40"),
+    )
+    .unwrap();
+    let notes = compile(&path, &options()).unwrap().model.report.notes;
+    let warning = notes
+        .iter()
+        .find(|n| n.starts_with("WARNING: co-rotational tier order 40 asked"))
+        .unwrap_or_else(|| panic!("no order warning: {notes:?}"));
+    assert!(warning.contains("every = 1000"), "{warning}");
+    let (_, model) = compiled();
+    assert!(
+        !model.report.notes.iter().any(|n| n.contains("tier order")),
+        "{:?}",
+        model.report.notes
+    );
+}
+
 /// At rest with no load the round-off residual converges at once (the Newton test's scale is
 /// floored at 1e-3 of the training ‖q‖) and the state stays at rest.
 #[test]

@@ -23,27 +23,14 @@ use std::path::Path;
 
 use vtkio::model::{Attribute, DataSet, IOBuffer, Piece, VertexNumbers};
 
-use super::{guard, vtu, MeshError, RawElement, RawMesh};
+use super::vtu::{self, GridPiece};
+use super::{guard, MeshError, RawElement, RawMesh};
 
 fn vtk_error(path: &Path, message: impl Into<String>) -> MeshError {
     MeshError::Vtk {
         path: path.to_owned(),
         message: message.into(),
     }
-}
-
-/// One piece of an unstructured grid, whatever file it came from.
-pub(super) struct GridPiece {
-    /// Point coordinates, 3 per point.
-    pub points: Vec<f64>,
-    /// Point ids of every cell, one after the other (ids local to the piece).
-    pub connectivity: Vec<u64>,
-    /// Each cell's (offset, length) in `connectivity`.
-    pub ranges: Vec<(usize, usize)>,
-    /// VTK cell type of each cell.
-    pub types: Vec<u8>,
-    /// Integer cell-data arrays of one component: (name, one value per cell).
-    pub arrays: Vec<(String, Vec<i64>)>,
 }
 
 /// Reads a VTK XML file (a `.vtu`); `bytes` start at `<?xml` or `<VTKFile`.
@@ -442,18 +429,6 @@ fn data_set_name(d: &DataSet) -> &'static str {
         DataSet::UnstructuredGrid { .. } => "unstructured grid",
         DataSet::PolyData { .. } => "poly data (surface)",
         DataSet::Field { .. } => "field data",
-    }
-}
-
-/// What an XML data set element or `type` attribute holds, in words.
-pub(super) fn data_set_description(kind: &str) -> &'static str {
-    match kind {
-        "ImageData" => "image data (structured points)",
-        "StructuredGrid" => "structured grid",
-        "RectilinearGrid" => "rectilinear grid",
-        "UnstructuredGrid" => "unstructured grid",
-        "PolyData" => "poly data (surface)",
-        _ => "non-grid",
     }
 }
 

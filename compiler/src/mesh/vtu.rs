@@ -16,7 +16,32 @@ use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
 
 use super::blocks::{self, Base64, Budget, Compressor, Encoding, Raw, Scalar, Source, Values};
-use super::vtk::{data_set_description, GridPiece};
+
+/// One piece of an unstructured grid, whatever file it came from.
+pub(super) struct GridPiece {
+    /// Point coordinates, 3 per point.
+    pub points: Vec<f64>,
+    /// Point ids of every cell, one after the other (ids local to the piece).
+    pub connectivity: Vec<u64>,
+    /// Each cell's (offset, length) in `connectivity`.
+    pub ranges: Vec<(usize, usize)>,
+    /// VTK cell type of each cell.
+    pub types: Vec<u8>,
+    /// Integer cell-data arrays of one component: (name, one value per cell).
+    pub arrays: Vec<(String, Vec<i64>)>,
+}
+
+/// What an XML data set element or `type` attribute holds, in words.
+pub(super) fn data_set_description(kind: &str) -> &'static str {
+    match kind {
+        "ImageData" => "image data (structured points)",
+        "StructuredGrid" => "structured grid",
+        "RectilinearGrid" => "rectilinear grid",
+        "UnstructuredGrid" => "unstructured grid",
+        "PolyData" => "poly data (surface)",
+        _ => "non-grid",
+    }
+}
 
 /// `format` of a `DataArray`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

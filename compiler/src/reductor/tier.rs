@@ -151,6 +151,15 @@ impl<'a> TierReductor<'a> {
                 spec.largest_order()
             ));
         }
+        if spec.basis_tolerance.is_none() && r < spec.order {
+            notes.push(format!(
+                "WARNING: co-rotational tier order {} asked, r = {r} given: the {} training \
+                 snapshots span only {r} independent directions. More snapshots (a smaller \
+                 [reduction.corotational] every = {}, or longer training) or a smaller order \
+                 remove this warning",
+                spec.order, env.snapshots, spec.every
+            ));
+        }
         notes.push(format!(
             "co-rotational tier: r = {r} POD vectors of {} training snapshots ({} of {} runs), {} \
              sampled elements of {} (ECSW residual {:.2e}, tolerance {:.0e}); envelope: {}",

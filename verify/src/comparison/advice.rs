@@ -1,3 +1,4 @@
+// Over 800 lines, one job: the advice rules and their wording (500 lines); the rest is their tests, one per rule.
 //! What to change when a filtered run is not consistent: a small table of rules from the N-run
 //! figures ([`super::SeedEnsemble`], per segment [`super::segments`]) to one line of advice per
 //! problem, naming the parameter that is off, its direction, the scene field or command that

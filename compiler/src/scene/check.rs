@@ -1,0 +1,485 @@
+//! The scene's range checks that need no mesh: every field finite and inside its documented
+//! range, every selection well-formed, the load, noise and tier fields consistent with each
+//! other. Each refusal names the entry and the field.
+
+use super::*;
+
+/// `Ok` when `v` is finite and in `[lo, hi]`, else a message naming `field`, its unit and range.
+fn in_range(field: &str, v: f64, (lo, hi): (f64, f64), unit: &str) -> Result<(), String> {
+    if v.is_finite() && v >= lo && v <= hi {
+        Ok(())
+    } else {
+        let lower = if lo > 0.0 { " > 0 and" } else { "" };
+        Err(format!(
+            "{field} = {v} {unit} is out of range: it must be{lower} within [{lo:e}, {hi:e}] {unit}"
+        ))
+    }
+}
+
+fn check_point(field: &str, p: [f64; 3]) -> Result<(), String> {
+    if p.iter()
+        .all(|v| v.is_finite() && v.abs() <= limits::COORDINATE)
+    {
+        Ok(())
+    } else {
+        Err(format!(
+            "{field} = {p:?} is out of range: coordinates must be finite with |x| ≤ {:e} (mesh \
+             units)",
+            limits::COORDINATE
+        ))
+    }
+}
+
+/// Checks a `group`/`select` pair; `material` when the entry takes tetrahedra.
+fn check_target(
+    context: &str,
+    group: &Option<String>,
+    select: &Option<Vec<Selector>>,
+    material: bool,
+) -> Result<(), String> {
+    match (group, select) {
+        (Some(_), Some(_)) => {
+            return Err(format!(
+                "{context}: give either `group` or `select`, not both"
+            ))
+        }
+        (None, None) => {
+            return Err(format!(
+                "{context}: missing `group = \"name\"` or `select = [...]` (see the scene schema \
+                 in compiler/src/scene.rs)"
+            ))
+        }
+        (Some(_), None) => return Ok(()),
+        (None, Some(list)) if list.is_empty() => {
+            return Err(format!("{context}: `select` is empty"))
+        }
+        (None, Some(_)) => {}
+    }
+    for (i, sel) in select.iter().flatten().enumerate() {
+        let here = format!("{context}: select[{i}]");
+        let given = [
+            sel.aabb.is_some(),
+            sel.sphere.is_some(),
+            sel.half_space.is_some(),
+            sel.node_list.is_some(),
+            sel.group.is_some(),
+            sel.everything.is_some(),
+        ]
+        .iter()
+        .filter(|&&b| b)
+        .count();
+        if given != 1 {
+            return Err(format!(
+                "{here}: a selector takes exactly one of box, sphere, half_space, node_list, \
+                 group, everything ({given} given)"
+            ));
+        }
+        if sel.everything == Some(false) {
+            return Err(format!(
+                "{here}: `everything = false` selects nothing; remove it"
+            ));
+        }
+        if let Some(b) = &sel.aabb {
+            check_point(&format!("{here}: box.min"), b.min)?;
+            check_point(&format!("{here}: box.max"), b.max)?;
+            if (0..3).any(|c| b.min[c] > b.max[c]) {
+                return Err(format!(
+                    "{here}: box.min {:?} must not exceed box.max {:?} in any component",
+                    b.min, b.max
+                ));
+            }
+        }
+        if let Some(sp) = &sel.sphere {
+            check_point(&format!("{here}: sphere.center"), sp.center)?;
+            if !(sp.radius.is_finite() && sp.radius > 0.0 && sp.radius <= limits::COORDINATE) {
+                return Err(format!(
+                    "{here}: sphere.radius = {} is out of range: it must be > 0 and ≤ {:e} (mesh \
+                     units)",
+                    sp.radius,
+                    limits::COORDINATE
+                ));
+            }
+        }
+        if let Some(h) = &sel.half_space {
+            check_point(&format!("{here}: half_space.point"), h.point)?;
+            check_point(&format!("{here}: half_space.normal"), h.normal)?;
+            if h.normal.iter().all(|&v| v == 0.0) {
+                return Err(format!("{here}: half_space.normal must not be zero"));
+            }
+        }
+        let shape = sel.aabb.is_some()
+            || sel.sphere.is_some()
+            || sel.half_space.is_some()
+            || sel.everything.is_some();
+        if material {
+            if sel.nodes.is_some() {
+                return Err(format!(
+                    "{here}: `nodes` does not apply to a material, which takes the tetrahedra \
+                     whose centroid lies in the shape; remove it"
+                ));
+            }
+            if sel.node_list.is_some() {
+                return Err(format!(
+                    "{here}: a material takes tetrahedra, not a node list; use a shape or a group"
+                ));
+            }
+        } else if shape && sel.nodes.is_none() {
+            return Err(format!(
+                "{here}: state which nodes the {} takes: add nodes = \"boundary\" (nodes on the \
+                 mesh boundary) or nodes = \"all\"",
+                sel.describe()
+            ));
+        } else if !shape && sel.nodes.is_some() {
+            return Err(format!(
+                "{here}: `nodes` applies to shapes and `everything` only; remove it"
+            ));
+        }
+    }
+    Ok(())
+}
+
+impl CorotationalSpec {
+    /// Range checks; `loads` are the scene's load names. Messages name the field.
+    fn check(&self, loads: &[&str]) -> Result<(), String> {
+        let f = |name: &str| format!("reduction.corotational.{name}");
+        if self.ranges.is_empty() {
+            return Err(format!(
+                "{}: name at least one load group and its force range in N (or state `range` on \
+                 the load)",
+                f("ranges")
+            ));
+        }
+        for (name, &range) in &self.ranges {
+            if !loads.contains(&name.as_str()) {
+                return Err(format!(
+                    "{}: '{name}' is not a load of the scene (loads: {})",
+                    f("ranges"),
+                    loads.join(", ")
+                ));
+            }
+            in_range(&format!("{}.{name}", f("ranges")), range, (1e-9, 1e9), "N")?;
+            if range <= 0.0 {
+                return Err(format!("{}.{name} must be > 0 N", f("ranges")));
+            }
+        }
+        in_range(&f("duration"), self.duration, (1e-6, 1e4), "s")?;
+        if self.every == 0 {
+            return Err(format!("{} must be ≥ 1", f("every")));
+        }
+        in_range(&f("ramp_multiple"), self.ramp_multiple, (0.0, 100.0), "")?;
+        in_range(&f("step_multiple"), self.step_multiple, (0.0, 100.0), "")?;
+        if self.ramp_multiple == 0.0 && self.step_multiple == 0.0 {
+            return Err(format!(
+                "{} and {} are both 0: no training run",
+                f("ramp_multiple"),
+                f("step_multiple")
+            ));
+        }
+        if let Some(t) = self.ramp_time {
+            in_range(&f("ramp_time"), t, (0.0, self.duration), "s")?;
+        }
+        if !(1..=200).contains(&self.order) {
+            return Err(format!(
+                "{} = {} is out of range: it must be within [1, 200]",
+                f("order"),
+                self.order
+            ));
+        }
+        if let Some(eps) = self.basis_tolerance {
+            in_range(&f("basis_tolerance"), eps, (1e-6, 1.0), "")?;
+            if eps <= 0.0 {
+                return Err(format!("{} must be > 0", f("basis_tolerance")));
+            }
+        }
+        if let Some(max) = self.max_order.filter(|m| !(self.order..=400).contains(m)) {
+            return Err(format!(
+                "{} = {max} is out of range: it must be within [order = {}, 400]",
+                f("max_order"),
+                self.order
+            ));
+        }
+        if !(1..=100_000).contains(&self.ecsw_max_elements) {
+            return Err(format!(
+                "{} = {} is out of range: it must be within [1, 100000]",
+                f("ecsw_max_elements"),
+                self.ecsw_max_elements
+            ));
+        }
+        in_range(&f("ecsw_tolerance"), self.ecsw_tolerance, (1e-8, 0.5), "")?;
+        if self.ecsw_tolerance <= 0.0 {
+            return Err(format!("{} must be > 0", f("ecsw_tolerance")));
+        }
+        in_range(
+            &f("newton_tolerance"),
+            self.newton_tolerance,
+            (1e-14, 1e-1),
+            "",
+        )?;
+        if !(1..=100).contains(&self.newton_iterations) {
+            return Err(format!(
+                "{} = {} is out of range: it must be within [1, 100]",
+                f("newton_iterations"),
+                self.newton_iterations
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl Scene {
+    /// Range checks that need no mesh.
+    pub(super) fn check(&self) -> Result<(), String> {
+        if self.materials.is_empty() {
+            return Err("no [[material]]: every volume group needs E, ν and ρ".into());
+        }
+        for (i, m) in self.materials.iter().enumerate() {
+            let context = match &m.group {
+                Some(g) => format!("material '{g}'"),
+                None => format!("material {}", i + 1),
+            };
+            check_target(&context, &m.group, &m.select, true)?;
+            let g = &context;
+            in_range(
+                &format!("{g}: young_modulus"),
+                m.young_modulus,
+                limits::YOUNG_MODULUS,
+                "Pa",
+            )?;
+            if !(m.poisson_ratio.is_finite() && m.poisson_ratio > -1.0 && m.poisson_ratio < 0.5) {
+                return Err(format!(
+                    "{g}: poisson_ratio must lie in (-1, 0.5), got {} \
+                     (ν = 0.5 is incompressible: linear tetrahedra cannot represent it)",
+                    m.poisson_ratio
+                ));
+            }
+            in_range(
+                &format!("{g}: density"),
+                m.density,
+                limits::DENSITY,
+                "kg/m³",
+            )?;
+        }
+        let d = self.damping;
+        in_range("damping.alpha", d.alpha, limits::ALPHA, "1/s")?;
+        in_range("damping.beta", d.beta, limits::BETA, "s")?;
+        let t = self.time;
+        in_range("time.dt", t.dt, limits::DT, "s")?;
+        if !(t.theta.is_finite() && t.theta >= limits::THETA.0 && t.theta <= limits::THETA.1) {
+            return Err(format!(
+                "time.theta must be ≥ 1.37 for unconditional stability (and ≤ {}), got {}",
+                limits::THETA.1,
+                t.theta
+            ));
+        }
+        if let Some(g) = self.gravity {
+            if g.iter()
+                .any(|v| !(v.is_finite() && v.abs() <= limits::GRAVITY))
+            {
+                return Err(format!(
+                    "gravity = {g:?} m/s² is out of range: every component must be finite with \
+                     |g| ≤ {:e} m/s²",
+                    limits::GRAVITY
+                ));
+            }
+        }
+        for (i, f) in self.fixed.iter().enumerate() {
+            let context = match &f.group {
+                Some(g) => format!("fixed '{g}'"),
+                None => format!("fixed {}", i + 1),
+            };
+            check_target(&context, &f.group, &f.select, false)?;
+            if f.components.is_empty() {
+                return Err(format!(
+                    "{context}: components = [] fixes nothing; list the fixed components \
+                     (e.g. components = [\"z\"]) or leave the key out to fix all three"
+                ));
+            }
+        }
+        let mut names = std::collections::BTreeSet::new();
+        for l in &self.loads {
+            if !names.insert(l.name.as_str()) {
+                return Err(format!("load '{}': name used twice", l.name));
+            }
+            check_target(&format!("load '{}'", l.name), &l.group, &l.select, false)?;
+            in_range(
+                &format!("load '{}': force_noise_std", l.name),
+                l.force_noise_std,
+                limits::FORCE_NOISE,
+                "N",
+            )?;
+            in_range(
+                &format!("load '{}': force_rate_noise_std", l.name),
+                l.force_rate_noise_std,
+                limits::FORCE_NOISE,
+                "N/s",
+            )?;
+            if let Some(range) = l.range {
+                in_range(
+                    &format!("load '{}': range", l.name),
+                    range,
+                    (1e-9, 1e9),
+                    "N",
+                )?;
+                if range <= 0.0 {
+                    return Err(format!("load '{}': range must be > 0 N", l.name));
+                }
+            }
+            if let Some(t) = l.rise_time {
+                in_range(
+                    &format!("load '{}': rise_time", l.name),
+                    t,
+                    (1e-6, 1e4),
+                    "s",
+                )?;
+                if t <= 0.0 {
+                    return Err(format!("load '{}': rise_time must be > 0 s", l.name));
+                }
+            }
+            if l.force_noise_std > 0.0 && l.force_model_stated.is_none() {
+                return Err(format!(
+                    "load '{}': force_noise_std without force_model: loads are estimated by \
+                     default (force_model = \"random_walk\", force σ derived from `range` and \
+                     `rise_time`); write force_model = \"random_walk\" to state the σ of the \
+                     force's change per step, or force_model = \"white\" for white noise on a \
+                     load the runtime is told",
+                    l.name
+                ));
+            }
+            if l.is_estimated() && l.force_noise_std <= 0.0 && self.load_range(l).is_none() {
+                return Err(format!(
+                    "load '{}': the filter estimates this load (force_model = \"random_walk\", \
+                     the default) and needs what it may do: state its range (N, the largest \
+                     total force it reaches) and, if not {DEFAULT_RISE_TIME} s, its rise_time (s, \
+                     the shortest time from zero to the range), from which the compiler derives \
+                     the force σ; or force_noise_std (N per step); or force_model = \"white\" \
+                     for a load the runtime is always told",
+                    l.name
+                ));
+            }
+            if !l.is_estimated() && l.rise_time.is_some() {
+                return Err(format!(
+                    "load '{}': rise_time is for estimated loads (force_model = \"random_walk\"); \
+                     remove it or the force_model = \"white\"",
+                    l.name
+                ));
+            }
+            if l.force_rate_noise_std > 0.0
+                && (!l.is_estimated() || self.reduction.model != ModelTier::Corotational)
+            {
+                return Err(format!(
+                    "load '{}': force_rate_noise_std needs force_model = \"random_walk\" (the \
+                     default) and reduction.model = \"corotational\" (the rate states are the \
+                     co-rotational tier's)",
+                    l.name
+                ));
+            }
+        }
+        for n in &self.force_noise {
+            if !names.insert(n.name.as_str()) {
+                return Err(format!("force_noise '{}': name used twice", n.name));
+            }
+            check_target(
+                &format!("force_noise '{}'", n.name),
+                &n.group,
+                &n.select,
+                false,
+            )?;
+            if !(n.std.is_finite() && n.std > 0.0) {
+                return Err(format!(
+                    "force_noise '{}': std must be > 0 N, got {}",
+                    n.name, n.std
+                ));
+            }
+            in_range(
+                &format!("force_noise '{}': std", n.name),
+                n.std,
+                limits::FORCE_NOISE,
+                "N",
+            )?;
+        }
+        let mut sensor_names = std::collections::BTreeSet::new();
+        for s in &self.sensors {
+            if !sensor_names.insert(s.name.as_str()) {
+                return Err(format!("sensor '{}': name used twice", s.name));
+            }
+            if s.position.iter().any(|v| !v.is_finite()) {
+                return Err(format!("sensor '{}': position must be finite", s.name));
+            }
+            check_point(&format!("sensor '{}': position", s.name), s.position)?;
+            if s.components.is_empty() {
+                return Err(format!("sensor '{}': no measured components", s.name));
+            }
+            for &c in &s.components {
+                let sigma = s.noise_std.of(c);
+                if !(sigma.is_finite() && sigma > 0.0) {
+                    return Err(format!(
+                        "sensor '{}': noise_std of component {} must be > 0 m (R must be positive \
+                         definite), got {sigma}",
+                        s.name,
+                        c.label()
+                    ));
+                }
+                in_range(
+                    &format!("sensor '{}': noise_std of component {}", s.name, c.label()),
+                    sigma,
+                    limits::SENSOR_NOISE,
+                    "m",
+                )?;
+            }
+            if s.every == 0 {
+                return Err(format!("sensor '{}': every must be ≥ 1", s.name));
+            }
+        }
+        let mut display_names = std::collections::BTreeSet::new();
+        for d in &self.display {
+            if !display_names.insert(d.name.as_str()) {
+                return Err(format!("display '{}': name used twice", d.name));
+            }
+            check_target(&format!("display '{}'", d.name), &d.group, &d.select, false)?;
+        }
+        if let Some(tol) = self.reduction.tolerance {
+            if !(tol > 0.0 && tol < 1.0) {
+                return Err(format!("reduction.tolerance must lie in (0, 1), got {tol}"));
+            }
+        }
+        if self.reduction.order == Some(0) {
+            return Err("reduction.order must be ≥ 1".into());
+        }
+        if let Some(f) = self.reduction.max_frequency {
+            let highest = crokf_kernel::wilson::highest_resolved_hz(self.time.dt);
+            if !(f > 0.0 && f <= highest) {
+                return Err(format!(
+                    "reduction.max_frequency = {f} Hz is out of range: it must be > 0 and at most \
+                     1/(4 time.dt) = {highest:.6e} Hz (Wilson-θ damps faster modes numerically)"
+                ));
+            }
+            if self.reduction.modes.is_some() {
+                return Err(
+                    "reduction: give either modes (a count) or max_frequency (Hz), not both".into(),
+                );
+            }
+        }
+        match (self.reduction.model, &self.reduction.corotational) {
+            (ModelTier::Corotational, Some(spec)) => {
+                let loads: Vec<&str> = self.loads.iter().map(|l| l.name.as_str()).collect();
+                spec.check(&loads)?;
+            }
+            (ModelTier::Corotational, None) => {
+                return Err(
+                    "reduction.model = \"corotational\" needs a [reduction.corotational] \
+                            table (ranges, duration: the training envelope)"
+                        .into(),
+                )
+            }
+            (ModelTier::Warped, Some(_)) => {
+                return Err(
+                    "[reduction.corotational] is only read with reduction.model = \
+                            \"corotational\""
+                        .into(),
+                )
+            }
+            (ModelTier::Warped, None) => {}
+        }
+        Ok(())
+    }
+}
