@@ -42,6 +42,7 @@ pub mod check;
 pub mod compile;
 pub mod error;
 pub mod full_order;
+pub mod progress;
 pub mod reductor;
 pub mod report;
 pub mod timer;

@@ -226,7 +226,7 @@ fn run(args: &Args) -> Result<(), RunError> {
     if let Some(&last) = measurements.keys().next_back() {
         if last > inputs.rows.len() as u64 {
             eprintln!(
-                "warning: measurements after step {} (the last input row) were ignored",
+                "crokf-run: warning: measurements after step {} (the last input row) were ignored",
                 inputs.rows.len()
             );
         }

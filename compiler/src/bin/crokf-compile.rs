@@ -146,7 +146,7 @@ fn run(args: &Args) -> Result<ExitCode, String> {
             }
             CheckOutcome::Stale(why) => {
                 eprintln!(
-                    "{}: STALE: {why}; rebuild with `crokf-compile {} -o {}`",
+                    "crokf-compile: {}: STALE: {why}; rebuild with `crokf-compile {} -o {}`",
                     model.display(),
                     args.scene.display(),
                     model.display()

@@ -24,6 +24,7 @@ use crate::nonlinear::self_check::{self, SelfCheck};
 use crate::nonlinear::tier::{self, Tier};
 use crate::nonlinear::training::{self, TrainingPlan};
 use crate::outputs::Measurements;
+use crate::progress::Progress;
 use crate::scene::CorotationalSpec;
 use crate::timer::StageTimer;
 
@@ -74,17 +75,17 @@ impl<'a> TierReductor<'a> {
             ));
         };
         let mut noise = full.noise_model().map_err(|e| fail(&e))?;
-        let mut progress = |k: usize, of: usize, label: &str| {
-            eprintln!(
-                "crokf-compile: co-rotational training run {}/{of}: {label}",
-                k + 1
-            );
+        // Run k starts when a worker is free: k + 1 − threads runs are done by then.
+        let runs = plan.runs().len();
+        let mut line = Progress::new("crokf-compile: co-rotational training", "runs", runs);
+        let mut progress = |k: usize, _: usize, _: &str| {
+            line.update((k + 1).saturating_sub(plan.threads));
         };
-        let training = timer
-            .stage("tier_training", || {
-                training::train(full, &plan, &mut progress)
-            })
-            .map_err(|e| fail(&e))?;
+        let training = timer.stage("tier_training", || {
+            training::train(full, &plan, &mut progress)
+        });
+        line.finish();
+        let training = training.map_err(|e| fail(&e))?;
         let mut notes = Vec::new();
         for (label, failed) in &training.runs {
             if let Some(why) = failed {

@@ -129,7 +129,7 @@ fn identify(args: &IdentifyArgs) -> Result<(), IdentifyError> {
 
 #[derive(Args)]
 struct ReportArgs {
-    /// Scene file (TOML).
+    /// Scene file (TOML); its mesh: gmsh .msh, VTK .vtu or legacy .vtk.
     scene: PathBuf,
     /// Scenario file (TOML) with a fixed horizon.
     scenario: PathBuf,
@@ -308,10 +308,10 @@ fn report(args: &ReportArgs) -> Result<(), String> {
         args.out.display()
     );
     for note in &result.notes {
-        eprintln!("note: {note}");
+        eprintln!("crokf-verify: note: {note}");
     }
     for note in &result.tier_notes {
-        eprintln!("note (co-rotational tier): {note}");
+        eprintln!("crokf-verify: note (co-rotational tier): {note}");
     }
     if let Some(why) = &result.tier_failure {
         eprintln!("crokf-verify: the co-rotational tier failed: {why}");
@@ -456,7 +456,7 @@ enum ModelArg {
 
 #[derive(Args)]
 struct SimulateArgs {
-    /// Scene file (TOML).
+    /// Scene file (TOML); its mesh: gmsh .msh, VTK .vtu or legacy .vtk.
     scene: PathBuf,
     /// Scenario file (TOML): load histories, duration or steady, named points.
     scenario: PathBuf,
@@ -523,7 +523,7 @@ fn simulate(args: &SimulateArgs) -> Result<(), simulate::SimulateError> {
         }
     }
     for note in &summary.notes {
-        eprintln!("note: {note}");
+        eprintln!("crokf-verify: note: {note}");
     }
     let shown = summary.files.len().min(3);
     for f in &summary.files[..shown] {
