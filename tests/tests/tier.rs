@@ -326,6 +326,41 @@ fn an_order_the_snapshots_cannot_give_is_a_warning() {
     );
 }
 
+/// A cubature stopped at its element cap above its tolerance is a warning naming both fields.
+#[test]
+fn a_cubature_above_its_tolerance_is_a_warning() {
+    let dir = scene().parent().unwrap().to_path_buf();
+    let base = std::fs::read_to_string(scene()).unwrap();
+    let path = dir.join("capped.toml");
+    std::fs::write(
+        &path,
+        base.replace(
+            "ecsw_tolerance = 1e-2",
+            "ecsw_tolerance = 1e-6\necsw_max_elements = 4",
+        ),
+    )
+    .unwrap();
+    let notes = compile(&path, &options()).unwrap().model.report.notes;
+    let warning = notes
+        .iter()
+        .find(|n| n.starts_with("WARNING: the tier's cubature (ECSW) stopped at"))
+        .unwrap_or_else(|| panic!("no cubature warning: {notes:?}"));
+    assert!(
+        warning.contains("ecsw_max_elements (now 4)") && warning.contains("tolerance 1e-6"),
+        "{warning}"
+    );
+    let (_, model) = compiled();
+    assert!(
+        !model
+            .report
+            .notes
+            .iter()
+            .any(|n| n.contains("cubature (ECSW) stopped")),
+        "{:?}",
+        model.report.notes
+    );
+}
+
 /// At rest with no load the round-off residual converges at once (the Newton test's scale is
 /// floored at 1e-3 of the training ‖q‖) and the state stays at rest.
 #[test]

@@ -176,6 +176,16 @@ impl<'a> TierReductor<'a> {
                 .collect::<Vec<_>>()
                 .join(", ")
         ));
+        let (residual, sampled) = (built.sampling.relative_residual, built.model.cubature.len());
+        if residual > spec.ecsw_tolerance {
+            notes.push(format!(
+                "WARNING: the tier's cubature (ECSW) stopped at {sampled} sampled elements with \
+                 a relative residual {residual:.2e} above its tolerance {:.0e}: the reduced \
+                 forces are less accurate than asked. Raise [reduction.corotational] \
+                 ecsw_max_elements (now {}) or loosen ecsw_tolerance",
+                spec.ecsw_tolerance, spec.ecsw_max_elements
+            ));
+        }
         notes.push(format!(
             "co-rotational tier filter (linearised at rest, state (q, q̇, q̈, f[, ḟ]) = {}, {} force \
              (and rate) states): closed-loop spectral radius {:.6}, Riccati residual {:.1e}, static residual \
