@@ -8,6 +8,20 @@
 use std::io::{IsTerminal, Write};
 use std::time::{Duration, Instant};
 
+/// The prefix of the lines this library writes to stderr: the running crokf binary's name
+/// (`crokf-compile`, `crokf-verify`, …), or `crokf` inside another program (Python).
+pub fn program() -> String {
+    std::env::args_os()
+        .next()
+        .and_then(|a| {
+            std::path::Path::new(&a)
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+        })
+        .filter(|name| name.starts_with("crokf-"))
+        .unwrap_or_else(|| "crokf".to_owned())
+}
+
 /// Shortest interval between two redraws (the last unit is always drawn).
 const REDRAW: Duration = Duration::from_millis(200);
 
@@ -109,6 +123,12 @@ pub fn duration(d: Duration) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_program_that_is_not_a_crokf_binary_is_named_crokf() {
+        // The test harness's executable is `crokf_compile-HASH`, not a `crokf-` binary.
+        assert_eq!(program(), "crokf");
+    }
 
     #[test]
     fn durations_read_as_seconds_minutes_hours() {

@@ -77,7 +77,11 @@ impl<'a> TierReductor<'a> {
         let mut noise = full.noise_model().map_err(|e| fail(&e))?;
         // Run k starts when a worker is free: k + 1 − threads runs are done by then.
         let runs = plan.runs().len();
-        let mut line = Progress::new("crokf-compile: co-rotational training", "runs", runs);
+        let mut line = Progress::new(
+            &format!("{}: co-rotational training", crate::progress::program()),
+            "runs",
+            runs,
+        );
         let mut progress = |k: usize, _: usize, _: &str| {
             line.update((k + 1).saturating_sub(plan.threads));
         };
@@ -261,12 +265,13 @@ impl<'a> TierReductor<'a> {
             .map_err(|e| tier_error(self.full, &e))?;
         let steps: usize = check.runs.iter().map(|r| r.steps).sum();
         eprintln!(
-            "crokf-compile: {} ({steps} reduced steps in {:.2} s)",
+            "{}: {} ({steps} reduced steps in {:.2} s)",
+            crate::progress::program(),
             check.note(),
             check.seconds
         );
         if let Some(warning) = check.warning() {
-            eprintln!("crokf-compile: {warning}");
+            eprintln!("{}: {warning}", crate::progress::program());
         }
         Ok(check)
     }
