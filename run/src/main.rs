@@ -263,7 +263,7 @@ fn main() -> ExitCode {
         return match serve(&args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
-                eprintln!("crokf-run: {e}");
+                eprintln!("crokf-run: error: {e}");
                 ExitCode::FAILURE
             }
         };
@@ -275,7 +275,7 @@ fn main() -> ExitCode {
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("crokf-run: {e}");
+            eprintln!("crokf-run: error: {e}");
             ExitCode::FAILURE
         }
     }

@@ -84,7 +84,9 @@ fn a_missing_vtu_folder_is_refused() {
     let o = c.run(&inputs, &c.dir.join("e.csv"), &vtu);
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(
-        stderr(&o).contains("--vtu") && stderr(&o).contains("does not exist"),
+        stderr(&o).starts_with("crokf-run: error: ")
+            && stderr(&o).contains("--vtu")
+            && stderr(&o).contains("does not exist"),
         "{}",
         stderr(&o)
     );

@@ -19,14 +19,48 @@ pub mod simulate;
 pub mod vtu;
 
 /// The exit of a measuring example (`verify/examples/*`: `fn main() -> ExitCode {
-/// crokf_verify::exit(run()) }`): success for `Ok`; for an error, `error: …` in its `Display`
-/// form (a `Result`-returning `main` would print its `Debug` form) on stderr and failure.
+/// crokf_verify::exit(run()) }`): success for `Ok`; for an error, `NAME: error: …` in its
+/// `Display` form (a `Result`-returning `main` would print its `Debug` form) on stderr and
+/// failure, NAME being the example's executable (`tier_scale`, …) as the crokf binaries name
+/// themselves (`crokf-compile: error: …`).
 pub fn exit<E: std::fmt::Display>(result: Result<(), E>) -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e}");
+            eprintln!("{}", error_line(&executable_name(), &e));
             std::process::ExitCode::FAILURE
         }
+    }
+}
+
+/// The running executable's file stem (`tier_scale` for `target/release/examples/tier_scale`),
+/// `crokf-verify` when the OS gives none.
+fn executable_name() -> String {
+    std::env::args_os()
+        .next()
+        .and_then(|a| {
+            std::path::Path::new(&a)
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+        })
+        .filter(|name| !name.is_empty())
+        .unwrap_or_else(|| "crokf-verify".to_owned())
+}
+
+/// `NAME: error: MESSAGE`, the error line of every crokf executable.
+fn error_line(name: &str, error: &dyn std::fmt::Display) -> String {
+    format!("{name}: error: {error}")
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn an_example_error_line_names_the_example() {
+        // The test harness's executable is `crokf_verify-HASH`.
+        assert!(super::executable_name().starts_with("crokf_verify-"));
+        assert_eq!(
+            super::error_line("tier_scale", &"scene.toml: no such file"),
+            "tier_scale: error: scene.toml: no such file"
+        );
     }
 }

@@ -550,7 +550,7 @@ fn main() -> ExitCode {
             return match identify(args) {
                 Ok(()) => ExitCode::SUCCESS,
                 Err(e) => {
-                    eprintln!("crokf-verify identify: refused: {e}");
+                    eprintln!("crokf-verify: identify refused: {e}");
                     ExitCode::from(2)
                 }
             }
