@@ -157,8 +157,11 @@ pub fn summary(model: &fmt::Model, sizes: &Sizes, timer: &StageTimer) -> String 
             c.seconds, c.peak_memory_mib
         );
     }
+    // Notes are diagnostics: they name the running binary like its warnings and errors
+    // (`crokf-compile: note: …`); the lines above are the summary itself.
+    let program = crate::progress::program();
     for note in &r.notes {
-        let _ = writeln!(out, "note: {note}");
+        let _ = writeln!(out, "{program}: note: {note}");
     }
     out
 }

@@ -199,6 +199,14 @@ fn the_readme_quickstart_runs_as_written() {
         notes.contains("load 'push': force σ") && notes.contains("derived from its range"),
         "{notes}"
     );
+    // On stderr the notes name the binary, as its warnings and errors do.
+    assert!(
+        stderr
+            .lines()
+            .any(|l| l.starts_with("crokf-compile: note: load 'push': force σ")),
+        "{stderr}"
+    );
+    assert!(!stderr.lines().any(|l| l.starts_with("note: ")), "{stderr}");
     assert!(body.join("body.crokf").is_file());
 
     // estimates.csv: the header docs/csv.md states, one row per input row, t = kΔt.
