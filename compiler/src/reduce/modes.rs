@@ -15,8 +15,11 @@ use faer::sparse::linalg::matmul::sparse_dense_matmul;
 use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::{SparseColMat, SparseColMatRef, Triplet};
 use faer::{Accum, Mat, MatRef, Par, Side};
+use std::cell::Cell;
 use std::f64::consts::PI;
-use std::time::Instant;
+use std::time::{Duration, Instant};
+
+use crate::progress::Progress;
 
 /// An eigenvalue ω² ≤ `RIGID_RATIO` × (stiffness/mass scale) is a rigid-body mode.
 const RIGID_RATIO: f64 = 1e-12;
@@ -271,6 +274,30 @@ fn rigid_body_error(
     }
 }
 
+/// An eigen-solve shorter than this prints no progress line.
+const EIGEN_PROGRESS_AFTER: Duration = Duration::from_secs(3);
+
+/// The eigen-solve's progress line on stderr (a terminal only, after
+/// [`EIGEN_PROGRESS_AFTER`]): `crokf-compile: eigen-solve, n DOFs[, modes ≤ f Hz]: done/wanted
+/// modes done, …`, the estimate linear in converged modes, timed since the wanted count last
+/// grew.
+fn eigen_progress(n: usize, max_frequency_hz: Option<f64>, wanted: usize) -> Progress {
+    Progress::new(
+        &eigen_label(&crate::progress::program(), n, max_frequency_hz),
+        "modes",
+        wanted,
+    )
+    .after(EIGEN_PROGRESS_AFTER)
+}
+
+/// `PROGRAM: eigen-solve, n DOFs[, modes ≤ f Hz]`.
+fn eigen_label(program: &str, n: usize, max_frequency_hz: Option<f64>) -> String {
+    match max_frequency_hz {
+        Some(f) => format!("{program}: eigen-solve, {n} DOFs, modes ≤ {f:.0} Hz"),
+        None => format!("{program}: eigen-solve, {n} DOFs"),
+    }
+}
+
 fn cap_note(limit: usize, below: usize, highest: f64) -> String {
     let more = if below > limit {
         format!("{below}")
@@ -451,17 +478,29 @@ pub fn modal_basis(
             Some(_) => limit.min(16),
             None => limit,
         };
+        // Converged modes of the wanted count; the count may still grow while it is below
+        // `limit` and every converged mode is below the cut-off.
+        let converged = Cell::new((0usize, wanted, lambda_cut.is_some() && wanted < limit));
+        let mut line = eigen_progress(n, options.max_frequency_hz, wanted);
         let outcome = block_krylov_schur(
             mass,
-            &mut |x| llt.solve_in_place(x),
+            &mut |x| {
+                llt.solve_in_place(x);
+                let (done, total, open) = converged.get();
+                line.set_total(total, open, done);
+                line.update(done);
+            },
             &mut |theta: &[f64]| {
+                let mut open = false;
                 if let Some(cut) = lambda_cut {
                     // θ = 1/λ: grow the target while every locked mode is below the cut-off.
                     let all_below = theta.iter().all(|&th| 1.0 / th <= cut);
                     if theta.len() >= wanted && all_below && wanted < limit {
                         wanted = (2 * wanted).min(limit);
                     }
+                    open = all_below && wanted < limit;
                 }
+                converged.set((theta.len(), wanted, open));
                 wanted
             },
             &KrylovOptions {
@@ -471,6 +510,9 @@ pub fn modal_basis(
             },
             par,
         )?;
+        let (done, total, _) = converged.get();
+        line.set_total(total, false, done);
+        line.finish_at(done);
         timings.eigensolve = t.elapsed().as_secs_f64();
         restarts = outcome.restarts;
         solves = outcome.solves;
