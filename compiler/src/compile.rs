@@ -138,7 +138,7 @@ pub fn compile_reduced(
     let mut self_check = None;
     if full.scene.scene.reduction.model == ModelTier::Corotational {
         let tier = TierReductor::new(full, &reductor.measurements, &mut timer)?;
-        let check = tier.self_check(&mut timer)?;
+        let check = tier.self_check();
         let notes = &mut model.report.notes;
         notes.extend(tier.notes.iter().cloned());
         notes.push(check.note());

@@ -623,8 +623,8 @@ pub enum ModelTier {
 }
 
 /// `[reduction.corotational]`: what the compiler trains the co-rotational tier on and how big
-/// the tier is. Training (docs/design.md §10 item 2): per load group named in `ranges`, the six
-/// axis directions ±x, ±y, ±z × {a ramp to `ramp_multiple`·F over `ramp_time`, a step to
+/// the tier is. Training (docs/design.md §10 item 2): per load group named in `ranges`, each of
+/// its `directions` (by default ±x, ±y, ±z and four diagonals) × {a ramp to `ramp_multiple`·F over `ramp_time`, a step to
 /// `step_multiple`·F}, F the group's range; full-order co-rotational runs of `duration` s,
 /// a snapshot every `every` steps.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -665,6 +665,10 @@ pub struct CorotationalSpec {
     /// Adds 2 × directions × histories runs per pair (docs/corotational-tier.md §6).
     #[serde(default = "default_combinations")]
     pub combinations: bool,
+    /// The world directions each load group is trained along (default: the six axes and the
+    /// four diagonals of a regular tetrahedron, [`TrainingDirections`]).
+    #[serde(default)]
+    pub directions: TrainingDirections,
     /// Per-run basis tolerance ε (optional): after the `order` pooled POD vectors, the basis is
     /// enriched until every training run's relative projection error in the energy norm
     /// (K-norm) is ≤ ε, at most `max_order` vectors (docs/corotational-tier.md §8). Without
@@ -675,6 +679,21 @@ pub struct CorotationalSpec {
     /// Most ECSW-sampled elements.
     #[serde(default = "default_ecsw_max_elements")]
     pub ecsw_max_elements: usize,
+}
+
+/// `[reduction.corotational] directions`: the world directions of the training loads.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum TrainingDirections {
+    /// ±x, ±y, ±z: 6 directions (the cheapest; loads off these axes are followed less well,
+    /// docs/corotational-tier.md §11).
+    Axes,
+    /// ±x, ±y, ±z and the four diagonals (1, 1, 1), (1, −1, −1), (−1, 1, −1), (−1, −1, 1)
+    /// (normalised): 10 directions. Axis runs never load two components together, so the
+    /// response's coupling between components (quadratic in the load: the xy, xz, yz terms) is
+    /// never seen; these four diagonals carry the three couplings with independent signs.
+    #[default]
+    AxesAndDiagonals,
 }
 
 /// Most ECSW-sampled elements unless a scene says otherwise (also `EcswOptions::default`'s).

@@ -36,13 +36,15 @@ use sha2::{Digest, Sha256};
 pub const MAGIC: [u8; 8] = *b"CROKF\0\r\n";
 /// The format version this crate writes and the only one it reads.
 ///
+/// Version 6 adds the tier's measured model error (`CorotationalTier::model_error`, the filter's
+/// model-error process noise, docs/design.md §11.9).
 /// Version 5 adds the gain schedule of the tier's filter (`CorotationalTier::scheduled`) and its
 /// optional force-rate states (`CorotationalTier::force_rates`, docs/design.md §11.5). Version 4 adds the random-walk force states to the tier's filter (`CorotationalTier::
 /// force_loads`, docs/design.md §11.4; the tier's Kalman state grows from 3r to 3r + 3 per
 /// group). Version 3 adds the optional co-rotational tier section (`Model::tier`, docs/design.md §10).
 /// Version 2 stores the measurement noise once per channel (`kalman.measurement_variance`);
 /// version 1 also had a lossy per-sensor `noise_std` (the largest σ over its components).
-pub const FORMAT_VERSION: u32 = 5;
+pub const FORMAT_VERSION: u32 = 6;
 /// Header length in bytes (magic + version + payload length + SHA-256).
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 32;
 

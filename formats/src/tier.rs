@@ -1,4 +1,4 @@
-//! The co-rotational tier section of a model file (format v5; docs/model-format.md,
+//! The co-rotational tier section of a model file (format v6; docs/model-format.md,
 //! docs/design.md §10): a hyper-reduced co-rotational model on the reduced coordinates q (r)
 //! with u ≈ V q (world-frame displacements of the free DOFs, m per unit q).
 //!
@@ -73,6 +73,11 @@ pub struct CorotationalTier {
     /// constant gain `kalman` everywhere (as v4).
     #[serde(default)]
     pub scheduled: Vec<ScheduledFilter>,
+    /// The reduced model's measured error inside its basis (format v6; docs/design.md §11.9):
+    /// a covariance S (r × r, q²) that the filter takes as process noise, kept so that a
+    /// filter recomputed from the file (other sensors, identified σ) keeps it. 0 × 0: none.
+    #[serde(default)]
+    pub model_error: Matrix,
 }
 
 /// One operating point of the tier's gain schedule (format v5).
@@ -81,8 +86,9 @@ pub struct CorotationalTier {
 pub struct ScheduledFilter {
     /// The operating point q* (r reduced coordinates).
     pub point: Vec<f64>,
-    /// The filter linearised at q*: same period, phases, measured channels, process noise and
-    /// measurement variance as the tier's `kalman`; its own gains and covariances.
+    /// The filter linearised at q*: same period, phases, measured channels and measurement
+    /// variance as the tier's `kalman`; its own gains, covariances and process noise (the
+    /// model-error term, format v6, is per mode of this linearisation).
     pub kalman: KalmanGains,
 }
 

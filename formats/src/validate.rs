@@ -305,7 +305,7 @@ fn check_kalman(prefix: &str, k: &crate::KalmanGains, r: u64, q: usize) -> Resul
     Ok(())
 }
 
-/// The co-rotational tier section (format v5): shapes against r = `tier.order`, m inputs,
+/// The co-rotational tier section (format v6): shapes against r = `tier.order`, m inputs,
 /// the model's sensors and node sets, q measurements; finite values; weights ≥ 0; force
 /// states on existing load groups with three load channels, increasing.
 fn check_tier(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatError> {
@@ -397,6 +397,17 @@ fn check_tier(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatEr
             "tier.envelope.state_margin",
             format!("must be ≥ 1, got {}", env.state_margin),
         ));
+    }
+    if t.model_error.rows != 0 || t.model_error.cols != 0 || !t.model_error.data.is_empty() {
+        check_matrix("tier.model_error", &t.model_error, r, r)?;
+        check_finite("tier.model_error", &t.model_error.data, t.order as usize)?;
+        let n = t.order as usize;
+        if (0..n).any(|i| t.model_error.data[i * n + i] < 0.0) {
+            return Err(invalid(
+                "tier.model_error",
+                "a covariance: its diagonal must be ≥ 0",
+            ));
+        }
     }
     check_increasing("tier.force_loads", &t.force_loads)?;
     if t.force_rates && t.force_loads.is_empty() {

@@ -14,7 +14,7 @@ fn round_trip_and_determinism() {
     let bytes = encode(&model);
     assert_eq!(bytes, encode(&model), "encoding must be deterministic");
     assert_eq!(&bytes[..8], b"CROKF\0\r\n");
-    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 5);
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 6);
     let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
     assert_eq!(len as usize, bytes.len() - HEADER_LEN);
     assert_eq!(hex(&bytes[20..52]), sha256_hex(&bytes[HEADER_LEN..]));
@@ -83,10 +83,10 @@ fn every_truncation_is_an_error() {
 
 #[test]
 fn other_versions_and_wrong_magic() {
-    assert_eq!(FORMAT_VERSION, 5);
-    // Version-1 to version-4 files (before the tier's gain schedule) are refused before their
+    assert_eq!(FORMAT_VERSION, 6);
+    // Version-1 to version-5 files (before the tier's model error) are refused before their
     // payload is read, with both versions and the remedy in the message.
-    for old in [1u32, 2, 3, 4] {
+    for old in [1u32, 2, 3, 4, 5] {
         let mut bytes = encode(&small_model());
         bytes[8..12].copy_from_slice(&old.to_le_bytes());
         let err = decode(&bytes).unwrap_err();
@@ -94,20 +94,20 @@ fn other_versions_and_wrong_magic() {
             err,
             FormatError::UnsupportedVersion {
                 found: old,
-                supported: 5
+                supported: 6
             }
         );
         assert_eq!(
             err.to_string(),
-            format!("model format v{old}, this runtime reads v5: recompile the model with crokf-compile")
+            format!("model format v{old}, this runtime reads v6: recompile the model with crokf-compile")
         );
     }
     let mut bytes = encode(&small_model());
-    bytes[8..12].copy_from_slice(&6u32.to_le_bytes());
+    bytes[8..12].copy_from_slice(&7u32.to_le_bytes());
     let err = decode(&bytes).unwrap_err();
     assert!(
         err.to_string()
-            .starts_with("model format v6, this runtime reads v5: "),
+            .starts_with("model format v7, this runtime reads v6: "),
         "{err}"
     );
     let mut bytes = encode(&small_model());
@@ -360,6 +360,7 @@ fn small_tier(model: &Model) -> CorotationalTier {
                 measurement_variance: model.kalman.measurement_variance.clone(),
             },
         }],
+        model_error: Matrix::from_fn(r as u32, r as u32, |i, j| if i == j { 1e-8 } else { 0.0 }),
     }
 }
 
@@ -430,4 +431,11 @@ fn tier_section_round_trip_and_validation() {
     assert!(e.contains("tier.scheduled[0].kalman"), "{e}");
     let e = bad(&|t| t.scheduled[0].kalman.phases[0].gain = Matrix::zeros(2, 4));
     assert!(e.contains("tier.scheduled[0].kalman.phases[0].gain"), "{e}");
+    // The model error (v6): r × r or absent, finite, a diagonal ≥ 0.
+    let e = bad(&|t| t.model_error = Matrix::zeros(3, 2));
+    assert!(e.contains("tier.model_error"), "{e}");
+    let e = bad(&|t| t.model_error.data[1] = f64::NAN);
+    assert!(e.contains("tier.model_error"), "{e}");
+    let e = bad(&|t| t.model_error.data[0] = -1.0);
+    assert!(e.contains("tier.model_error") && e.contains("≥ 0"), "{e}");
 }

@@ -704,10 +704,11 @@ fn sweep_cantilever() {
 // The co-rotational tier in the report
 
 /// The tier's training block for the small beam: the tip load trained to 30 N (ramp to
-/// 1.25×, step to 0.6×, 0.15 s runs), r = 10, ECSW to 1e-2 (as tests/tests/tier.rs).
+/// 1.25×, step to 0.6×, 0.15 s runs, along the six axes), r = 10, ECSW to 1e-2 (as
+/// tests/tests/tier.rs).
 const TIER: &str = "[reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
     ranges = { tip = 30.0 }\nduration = 0.15\nevery = 2\norder = 10\necsw_tolerance = 1e-2\n\
-    newton_tolerance = 1e-10\nnewton_iterations = 40\n";
+    newton_tolerance = 1e-10\nnewton_iterations = 40\ndirections = \"axes\"\n";
 
 /// The beam case `name` at `force` N over `steps` steps, and its tier scene beside it (the
 /// same body, white force model, the [`TIER`] block), compiled once.

@@ -144,6 +144,10 @@ pub fn tier_section(
         force_rates: filter.force_rates,
         kalman: kalman_gains(&filter.schedule, &filter.process_noise, measurements),
         scheduled: scheduled_section(filter, measurements),
+        model_error: filter
+            .model_error
+            .as_ref()
+            .map_or_else(fmt::Matrix::default, dense_matrix),
     }
 }
 
@@ -155,9 +159,9 @@ fn scheduled_section(
     filter
         .scheduled
         .iter()
-        .map(|(q, schedule)| fmt::ScheduledFilter {
+        .map(|(q, schedule, process_noise)| fmt::ScheduledFilter {
             point: q.iter().copied().collect(),
-            kalman: kalman_gains(schedule, &filter.process_noise, measurements),
+            kalman: kalman_gains(schedule, process_noise, measurements),
         })
         .collect()
 }
@@ -248,6 +252,7 @@ pub fn linearised_of_file_with(
         rate_sigma: noise.rate_sigma(),
         noise_columns,
         measured_rows: measured_rows(&measurements, |s| file_matrix(&t.sensor_rows[s])),
+        model_error: (t.model_error.rows > 0).then(|| file_matrix(&t.model_error)),
     };
     Ok((lin, measurements))
 }

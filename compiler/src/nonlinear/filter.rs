@@ -44,6 +44,10 @@ pub struct LinearisedTier {
     pub noise_columns: Vec<DVector<f64>>,
     /// H V: the measured channels' rows of V (channels × r).
     pub measured_rows: DMatrix<f64>,
+    /// The reduced model's measured error inside the basis, a covariance S (r × r, q²;
+    /// [`super::self_check::SelfCheck::model_error_covariance`]), taken as process noise
+    /// ([`model_error_noise`], docs/design.md §11.9); None: no such noise.
+    pub model_error: Option<DMatrix<f64>>,
 }
 
 impl LinearisedTier {
@@ -140,8 +144,11 @@ pub struct TierFilter {
     /// RMS of H(u − V VᵀM u) divided by the channel's σ ([`marker_model_error`]).
     pub marker_model_error: Vec<f64>,
     /// The gain schedule (docs/design.md §11.5): per operating point q* (r), the same filter
-    /// on the tier linearised at q* ([`LinearisedTier::at`]); `schedule` is the point q = 0.
-    pub scheduled: Vec<(DVector<f64>, PeriodicSchedule)>,
+    /// on the tier linearised at q* ([`LinearisedTier::at`]) with its process noise (the
+    /// model-error term is per mode of that linearisation); `schedule` is the point q = 0.
+    pub scheduled: Vec<(DVector<f64>, PeriodicSchedule, Mat<f64>)>,
+    /// The model error taken as process noise ([`LinearisedTier::model_error`]).
+    pub model_error: Option<DMatrix<f64>>,
 }
 
 /// The tier's filter (docs/design.md §11.4) for the noise model `noise`: the reduced model
@@ -172,8 +179,12 @@ pub fn linearised_filter(
     tier: &Tier,
     noise: &NoiseModel,
     measurements: &Measurements,
+    model_error: Option<DMatrix<f64>>,
 ) -> Result<TierFilter, NonlinearError> {
-    let lin = linearise_at_rest(full, tier, noise, measurements);
+    let lin = LinearisedTier {
+        model_error,
+        ..linearise_at_rest(full, tier, noise, measurements)
+    };
     let channels = noise.force_channels();
     let residual = static_residual(
         full,
@@ -225,6 +236,7 @@ pub fn linearise_at_rest(
         measured_rows: measured_rows(measurements, |s| {
             point_rows(full, v, &ops.sensors[s].weights)
         }),
+        model_error: None,
     }
 }
 
@@ -340,13 +352,13 @@ pub(crate) fn scheduled_filters(
     model: &ReducedModel,
     points: &[DVector<f64>],
     measurements: &Measurements,
-) -> Vec<(DVector<f64>, PeriodicSchedule)> {
+) -> Vec<(DVector<f64>, PeriodicSchedule, Mat<f64>)> {
     points
         .iter()
         .filter_map(|q| {
             filter_of(&lin.at(model, q), measurements)
                 .ok()
-                .map(|f| (q.clone(), f.schedule))
+                .map(|f| (q.clone(), f.schedule, f.process_noise))
         })
         .collect()
 }
@@ -447,9 +459,19 @@ pub(crate) fn scaled_system(
         f[(n3 + nf + j, n3 + nf + j)] = 1.0;
     }
     let nw = lin.noise_columns.len();
-    let mut gw = Mat::<f64>::zeros(n, nw + nf + nr);
+    let model_sigma = match &lin.model_error {
+        Some(s) => model_error_noise(&phi, &lin.mass, s, &lambda, w, (lin.alpha, lin.beta)),
+        None => Vec::new(),
+    };
+    let nm = model_sigma.len();
+    let mut gw = Mat::<f64>::zeros(n, nw + nf + nr + nm);
     for (c, column) in lin.noise_columns.iter().enumerate() {
         modal_load(column, &mut gw, c);
+    }
+    for (i, &sigma) in model_sigma.iter().enumerate() {
+        for k1 in 0..3 {
+            gw[(k1 * r + i, nw + nf + nr + i)] = gamma[i][k1] * sigma;
+        }
     }
     for (j, &sigma) in lin.force_sigma.iter().enumerate() {
         gw[(n3 + j, nw + j)] = sigma;
@@ -503,6 +525,58 @@ pub(crate) fn scaled_system(
     Ok(ScaledSystem { f, h, noise: gw, t })
 }
 
+/// The model error as process noise (docs/design.md §11.9): per mass-normalised mode i of
+/// (K_r, M_r) (columns of `phi`, eigenvalues `lambda`), the σ_i of a white modal force, held
+/// over the step like a load, whose stationary open-loop variance of the mode's displacement
+/// equals the measured one:
+/// ```text
+/// s_i = (Φᵀ M_r S M_r Φ)_ii,   X_i = A_i X_i A_iᵀ + g_i g_iᵀ,   σ_i² = s_i / (X_i)_00
+/// ```
+/// with (A_i, g_i) the mode's Wilson-θ block ([`crate::dynamics::WilsonTheta::modal_block`]).
+/// σ_i = 0 for a mode without a stationary variance (|eigenvalue of A_i| ≥ 1).
+/// Rayleigh damping (α, β) gives mode i the damping α + βλ_i.
+pub fn model_error_noise(
+    phi: &DMatrix<f64>,
+    mass: &DMatrix<f64>,
+    s: &DMatrix<f64>,
+    lambda: &[f64],
+    wilson: crate::dynamics::WilsonTheta,
+    (alpha, beta): (f64, f64),
+) -> Vec<f64> {
+    let projector = phi.transpose() * mass;
+    let modal = &projector * s * projector.transpose();
+    lambda
+        .iter()
+        .enumerate()
+        .map(|(i, &l)| {
+            let (a, g) = wilson.modal_block(l, alpha + beta * l);
+            match stationary_displacement_variance(&a, &g) {
+                Some(x) if x > 0.0 && modal[(i, i)] > 0.0 => (modal[(i, i)] / x).sqrt(),
+                _ => 0.0,
+            }
+        })
+        .collect()
+}
+
+/// (X)_00 of the stationary X = A X Aᵀ + g gᵀ (3 × 3), solved as (I − A ⊗ A) vec X = vec g gᵀ;
+/// None when A has no stationary covariance (the solve fails or X is not finite and ≥ 0).
+fn stationary_displacement_variance(a: &[[f64; 3]; 3], g: &[f64; 3]) -> Option<f64> {
+    let am = nalgebra::Matrix3::from_fn(|i, j| a[i][j]);
+    let gm = nalgebra::Vector3::from_column_slice(g);
+    let kron = nalgebra::SMatrix::<f64, 9, 9>::from_fn(|p, q| {
+        let (i, k) = (p / 3, p % 3);
+        let (j, l) = (q / 3, q % 3);
+        f64::from(u8::from(p == q)) - am[(i, j)] * am[(k, l)]
+    });
+    let rhs = nalgebra::SVector::<f64, 9>::from_fn(|p, _| gm[p / 3] * gm[p % 3]);
+    let x = kron.lu().solve(&rhs)?;
+    let eig = am.complex_eigenvalues();
+    if eig.iter().any(|e| e.norm() >= 1.0) {
+        return None;
+    }
+    (x[0].is_finite() && x[0] >= 0.0).then_some(x[0])
+}
+
 /// The filter of a [`LinearisedTier`] (see [`linearised_filter`]): the DARE of the augmented
 /// pair is solved in scaled modal coordinates x̃ (`ScaledSystem`, `kalman::periodic_gains`)
 /// and mapped back with T.
@@ -536,6 +610,7 @@ pub fn filter_of(
         static_residual: 0.0,
         marker_model_error: Vec::new(),
         scheduled: Vec::new(),
+        model_error: lin.model_error.clone(),
     })
 }
 
@@ -584,4 +659,77 @@ fn static_residual(
         }
     }
     Ok(worst)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dynamics::WilsonTheta;
+
+    /// The 9 × 9 solve against the recursion X ← A X Aᵀ + g gᵀ iterated to its fixed point, on
+    /// a lightly damped slow mode and a stiff one.
+    #[test]
+    fn stationary_variance_is_the_fixed_point_of_the_recursion() {
+        let w = WilsonTheta {
+            dt: 2e-3,
+            theta: 1.4,
+        };
+        for (k, c) in [(400.0, 2.0 + 2e-3 * 400.0), (4e6, 2.0 + 2e-3 * 4e6)] {
+            let (a, g) = w.modal_block(k, c);
+            let solved = stationary_displacement_variance(&a, &g).unwrap();
+            let am = nalgebra::Matrix3::from_fn(|i, j| a[i][j]);
+            let gm = nalgebra::Vector3::from_column_slice(&g);
+            let mut x = nalgebra::Matrix3::<f64>::zeros();
+            for _ in 0..200_000 {
+                x = am * x * am.transpose() + gm * gm.transpose();
+            }
+            assert!(
+                (solved - x[(0, 0)]).abs() <= 1e-9 * x[(0, 0)],
+                "k = {k}: solved {solved:e}, iterated {:e}",
+                x[(0, 0)]
+            );
+        }
+        // A growing mode has no stationary variance.
+        let a = [[1.01, 0.0, 0.0], [0.0, 0.5, 0.0], [0.0, 0.0, 0.5]];
+        assert!(stationary_displacement_variance(&a, &[1.0, 0.0, 0.0]).is_none());
+    }
+
+    /// Each mode's noise reproduces its measured variance: σ_i² X_i,00 = (Φᵀ M S M Φ)_ii, with
+    /// a non-identity mass and modes mixing both coordinates; a mode without measured error
+    /// gets no noise.
+    #[test]
+    fn model_error_noise_matches_each_modes_measured_variance() {
+        let w = WilsonTheta {
+            dt: 1e-3,
+            theta: 1.4,
+        };
+        let mass = DMatrix::from_row_slice(2, 2, &[2.0, 0.0, 0.0, 0.5]);
+        let stiffness = DMatrix::from_row_slice(2, 2, &[800.0, -100.0, -100.0, 300.0]);
+        // Mass-normalised modes: L⁻¹ K L⁻ᵀ with L = diag(√2, √0.5).
+        let l_inv = DMatrix::from_diagonal(&nalgebra::DVector::from_vec(vec![
+            1.0 / 2f64.sqrt(),
+            1.0 / 0.5f64.sqrt(),
+        ]));
+        let eig = (&l_inv * &stiffness * &l_inv).symmetric_eigen();
+        let phi = &l_inv * &eig.eigenvectors;
+        let lambda: Vec<f64> = eig.eigenvalues.iter().copied().collect();
+        let projector = phi.transpose() * &mass;
+        // S with error only in mode 0: S = σ₀² φ₀ φ₀ᵀ (then Φᵀ M S M Φ = diag(σ₀², 0)).
+        let phi0 = phi.column(0).into_owned();
+        let s = &phi0 * phi0.transpose() * 4e-6;
+        let (alpha, beta) = (1.0, 1e-3);
+        let sigma = model_error_noise(&phi, &mass, &s, &lambda, w, (alpha, beta));
+        let modal = &projector * &s * projector.transpose();
+        for i in 0..2 {
+            let (a, g) = w.modal_block(lambda[i], alpha + beta * lambda[i]);
+            let x = stationary_displacement_variance(&a, &g).unwrap();
+            assert!(
+                (sigma[i] * sigma[i] * x - modal[(i, i)]).abs() <= 1e-9 * 4e-6,
+                "mode {i}: σ² X = {:e}, measured {:e}",
+                sigma[i] * sigma[i] * x,
+                modal[(i, i)]
+            );
+        }
+        assert!(sigma[0] > 0.0 && sigma[1] < 1e-12 * sigma[0], "{sigma:?}");
+    }
 }

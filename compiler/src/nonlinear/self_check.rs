@@ -21,7 +21,7 @@
 //! computed `threads` at a time and gathered by run index: the figures do not depend on the
 //! thread count.
 
-use nalgebra::DVector;
+use nalgebra::{DMatrix, DVector};
 
 use crate::full_order::FullOrder;
 
@@ -68,6 +68,10 @@ pub struct RunCheck {
     pub unconverged: usize,
     /// Why the run was not checked or the reduced run failed.
     pub failure: Option<String>,
+    /// Σ_t e_t e_tᵀ over the run's snapshots, e_t = q_t − VᵀM u_t the reduced state's error
+    /// against the best the basis can do (r × r, q²; empty when the run was not compared):
+    /// the in-basis part of the model error, [`SelfCheck::model_error_covariance`].
+    pub error_moment: DMatrix<f64>,
 }
 
 impl RunCheck {
@@ -128,6 +132,28 @@ impl SelfCheck {
     /// The largest run's displacement scale (RMS ‖u‖_M, kg^½·m).
     pub fn largest_scale(&self) -> f64 {
         self.runs.iter().map(|r| r.scale).fold(0.0, f64::max)
+    }
+
+    /// The reduced model's own error inside the basis, as a covariance (r × r, q²): the mean
+    /// of e_t e_tᵀ over every snapshot of every run that completed (e_t = q_t − VᵀM u_t, the
+    /// reduced state after step t against the M-orthogonal projection of the full-order
+    /// state). The filter takes it as process noise (docs/design.md §11.9). None when no run
+    /// completed.
+    pub fn model_error_covariance(&self) -> Option<DMatrix<f64>> {
+        let mut sum: Option<DMatrix<f64>> = None;
+        let mut count = 0usize;
+        for run in self.runs.iter().filter(|r| r.error.is_finite()) {
+            if run.error_moment.is_empty() {
+                continue;
+            }
+            count += run.snapshots;
+            match sum.as_mut() {
+                Some(s) if s.shape() == run.error_moment.shape() => *s += &run.error_moment,
+                Some(_) => return None,
+                None => sum = Some(run.error_moment.clone()),
+            }
+        }
+        sum.filter(|_| count > 0).map(|s| s / count as f64)
     }
 
     /// Reduced steps that ended unconverged, over all runs.
@@ -253,6 +279,7 @@ pub fn self_check(
             iterations: 0,
             unconverged: 0,
             failure: None,
+            error_moment: DMatrix::zeros(0, 0),
         };
         if let Some(why) = &training.runs[k].1 {
             out.failure = Some(format!("training run failed: {why}"));
@@ -277,6 +304,8 @@ pub fn self_check(
             }
         };
         let (mut err2, mut ref2) = (0.0, 0.0);
+        let r = tier.basis.vectors.ncols();
+        let mut moment = DMatrix::<f64>::zeros(r, r);
         let mut snapshot = of_run[k].iter();
         for step in 0..steps {
             let m = run.history.at(step as f64 * full.wilson.dt);
@@ -288,13 +317,14 @@ pub fn self_check(
             if plan.keeps(step + 1, steps) {
                 let Some(&s) = snapshot.next() else { break };
                 let u = &training.snapshots[s];
-                let mut d: Vec<f64> = (&tier.basis.vectors * stepper.coordinates())
-                    .iter()
-                    .copied()
-                    .collect();
+                let q = stepper.coordinates();
+                let mut d: Vec<f64> = (&tier.basis.vectors * q).iter().copied().collect();
                 d.iter_mut().zip(u).for_each(|(di, ui)| *di -= ui);
                 err2 += m_norm2(full, &d);
                 ref2 += m_norm2(full, u);
+                let mu = DVector::from_vec(crate::fem::sparse_mul(&full.fem.mass, u));
+                let e = q - tier.basis.vectors.tr_mul(&mu);
+                moment.ger(1.0, &e, &e, 1.0);
             }
         }
         let stats = stepper.stats();
@@ -303,6 +333,7 @@ pub fn self_check(
         out.iterations = stats.iterations;
         out.unconverged = stats.unconverged;
         if out.failure.is_none() {
+            out.error_moment = moment;
             out.error = if ref2 > 0.0 {
                 (err2 / ref2).sqrt()
             } else if err2 > 0.0 {
@@ -327,6 +358,7 @@ pub fn self_check(
                 iterations: 0,
                 unconverged: 0,
                 failure: Some("the check did not finish".to_owned()),
+                error_moment: DMatrix::zeros(0, 0),
             })
         })
         .collect();

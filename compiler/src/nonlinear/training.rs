@@ -4,7 +4,8 @@
 //! scene selects `[reduction] model = "corotational"` (its `[corotational]` table is the plan,
 //! [`TrainingPlan::from_scene`]); `crokf-verify` reuses the same driver.
 //!
-//! Run list, in this order: for each load group g, each direction d of `directions` and each
+//! Run list, in this order: for each load group g, each direction d of `directions` (the six
+//! axes, and by default four diagonals: [`directions_of`]) and each
 //! history h of `histories`, one run with only group g loaded by the world-frame dead load
 //! f(t) = h(t)·F_g·d, F_g the group's load range (N). Histories: a ramp from 0 to a·F_g over
 //! t_r then held, or a step to a·F_g at t = 0 (a the history's multiple of the range). Then,
@@ -24,7 +25,7 @@
 use crate::fem::operators::InputKind;
 use crate::fem::FemModel;
 use crate::full_order::FullOrder;
-use crate::scene::CorotationalSpec;
+use crate::scene::{CorotationalSpec, TrainingDirections};
 use crate::stepping::{
     CorotationalSimulator, ModifiedNewton, NewtonOptions, NewtonStats, Simulator, SteppingError,
 };
@@ -135,6 +136,23 @@ pub fn axis_directions() -> Vec<[f64; 3]> {
     directions
 }
 
+/// The four diagonals of a regular tetrahedron, (1, 1, 1), (1, −1, −1), (−1, 1, −1),
+/// (−1, −1, 1), normalised: loaded along them a body shows the couplings between load
+/// components (xy, xz, yz) that axis runs never excite ([`TrainingDirections`]).
+pub fn tetrahedral_diagonals() -> Vec<[f64; 3]> {
+    let s = 1.0 / 3f64.sqrt();
+    vec![[s, s, s], [s, -s, -s], [-s, s, -s], [-s, -s, s]]
+}
+
+/// The unit directions of a scene's `directions` setting, axes first.
+pub fn directions_of(choice: TrainingDirections) -> Vec<[f64; 3]> {
+    let mut directions = axis_directions();
+    if choice == TrainingDirections::AxesAndDiagonals {
+        directions.extend(tetrahedral_diagonals());
+    }
+    directions
+}
+
 impl TrainingPlan {
     /// The default plan: the six axis directions ±x, ±y, ±z; a ramp to 1.25× the range over
     /// `duration`/3 and a step to 0.6× the range; snapshots every `every` steps.
@@ -159,7 +177,7 @@ impl TrainingPlan {
     }
 
     /// The plan of a scene's `[corotational]` table: its `ranges` (in the scene's load order),
-    /// the six axis directions, a ramp to `ramp_multiple` × range over `ramp_time` (default
+    /// its `directions` ([`directions_of`]), a ramp to `ramp_multiple` × range over `ramp_time` (default
     /// duration/3) and a step to `step_multiple` × range.
     pub fn from_scene(spec: &CorotationalSpec, load_names: &[String]) -> Self {
         let ranges = load_names
@@ -180,7 +198,7 @@ impl TrainingPlan {
         }
         TrainingPlan {
             ranges,
-            directions: axis_directions(),
+            directions: directions_of(spec.directions),
             histories,
             duration: spec.duration,
             every: spec.every,
@@ -518,4 +536,53 @@ pub(crate) fn run_indexed<T: Send>(
         }
     });
     results
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The default plan trains each load group along the six axes and four tetrahedral
+    /// diagonals (unit vectors; every pair of the three components loaded together, with both
+    /// signs of its product); `directions = "axes"` keeps the six axes alone.
+    #[test]
+    fn default_directions_are_the_axes_and_four_diagonals() {
+        let spec: CorotationalSpec = toml::from_str("duration = 0.1").unwrap();
+        assert_eq!(spec.directions, TrainingDirections::AxesAndDiagonals);
+        let plan = TrainingPlan::from_scene(&spec, &[]);
+        assert_eq!(plan.directions.len(), 10);
+        assert_eq!(plan.directions[..6], axis_directions()[..]);
+        for d in &plan.directions {
+            let norm = d.iter().map(|c| c * c).sum::<f64>().sqrt();
+            assert!((norm - 1.0).abs() < 1e-15, "{d:?}");
+        }
+        // Each coupling (xy, xz, yz) appears with both signs over the diagonals.
+        for (i, j) in [(0, 1), (0, 2), (1, 2)] {
+            let signs: Vec<f64> = plan.directions[6..]
+                .iter()
+                .map(|d| (d[i] * d[j]).signum())
+                .collect();
+            assert!(
+                signs.contains(&1.0) && signs.contains(&-1.0),
+                "{i}{j}: {signs:?}"
+            );
+        }
+        let mut ranges = std::collections::BTreeMap::new();
+        ranges.insert("push".to_string(), 1.0);
+        let spec = CorotationalSpec { ranges, ..spec };
+        let runs = TrainingPlan::from_scene(&spec, &["push".to_string()]).runs();
+        assert_eq!(runs.len(), 20);
+        assert_eq!(runs[12].label, "push (+1, +1, +1) ramp 1.25×");
+
+        let axes: CorotationalSpec =
+            toml::from_str("duration = 0.1\ndirections = \"axes\"").unwrap();
+        assert_eq!(
+            TrainingPlan::from_scene(&axes, &[]).directions,
+            axis_directions()
+        );
+        let bad = toml::from_str::<CorotationalSpec>("duration = 0.1\ndirections = \"all\"")
+            .unwrap_err()
+            .to_string();
+        assert!(bad.contains("axes_and_diagonals"), "{bad}");
+    }
 }

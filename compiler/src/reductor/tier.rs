@@ -49,6 +49,9 @@ pub struct TierReductor<'a> {
     pub tier: Tier,
     /// The filter designed on the tier linearised at rest and its gain schedule.
     pub filter: TierFilter,
+    /// The compiled tier re-run on its training runs ([`self_check`]); its in-basis error is
+    /// the filter's model-error noise.
+    pub check: SelfCheck,
     /// What the build decided and measured, for the compile report (training runs skipped,
     /// basis, cubature, filter, model error at the markers).
     pub notes: Vec<String>,
@@ -113,11 +116,24 @@ impl<'a> TierReductor<'a> {
                 tier::from_training_with(full, training, &choice, &ecsw)
             })
             .map_err(|e| fail(&e))?;
+        let check = timer
+            .stage("tier_self_check", || {
+                self_check::self_check(
+                    full,
+                    &plan,
+                    &built,
+                    self_check::runtime_newton(spec.newton_tolerance, spec.newton_iterations),
+                    self_check::SELF_CHECK_THRESHOLD,
+                )
+            })
+            .map_err(|e| fail(&e))?;
+        let model_error = check.model_error_covariance();
         let (derived, filter) = timer
             .stage("tier_kalman", || {
                 let rest = linearise_at_rest(full, &built, &noise, measurements);
                 let derived = derive_force_sigma(&rest, &mut noise, measurements)?;
-                linearised_filter(full, &built, &noise, measurements).map(|f| (derived, f))
+                linearised_filter(full, &built, &noise, measurements, model_error)
+                    .map(|f| (derived, f))
             })
             .map_err(|e| fail(&e))?;
         let mut reductor = TierReductor {
@@ -128,6 +144,7 @@ impl<'a> TierReductor<'a> {
             derived,
             tier: built,
             filter,
+            check,
             notes,
             measurements,
         };
@@ -205,12 +222,12 @@ impl<'a> TierReductor<'a> {
             filter
                 .scheduled
                 .iter()
-                .map(|(q, _)| q.norm())
+                .map(|(q, _, _)| q.norm())
                 .fold(f64::INFINITY, f64::min),
             filter
                 .scheduled
                 .iter()
-                .map(|(q, _)| q.norm())
+                .map(|(q, _, _)| q.norm())
                 .fold(0.0, f64::max)
         ));
         notes.extend(self.derived.iter().map(|d| {
@@ -219,6 +236,24 @@ impl<'a> TierReductor<'a> {
                 d.note(&full.scene.scene.loads[d.load].name)
             )
         }));
+        if let Some(s) = self.check.model_error_covariance() {
+            let largest = self.check.largest_scale();
+            notes.push(format!(
+                "co-rotational tier model error as process noise (docs/design.md §11.9): the \
+                 reduced model's error inside its basis over the training runs, RMS ‖q − VᵀMu‖ \
+                 {:.3e} kg^½·m{}, per mode as a white modal force whose open-loop variance \
+                 equals the measured one",
+                s.trace().max(0.0).sqrt(),
+                if largest > 0.0 {
+                    format!(
+                        " ({:.2} % of the largest run's RMS ‖u‖_M)",
+                        100.0 * s.trace().max(0.0).sqrt() / largest
+                    )
+                } else {
+                    String::new()
+                }
+            ));
+        }
         notes.push(format!(
             "co-rotational tier model error at the markers (basis projection of the training \
              snapshots, RMS per channel in units of the channel's σ): largest {:.2e}, median {:.2e} \
@@ -247,22 +282,10 @@ impl<'a> TierReductor<'a> {
     }
 
     /// The compiled tier re-run on its training runs with the runtime's Newton settings
-    /// ([`self_check`]); its summary and any warning on stderr, its cost in `timer`
-    /// ("tier_self_check").
-    pub fn self_check(&self, timer: &mut StageTimer) -> Result<SelfCheck, CompileError> {
-        let newton =
-            self_check::runtime_newton(self.spec.newton_tolerance, self.spec.newton_iterations);
-        let check = timer
-            .stage("tier_self_check", || {
-                self_check::self_check(
-                    self.full,
-                    &self.plan,
-                    &self.tier,
-                    newton,
-                    self_check::SELF_CHECK_THRESHOLD,
-                )
-            })
-            .map_err(|e| tier_error(self.full, &e))?;
+    /// ([`self_check`], run by [`TierReductor::new`], its cost in the stage
+    /// "tier_self_check"): its summary and any warning on stderr.
+    pub fn self_check(&self) -> SelfCheck {
+        let check = self.check.clone();
         let steps: usize = check.runs.iter().map(|r| r.steps).sum();
         eprintln!(
             "{}: {} ({steps} reduced steps in {:.2} s)",
@@ -273,7 +296,7 @@ impl<'a> TierReductor<'a> {
         if let Some(warning) = check.warning() {
             eprintln!("{}: {warning}", crate::progress::program());
         }
-        Ok(check)
+        check
     }
 
     /// The model file's tier section ([`tier_section`]).
