@@ -1349,12 +1349,10 @@ fn the_30hz_filter_survives_a_fast_press_it_is_not_told_of() {
              {f:.3?}",
             100.0 * error
         );
-        // Seeds 1–2: 6.4 % and 11.3 % with the default training directions (axes and
-        // diagonals; 4.7–6.4 % for seeds 1–3 when the tier was trained along the axes alone,
-        // the model-error noise makes no difference here: the truth is the tier itself). The
-        // markers' own noise is 3 % of their displacement; the bound catches a diverged or
-        // refused run, which is what this test is about.
-        assert!(error < 0.15, "seed {seed}: {error}");
+        // 4.7–6.4 % for seeds 1–3 (the markers' own noise is 3 % of their displacement). The
+        // scene trains along the axes; with the default diagonals at r = 20 seeds 1–2 gave
+        // 6.4 % and 11.3 % (docs/corotational-tier.md §11).
+        assert!(error < 0.1, "seed {seed}: {error}");
         assert!(est.state().iter().all(|v| v.is_finite()));
     }
 }
