@@ -24,6 +24,7 @@ order = 10
 ecsw_tolerance = 1e-2
 newton_tolerance = 1e-12
 newton_iterations = 60
+directions = "axes"
 """
 
 SCENE = """# the identify test's beam
