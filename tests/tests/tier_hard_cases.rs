@@ -12,6 +12,9 @@
 //!   steps or refuses with a typed error leaving the estimator as it was; never a panic or a
 //!   non-finite read-out.
 //!
+//! Both scenes train along the six axes (`directions = "axes"`), the plan the figures below were
+//! measured on.
+//!
 //! `cargo test -p crokf-tests --test tier_hard_cases -- --nocapture` prints the figures.
 
 use std::path::PathBuf;
@@ -49,7 +52,8 @@ fn scene() -> &'static PathBuf {
         .toml()
             + "[reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
                ranges = { tip = 30.0 }\nduration = 1.5\nevery = 3\norder = 12\n\
-               ecsw_tolerance = 5e-3\nnewton_tolerance = 1e-10\nnewton_iterations = 60\n";
+               ecsw_tolerance = 5e-3\nnewton_tolerance = 1e-10\nnewton_iterations = 60\n\
+               directions = \"axes\"\n";
         let path = dir.join("scene.toml");
         std::fs::write(&path, text).expect("scene");
         path
@@ -253,7 +257,8 @@ fn training_is_thread_independent_and_modified_newton_matches_full_newton() {
 /// Torque group force, N per group (each half of the end face).
 const TWIST_RANGE: f64 = 600.0;
 
-/// The twist scene; `extra` is appended to its `[reduction.corotational]` table.
+/// The twist scene; `extra` is appended to its `[reduction.corotational]` table. Trained along
+/// the six axes (`directions = "axes"`: the figures below were measured on that plan).
 fn twist_scene(name: &str, extra: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("crokf-tier-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("scene folder");
@@ -272,7 +277,8 @@ fn twist_scene(name: &str, extra: &str) -> PathBuf {
          [[display]]\nname = \"end\"\ngroup = \"xmax\"\n[time]\ndt = {DT:e}\n\
          [reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
          ranges = {{ upper = {TWIST_RANGE:e}, lower = {TWIST_RANGE:e} }}\nduration = 1.0\nevery = 3\n\
-         order = 16\necsw_tolerance = 5e-3\nnewton_tolerance = 1e-10\nnewton_iterations = 60\n{extra}"
+         order = 16\necsw_tolerance = 5e-3\nnewton_tolerance = 1e-10\nnewton_iterations = 60\n\
+         directions = \"axes\"\n{extra}"
     );
     let path = dir.join("scene.toml");
     std::fs::write(&path, text).expect("scene");
