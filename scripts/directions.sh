@@ -41,13 +41,5 @@ for s in "$out"/dir-*.toml; do
   k=$(basename "$s" .toml); k=${k#dir-}
   CROKF_REFERENCE_CACHE=$out/ref-$k.bin "$bin/examples/nonlinear_filter" "$ref" "$s" "$tier" \
     --seeds 5 > "$out/dir-$k.txt" 2>&1
-  awk -F'|' -v k="$k" '
-    /\| co-rotational \| open loop \|/ { printf "%-4s %-9s %s\n", k, "open", $5 }
-    /\| filtered, loads (given|withheld) \| .* of [0-9]+ \|/ && NF == 9 {
-      run = $3; sub(/ *filtered, loads /, "", run); gsub(/ /, "", run)
-      split($5, anis, ","); split($5, nis, "/"); split($6, nees, "/")
-      sub(/ *%.*/, "", nis[3]); sub(/ *%.*/, "", nees[3])
-      gsub(/^ +| +$/, "", $4); gsub(/^ +| +$/, "", $7); gsub(/^ +/, "", anis[1])
-      printf "%-4s %-9s %-22s %-7s %-12s %-12s %s\n", k, run, $4, anis[1], nis[3] " %", nees[3] " %", $7
-    }' "$out/dir-$k.txt"
+  awk -F'|' -v key="$(printf '%-4s ' "$k")" -v open=1 -f scripts/filter_rows.awk "$out/dir-$k.txt"
 done

@@ -29,14 +29,7 @@ for b in "${bodies[@]}"; do
     key=$(cat "$d/scene_linear.toml" "$d/$b.msh" "$s" | sha256sum | cut -c1-16)
     CROKF_REFERENCE_CACHE=$out/ref-$key.bin "$bin/examples/nonlinear_filter" \
       "$d/scene_linear.toml" "$s" "$tier" --seeds 20 > "$out/$b-$name.txt" 2>&1
-    # The 20-seed table: | model | run | nodes | ANIS | tip ANEES | coverage | refused |
-    awk -F'|' -v b="$b" -v s="$name" '
-      /\| filtered, loads (given|withheld) \| .* of [0-9]+ \|/ && NF == 9 {
-        run = $3; sub(/ *filtered, loads /, "", run); gsub(/ /, "", run)
-        split($5, anis, ","); split($5, nis, "/"); split($6, nees, "/")
-        sub(/ *%.*/, "", nis[3]); sub(/ *%.*/, "", nees[3])
-        gsub(/^ +| +$/, "", $4); gsub(/^ +| +$/, "", $7); gsub(/^ +/, "", anis[1])
-        printf "%-9s %-8s %-9s %-22s %-7s %-12s %-12s %s\n", b, s, run, $4, anis[1], nis[3] " %", nees[3] " %", $7
-      }' "$out/$b-$name.txt"
+    awk -F'|' -v key="$(printf '%-9s %-8s ' "$b" "$name")" -f scripts/filter_rows.awk \
+      "$out/$b-$name.txt"
   done
 done

@@ -15,6 +15,14 @@ use std::time::{Duration, Instant};
 /// The prefix of the lines this library writes to stderr: the running crokf binary's name
 /// (`crokf-compile`, `crokf-verify`, …), or `crokf` inside another program (Python).
 pub fn program() -> String {
+    executable_stem()
+        .filter(|name| name.starts_with("crokf-"))
+        .unwrap_or_else(|| "crokf".to_owned())
+}
+
+/// The running executable's file stem (`tier_scale` for `target/release/examples/tier_scale`);
+/// None when the OS gives no (or an empty) name.
+pub fn executable_stem() -> Option<String> {
     std::env::args_os()
         .next()
         .and_then(|a| {
@@ -22,8 +30,7 @@ pub fn program() -> String {
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
         })
-        .filter(|name| name.starts_with("crokf-"))
-        .unwrap_or_else(|| "crokf".to_owned())
+        .filter(|name| !name.is_empty())
 }
 
 /// Shortest interval between two redraws (the last unit is always drawn).

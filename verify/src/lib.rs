@@ -36,15 +36,7 @@ pub fn exit<E: std::fmt::Display>(result: Result<(), E>) -> std::process::ExitCo
 /// The running executable's file stem (`tier_scale` for `target/release/examples/tier_scale`),
 /// `crokf-verify` when the OS gives none.
 fn executable_name() -> String {
-    std::env::args_os()
-        .next()
-        .and_then(|a| {
-            std::path::Path::new(&a)
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-        })
-        .filter(|name| !name.is_empty())
-        .unwrap_or_else(|| "crokf-verify".to_owned())
+    crokf_compile::progress::executable_stem().unwrap_or_else(|| "crokf-verify".to_owned())
 }
 
 /// `NAME: error: MESSAGE`, the error line of every crokf executable.

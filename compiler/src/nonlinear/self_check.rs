@@ -320,9 +320,9 @@ pub fn self_check(
                 let q = stepper.coordinates();
                 let mut d: Vec<f64> = (&tier.basis.vectors * q).iter().copied().collect();
                 d.iter_mut().zip(u).for_each(|(di, ui)| *di -= ui);
-                err2 += m_norm2(full, &d);
-                ref2 += m_norm2(full, u);
                 let mu = DVector::from_vec(crate::fem::sparse_mul(&full.fem.mass, u));
+                err2 += m_norm2(full, &d);
+                ref2 += mu.iter().zip(u).map(|(a, b)| a * b).sum::<f64>();
                 let e = q - tier.basis.vectors.tr_mul(&mu);
                 moment.ger(1.0, &e, &e, 1.0);
             }

@@ -236,7 +236,7 @@ impl<'a> TierReductor<'a> {
                 d.note(&full.scene.scene.loads[d.load].name)
             )
         }));
-        if let Some(s) = self.check.model_error_covariance() {
+        if let Some(s) = &filter.model_error {
             let largest = self.check.largest_scale();
             notes.push(format!(
                 "co-rotational tier model error as process noise (docs/design.md §11.9): the \
