@@ -27,6 +27,9 @@ pub struct CompileOptions {
     pub modes: Option<usize>,
     /// Skip the measured error against the full-order linear reference.
     pub skip_measured_error: bool,
+    /// The co-rotational tier's training case cache (`nonlinear::cases`): cases found there
+    /// are read, the others run and stored. The model does not depend on it.
+    pub training_cache: Option<std::path::PathBuf>,
 }
 
 /// A compiled model: the model file's contents, its bytes and the run's costs.
@@ -137,7 +140,12 @@ pub fn compile_reduced(
     let mut model = model;
     let mut self_check = None;
     if full.scene.scene.reduction.model == ModelTier::Corotational {
-        let tier = TierReductor::new(full, &reductor.measurements, &mut timer)?;
+        let tier = TierReductor::new(
+            full,
+            &reductor.measurements,
+            options.training_cache.as_deref(),
+            &mut timer,
+        )?;
         let check = tier.self_check();
         let notes = &mut model.report.notes;
         notes.extend(tier.notes.iter().cloned());

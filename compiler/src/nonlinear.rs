@@ -5,6 +5,8 @@
 //!
 //! - [`training`]: the compiler's training runs (full-order co-rotational, generated from the
 //!   scene's `[reduction.corotational]` envelope);
+//! - [`cases`]: the training runs as independent cases with content identities, their results
+//!   as files in a cache folder (resumable, computed anywhere);
 //! - [`basis`]: candidate bases (modes + static correction, static modal derivatives, POD of
 //!   co-rotational snapshots), M-orthonormalisation, projection errors and the tier's choice
 //!   ([`basis::BasisChoice`]: pooled POD, per-run enrichment in the energy norm);
@@ -26,6 +28,7 @@
 //! (`crokf_verify::nonlinear`), which reuses [`training`] and [`tier`].
 
 pub mod basis;
+pub mod cases;
 pub mod cubature;
 pub mod ecsw;
 pub mod filter;

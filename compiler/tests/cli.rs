@@ -109,3 +109,121 @@ fn check_sees_a_changed_node_list() {
     std::fs::write(&list, "1 2 3\n").expect("restore list");
     check(true);
 }
+
+/// A 288-tetrahedron beam with a co-rotational tier of 12 short training runs (six axes,
+/// ramp and step); returns the scene path.
+fn tier_scene_in(dir: &Path) -> PathBuf {
+    use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
+    write_msh22(
+        &box_mesh([12, 2, 2], [1.0, 0.1, 0.1]),
+        &dir.join("beam.msh"),
+    )
+    .expect("mesh");
+    let text = BeamScene {
+        sensors: vec![("tip".into(), [0.99, 0.05, 0.1])],
+        dt: 0.005,
+        ..BeamScene::default()
+    }
+    .toml()
+        + "[reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
+           ranges = { tip = 30.0 }\nduration = 0.05\nevery = 2\norder = 6\n\
+           directions = \"axes\"\n";
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, text).expect("write scene");
+    scene
+}
+
+/// `--list-cases` prints one line per training run (index, 64-digit identity, label);
+/// `--run-case K --cache DIR` writes exactly that case's file and reuses it when run again;
+/// an index past the plan, `--run-case` without `--cache`, a cache path that is a file and a
+/// scene without a tier are refused with a message naming them.
+#[test]
+fn training_cases_are_listed_and_run_one_at_a_time() {
+    let dir = case_dir("cases");
+    let scene = tier_scene_in(&dir);
+    let out = Command::new(env!("CARGO_BIN_EXE_crokf-compile"))
+        .arg(&scene)
+        .arg("--list-cases")
+        .output()
+        .expect("run");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let listing = String::from_utf8(out.stdout).expect("utf-8");
+    let lines: Vec<Vec<&str>> = listing.lines().map(|l| l.split('\t').collect()).collect();
+    assert_eq!(lines.len(), 12, "{listing}");
+    for (k, fields) in lines.iter().enumerate() {
+        assert_eq!(fields.len(), 3, "{fields:?}");
+        assert_eq!(fields[0], k.to_string());
+        assert!(fields[1].len() == 64 && fields[1].bytes().all(|b| b.is_ascii_hexdigit()));
+    }
+    assert_eq!(lines[0][2], "tip (+1, +0, +0) ramp 1.25×");
+    let mut ids: Vec<&str> = lines.iter().map(|f| f[1]).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    assert_eq!(ids.len(), 12, "identities are distinct");
+
+    let cache = dir.join("cache");
+    let run = |k: &str| {
+        let out = Command::new(env!("CARGO_BIN_EXE_crokf-compile"))
+            .arg(&scene)
+            .args(["--run-case", k, "--cache"])
+            .arg(&cache)
+            .output()
+            .expect("run");
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (ok, err) = run("3");
+    assert!(
+        ok && err.contains("case 3 of 12") && err.contains("wrote"),
+        "{err}"
+    );
+    let files: Vec<_> = std::fs::read_dir(&cache)
+        .expect("cache")
+        .flatten()
+        .collect();
+    assert_eq!(files.len(), 1);
+    assert_eq!(
+        files[0].file_name().to_string_lossy(),
+        format!("{}.case", lines[3][1])
+    );
+    let (ok, err) = run("3");
+    assert!(ok && err.contains("already in the cache"), "{err}");
+    let (ok, err) = run("12");
+    assert!(!ok && err.contains("12 cases (0 to 11)"), "{err}");
+
+    let out = Command::new(env!("CARGO_BIN_EXE_crokf-compile"))
+        .arg(&scene)
+        .args(["--run-case", "0"])
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--cache"), "{err}");
+    let file = dir.join("a_file");
+    std::fs::write(&file, "x").expect("write");
+    let out = Command::new(env!("CARGO_BIN_EXE_crokf-compile"))
+        .arg(&scene)
+        .args(["--run-case", "0", "--cache"])
+        .arg(&file)
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("is a file"), "{err}");
+
+    let plain = scene_in(&dir);
+    let out = Command::new(env!("CARGO_BIN_EXE_crokf-compile"))
+        .arg(&plain)
+        .arg("--list-cases")
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("[reduction.corotational]"),
+        "{err}"
+    );
+}

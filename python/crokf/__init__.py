@@ -8,6 +8,8 @@ compiler's or the runtime's message: ``ChannelError`` (also a ``KeyError``) for 
 sensor, node set or phase the model does not have, ``InputError`` (also a ``TypeError``) for a
 value that is not a real number (complex, string, boolean). ``identify`` finds the force σ of
 a co-rotational model's estimated loads from a recording (``IdentifyError`` on a refusal).
+``training_cases`` and ``run_training_case`` expose the tier's training runs as independent
+cases; ``crokf.distributed`` runs them on Dask (``python -m crokf.distributed``).
 """
 
 from ._crokf import (
@@ -22,6 +24,8 @@ from ._crokf import (
     ModelFileError,
     __version__,
     compile,
+    run_training_case,
+    training_cases,
 )
 from ._crokf import identify as _identify
 
@@ -58,4 +62,6 @@ __all__ = [
     "__version__",
     "compile",
     "identify",
+    "run_training_case",
+    "training_cases",
 ]

@@ -322,7 +322,8 @@ impl Model {
 
     /// Writes the model file (byte-identical to what `crokf-compile` writes).
     fn save(&self, path: PathBuf) -> PyResult<()> {
-        std::fs::write(&path, self.bytes.as_slice())
+        // A temporary sibling renamed over the target: an interrupted save leaves the old file.
+        crokf_formats::output::write_atomically(&path, self.bytes.as_slice())
             .map_err(|e| CrokfError::new_err(format!("cannot write {}: {e}", path.display())))
     }
 
@@ -521,9 +522,11 @@ impl Model {
 /// cut σ_{r+1}/σ₁ (default: the scene's `[reduction]`, then 1e-4), `modes` the number of
 /// vibration modes. `report=False` skips the measured error against the full-order linear
 /// reference (faster; the report then has no `measured_errors`). Returns `(model, report)`, the
-/// report as the dict `crokf-compile --report` writes. Raises `CompileError`.
+/// report as the dict `crokf-compile --report` writes. `cache`: the co-rotational tier's
+/// training case cache (`crokf-compile --cache`): cases found there are read, the others run
+/// and stored; the model is the same without it. Raises `CompileError`.
 #[pyfunction]
-#[pyo3(signature = (scene_path, order=None, tolerance=None, report=true, modes=None))]
+#[pyo3(signature = (scene_path, order=None, tolerance=None, report=true, modes=None, cache=None))]
 fn compile<'py>(
     py: Python<'py>,
     scene_path: PathBuf,
@@ -531,12 +534,14 @@ fn compile<'py>(
     tolerance: Option<f64>,
     report: bool,
     modes: Option<usize>,
+    cache: Option<PathBuf>,
 ) -> PyResult<Bound<'py, PyTuple>> {
     let options = crokf_compile::compile::CompileOptions {
         order,
         tolerance,
         modes,
         skip_measured_error: !report,
+        training_cache: cache,
     };
     let result = py.detach(|| {
         crokf_compile::compile::compile(&scene_path, &options)
@@ -550,6 +555,48 @@ fn compile<'py>(
     };
     let report = json_to_py(py, &report_json)?;
     PyTuple::new(py, [Py::new(py, model)?.into_any(), report.unbind()])
+}
+
+/// The co-rotational tier's training cases of a scene (`crokf-compile SCENE --list-cases`):
+/// a list of `(index, identity, label)`; the identity names the case's file in a cache
+/// (`<identity>.case`). Raises `CompileError` (also for a scene without a tier).
+#[pyfunction]
+fn training_cases(py: Python<'_>, scene_path: PathBuf) -> PyResult<Vec<(usize, String, String)>> {
+    py.detach(|| -> Result<Vec<(usize, String, String)>, String> {
+        let mut timer = crokf_compile::report::StageTimer::default();
+        let full =
+            crokf_compile::FullOrder::build(&scene_path, &mut timer).map_err(|e| e.to_string())?;
+        let (_, cases) = crokf_compile::nonlinear::cases::scene_cases(&full)?;
+        Ok(cases
+            .into_iter()
+            .map(|c| (c.index, c.id, c.label))
+            .collect())
+    })
+    .map_err(CompileError::new_err)
+}
+
+/// Runs training case `index` of a scene in process (the GIL released) and returns its case
+/// file's bytes, to be written as `<identity>.case` into the cache a compile reads
+/// (`crokf.distributed` does). A run that fails is a result too (stored as failed, as the
+/// compile would). Raises `CompileError` for a bad scene or index.
+#[pyfunction]
+fn run_training_case<'py>(
+    py: Python<'py>,
+    scene_path: PathBuf,
+    index: usize,
+) -> PyResult<Bound<'py, PyBytes>> {
+    let bytes = py
+        .detach(|| -> Result<Vec<u8>, String> {
+            use crokf_compile::nonlinear::{cases, training};
+            let mut timer = crokf_compile::report::StageTimer::default();
+            let full = crokf_compile::FullOrder::build(&scene_path, &mut timer)
+                .map_err(|e| e.to_string())?;
+            let (plan, list) = cases::scene_cases(&full)?;
+            let result = training::run_case(&full, &plan, index).map_err(|e| e.to_string())?;
+            Ok(cases::encode(&list[index], &result))
+        })
+        .map_err(CompileError::new_err)?;
+    Ok(PyBytes::new(py, &bytes))
 }
 
 /// `{"value", "uncertainty", "blocks"}` of an identified parameter.
@@ -1096,6 +1143,8 @@ fn _crokf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Estimator>()?;
     m.add_function(wrap_pyfunction!(compile, m)?)?;
     m.add_function(wrap_pyfunction!(identify, m)?)?;
+    m.add_function(wrap_pyfunction!(training_cases, m)?)?;
+    m.add_function(wrap_pyfunction!(run_training_case, m)?)?;
     m.add("CrokfError", py.get_type::<CrokfError>())?;
     m.add("CompileError", py.get_type::<CompileError>())?;
     m.add("ModelFileError", py.get_type::<ModelFileError>())?;

@@ -132,6 +132,66 @@ fn compile_is_deterministic_and_the_file_has_the_tier() {
     );
 }
 
+/// The training case cache (`crokf-compile --cache`): a compile that fills it and one that
+/// reads it give the model of a compile without it, byte for byte; after an interruption
+/// (cases missing) and with a damaged case file, only those cases run again, the damaged one
+/// is named, and every file is whole afterwards.
+#[test]
+fn a_case_cache_gives_the_same_model_and_resumes_after_an_interruption() {
+    use crokf_compile::nonlinear::cases::{self, train_cached, CaseCache, Lookup};
+    let (bytes, _) = compiled();
+    let dir = scene().parent().unwrap().join("cases");
+    let with_cache = CompileOptions {
+        training_cache: Some(dir.clone()),
+        ..options()
+    };
+    let filled = compile(scene(), &with_cache).unwrap();
+    assert!(
+        filled.bytes == *bytes,
+        "a compile filling the cache differs"
+    );
+    let full = FullOrder::build(scene(), &mut StageTimer::default()).unwrap();
+    let (plan, list) = cases::scene_cases(&full).unwrap();
+    assert_eq!(list.len(), 12);
+    let cache = CaseCache::open(&dir).unwrap();
+    // An interrupted compile: five cases never stored; one file cut short.
+    for case in &list[..5] {
+        std::fs::remove_file(cache.path(case)).unwrap();
+    }
+    let damaged = cache.path(&list[7]);
+    let whole = std::fs::read(&damaged).unwrap();
+    std::fs::write(&damaged, &whole[..whole.len() / 2]).unwrap();
+    let resumed = train_cached(&full, &plan, &cache, &mut |_, _, _| {}).unwrap();
+    assert_eq!(
+        resumed.cached, 6,
+        "only the missing and the damaged case run"
+    );
+    assert_eq!(resumed.cache_notes.len(), 1, "{:?}", resumed.cache_notes);
+    assert!(
+        resumed.cache_notes[0].contains(&list[7].id)
+            && resumed.cache_notes[0].contains("run again"),
+        "{:?}",
+        resumed.cache_notes
+    );
+    let snapshots = plan.snapshot_count(full.wilson.dt);
+    for case in &list {
+        assert!(matches!(
+            cache.lookup(case, full.fem.dof_count(), snapshots),
+            Lookup::Found(Ok(_))
+        ));
+    }
+    // The rerun case has the same snapshots (its file differs only in the Newton times).
+    let decode = |b: &[u8]| {
+        cases::decode(&list[7], full.fem.dof_count(), snapshots, b)
+            .unwrap()
+            .unwrap()
+            .0
+    };
+    assert!(decode(&std::fs::read(&damaged).unwrap()) == decode(&whole));
+    let read = compile(scene(), &with_cache).unwrap();
+    assert!(read.bytes == *bytes, "a compile reading the cache differs");
+}
+
 #[test]
 fn runtime_step_equals_the_compilers_reduced_stepper() {
     let (_, model) = compiled();

@@ -8,6 +8,7 @@ use clap::Parser;
 
 use crokf_compile::check::{check, CheckOutcome};
 use crokf_compile::fem::export::{self, export_matrices};
+use crokf_compile::nonlinear::cases::{run_into, scene_cases, CaseCache};
 use crokf_compile::report::StageTimer;
 use crokf_compile::scene::SceneFile;
 use crokf_compile::{compile, CompileOptions, FullOrder};
@@ -48,6 +49,19 @@ struct Args {
     /// exits non-zero when it is stale (for CI).
     #[arg(long, value_name = "MODEL")]
     check: Option<PathBuf>,
+    /// Training case cache of the co-rotational tier (created if missing): cases found there
+    /// are read, the others run and stored as each finishes, so an interrupted compile resumes.
+    /// The model is the same with or without it.
+    #[arg(long, value_name = "DIR")]
+    cache: Option<PathBuf>,
+    /// Print the tier's training cases (index, identity, label; tab-separated) and stop.
+    #[arg(long, conflicts_with_all = ["output", "report", "check", "export_matrices", "run_case"])]
+    list_cases: bool,
+    /// Run training case K into the `--cache` folder (unless it is there already) and stop:
+    /// one task of a job array; a compile with the same `--cache` then gathers the cases.
+    #[arg(long, value_name = "K", requires = "cache",
+          conflicts_with_all = ["output", "report", "check", "export_matrices"])]
+    run_case: Option<usize>,
 }
 
 fn main() -> ExitCode {
@@ -132,6 +146,46 @@ fn staged(path: &std::path::Path, bytes: &[u8]) -> Result<AtomicFile, String> {
     Ok(file)
 }
 
+/// `--list-cases` and `--run-case K`: the scene's FEM only (no eigen-solve), then its training
+/// plan.
+fn training_cases(args: &Args) -> Result<ExitCode, String> {
+    let mut timer = StageTimer::default();
+    let full = FullOrder::build(&args.scene, &mut timer).map_err(|e| e.to_string())?;
+    let (plan, cases) = scene_cases(&full)?;
+    let Some(k) = args.run_case else {
+        for case in &cases {
+            println!("{}\t{}\t{}", case.index, case.id, case.label);
+        }
+        return Ok(ExitCode::SUCCESS);
+    };
+    // Checked by clap (`requires`).
+    let dir = args
+        .cache
+        .as_deref()
+        .ok_or("--run-case needs --cache DIR")?;
+    let cache = CaseCache::open(dir)?;
+    let started = std::time::Instant::now();
+    let ran = run_into(&full, &plan, &cases, k, &cache)?;
+    let path = cache.path(&cases[k]);
+    if ran {
+        eprintln!(
+            "case {k} of {} ({}): wrote {} in {:.1} s",
+            cases.len(),
+            cases[k].label,
+            path.display(),
+            started.elapsed().as_secs_f64()
+        );
+    } else {
+        eprintln!(
+            "case {k} of {} ({}): already in the cache ({})",
+            cases.len(),
+            cases[k].label,
+            path.display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
 fn run(args: &Args) -> Result<ExitCode, String> {
     check_outputs(args)?;
     if let Some(model) = &args.check {
@@ -155,6 +209,9 @@ fn run(args: &Args) -> Result<ExitCode, String> {
             }
         };
     }
+    if args.list_cases || args.run_case.is_some() {
+        return training_cases(args);
+    }
     if let Some(dir) = &args.export_matrices {
         let mut timer = StageTimer::default();
         let full = FullOrder::build(&args.scene, &mut timer).map_err(|e| e.to_string())?;
@@ -172,6 +229,7 @@ fn run(args: &Args) -> Result<ExitCode, String> {
         tolerance: args.tolerance,
         modes: args.modes,
         skip_measured_error: args.no_measure,
+        training_cache: args.cache.clone(),
     };
     let compiled = compile(&args.scene, &options).map_err(|e| e.to_string())?;
     eprint!("{}", compiled.summary());

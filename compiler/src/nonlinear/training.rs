@@ -305,6 +305,10 @@ pub struct Training {
     /// Newton counters and times summed over the runs (times are thread time: with two
     /// threads they add up to about twice the wall time).
     pub newton: NewtonStats,
+    /// Runs read from a case cache ([`cases::train_cached`](super::cases::train_cached)).
+    pub cached: usize,
+    /// Case files that could not be used or stored (the runs were computed all the same).
+    pub cache_notes: Vec<String>,
 }
 
 /// The load vector (n, N) of a unit world force `direction` (N) on load group `group` (index
@@ -367,6 +371,12 @@ impl TrainingPlan {
         ((self.duration / dt).round() as usize).max(1)
     }
 
+    /// Snapshots one run keeps ([`TrainingPlan::keeps`] over its steps).
+    pub fn snapshot_count(&self, dt: f64) -> usize {
+        let steps = self.steps(dt);
+        (1..=steps).filter(|&k| self.keeps(k, steps)).count()
+    }
+
     /// Whether the state after step `step` (1-based, of `steps`) is kept as a snapshot: every
     /// `every`-th step and the last.
     pub fn keeps(&self, step: usize, steps: usize) -> bool {
@@ -377,48 +387,100 @@ impl TrainingPlan {
 /// Runs every training run of `plan` on the full-order co-rotational model, keeping a
 /// snapshot every `plan.every` steps (step 0 excluded). A run that fails (non-finite state,
 /// Newton failure) is reported in [`Training::runs`] and skipped. `progress` receives
-/// (run index, run count, label) before each run.
+/// (run index, run count, label) before each run. (With a case cache:
+/// [`cases::train_cached`](super::cases::train_cached).)
 pub fn train(
     full: &FullOrder,
     plan: &TrainingPlan,
     progress: &mut dyn FnMut(usize, usize, &str),
 ) -> Result<Training, NonlinearError> {
+    check_plan(plan)?;
+    let groups = plan_groups(full, plan)?;
+    let started = std::time::Instant::now();
+    let runs = plan.runs();
+    let results = run_indexed(
+        runs.len(),
+        plan.threads,
+        |k| run_one(full, plan, &groups, &runs[k]),
+        |k| progress(k, runs.len(), &runs[k].label),
+    );
+    Ok(gather(full, plan, &runs, results, started))
+}
+
+/// The result of one training run: its snapshots (each n, m) and Newton counters, or why it
+/// failed.
+pub type RunResult = Result<(Vec<Vec<f64>>, NewtonStats), String>;
+
+/// Refuses a plan that cannot run: `every` 0, a duration not > 0 s, 0 threads.
+pub(crate) fn check_plan(plan: &TrainingPlan) -> Result<(), NonlinearError> {
     if plan.every == 0 || plan.duration.is_nan() || plan.duration <= 0.0 {
         return Err(NonlinearError::Invalid(format!(
             "training plan: every must be ≥ 1 and duration > 0 s, got {} and {}",
             plan.every, plan.duration
         )));
     }
-    let groups = plan_groups(full, plan)?;
     if plan.threads == 0 {
         return Err(NonlinearError::Invalid(
             "training plan: threads must be ≥ 1".to_owned(),
         ));
     }
-    let started = std::time::Instant::now();
+    Ok(())
+}
+
+/// `run` of `plan` (`groups` from [`plan_groups`]).
+pub(crate) fn run_one(
+    full: &FullOrder,
+    plan: &TrainingPlan,
+    groups: &[usize],
+    run: &TrainingRun,
+) -> RunResult {
+    training_run(full, plan, &run_load(full, plan, groups, run), &run.history)
+        .map_err(|e| e.to_string())
+}
+
+/// Runs run `index` of `plan` alone (a job array's task, a Dask task): its result, as
+/// [`train`] computes it for that run.
+pub fn run_case(
+    full: &FullOrder,
+    plan: &TrainingPlan,
+    index: usize,
+) -> Result<RunResult, NonlinearError> {
+    check_plan(plan)?;
+    let groups = plan_groups(full, plan)?;
     let runs = plan.runs();
+    let Some(run) = runs.get(index) else {
+        return Err(NonlinearError::Invalid(format!(
+            "training case {index}: the scene has {} cases (0 to {})",
+            runs.len(),
+            runs.len().saturating_sub(1)
+        )));
+    };
+    Ok(run_one(full, plan, &groups, run))
+}
+
+/// The [`Training`] of `runs` from their results by index (None: the run did not finish);
+/// `started`: when the runs began (its wall time).
+pub(crate) fn gather(
+    full: &FullOrder,
+    plan: &TrainingPlan,
+    runs: &[TrainingRun],
+    results: Vec<Option<RunResult>>,
+    started: std::time::Instant,
+) -> Training {
     let mut out = Training::default();
-    let fem = &full.fem;
-    let unit_loads = |run: &TrainingRun| run_load(full, plan, &groups, run);
-    let results = run_indexed(
-        runs.len(),
-        plan.threads,
-        |k| training_run(full, plan, &unit_loads(&runs[k]), &runs[k].history),
-        |k| progress(k, runs.len(), &runs[k].label),
-    );
     for (k, (run, result)) in runs.iter().zip(results).enumerate() {
         match result {
             Some(Ok((frames, stats))) => {
                 for u in frames {
                     out.envelope.max_displacement =
-                        out.envelope.max_displacement.max(max_nodal(fem, &u));
+                        out.envelope.max_displacement.max(max_nodal(&full.fem, &u));
                     out.snapshots.push(u);
                     out.run_of.push(k);
                 }
                 add_stats(&mut out.newton, &stats);
                 out.runs.push((run.label.clone(), None));
             }
-            Some(Err(e)) => out.runs.push((run.label.clone(), Some(e.to_string()))),
+            Some(Err(e)) => out.runs.push((run.label.clone(), Some(e))),
             None => out
                 .runs
                 .push((run.label.clone(), Some("the run did not finish".to_owned()))),
@@ -437,7 +499,7 @@ pub fn train(
     );
     out.envelope.snapshots = out.snapshots.len();
     out.seconds = started.elapsed().as_secs_f64();
-    Ok(out)
+    out
 }
 
 /// One training run: the full-order co-rotational simulator from rest under f(t) =

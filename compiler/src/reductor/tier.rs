@@ -16,6 +16,7 @@ use crate::full_order::FullOrder;
 use crate::model_file::tier::{tier_section, RuntimeNewton};
 use crate::noise::{Derivation, NoiseModel};
 use crate::nonlinear::basis::BasisChoice;
+use crate::nonlinear::cases::{self, CaseCache};
 use crate::nonlinear::ecsw::EcswOptions;
 use crate::nonlinear::filter::{
     derive_force_sigma, linearise_at_rest, linearised_filter, TierFilter, SCHEDULE_POINTS,
@@ -63,9 +64,15 @@ impl<'a> TierReductor<'a> {
     /// Trains on the scene's envelope (progress on stderr), chooses the basis, trains the
     /// cubature and designs the filter for `measurements`; stage costs go to `timer`
     /// ("tier_training", "tier_reduction", "tier_kalman").
+    ///
+    /// With `cache`, the training runs found in that case cache
+    /// ([`cases`](crate::nonlinear::cases)) are read from it and the others stored in it; what
+    /// it contributed is said on stderr, not in the model (a model is the same with or without
+    /// a cache).
     pub fn new(
         full: &'a FullOrder,
         measurements: &'a Measurements,
+        cache: Option<&std::path::Path>,
         timer: &mut StageTimer,
     ) -> Result<Self, CompileError> {
         let fail = |e: &dyn std::fmt::Display| tier_error(full, e);
@@ -88,11 +95,27 @@ impl<'a> TierReductor<'a> {
         let mut progress = |k: usize, _: usize, _: &str| {
             line.update((k + 1).saturating_sub(plan.threads));
         };
-        let training = timer.stage("tier_training", || {
-            training::train(full, &plan, &mut progress)
+        let cache = cache
+            .map(CaseCache::open)
+            .transpose()
+            .map_err(|e| fail(&e))?;
+        let training = timer.stage("tier_training", || match &cache {
+            Some(cache) => cases::train_cached(full, &plan, cache, &mut progress),
+            None => training::train(full, &plan, &mut progress),
         });
         line.finish();
         let training = training.map_err(|e| fail(&e))?;
+        if let Some(cache) = &cache {
+            let program = crate::progress::program();
+            for note in &training.cache_notes {
+                eprintln!("{program}: warning: {note}");
+            }
+            eprintln!(
+                "{program}: note: co-rotational training: {} of {runs} cases read from the cache {}",
+                training.cached,
+                cache.dir().display()
+            );
+        }
         let mut notes = Vec::new();
         for (label, failed) in &training.runs {
             if let Some(why) = failed {

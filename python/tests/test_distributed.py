@@ -1,0 +1,106 @@
+"""The tier's training on Dask (``crokf.distributed``): the model is byte-identical to a
+compile in one process, and a worker killed with a case in flight loses only that case.
+
+Scene: the example cantilever's mesh and tier with a short training plan (the six axes,
+0.2 s runs: 12 cases), so that the test runs in seconds on two local workers.
+"""
+
+import os
+import signal
+import threading
+import time
+
+import pytest
+
+distributed = pytest.importorskip("distributed")
+
+import crokf  # noqa: E402
+from crokf.distributed import compile_distributed, main  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def scene(repo, tmp_path_factory):
+    d = tmp_path_factory.mktemp("dask")
+    src = repo / "models" / "cantilever"
+    (d / "cantilever.msh").write_bytes((src / "cantilever.msh").read_bytes())
+    head = (src / "scene_corotational.toml").read_text().split("[reduction.corotational]")[0]
+    text = head + (
+        "[reduction.corotational]\nduration = 0.2\nevery = 5\norder = 8\n"
+        'directions = "axes"\n'
+    )
+    path = d / "scene.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.fixture(scope="module")
+def reference(scene):
+    model, _ = crokf.compile(str(scene), report=False)
+    return model.to_bytes()
+
+
+@pytest.fixture(scope="module")
+def client():
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    )
+    c = Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+def test_the_model_is_byte_identical_to_a_compile_in_one_process(scene, reference, client, tmp_path):
+    out = tmp_path / "model.crokf"
+    cases = crokf.training_cases(str(scene))
+    assert len(cases) == 12
+    model, _ = compile_distributed(scene, out, client=client, report=False, progress=False)
+    assert out.read_bytes() == reference
+    assert model.to_bytes() == reference
+    # The default cache (OUTPUT.cases) is removed after a successful compile.
+    assert not (tmp_path / "model.crokf.cases").exists()
+
+
+def test_a_killed_worker_loses_only_its_case(scene, reference, client, tmp_path):
+    cache = tmp_path / "cache"
+    cases = crokf.training_cases(str(scene))
+    seen = {}
+
+    def kill_one_busy_worker():
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            stored = list(cache.glob("*.case")) if cache.is_dir() else []
+            busy = {w: k for w, k in client.processing().items() if k}
+            if stored and busy:
+                seen.update({p.name: p.stat().st_mtime_ns for p in stored})
+                pids = client.run(os.getpid)
+                worker = next(iter(busy))
+                seen["killed"] = (worker, list(busy[worker]))
+                os.kill(pids[worker], signal.SIGKILL)
+                return
+            time.sleep(0.005)
+
+    killer = threading.Thread(target=kill_one_busy_worker)
+    killer.start()
+    model, _ = compile_distributed(scene, client=client, cache=cache, report=False, progress=False)
+    killer.join()
+    assert "killed" in seen, "no worker was caught with a case in flight"
+    assert model.to_bytes() == reference
+    files = sorted(p.name for p in cache.glob("*.case"))
+    assert files == sorted(f"{c[1]}.case" for c in cases)
+    # The cases gathered before the kill were not run again.
+    for name, mtime in seen.items():
+        if name != "killed":
+            assert (cache / name).stat().st_mtime_ns == mtime, name
+    assert not list(cache.glob(".*.tmp")), "no temporary left"
+
+
+def test_the_command_line_refuses_a_scene_without_a_tier(repo, tmp_path, capsys):
+    code = main([str(repo / "models" / "cantilever" / "scene.toml"), "-o", str(tmp_path / "m.crokf")])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert "crokf.distributed: error:" in err and "[reduction.corotational]" in err
+    assert not (tmp_path / "m.crokf").exists()
+    assert not (tmp_path / "m.crokf.cases").exists()
