@@ -383,6 +383,14 @@ impl Comparison {
                 e.max_state_ratio,
                 e.state_margin
             );
+            if let Some(line) = tier_not_faster(
+                t.figures.runtime.step_s,
+                self.linear.step_s,
+                t.sampled_elements,
+                self.tetrahedra,
+            ) {
+                let _ = writeln!(out, "\n{line}");
+            }
         }
         if let Some(why) = &self.tier_failure {
             let _ = writeln!(out, "\nThe co-rotational tier failed: {why}");
@@ -879,6 +887,30 @@ pub fn segment_table(first: &str, rows: &[(String, Vec<SegmentFigures>)]) -> Str
     out
 }
 
+/// A warning when the tier's measured step (`tier_s`) is not faster than the full-order
+/// linear FEM step of the same run (`linear_s`): on a small mesh, or with many sampled
+/// elements, the linear FEM itself is the faster real-time model. None when faster or when a
+/// time is missing.
+fn tier_not_faster(
+    tier_s: f64,
+    linear_s: f64,
+    sampled: usize,
+    tetrahedra: usize,
+) -> Option<String> {
+    if !(tier_s.is_finite() && linear_s.is_finite() && tier_s >= linear_s) {
+        return None;
+    }
+    Some(format!(
+        "WARNING: the co-rotational tier's step ({}) is not faster than the full-order linear \
+         FEM step ({}) in this run: it integrates {sampled} of the {tetrahedra} elements. The \
+         tier still follows large rotations, which the linear FEM does not; for speed, lower \
+         `order` or raise `ecsw_tolerance` in [reduction.corotational] (fewer sampled \
+         elements), or run the full-order model on a mesh this small.",
+        format_seconds(tier_s),
+        format_seconds(linear_s),
+    ))
+}
+
 /// A time in seconds with at most 4 decimals, trailing zeros dropped: `0`, `0.5`, `1.005`.
 fn seconds(t: f64) -> String {
     let s = format!("{t:.4}");
@@ -923,6 +955,23 @@ mod tests {
             );
         }
         assert_eq!(seconds(1.005), "1.005");
+    }
+
+    /// The report says so when the tier's step is not faster than the linear FEM's, naming
+    /// both times and the sampled share, and says nothing otherwise or without a time.
+    #[test]
+    fn a_tier_no_faster_than_the_linear_fem_is_a_warning() {
+        let w = tier_not_faster(48e-6, 40e-6, 185, 596).expect("a warning");
+        assert!(w.starts_with("WARNING"), "{w}");
+        assert!(w.contains("185 of the 596 elements"), "{w}");
+        assert!(
+            w.contains(&format_seconds(48e-6)) && w.contains(&format_seconds(40e-6)),
+            "{w}"
+        );
+        assert!(w.contains("ecsw_tolerance"), "{w}");
+        assert_eq!(tier_not_faster(10e-6, 40e-6, 100, 50_000), None);
+        assert_eq!(tier_not_faster(f64::NAN, 40e-6, 100, 596), None);
+        assert_eq!(tier_not_faster(48e-6, f64::NAN, 100, 596), None);
         assert_eq!(seconds(0.0), "0");
         assert_eq!(seconds(1.5), "1.5");
     }
