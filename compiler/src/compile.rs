@@ -151,6 +151,10 @@ pub fn compile_reduced(
         notes.extend(tier.notes.iter().cloned());
         notes.push(check.note());
         notes.extend(check.warning());
+        if let Some(held) = &tier.out_of_sample {
+            notes.push(held.note());
+            notes.extend(held.warning());
+        }
         model.tier = Some(tier.section());
         self_check = Some(check);
         model.validate().map_err(|e| CompileError::Tier {

@@ -1179,6 +1179,73 @@ fn self_check_is_small_and_equals_an_independent_recomputation() {
     assert!((worst_json - worst.error).abs() < 1e-15, "{worst_json:e}");
 }
 
+/// The out-of-sample check (docs/design.md §10): with 12 runs, runs 2 and 7 are held out of a
+/// second tier's basis and cubature and checked against their own full-order snapshots. Their
+/// error is measured (finite, small for the beam's r = 10 tier); a tier too small to follow
+/// untrained loads (r = 2) is warned about, naming the worst held-out run; the compile's notes
+/// carry the check. Held-out runs: every fifth from index 2, none below five runs.
+#[test]
+fn the_out_of_sample_check_holds_runs_out_and_flags_a_tier_that_misses_them() {
+    use crokf_compile::nonlinear::basis::BasisChoice;
+    use crokf_compile::nonlinear::self_check::{
+        held_out_runs, out_of_sample, runtime_newton, OUT_OF_SAMPLE_THRESHOLD,
+    };
+    assert_eq!(held_out_runs(20), vec![2, 7, 12, 17]);
+    assert_eq!(held_out_runs(12), vec![2, 7]);
+    assert!(held_out_runs(4).is_empty());
+
+    let full = FullOrder::build(scene(), &mut StageTimer::default()).unwrap();
+    let (plan, built) = built_tier(&full);
+    let newton = runtime_newton(1e-12, 60);
+    let ecsw = EcswOptions {
+        tolerance: 1e-2,
+        ..EcswOptions::default()
+    };
+    let held = out_of_sample(&full, &plan, &built, &BasisChoice::pod(14), &ecsw, newton)
+        .unwrap()
+        .expect("12 runs: an out-of-sample check");
+    let labels: Vec<&str> = held.check.runs.iter().map(|r| r.label.as_str()).collect();
+    let runs = plan.runs();
+    assert_eq!(labels, vec![runs[2].label.as_str(), runs[7].label.as_str()]);
+    let worst = held.check.worst().unwrap();
+    eprintln!(
+        "beam r = 14 out of sample: worst '{}' {:.3e}, median {:.3e} (r = {}, {} elements)",
+        worst.label,
+        worst.error,
+        held.check.median(),
+        held.order,
+        held.sampled
+    );
+    assert!(
+        worst.error.is_finite() && worst.error < 0.05,
+        "{}",
+        worst.error
+    );
+    assert_eq!(held.runs, 12);
+
+    let crippled = out_of_sample(&full, &plan, &built, &BasisChoice::pod(2), &ecsw, newton)
+        .unwrap()
+        .unwrap();
+    let w = crippled.warning().expect("r = 2 misses the held-out runs");
+    let worst = crippled.check.worst().unwrap();
+    assert!(worst.error > OUT_OF_SAMPLE_THRESHOLD, "{}", worst.error);
+    assert!(
+        w.contains(&worst.label) && w.contains("out of sample"),
+        "{w}"
+    );
+
+    let (_, model) = compiled();
+    assert!(
+        model
+            .report
+            .notes
+            .iter()
+            .any(|n| n.starts_with("co-rotational tier out-of-sample check: 2 of the 12")),
+        "{:?}",
+        model.report.notes
+    );
+}
+
 /// The beam scene with `order = r`, compiled.
 fn compiled_with_order(r: usize) -> crokf_compile::Compiled {
     let dir = scene().parent().unwrap().to_path_buf();

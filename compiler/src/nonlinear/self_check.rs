@@ -25,13 +25,18 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::full_order::FullOrder;
 
+use super::basis::BasisChoice;
+use super::ecsw::EcswOptions;
 use super::reduced::{ReducedNewton, ReducedStepper, Refresh};
-use super::tier::Tier;
-use super::training::{self, TrainingPlan};
+use super::tier::{self as tier_build, Tier};
+use super::training::{self, Training, TrainingPlan};
 use super::NonlinearError;
 
 /// Relative error e_k above which the compile warns (5 %).
 pub const SELF_CHECK_THRESHOLD: f64 = 0.05;
+
+/// Relative error e_k of a held-out run above which the compile warns (2 %): [`out_of_sample`].
+pub const OUT_OF_SAMPLE_THRESHOLD: f64 = 0.02;
 
 /// The reduced Newton settings the runtime's tier step equals (runtime/src/tier.rs; tests/
 /// tests/tier.rs measures < 1e-9 relative on q): the Taylor predictor, the warped tangent
@@ -249,9 +254,24 @@ pub fn self_check(
     newton: ReducedNewton,
     threshold: f64,
 ) -> Result<SelfCheck, NonlinearError> {
+    let all: Vec<usize> = (0..tier.training.runs.len()).collect();
+    check_runs(full, plan, tier, &tier.training, &all, newton, threshold)
+}
+
+/// The check of `tier` on the runs `selected` (indices into the plan's runs, in the order
+/// given) against their snapshots in `training` (which may hold runs `tier` was not built
+/// from: [`out_of_sample`]).
+fn check_runs(
+    full: &FullOrder,
+    plan: &TrainingPlan,
+    tier: &Tier,
+    training: &Training,
+    selected: &[usize],
+    newton: ReducedNewton,
+    threshold: f64,
+) -> Result<SelfCheck, NonlinearError> {
     let started = std::time::Instant::now();
     let runs = plan.runs();
-    let training = &tier.training;
     if training.runs.len() != runs.len() {
         return Err(NonlinearError::Invalid(format!(
             "self-check: the training has {} runs, its plan {}",
@@ -344,10 +364,15 @@ pub fn self_check(
         }
         out
     };
-    let results = super::training::run_indexed(runs.len(), plan.threads, check_run, |_| {});
+    let results = super::training::run_indexed(
+        selected.len(),
+        plan.threads,
+        |i| check_run(selected[i]),
+        |_| {},
+    );
     let runs = results
         .into_iter()
-        .zip(&runs)
+        .zip(selected.iter().map(|&k| &runs[k]))
         .map(|(c, run)| {
             c.unwrap_or_else(|| RunCheck {
                 label: run.label.clone(),
@@ -367,6 +392,120 @@ pub fn self_check(
         threshold,
         seconds: started.elapsed().as_secs_f64(),
     })
+}
+
+/// The training runs held out of the out-of-sample check: every fifth run (index ≡ 2 mod 5),
+/// none when the plan has fewer than five. With the default plan (directions × {ramp, step})
+/// the held-out runs alternate between ramps and steps and between axes and diagonals.
+pub fn held_out_runs(count: usize) -> Vec<usize> {
+    if count < 5 {
+        return Vec::new();
+    }
+    (0..count).filter(|k| k % 5 == 2).collect()
+}
+
+/// The out-of-sample self-check: a tier built as `choice` and `ecsw` build the compiled one,
+/// but from the training without the [`held_out_runs`] (their snapshots are left out of the
+/// basis and of the cubature), re-run on the held-out runs' load histories against their
+/// full-order snapshots (e_k as in the module docs). It estimates how a tier built this way
+/// does on loads of the envelope it was not trained on (the compiled tier, trained on every
+/// run, is not itself measured out of sample).
+#[derive(Clone, Debug, PartialEq)]
+pub struct OutOfSample {
+    /// Per held-out run.
+    pub check: SelfCheck,
+    /// Training runs in all (held out and kept).
+    pub runs: usize,
+    /// The held-out tier's r.
+    pub order: usize,
+    /// Sampled elements of the held-out tier.
+    pub sampled: usize,
+}
+
+/// Builds the held-out tier of `tier`'s training and checks it ([`OutOfSample`]); `Ok(None)`
+/// when the plan has fewer than five runs or a held-out run failed in training.
+pub fn out_of_sample(
+    full: &FullOrder,
+    plan: &TrainingPlan,
+    tier: &Tier,
+    choice: &BasisChoice,
+    ecsw: &EcswOptions,
+    newton: ReducedNewton,
+) -> Result<Option<OutOfSample>, NonlinearError> {
+    let training = &tier.training;
+    let held = held_out_runs(training.runs.len());
+    if held.is_empty() || held.iter().any(|&k| training.runs[k].1.is_some()) {
+        return Ok(None);
+    }
+    let mut rest = Training {
+        runs: training.runs.clone(),
+        envelope: training.envelope.clone(),
+        ..Training::default()
+    };
+    for (u, &k) in training.snapshots.iter().zip(&training.run_of) {
+        if !held.contains(&k) {
+            rest.snapshots.push(u.clone());
+            rest.run_of.push(k);
+        }
+    }
+    let held_tier = tier_build::from_training_with(full, rest, choice, ecsw)?;
+    let check = check_runs(
+        full,
+        plan,
+        &held_tier,
+        training,
+        &held,
+        newton,
+        OUT_OF_SAMPLE_THRESHOLD,
+    )?;
+    Ok(Some(OutOfSample {
+        check,
+        runs: training.runs.len(),
+        order: held_tier.model.order(),
+        sampled: held_tier.sampling.weights.len(),
+    }))
+}
+
+impl OutOfSample {
+    /// The report note (deterministic: no timing).
+    pub fn note(&self) -> String {
+        let c = &self.check;
+        let worst = c.worst().map_or_else(
+            || "no run checked".to_owned(),
+            |w| format!("worst '{}' {}", w.label, percent(w.error)),
+        );
+        format!(
+            "co-rotational tier out-of-sample check: {} of the {} training runs held out of a \
+             second tier's basis and cubature (r = {}, {} sampled elements), which is re-run on \
+             their loads against their full-order snapshots (relative L2 error in the M-norm, \
+             docs/design.md §10): {worst}, median {} (threshold {})",
+            c.runs.len(),
+            self.runs,
+            self.order,
+            self.sampled,
+            percent(c.median()),
+            percent(c.threshold)
+        )
+    }
+
+    /// The warning when a held-out run is above [`OUT_OF_SAMPLE_THRESHOLD`] (None otherwise).
+    pub fn warning(&self) -> Option<String> {
+        let flagged = self.check.flagged();
+        let worst = flagged.first()?;
+        Some(format!(
+            "WARNING: out of sample, the co-rotational tier is {} off the full-order \
+             co-rotational FEM on the held-out training run '{}' (threshold {}; {} of {} \
+             held-out runs above it): loads the tier was not trained on can be this far off. \
+             Raise `order`, set `basis_tolerance`, or train more directions (the default \
+             `directions = \"axes_and_diagonals\"` where the scene says \"axes\") in \
+             [reduction.corotational]",
+            percent(worst.error),
+            worst.label,
+            percent(self.check.threshold),
+            flagged.len(),
+            self.check.runs.len()
+        ))
+    }
 }
 
 /// ‖x‖²_M = xᵀ M x (kg·m² for a displacement x in m).

@@ -21,7 +21,7 @@ use crate::nonlinear::ecsw::EcswOptions;
 use crate::nonlinear::filter::{
     derive_force_sigma, linearise_at_rest, linearised_filter, TierFilter, SCHEDULE_POINTS,
 };
-use crate::nonlinear::self_check::{self, SelfCheck};
+use crate::nonlinear::self_check::{self, OutOfSample, SelfCheck};
 use crate::nonlinear::tier::{self, Tier};
 use crate::nonlinear::training::{self, TrainingPlan};
 use crate::outputs::Measurements;
@@ -53,6 +53,9 @@ pub struct TierReductor<'a> {
     /// The compiled tier re-run on its training runs ([`self_check`]); its in-basis error is
     /// the filter's model-error noise.
     pub check: SelfCheck,
+    /// A tier built without every fifth training run, re-run on those runs
+    /// ([`self_check::out_of_sample`]; None with fewer than five runs).
+    pub out_of_sample: Option<OutOfSample>,
     /// What the build decided and measured, for the compile report (training runs skipped,
     /// basis, cubature, filter, model error at the markers).
     pub notes: Vec<String>,
@@ -150,6 +153,18 @@ impl<'a> TierReductor<'a> {
                 )
             })
             .map_err(|e| fail(&e))?;
+        let out_of_sample = timer
+            .stage("tier_out_of_sample", || {
+                self_check::out_of_sample(
+                    full,
+                    &plan,
+                    &built,
+                    &choice,
+                    &ecsw,
+                    self_check::runtime_newton(spec.newton_tolerance, spec.newton_iterations),
+                )
+            })
+            .map_err(|e| fail(&e))?;
         let model_error = check.model_error_covariance();
         let (derived, filter) = timer
             .stage("tier_kalman", || {
@@ -168,6 +183,7 @@ impl<'a> TierReductor<'a> {
             tier: built,
             filter,
             check,
+            out_of_sample,
             notes,
             measurements,
         };
@@ -318,6 +334,12 @@ impl<'a> TierReductor<'a> {
         );
         if let Some(warning) = check.warning() {
             eprintln!("{}: {warning}", crate::progress::program());
+        }
+        if let Some(held) = &self.out_of_sample {
+            eprintln!("{}: {}", crate::progress::program(), held.note());
+            if let Some(warning) = held.warning() {
+                eprintln!("{}: {warning}", crate::progress::program());
+            }
         }
         check
     }
