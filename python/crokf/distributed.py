@@ -103,8 +103,9 @@ def compile_distributed(
     remove_after = False
     if cache is None:
         if output is not None:
+            # Kept after a failure (the next run resumes from it), removed after a success.
             cache = Path(str(output) + ".cases")
-            remove_after = not cache.exists()
+            remove_after = True
         else:
             owned_temporary = tempfile.TemporaryDirectory(prefix="crokf-cases-")
             cache = owned_temporary.name
