@@ -287,7 +287,7 @@ fn check_runs(
         }
     }
     let steps = plan.steps(full.wilson.dt);
-    let kept = (1..=steps).filter(|&t| plan.keeps(t, steps)).count();
+    let kept = plan.snapshot_count(full.wilson.dt);
     let check_run = |k: usize| -> RunCheck {
         let run = &runs[k];
         let mut out = RunCheck {

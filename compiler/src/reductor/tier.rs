@@ -142,27 +142,21 @@ impl<'a> TierReductor<'a> {
                 tier::from_training_with(full, training, &choice, &ecsw)
             })
             .map_err(|e| fail(&e))?;
+        let newton = self_check::runtime_newton(spec.newton_tolerance, spec.newton_iterations);
         let check = timer
             .stage("tier_self_check", || {
                 self_check::self_check(
                     full,
                     &plan,
                     &built,
-                    self_check::runtime_newton(spec.newton_tolerance, spec.newton_iterations),
+                    newton,
                     self_check::SELF_CHECK_THRESHOLD,
                 )
             })
             .map_err(|e| fail(&e))?;
         let out_of_sample = timer
             .stage("tier_out_of_sample", || {
-                self_check::out_of_sample(
-                    full,
-                    &plan,
-                    &built,
-                    &choice,
-                    &ecsw,
-                    self_check::runtime_newton(spec.newton_tolerance, spec.newton_iterations),
-                )
+                self_check::out_of_sample(full, &plan, &built, &choice, &ecsw, newton)
             })
             .map_err(|e| fail(&e))?;
         let model_error = check.model_error_covariance();
