@@ -63,6 +63,7 @@ impl FullOrder {
                     load: i,
                     sigma,
                     rate_sigma: l.force_rate_noise_std,
+                    rise_time: l.rise_time(),
                 })
             })
             .collect()

@@ -72,6 +72,7 @@ const RECURSION_CHECK_EVERY: usize = 10;
 /// Most steps of the fallback Hewer iteration from K = 0.
 const HEWER_MAX_STEPS: usize = 100;
 
+pub mod adaptation;
 pub mod als;
 mod checks;
 mod error;

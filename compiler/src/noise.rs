@@ -55,6 +55,9 @@ pub struct ForceStatement {
     pub sigma: ForceSigma,
     /// σ of the rate increments, N/s per step (0: no rate states).
     pub rate_sigma: f64,
+    /// The shortest time in which the load goes from zero to its range, s (the scene's
+    /// `rise_time`, its default when not written; also where σ is stated).
+    pub rise_time: f64,
 }
 
 /// Why the scene's noise model cannot be built.
@@ -88,6 +91,8 @@ pub struct ForceGroup {
     pub sigma: f64,
     /// σ of the rate increments, N/s per step (0: no rate states).
     pub rate_sigma: f64,
+    /// The load's rise time, s ([`ForceStatement::rise_time`]).
+    pub rise_time: f64,
 }
 
 /// The states of a filter beyond the model's own and the white noise it keeps (module docs).
@@ -160,6 +165,7 @@ impl NoiseModel {
                 statement: s.sigma,
                 sigma,
                 rate_sigma: s.rate_sigma,
+                rise_time: s.rise_time,
             });
         }
         let rates = if statements.iter().all(|s| s.rate_sigma == 0.0) {
@@ -229,6 +235,15 @@ impl NoiseModel {
         Ok(out)
     }
 
+    /// The shortest rise time of the estimated loads, s (`None` without force states): the
+    /// time over which the force-σ levels' statistic averages (docs/design.md §11.10).
+    pub fn shortest_rise_time(&self) -> Option<f64> {
+        self.groups
+            .iter()
+            .map(|g| g.rise_time)
+            .min_by(f64::total_cmp)
+    }
+
     /// The load groups with force states (indices into the scene's loads): the model file's
     /// `force_loads`.
     pub fn force_loads(&self) -> Vec<usize> {
@@ -275,6 +290,7 @@ mod tests {
                 d => d.ramp_increment(dt).unwrap(),
             },
             rate_sigma: 0.0,
+            rise_time: 0.2,
         }
     }
 

@@ -18,6 +18,8 @@
 //! - [`tier`]: training → basis → cubature → reduced model;
 //! - [`filter`]: the filter design (linearisation at rest and at training states, DARE in
 //!   scaled modal coordinates, gain schedule);
+//! - [`levels`]: the same filter at several levels of the force σ and the innovation statistic
+//!   the runtime moves between them with;
 //! - [`identify`]: the noise model's σ identified from a filter run's innovations;
 //! - [`self_check`]: the compiled tier re-run on its own training loads against the training
 //!   snapshots (in-sample error per run, a warning above 5 %).
@@ -33,6 +35,7 @@ pub mod cubature;
 pub mod ecsw;
 pub mod filter;
 pub mod identify;
+pub mod levels;
 pub mod reduced;
 pub mod self_check;
 pub mod tier;

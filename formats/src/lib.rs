@@ -27,7 +27,8 @@ pub use model::{
     KalmanPhase, LoadGroup, MeasurementChannel, Model, NodeSet, SensorInfo,
 };
 pub use tier::{
-    CorotationalTier, EnvelopeLoad, ScheduledFilter, TierElement, TrainingEnvelope, TrainingHistory,
+    CorotationalTier, EnvelopeLoad, ForceAdaptation, ForceLevel, ScheduledFilter, TierElement,
+    TrainingEnvelope, TrainingHistory,
 };
 
 use sha2::{Digest, Sha256};
@@ -36,6 +37,8 @@ use sha2::{Digest, Sha256};
 pub const MAGIC: [u8; 8] = *b"CROKF\0\r\n";
 /// The format version this crate writes and the only one it reads.
 ///
+/// Version 7 adds the levels of the tier's force σ and the statistic that moves between them
+/// (`CorotationalTier::force_levels`, `CorotationalTier::adaptation`, docs/design.md §11.10).
 /// Version 6 adds the tier's measured model error (`CorotationalTier::model_error`, the filter's
 /// model-error process noise, docs/design.md §11.9).
 /// Version 5 adds the gain schedule of the tier's filter (`CorotationalTier::scheduled`) and its
@@ -44,7 +47,7 @@ pub const MAGIC: [u8; 8] = *b"CROKF\0\r\n";
 /// group). Version 3 adds the optional co-rotational tier section (`Model::tier`, docs/design.md §10).
 /// Version 2 stores the measurement noise once per channel (`kalman.measurement_variance`);
 /// version 1 also had a lossy per-sensor `noise_std` (the largest σ over its components).
-pub const FORMAT_VERSION: u32 = 6;
+pub const FORMAT_VERSION: u32 = 7;
 /// Header length in bytes (magic + version + payload length + SHA-256).
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 32;
 

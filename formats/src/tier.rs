@@ -1,4 +1,4 @@
-//! The co-rotational tier section of a model file (format v6; docs/model-format.md,
+//! The co-rotational tier section of a model file (format v7; docs/model-format.md,
 //! docs/design.md §10): a hyper-reduced co-rotational model on the reduced coordinates q (r)
 //! with u ≈ V q (world-frame displacements of the free DOFs, m per unit q).
 //!
@@ -78,6 +78,46 @@ pub struct CorotationalTier {
     /// filter recomputed from the file (other sensors, identified σ) keeps it. 0 × 0: none.
     #[serde(default)]
     pub model_error: Matrix,
+    /// Force-σ levels (format v7; docs/design.md §11.10): the same filter and gain schedule
+    /// designed with every force state's σ (and rate σ) scaled by `factor`, one entry per
+    /// level other than the designed one (`kalman`, `scheduled`: factor 1). Empty: one level.
+    #[serde(default)]
+    pub force_levels: Vec<ForceLevel>,
+    /// How the runtime moves between the levels (format v7; present exactly when
+    /// `force_levels` is not empty).
+    #[serde(default)]
+    pub adaptation: Option<ForceAdaptation>,
+}
+
+/// One level of the force states' σ (format v7): the filter at rest and at every point of the
+/// gain schedule, designed with the force σ times `factor`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ForceLevel {
+    /// Factor on the designed force σ (> 0, ≠ 1, distinct across levels).
+    pub factor: f64,
+    /// The filter at rest (as the section's `kalman`).
+    pub kalman: KalmanGains,
+    /// The filter at each operating point of the section's `scheduled`, in its order.
+    pub scheduled: Vec<KalmanGains>,
+}
+
+/// The innovation statistic that chooses the force-σ level at run time (format v7;
+/// docs/design.md §11.10). Per measurement channel j an exponentially weighted mean of the
+/// whitened innovation, e_j ← (1 − a_j) e_j + a_j z_j (z_j clipped to ±5); T is the mean over
+/// the updated channels of e_j² normalised to unit mean. σ goes one level up when
+/// T > `raise_above`, one level down when T stayed below `lower_below` for `hold` steps.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ForceAdaptation {
+    /// a_j per measurement channel (model order), in (0, 1].
+    pub smoothing: Vec<f64>,
+    /// Threshold above which σ is raised one level (> `lower_below`).
+    pub raise_above: f64,
+    /// Threshold below which T must stay for `hold` steps before σ is lowered one level (> 0).
+    pub lower_below: f64,
+    /// Steps (≥ 1).
+    pub hold: u32,
 }
 
 /// One operating point of the tier's gain schedule (format v5).

@@ -305,7 +305,7 @@ fn check_kalman(prefix: &str, k: &crate::KalmanGains, r: u64, q: usize) -> Resul
     Ok(())
 }
 
-/// The co-rotational tier section (format v6): shapes against r = `tier.order`, m inputs,
+/// The co-rotational tier section (format v7): shapes against r = `tier.order`, m inputs,
 /// the model's sensors and node sets, q measurements; finite values; weights ≥ 0; force
 /// states on existing load groups with three load channels, increasing.
 fn check_tier(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatError> {
@@ -466,5 +466,103 @@ fn check_tier(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatEr
             ));
         }
     }
-    Ok(())
+    check_force_levels(model, t)
+}
+
+/// The force-σ levels of a tier and their statistic (format v7): each level's filters shaped
+/// as the section's (same period and measured channels, one per scheduled point), distinct
+/// factors other than 1; the statistic present exactly with levels.
+fn check_force_levels(model: &Model, t: &crate::CorotationalTier) -> Result<(), FormatError> {
+    let q = model.measurements.len();
+    let same_phases = |k: &crate::KalmanGains| {
+        k.period == t.kalman.period
+            && k.phases
+                .iter()
+                .zip(&t.kalman.phases)
+                .all(|(a, b)| a.measured == b.measured)
+    };
+    let mut factors = vec![1.0];
+    for (l, level) in t.force_levels.iter().enumerate() {
+        let path = format!("tier.force_levels[{l}]");
+        check_positive(&format!("{path}.factor"), level.factor)?;
+        if factors.contains(&level.factor) {
+            return Err(invalid(
+                format!("{path}.factor"),
+                format!(
+                    "{} repeats a level (1 is the section's own filter)",
+                    level.factor
+                ),
+            ));
+        }
+        factors.push(level.factor);
+        if t.force_loads.is_empty() {
+            return Err(invalid(
+                path,
+                "force-σ levels need force states (force_loads is empty)",
+            ));
+        }
+        if level.scheduled.len() != t.scheduled.len() {
+            return Err(invalid(
+                format!("{path}.scheduled"),
+                format!(
+                    "{} filters for {} scheduled points",
+                    level.scheduled.len(),
+                    t.scheduled.len()
+                ),
+            ));
+        }
+        let filters = std::iter::once((format!("{path}.kalman"), &level.kalman)).chain(
+            level
+                .scheduled
+                .iter()
+                .enumerate()
+                .map(|(i, k)| (format!("{path}.scheduled[{i}]"), k)),
+        );
+        for (path, k) in filters {
+            check_kalman(&path, k, t.state_dim() as u64, q)?;
+            if !same_phases(k) {
+                return Err(invalid(
+                    path,
+                    "period or measured channels differ from tier.kalman",
+                ));
+            }
+        }
+    }
+    match (&t.adaptation, t.force_levels.is_empty()) {
+        (None, true) => Ok(()),
+        (Some(_), true) => Err(invalid("tier.adaptation", "present without force_levels")),
+        (None, false) => Err(invalid(
+            "tier.adaptation",
+            "missing: force_levels need the statistic that chooses among them",
+        )),
+        (Some(a), false) => {
+            if a.smoothing.len() != q {
+                return Err(invalid(
+                    "tier.adaptation.smoothing",
+                    format!("{} values for {q} measurements", a.smoothing.len()),
+                ));
+            }
+            if let Some(j) = a.smoothing.iter().position(|&v| !(v > 0.0 && v <= 1.0)) {
+                return Err(invalid(
+                    format!("tier.adaptation.smoothing[{j}]"),
+                    format!("{} is not in (0, 1]", a.smoothing[j]),
+                ));
+            }
+            check_positive("tier.adaptation.lower_below", a.lower_below)?;
+            check_positive("tier.adaptation.raise_above", a.raise_above)?;
+            if a.raise_above <= a.lower_below {
+                return Err(invalid(
+                    "tier.adaptation.raise_above",
+                    format!(
+                        "{} is not above lower_below {}",
+                        a.raise_above, a.lower_below
+                    ),
+                ));
+            }
+            if a.hold == 0 {
+                return Err(invalid("tier.adaptation.hold", "must be ≥ 1"));
+            }
+            Ok(())
+        }
+    }
 }

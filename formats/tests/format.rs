@@ -14,7 +14,7 @@ fn round_trip_and_determinism() {
     let bytes = encode(&model);
     assert_eq!(bytes, encode(&model), "encoding must be deterministic");
     assert_eq!(&bytes[..8], b"CROKF\0\r\n");
-    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 6);
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()), 7);
     let len = u64::from_le_bytes(bytes[12..20].try_into().unwrap());
     assert_eq!(len as usize, bytes.len() - HEADER_LEN);
     assert_eq!(hex(&bytes[20..52]), sha256_hex(&bytes[HEADER_LEN..]));
@@ -83,10 +83,10 @@ fn every_truncation_is_an_error() {
 
 #[test]
 fn other_versions_and_wrong_magic() {
-    assert_eq!(FORMAT_VERSION, 6);
-    // Version-1 to version-5 files (before the tier's model error) are refused before their
-    // payload is read, with both versions and the remedy in the message.
-    for old in [1u32, 2, 3, 4, 5] {
+    assert_eq!(FORMAT_VERSION, 7);
+    // Version-1 to version-6 files (before the tier's force-σ levels) are refused before
+    // their payload is read, with both versions and the remedy in the message.
+    for old in [1u32, 2, 3, 4, 5, 6] {
         let mut bytes = encode(&small_model());
         bytes[8..12].copy_from_slice(&old.to_le_bytes());
         let err = decode(&bytes).unwrap_err();
@@ -94,20 +94,20 @@ fn other_versions_and_wrong_magic() {
             err,
             FormatError::UnsupportedVersion {
                 found: old,
-                supported: 6
+                supported: 7
             }
         );
         assert_eq!(
             err.to_string(),
-            format!("model format v{old}, this runtime reads v6: recompile the model with crokf-compile")
+            format!("model format v{old}, this runtime reads v7: recompile the model with crokf-compile")
         );
     }
     let mut bytes = encode(&small_model());
-    bytes[8..12].copy_from_slice(&7u32.to_le_bytes());
+    bytes[8..12].copy_from_slice(&8u32.to_le_bytes());
     let err = decode(&bytes).unwrap_err();
     assert!(
         err.to_string()
-            .starts_with("model format v7, this runtime reads v6: "),
+            .starts_with("model format v8, this runtime reads v7: "),
         "{err}"
     );
     let mut bytes = encode(&small_model());
@@ -355,12 +355,36 @@ fn small_tier(model: &Model) -> CorotationalTier {
             point: vec![0.5; r],
             kalman: KalmanGains {
                 period: 2,
-                phases,
+                phases: phases.clone(),
                 process_noise: Matrix::identity(n as u32),
                 measurement_variance: model.kalman.measurement_variance.clone(),
             },
         }],
         model_error: Matrix::from_fn(r as u32, r as u32, |i, j| if i == j { 1e-8 } else { 0.0 }),
+        force_levels: [4.0, 0.25]
+            .into_iter()
+            .map(|factor| ForceLevel {
+                factor,
+                kalman: KalmanGains {
+                    period: 2,
+                    phases: phases.clone(),
+                    process_noise: Matrix::identity(n as u32),
+                    measurement_variance: model.kalman.measurement_variance.clone(),
+                },
+                scheduled: vec![KalmanGains {
+                    period: 2,
+                    phases: phases.clone(),
+                    process_noise: Matrix::identity(n as u32),
+                    measurement_variance: model.kalman.measurement_variance.clone(),
+                }],
+            })
+            .collect(),
+        adaptation: Some(ForceAdaptation {
+            smoothing: vec![0.1; q as usize],
+            raise_above: 3.0,
+            lower_below: 0.9,
+            hold: 50,
+        }),
     }
 }
 
@@ -438,4 +462,63 @@ fn tier_section_round_trip_and_validation() {
     assert!(e.contains("tier.model_error"), "{e}");
     let e = bad(&|t| t.model_error.data[0] = -1.0);
     assert!(e.contains("tier.model_error") && e.contains("≥ 0"), "{e}");
+    // Force-σ levels (v7): distinct factors ≠ 1, one filter per scheduled point shaped as
+    // `kalman`, force states, and the statistic present exactly with levels.
+    let e = bad(&|t| t.force_levels[1].factor = 4.0);
+    assert!(
+        e.contains("tier.force_levels[1].factor") && e.contains("repeats"),
+        "{e}"
+    );
+    let e = bad(&|t| t.force_levels[0].factor = 1.0);
+    assert!(e.contains("tier.force_levels[0].factor"), "{e}");
+    let e = bad(&|t| t.force_levels[0].factor = -2.0);
+    assert!(
+        e.contains("tier.force_levels[0].factor") && e.contains("> 0"),
+        "{e}"
+    );
+    let e = bad(&|t| t.force_levels[1].scheduled.clear());
+    assert!(
+        e.contains("tier.force_levels[1].scheduled") && e.contains("0 filters for 1"),
+        "{e}"
+    );
+    let e = bad(&|t| t.force_levels[0].scheduled[0].phases[0].gain = Matrix::zeros(9, 1));
+    assert!(
+        e.contains("tier.force_levels[0].scheduled[0].phases[0].gain"),
+        "{e}"
+    );
+    let e = bad(&|t| t.force_levels[1].kalman.phases[1].measured = vec![0, 1, 3]);
+    assert!(
+        e.contains("tier.force_levels[1].kalman") && e.contains("differ"),
+        "{e}"
+    );
+    let e = bad(&|t| t.adaptation = None);
+    assert!(
+        e.contains("tier.adaptation") && e.contains("missing"),
+        "{e}"
+    );
+    let e = bad(&|t| t.force_levels.clear());
+    assert!(
+        e.contains("tier.adaptation") && e.contains("without"),
+        "{e}"
+    );
+    let e = bad(&|t| t.adaptation.as_mut().unwrap().smoothing[2] = 0.0);
+    assert!(e.contains("tier.adaptation.smoothing[2]"), "{e}");
+    let e = bad(&|t| {
+        t.adaptation
+            .as_mut()
+            .unwrap()
+            .smoothing
+            .pop()
+            .map_or((), |_| ())
+    });
+    assert!(e.contains("tier.adaptation.smoothing"), "{e}");
+    let e = bad(&|t| t.adaptation.as_mut().unwrap().raise_above = 0.5);
+    assert!(e.contains("tier.adaptation.raise_above"), "{e}");
+    let e = bad(&|t| t.adaptation.as_mut().unwrap().hold = 0);
+    assert!(e.contains("tier.adaptation.hold"), "{e}");
+    // Without levels the section is valid (one level).
+    let mut m = model.clone();
+    let t = m.tier.as_mut().unwrap();
+    (t.force_levels, t.adaptation) = (Vec::new(), None);
+    m.validate().unwrap();
 }

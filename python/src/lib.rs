@@ -985,6 +985,30 @@ impl Estimator {
         self.inner.reset();
     }
 
+    /// The co-rotational tier's force-σ level in use (docs/design.md §11.10): a dict with
+    /// `level` (0: the designed σ), `factor` (on the designed σ), `statistic` (the innovation
+    /// statistic T, mean 1 while the filter's model holds) and `adapting`; None for a model
+    /// with one level (no estimated loads, or the warped linear tier).
+    #[getter]
+    fn force_level<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(l) = self.inner.force_level() else {
+            return Ok(None);
+        };
+        let d = PyDict::new(py);
+        d.set_item("level", l.level)?;
+        d.set_item("factor", l.factor)?;
+        d.set_item("statistic", l.statistic)?;
+        d.set_item("adapting", l.adapting)?;
+        Ok(Some(d))
+    }
+
+    /// Whether the force-σ level follows the innovations (True, the default) or stays at the
+    /// designed σ (False). Either way the level returns to the designed σ and its statistic
+    /// starts afresh. No effect on a model with one level.
+    fn set_force_adaptation(&mut self, on: bool) {
+        self.inner.set_force_adaptation(on);
+    }
+
     /// Number of predictions since construction or `reset`.
     #[getter]
     fn step_index(&self) -> u64 {

@@ -183,3 +183,23 @@ def test_refusals_raise_identify_error_and_write_nothing(beam):
         crokf.identify(beam / "scene.toml", beam / "model.crokf", beam / "walk.csv",
                        lag=20)
     assert not out.exists()
+
+
+def test_the_force_level_is_reported_and_can_be_held(beam, cantilever_path):
+    """The beam's tier stores force-sigma levels: a new estimator is at the designed sigma; with
+    nothing moving (zero innovations) it steps down one level per hold; held, it is back at the
+    designed sigma and stays there. A model with one level reports None."""
+    model = crokf.Model.load(beam / "model.crokf")
+    est = crokf.Estimator(model)
+    assert est.force_level == {"level": 0, "factor": 1.0, "statistic": 0.0, "adapting": True}
+    zero_u = np.zeros(len(model.inputs))
+    zero_y = np.zeros(len(model.measurement_channels))
+    for _ in range(100):
+        est.step(zero_u, zero_y)
+    level = est.force_level
+    assert level["factor"] < 1.0 and level["adapting"], level
+    est.set_force_adaptation(False)
+    for _ in range(100):
+        est.step(zero_u, zero_y)
+    assert est.force_level == {"level": 0, "factor": 1.0, "statistic": 0.0, "adapting": False}
+    assert crokf.Estimator(crokf.Model.load(cantilever_path)).force_level is None

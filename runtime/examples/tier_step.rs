@@ -98,11 +98,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let predict = median(times);
     let mut tip = vec![0.0; 3 * model.sensors.len()];
     est.sensor_displacements(&mut tip)?;
-    // Filter: predict + update with the open-loop estimates as measurements.
+    // Filter: predict + update with the open-loop estimates as measurements, the force-σ
+    // levels (docs/design.md §11.10) adapting and held at the designed σ, timed alternately in
+    // the same loop.
     let mut est2 = Estimator::new(&model)?;
+    let mut held = Estimator::new(&model)?;
+    held.set_force_adaptation(false);
     let mut y = vec![None; model.measurements.len()];
     let mut estimates = vec![0.0; model.measurements.len()];
-    let mut times = Vec::with_capacity(steps);
+    let (mut times, mut held_times) = (Vec::with_capacity(steps), Vec::with_capacity(steps));
     let mut reference = Estimator::new(&model)?;
     for k in 0..steps {
         u[input] = load(k);
@@ -114,8 +118,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let clock = Instant::now();
         est2.step(&u, &y)?;
         times.push(clock.elapsed().as_secs_f64());
+        let clock = Instant::now();
+        held.step(&u, &y)?;
+        held_times.push(clock.elapsed().as_secs_f64());
     }
     let step = median(times);
+    let held_step = median(held_times);
     println!(
         "predict (nonlinear step) median {:.1} µs; predict + update median {:.1} µs; \
          {:.2} Newton iterations per step, {refreshes} tangent refreshes in {steps} steps, \
@@ -124,6 +132,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         step * 1e6,
         iterations as f64 / steps as f64
     );
+    if let Some(level) = est2.force_level() {
+        println!(
+            "force-σ levels: predict + update median {:.1} µs adapting (level × {} at the end), \
+             {:.1} µs held at the designed σ: ratio {:.3}",
+            step * 1e6,
+            level.factor,
+            held_step * 1e6,
+            step / held_step
+        );
+    }
     println!(
         "slowest predict {:.1} µs; steps with a tangent refresh: median {:.1} µs",
         slowest * 1e6,

@@ -71,6 +71,13 @@ uint64_t crokf_step_index(const CrokfEstimator *est);
  * (Newton not converged, inverted element) fails with -1 and leaves the estimator unchanged. */
 int crokf_tier_status(const CrokfEstimator *est, size_t *iterations, double *load_ratio,
                       double *state_ratio);
+/* Co-rotational tier with force-σ levels: the level in use (0: the designed σ), its factor on
+ * the designed σ and the innovation statistic (NULL pointers skipped). 1: the model has levels,
+ * 0: it has one (nothing written), -1: NULL handle. */
+int crokf_force_level(const CrokfEstimator *est, size_t *level, double *factor,
+                      double *statistic);
+/* on != 0: the level follows the innovations (default); 0: it stays at the designed σ. */
+int crokf_set_force_adaptation(CrokfEstimator *est, int on);
 
 /* Read-outs into caller buffers; len must be exact. A read-out never succeeds with a
  * non-finite value. */

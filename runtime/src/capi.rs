@@ -441,6 +441,53 @@ pub unsafe extern "C" fn crokf_tier_status(
     })
 }
 
+/// The co-rotational tier's force-σ level in use (docs/design.md §11.10): the level (0: the
+/// designed σ), its factor on the designed σ and the innovation statistic T are written where
+/// the pointers are not NULL. Returns 1 when the model has levels, 0 when it has one (nothing
+/// written), -1 on a NULL handle.
+///
+/// # Safety
+/// `e` live estimator; each pointer NULL or writable.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_force_level(
+    e: *const CrokfEstimator,
+    level: *mut usize,
+    factor: *mut f64,
+    statistic: *mut f64,
+) -> c_int {
+    guard(-1, || {
+        let Some(l) = est_ref(e)?.est.force_level() else {
+            return Ok(0);
+        };
+        // SAFETY: the caller passes NULL or writable pointers.
+        unsafe {
+            if !level.is_null() {
+                *level = l.level;
+            }
+            if !factor.is_null() {
+                *factor = l.factor;
+            }
+            if !statistic.is_null() {
+                *statistic = l.statistic;
+            }
+        }
+        Ok(1)
+    })
+}
+
+/// Whether the force-σ level follows the innovations (`on` ≠ 0, the default) or stays at the
+/// designed σ (`on` = 0). Returns 0, or -1 on a NULL handle.
+///
+/// # Safety
+/// `e` live estimator.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_set_force_adaptation(e: *mut CrokfEstimator, on: c_int) -> c_int {
+    guard(-1, || {
+        est_mut(e)?.est.set_force_adaptation(on != 0);
+        Ok(0)
+    })
+}
+
 macro_rules! readout {
     ($(#[$doc:meta])* $name:ident, $method:ident) => {
         $(#[$doc])*

@@ -179,10 +179,28 @@ impl Estimator {
         self.tier.is_corotational()
     }
 
-    /// The filter of the co-rotational tier's gain schedule in use: 0 for the filter designed
-    /// at rest, i ≥ 1 for `tier.scheduled[i − 1]` (docs/design.md §11.5); `None` without a tier.
+    /// The stored filter of the co-rotational tier in use (`None` without a tier): with P
+    /// filters per level (1 + `tier.scheduled.len()`), l·P + i is force-σ level l's filter
+    /// (docs/design.md §11.10; level 0 the designed σ, `kalman` and `scheduled`; level l ≥ 1
+    /// `tier.force_levels[l − 1]`) at schedule point i (0 for the filter designed at rest,
+    /// i ≥ 1 for `scheduled[i − 1]`, §11.5). After an update it names the filter the next
+    /// update starts from: an update whose innovations change the level leaves its state made
+    /// with the previous level's gain.
     pub fn tier_filter(&self) -> Option<usize> {
-        self.tier.schedule_filter()
+        self.tier.schedule_filter(&self.shared)
+    }
+
+    /// The co-rotational tier's force-σ level in use and its statistic (docs/design.md
+    /// §11.10); `None` for a model with one level (no force states, or the warped tier).
+    pub fn force_level(&self) -> Option<crate::ForceLevel> {
+        self.tier.force_level(&self.shared)
+    }
+
+    /// Whether the force-σ level follows the innovations (default on). Either way the level
+    /// returns to the designed σ (level 0) and the statistic starts afresh; off keeps it there.
+    /// No effect on a model with one level.
+    pub fn set_force_adaptation(&mut self, on: bool) {
+        self.tier.set_force_adaptation(on);
     }
 
     /// Status of the co-rotational tier's last completed step (Newton iterations, envelope);

@@ -14,6 +14,7 @@
 //! # Ok::<(), crokf_runtime::RuntimeError>(())
 //! ```
 
+mod adaptation;
 pub mod capi;
 mod covariance;
 mod estimator;
@@ -22,6 +23,7 @@ mod simd;
 pub mod tier;
 pub mod warp;
 
+pub use adaptation::ForceLevel;
 pub use crokf_formats::{FormatError, Model};
 pub use estimator::{CovarianceKind, Estimator, DEFAULT_GATE_SIGMAS};
 pub use prepared::{DisplayRowFormat, PreparedModel, COMPACT_ABOVE_BYTES};

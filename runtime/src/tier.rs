@@ -177,6 +177,8 @@ pub struct TierState {
     filter_prev: usize,
     /// The filter whose gain gave `s_upd` (committed with it).
     pub(crate) filter_upd: usize,
+    /// The force-σ level in use (docs/design.md §11.10; 0: the designed σ).
+    pub(crate) level: usize,
     /// Innovation scratch.
     pub(crate) innovation: Vec<f64>,
     /// The update's result before it is committed.
@@ -208,6 +210,7 @@ impl TierState {
             filter: 0,
             filter_prev: 0,
             filter_upd: 0,
+            level: 0,
             innovation: vec![0.0; q],
             s_upd: vec![0.0; model.n],
         }
@@ -218,6 +221,7 @@ impl TierState {
         self.s.iter_mut().for_each(|v| *v = 0.0);
         self.filter = 0;
         self.filter_prev = 0;
+        self.level = 0;
         self.slow = true;
         self.eta = 1.0;
     }
@@ -546,7 +550,8 @@ impl TierState {
                 (Some(nu), Some(g)) => gate_rejects(
                     nu,
                     g,
-                    model.filters[self.filter].innovation_variance[phase][a],
+                    model.innovation_variance(model.filter_index(self.level, self.filter), phase)
+                        [a],
                     gate.missed(j),
                     model.variance_growth[j],
                 ),
@@ -569,9 +574,9 @@ impl TierState {
         // entry summed over a in order, so s_i + (K_p ν)_i as the row-by-row product has it.
         let n = self.s_upd.len();
         let mut filter = self.filter;
-        let passes = model.filters.len();
+        let passes = model.filter_count();
         for pass in 0..passes {
-            let gain_t = &model.filters[filter].gains_t[phase];
+            let gain_t = &model.filters[model.filter_index(self.level, filter)].gains_t[phase];
             self.s_upd.iter_mut().for_each(|v| *v = 0.0);
             for (column, &nu) in gain_t.chunks_exact(n).zip(&self.innovation[..nm]) {
                 for (o, g) in self.s_upd.iter_mut().zip(column) {

@@ -644,18 +644,18 @@ fn the_gate_skips_a_one_metre_outlier_and_none_of_the_scenes_noise() {
     assert_eq!(est.state(), without.state());
 }
 
-/// A model file of the previous format (v5: no model error in the tier) is refused with a
+/// A model file of the previous format (v6: no force-σ levels in the tier) is refused with a
 /// message that says to recompile.
 #[test]
-fn a_v5_model_file_is_refused_with_recompile() {
+fn a_v6_model_file_is_refused_with_recompile() {
     let (bytes, _) = compiled();
     let mut old = bytes.clone();
-    old[8..12].copy_from_slice(&5u32.to_le_bytes());
+    old[8..12].copy_from_slice(&6u32.to_le_bytes());
     let err = crokf_runtime::model_from_bytes(&old)
         .unwrap_err()
         .to_string();
     assert!(
-        err.contains("model format v5, this runtime reads v6") && err.contains("recompile"),
+        err.contains("model format v6, this runtime reads v7") && err.contains("recompile"),
         "{err}"
     );
 }
@@ -878,6 +878,9 @@ fn the_update_uses_the_gain_of_the_filter_nearest_to_its_result() {
     for c in [1.0, 10.0, 50.0] {
         let mut est = Estimator::new(model).unwrap();
         est.set_innovation_gate(None);
+        // The force-σ levels held (docs/design.md §11.10): the large innovations here would
+        // raise the level for the next step, and `tier_filter` would name that level's filter.
+        est.set_force_adaptation(false);
         est.predict(&vec![0.0; model.inputs.len()]).unwrap();
         assert_eq!(est.tier_filter(), Some(0));
         let prior = est.state().to_vec();

@@ -707,6 +707,8 @@ fn run_model(
         .collect();
     let blocks = FilterBlocks::new(model, &display);
     let mut acc = ConsistencyAccumulator::new(&blocks, model, Some(tip));
+    // Steps per force-σ level (docs/design.md §11.10), for the run's stderr line.
+    let mut levels: std::collections::BTreeMap<usize, (f64, usize)> = Default::default();
     for k in 0..steps {
         let y = drive.markers(k);
         let u = drive.inputs(k);
@@ -750,6 +752,9 @@ fn run_model(
             }
         }
         times.push(elapsed);
+        if let Some(l) = est.force_level().filter(|_| filtered) {
+            levels.entry(l.level).or_insert((l.factor, 0)).1 += 1;
+        }
         displayed(&est, model, &mut shown)?;
         let (mut ke, mut kr) = (0.0, 0.0);
         for (a, b) in shown.iter().zip(&shown_ref[k]) {
@@ -792,6 +797,17 @@ fn run_model(
         }
     }
     times.sort_by(f64::total_cmp);
+    if !levels.is_empty() {
+        eprintln!(
+            "{} (seed {seed}): steps per force-σ level: {}",
+            run.label(),
+            levels
+                .values()
+                .map(|(f, n)| format!("× {f}: {n}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     let forces = match tier {
         Some(t) => est.state()[3 * t.order as usize..].to_vec(),
         None => Vec::new(),

@@ -959,11 +959,15 @@ fn hand_consistency(
     };
     let tier = model.tier.as_ref().expect("tier");
     let r = tier.order as usize;
+    // `Estimator::tier_filter`: level l's filter at schedule point i is l·P + i.
+    let per_level = 1 + tier.scheduled.len();
     let kalman = |filter: usize| {
-        if filter == 0 {
-            &tier.kalman
-        } else {
-            &tier.scheduled[filter - 1].kalman
+        let (level, point) = (filter / per_level, filter % per_level);
+        match (level, point) {
+            (0, 0) => &tier.kalman,
+            (0, i) => &tier.scheduled[i - 1].kalman,
+            (l, 0) => &tier.force_levels[l - 1].kalman,
+            (l, i) => &tier.force_levels[l - 1].scheduled[i - 1],
         }
     };
     // Displayed nodes: the union of the node sets, first occurrence first.

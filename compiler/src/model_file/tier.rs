@@ -16,6 +16,7 @@ use crate::nonlinear::cubature::{Cubature, SampledElement};
 use crate::nonlinear::filter::{
     derive_force_sigma, filter_of, measured_rows, scheduled_filters, LinearisedTier, TierFilter,
 };
+use crate::nonlinear::levels::design_levels;
 use crate::nonlinear::reduced::ReducedModel;
 use crate::nonlinear::tier::{point_rows, Tier};
 use crate::nonlinear::training::{History, TrainingPlan};
@@ -148,7 +149,37 @@ pub fn tier_section(
             .model_error
             .as_ref()
             .map_or_else(fmt::Matrix::default, dense_matrix),
+        force_levels: levels_section(filter, measurements),
+        adaptation: adaptation_section(filter),
     }
+}
+
+/// The section's `force_levels` of a filter (docs/design.md §11.10).
+fn levels_section(filter: &TierFilter, measurements: &Measurements) -> Vec<fmt::ForceLevel> {
+    filter
+        .levels
+        .iter()
+        .map(|l| fmt::ForceLevel {
+            factor: l.factor,
+            kalman: kalman_gains(&l.schedule, &l.process_noise, measurements),
+            scheduled: l
+                .scheduled
+                .iter()
+                .map(|(schedule, q)| kalman_gains(schedule, q, measurements))
+                .collect(),
+        })
+        .collect()
+}
+
+/// The section's `adaptation` of a filter (present exactly with levels).
+fn adaptation_section(filter: &TierFilter) -> Option<fmt::ForceAdaptation> {
+    let a = filter.adaptation.as_ref()?;
+    (!filter.levels.is_empty()).then(|| fmt::ForceAdaptation {
+        smoothing: a.smoothing.clone(),
+        raise_above: a.raise_above,
+        lower_below: a.lower_below,
+        hold: a.window as u32,
+    })
 }
 
 /// The section's `scheduled` of a filter.
@@ -326,13 +357,17 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
         .iter()
         .map(|s| DVector::from_column_slice(&s.point))
         .collect();
+    let reduced = reduced_model_of_file(full, t)?;
     if !points.is_empty() {
-        let reduced = reduced_model_of_file(full, t)?;
         filter.scheduled = scheduled_filters(&lin, &reduced, &points, &measurements);
     }
+    (filter.levels, filter.adaptation, filter.level_notes) =
+        design_levels(&filter, &lin, &reduced, &noise, &measurements);
     t.force_loads = filter.force_loads.iter().map(|&g| g as u32).collect();
     t.force_rates = filter.force_rates;
     t.kalman = kalman_gains(&filter.schedule, &filter.process_noise, &measurements);
     t.scheduled = scheduled_section(&filter, &measurements);
+    t.force_levels = levels_section(&filter, &measurements);
+    t.adaptation = adaptation_section(&filter);
     Ok(filter.schedule.closed_loop_spectral_radius)
 }

@@ -13,9 +13,11 @@ use crate::full_order::FullOrder;
 use crate::kalman::{self, PeriodicSchedule};
 use crate::outputs::Measurements;
 
+use super::levels::{design_levels, FilterLevel};
 use super::reduced::ReducedModel;
 use super::tier::{point_rows, Tier};
 use super::NonlinearError;
+use crate::kalman::adaptation::Statistic;
 use crate::noise::{Derivation, NoiseModel};
 
 /// The tier linearised at rest in reduced coordinates: everything its filter needs, which is
@@ -149,6 +151,13 @@ pub struct TierFilter {
     pub scheduled: Vec<(DVector<f64>, PeriodicSchedule, Mat<f64>)>,
     /// The model error taken as process noise ([`LinearisedTier::model_error`]).
     pub model_error: Option<DMatrix<f64>>,
+    /// The force-σ levels besides the designed one ([`super::levels`], docs/design.md
+    /// §11.10); empty without force states.
+    pub levels: Vec<FilterLevel>,
+    /// The statistic that moves between the levels (present exactly with levels).
+    pub adaptation: Option<Statistic>,
+    /// Levels left out (their filter could not be designed), for the compile's notes.
+    pub level_notes: Vec<String>,
 }
 
 /// The tier's filter (docs/design.md §11.4) for the noise model `noise`: the reduced model
@@ -200,6 +209,9 @@ pub fn linearised_filter(
     filter.marker_model_error = marker_model_error(full, tier, &lin.measured_rows, measurements);
     let points = schedule_points(&tier.projected, SCHEDULE_POINTS);
     filter.scheduled = scheduled_filters(&lin, &tier.model, &points, measurements);
+    let (levels, adaptation, notes) =
+        design_levels(&filter, &lin, &tier.model, noise, measurements);
+    (filter.levels, filter.adaptation, filter.level_notes) = (levels, adaptation, notes);
     Ok(filter)
 }
 
@@ -611,6 +623,9 @@ pub fn filter_of(
         marker_model_error: Vec::new(),
         scheduled: Vec::new(),
         model_error: lin.model_error.clone(),
+        levels: Vec::new(),
+        adaptation: None,
+        level_notes: Vec::new(),
     })
 }
 

@@ -269,6 +269,34 @@ impl<'a> TierReductor<'a> {
                 d.note(&full.scene.scene.loads[d.load].name)
             )
         }));
+        if let Some(a) = &filter.adaptation {
+            let mut factors: Vec<f64> = std::iter::once(1.0)
+                .chain(filter.levels.iter().map(|l| l.factor))
+                .collect();
+            factors.sort_by(|a, b| b.total_cmp(a));
+            notes.push(format!(
+                "co-rotational tier force σ levels (docs/design.md §11.10): × {} the designed \
+                 σ, chosen at run time from the whitened innovations averaged over {} steps \
+                 (the shortest rise time): one level up when the statistic exceeds {:.2}, one \
+                 down after {} steps below {:.2} ({:.1} effective channels)",
+                factors
+                    .iter()
+                    .map(|f| format!("{f}"))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                a.window,
+                a.raise_above,
+                a.window,
+                a.lower_below,
+                a.effective_channels
+            ));
+        }
+        notes.extend(
+            filter
+                .level_notes
+                .iter()
+                .map(|n| format!("co-rotational tier: {n}")),
+        );
         if let Some(s) = &filter.model_error {
             let largest = self.check.largest_scale();
             notes.push(format!(

@@ -2,6 +2,7 @@
 //! [`TierState`] as the prediction, the constant-gain extended update ν = y − V_s q (world
 //! frame, linear) with the gain schedule, and the read-outs V q.
 
+use crate::adaptation::{AdaptationState, ForceLevel};
 use crate::covariance::Gate;
 use crate::prepared::PreparedModel;
 use crate::tier::{TierModel, TierState, TierStatus};
@@ -10,7 +11,8 @@ use crate::RuntimeError;
 
 use super::step::{first_non_finite, CovarianceKind, TierStep, Verdict};
 
-/// The tier's state with the update's per-channel gate flags (allocated once).
+/// The tier's state with the update's per-channel gate flags and the force-σ adaptation
+/// (allocated once).
 #[derive(Clone, Debug)]
 pub(crate) struct CorotationalStep {
     state: TierState,
@@ -18,16 +20,59 @@ pub(crate) struct CorotationalStep {
     status: TierStatus,
     /// Per active channel of the current phase: gated in this update.
     gated: Vec<bool>,
+    /// The force-σ level's statistic (a tier with levels only; docs/design.md §11.10).
+    adaptation: Option<AdaptationState>,
+    /// Per active channel: the whitened innovation of the last update (NaN: not used).
+    whitened: Vec<f64>,
+    /// Whether every estimated load had a nonzero input at the last prediction.
+    told: bool,
 }
 
 impl CorotationalStep {
-    /// At rest.
+    /// At rest, at the designed force σ.
     pub(crate) fn new(tier: &TierModel, loads: usize) -> Self {
         CorotationalStep {
             state: TierState::new(tier, loads),
             status: TierStatus::default(),
             gated: vec![false; tier.max_measured()],
+            adaptation: tier
+                .levels()
+                .map(|_| AdaptationState::new(tier.channel_count())),
+            whitened: vec![f64::NAN; tier.max_measured()],
+            told: false,
         }
+    }
+
+    /// After a committed update of `phase` at `step` (whose prior used stored filter
+    /// `filter`): the accepted channels' whitened innovations ν_a / √s_a enter the statistic,
+    /// which sets the level of the next step.
+    fn adapt(
+        &mut self,
+        tm: &TierModel,
+        phase: usize,
+        filter: usize,
+        step: u64,
+        verdicts: &[Verdict],
+    ) {
+        let (Some(levels), Some(adaptation)) = (tm.levels(), self.adaptation.as_mut()) else {
+            return;
+        };
+        let measured = tm.measured(phase);
+        let variance = tm.innovation_variance(filter, phase);
+        for (a, z) in self.whitened[..measured.len()].iter_mut().enumerate() {
+            *z = if verdicts[a] == Verdict::Accepted {
+                self.state.innovation[a] / variance[a].sqrt()
+            } else {
+                f64::NAN
+            };
+        }
+        self.state.level = adaptation.observe(
+            levels,
+            step,
+            measured,
+            &self.whitened[..measured.len()],
+            self.told,
+        );
     }
 }
 
@@ -59,6 +104,9 @@ impl TierStep for CorotationalStep {
     fn reset(&mut self) {
         self.state.reset();
         self.status = TierStatus::default();
+        if let Some(a) = self.adaptation.as_mut() {
+            a.reset();
+        }
     }
 
     fn period(&self, shared: &PreparedModel) -> u64 {
@@ -76,7 +124,9 @@ impl TierStep for CorotationalStep {
         inputs: &[f64],
         step: u64,
     ) -> Result<(), RuntimeError> {
-        self.status = self.state.step(tier(shared), inputs, step)?;
+        let tm = tier(shared);
+        self.status = self.state.step(tm, inputs, step)?;
+        self.told = tm.loads_told(inputs);
         Ok(())
     }
 
@@ -91,6 +141,7 @@ impl TierStep for CorotationalStep {
         verdicts: &mut [Verdict],
     ) -> Result<usize, RuntimeError> {
         let tm = tier(shared);
+        let prior_filter = tm.filter_index(self.state.level, self.state.filter);
         let used = self
             .state
             .update_gated(tm, phase, &get, gate, &mut self.gated);
@@ -116,6 +167,7 @@ impl TierStep for CorotationalStep {
                 Verdict::Missing
             };
         }
+        self.adapt(tm, phase, prior_filter, gate.step, verdicts);
         Ok(used)
     }
 
@@ -138,7 +190,12 @@ impl TierStep for CorotationalStep {
             CovarianceKind::Prior => 0,
             CovarianceKind::Posterior => 1,
         };
-        tier(shared).std(self.state.filter, kind, phase)
+        let tm = tier(shared);
+        tm.std(
+            tm.filter_index(self.state.level, self.state.filter),
+            kind,
+            phase,
+        )
     }
 
     /// V q at the set's nodes (the tier has one read-out, in f64).
@@ -152,11 +209,24 @@ impl TierStep for CorotationalStep {
         self.state.nodes(tier(shared), set, out);
     }
 
-    fn schedule_filter(&self) -> Option<usize> {
-        Some(self.state.filter())
+    /// The stored filter in use: level l's filter at point i is l·P + i (P filters per level).
+    fn schedule_filter(&self, shared: &PreparedModel) -> Option<usize> {
+        Some(tier(shared).filter_index(self.state.level, self.state.filter()))
     }
 
     fn status(&self) -> TierStatus {
         self.status
+    }
+
+    fn force_level(&self, shared: &PreparedModel) -> Option<ForceLevel> {
+        let levels = tier(shared).levels()?;
+        Some(self.adaptation.as_ref()?.report(levels))
+    }
+
+    fn set_force_adaptation(&mut self, on: bool) {
+        if let Some(a) = self.adaptation.as_mut() {
+            a.set_enabled(on);
+            self.state.level = a.level();
+        }
     }
 }

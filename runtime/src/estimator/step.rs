@@ -8,6 +8,7 @@
 //! `update` change nothing on error; a successful `predict` keeps the state before it until
 //! the next `predict`, so that `rollback` restores it exactly.
 
+use crate::adaptation::ForceLevel;
 use crate::covariance::Gate;
 use crate::prepared::PreparedModel;
 use crate::tier::TierStatus;
@@ -98,11 +99,20 @@ pub(crate) trait TierStep: std::fmt::Debug + Send + Sync {
     /// read-out.
     fn node_displacements(&self, shared: &PreparedModel, set: usize, exact: bool, out: &mut [f64]);
 
-    /// The filter of the gain schedule in use (co-rotational tier only).
-    fn schedule_filter(&self) -> Option<usize>;
+    /// The stored filter in use (co-rotational tier only): level l's filter at schedule point
+    /// i is l·P + i, P the filters per level.
+    fn schedule_filter(&self, shared: &PreparedModel) -> Option<usize>;
 
     /// The status of the last completed step (co-rotational tier; the default otherwise).
     fn status(&self) -> TierStatus;
+
+    /// The force-σ level in use (a tier with levels only; docs/design.md §11.10).
+    fn force_level(&self, _shared: &PreparedModel) -> Option<ForceLevel> {
+        None
+    }
+
+    /// Whether the force-σ level follows the innovations (off: back to the designed σ).
+    fn set_force_adaptation(&mut self, _on: bool) {}
 }
 
 /// The index of the first NaN or ±∞ in `v`, if any. One vectorisable pass first

@@ -288,7 +288,7 @@ impl TierStep for WarpedStep {
         }
     }
 
-    fn schedule_filter(&self) -> Option<usize> {
+    fn schedule_filter(&self, _shared: &PreparedModel) -> Option<usize> {
         None
     }
 

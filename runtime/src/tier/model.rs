@@ -3,6 +3,7 @@
 //! elements packed for the kernel, gains transposed, read-out σ and the gate's variances per
 //! filter of the gain schedule, phase and covariance kind).
 
+use crate::adaptation::Levels;
 use crate::covariance::{gate_variances, row_std};
 use crokf_formats::{CorotationalTier, InputKind, Model};
 use crokf_kernel::{self as kernel, Mat3};
@@ -44,9 +45,15 @@ pub struct TierModel {
     pub(super) channel: Vec<(usize, usize)>,
     /// Per phase: measured channel indices.
     pub(super) measured: Vec<Vec<u32>>,
-    /// The gain schedule (docs/design.md §11.5): filter 0 is the tier's `kalman` (rest),
-    /// filter i ≥ 1 the `scheduled[i − 1]` one, designed at `points[i − 1]`.
+    /// The gain schedule (docs/design.md §11.5) at each force-σ level (§11.10): filter
+    /// l·P + i is level l's filter at point i (P = [`TierModel::filter_count`]); point 0 is
+    /// rest (`kalman`), point i ≥ 1 designed at `points[i − 1]`; level 0 is the designed σ,
+    /// level l ≥ 1 `force_levels[l − 1]`.
     pub(super) filters: Vec<PointFilter>,
+    /// Points per level (1 + scheduled points).
+    pub(super) per_level: usize,
+    /// The force-σ levels and their statistic (`None`: one level).
+    pub(super) levels: Option<Levels>,
     /// Operating points of filters 1.., r each, row-major.
     pub(super) points: Vec<f64>,
     /// Per measurement channel: (H Q Hᵀ)_jj, m² per step (the gate's growth g_j).
@@ -168,6 +175,11 @@ impl TierModel {
         };
         let filters: Vec<PointFilter> = std::iter::once(k)
             .chain(tier.scheduled.iter().map(|s| &s.kalman))
+            .chain(
+                tier.force_levels
+                    .iter()
+                    .flat_map(|l| std::iter::once(&l.kalman).chain(&l.scheduled)),
+            )
             .map(filter)
             .collect();
         let points = tier
@@ -225,6 +237,8 @@ impl TierModel {
             channel,
             measured: k.phases.iter().map(|p| p.measured.clone()).collect(),
             filters,
+            per_level: 1 + tier.scheduled.len(),
+            levels: Levels::new(tier),
             points,
             variance_growth,
         }
@@ -256,9 +270,31 @@ impl TierModel {
         &self.measured[phase]
     }
 
-    /// Number of filters of the gain schedule (1: the constant gain designed at rest).
+    /// Number of filters of the gain schedule (1: the constant gain designed at rest), per
+    /// force-σ level.
     pub fn filter_count(&self) -> usize {
-        self.filters.len()
+        self.per_level
+    }
+
+    /// Number of force-σ levels (1: the designed σ only; docs/design.md §11.10).
+    pub fn level_count(&self) -> usize {
+        self.filters.len() / self.per_level
+    }
+
+    /// The force-σ levels and their statistic (`None`: one level).
+    pub(crate) fn levels(&self) -> Option<&Levels> {
+        self.levels.as_ref()
+    }
+
+    /// The index of level `level`'s filter at point `point` among all stored filters.
+    pub fn filter_index(&self, level: usize, point: usize) -> usize {
+        level * self.per_level + point
+    }
+
+    /// Per active channel of `phase`: the innovation variance (H P⁻ Hᵀ)_jj + R_jj of stored
+    /// filter `filter` ([`TierModel::filter_index`]), m².
+    pub(crate) fn innovation_variance(&self, filter: usize, phase: usize) -> &[f64] {
+        &self.filters[filter].innovation_variance[phase]
     }
 
     /// The filter of the gain schedule for the state q (r): 0 (rest) or i ≥ 1 (operating point
@@ -276,11 +312,28 @@ impl TierModel {
         best.0
     }
 
-    /// Precomputed std of filter `filter`, covariance kind (0 prior, 1 posterior) and phase:
+    /// Precomputed std of stored filter `filter` ([`TierModel::filter_index`]), covariance
+    /// kind (0 prior, 1 posterior) and phase:
     /// (sensors, 3 each; node sets, 3 per node), m.
     pub(crate) fn std(&self, filter: usize, kind: usize, phase: usize) -> (&[f64], &[Vec<f64>]) {
         let f = &self.filters[filter];
         (&f.sensor_std[kind][phase], &f.node_std[kind][phase])
+    }
+
+    /// Whether every estimated load group (3 force states each) has a nonzero input among
+    /// `inputs` (false without force states): the runtime is told the load, and its force
+    /// states only absorb what the input does not explain.
+    pub fn loads_told(&self, inputs: &[f64]) -> bool {
+        !self.force_channels.is_empty()
+            && self
+                .force_channels
+                .chunks_exact(3)
+                .all(|group| group.iter().any(|&c| inputs[c] != 0.0))
+    }
+
+    /// Number of measurement channels of the model.
+    pub fn channel_count(&self) -> usize {
+        self.channel.len()
     }
 
     /// Largest number of measured channels in a phase of the tier's filter.

@@ -23,7 +23,9 @@ impl FilterRun {
 
 /// Runs `model`'s filter from rest over `inputs` (one row per step, model input order) and
 /// `measurements` (one row per step, model measurement order; `None`: missing), the innovation
-/// gate off, and records what [`FilterRun`] holds. Both have one row per step, as many rows.
+/// gate off and the force σ held at its designed level (the identification reads the gains of
+/// the designed filter), and records what [`FilterRun`] holds. Both have one row per step, as
+/// many rows.
 pub fn filter_run(
     model: &Model,
     inputs: &[Vec<f64>],
@@ -31,6 +33,7 @@ pub fn filter_run(
 ) -> Result<FilterRun, RuntimeError> {
     let mut est = Estimator::new(model)?;
     est.set_innovation_gate(None);
+    est.set_force_adaptation(false);
     let m = model.measurements.len();
     let mut predicted = vec![0.0; m];
     let mut run = FilterRun {

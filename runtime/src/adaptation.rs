@@ -1,0 +1,323 @@
+//! Adaptive force σ (docs/design.md §11.10): the tier's filter is stored at several levels of
+//! the force states' σ (`crokf_formats::CorotationalTier::force_levels`), and the level in use
+//! follows the innovations. Per measurement channel j an exponentially weighted mean of the whitened
+//! innovation z_j = ν_j / √s_j (s_j of the filter that made the update, the gate's variance;
+//! clipped to ±[`Z_CLIP`]),
+//! ```text
+//! e_j ← (1 − a_j) e_j + a_j z_j,   v_j ← (1 − a_j)² v_j   (e = 0, v = 1 after a change)
+//! T = (1/m) Σ_j e_j² (2 − a_j) / (a_j (1 − v_j))          (channels updated at least once)
+//! ```
+//! (T has mean 1 while the filter's model holds, for any number of updates since the change);
+//! σ goes one level up when T > `raise_above`; every `hold` steps since the last change or
+//! check T is checked against `lower_below`, and below it σ goes one level down, below the
+//! designed σ only while every estimated load is told (a load that is given leaves the force
+//! states only the model's error; one that is withheld and slower than stated would lag a
+//! lower σ before T could show it); after a change e restarts at 0. The compiler chose a_j and the thresholds; the runtime only counts. The
+//! state is allocated once and changed only by a successful update.
+
+use crokf_formats::{CorotationalTier, ForceAdaptation};
+
+/// Bound on a whitened innovation in the statistic (the default innovation gate, σ): one
+/// outlier moves e_j by at most a_j · 5.
+pub const Z_CLIP: f64 = 5.0;
+
+/// The levels of a model and the statistic's parameters (read-only, from the model file).
+#[derive(Clone, Debug)]
+pub struct Levels {
+    /// Factor on the designed σ per level (level 0 = 1, the model's `kalman`).
+    factors: Vec<f64>,
+    /// Per level: the next larger and the next smaller factor's level.
+    up: Vec<Option<usize>>,
+    down: Vec<Option<usize>>,
+    /// Per measurement channel: a_j and 1 − a_j.
+    smoothing: Vec<f64>,
+    keep: Vec<f64>,
+    raise_above: f64,
+    lower_below: f64,
+    hold: u64,
+}
+
+impl Levels {
+    /// The levels of a validated tier section: level 0 the designed σ (`kalman`, `scheduled`),
+    /// level l ≥ 1 `force_levels[l − 1]`; `None` when the tier has one level.
+    pub fn new(tier: &CorotationalTier) -> Option<Levels> {
+        let a = tier.adaptation.as_ref()?;
+        if tier.force_levels.is_empty() {
+            return None;
+        }
+        let factors: Vec<f64> = std::iter::once(1.0)
+            .chain(tier.force_levels.iter().map(|l| l.factor))
+            .collect();
+        Some(Levels::from_parts(factors, a))
+    }
+
+    /// The levels of the factors `factors` (level 0 first) and the statistic `a`.
+    fn from_parts(factors: Vec<f64>, a: &ForceAdaptation) -> Levels {
+        let neighbour = |larger: bool| -> Vec<Option<usize>> {
+            (0..factors.len())
+                .map(|l| {
+                    (0..factors.len())
+                        .filter(|&k| {
+                            if larger {
+                                factors[k] > factors[l]
+                            } else {
+                                factors[k] < factors[l]
+                            }
+                        })
+                        .min_by(|&a, &b| {
+                            (factors[a] - factors[l])
+                                .abs()
+                                .total_cmp(&(factors[b] - factors[l]).abs())
+                        })
+                })
+                .collect()
+        };
+        Levels {
+            up: neighbour(true),
+            down: neighbour(false),
+            keep: a.smoothing.iter().map(|a| 1.0 - a).collect(),
+            smoothing: a.smoothing.clone(),
+            raise_above: a.raise_above,
+            lower_below: a.lower_below,
+            hold: a.hold as u64,
+            factors,
+        }
+    }
+
+    /// The factor on the designed σ of `level`.
+    pub fn factor(&self, level: usize) -> f64 {
+        self.factors[level]
+    }
+}
+
+/// What [`crate::Estimator::force_level`] reports: the level in use and the statistic.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ForceLevel {
+    /// The level (0: the designed σ; l ≥ 1: the tier's `force_levels[l − 1]`).
+    pub level: usize,
+    /// Its factor on the designed force σ.
+    pub factor: f64,
+    /// The statistic T after the last update (module docs; 0 right after a change).
+    pub statistic: f64,
+    /// Whether the level follows the statistic ([`crate::Estimator::set_force_adaptation`]).
+    pub adapting: bool,
+}
+
+/// The adaptation's state: the level in use and the statistic.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AdaptationState {
+    level: usize,
+    /// Per channel: e_j and (1 − a_j)^{2n_j} (1 before any update since the change).
+    mean: Vec<f64>,
+    decay: Vec<f64>,
+    /// T after the last update (0 after a change).
+    statistic: f64,
+    /// The step of the last change or of the last check against `lower_below`.
+    settled_since: u64,
+    /// Whether the level follows the statistic (else it stays where it is).
+    enabled: bool,
+}
+
+impl AdaptationState {
+    /// At level 0 (the designed σ), for `channels` measurement channels.
+    pub fn new(channels: usize) -> AdaptationState {
+        AdaptationState {
+            level: 0,
+            mean: vec![0.0; channels],
+            decay: vec![1.0; channels],
+            statistic: 0.0,
+            settled_since: 0,
+            enabled: true,
+        }
+    }
+
+    /// Back to level 0 with the statistic cleared (keeps `enabled`).
+    pub fn reset(&mut self) {
+        self.level = 0;
+        self.restart(0);
+    }
+
+    fn restart(&mut self, step: u64) {
+        self.mean.iter_mut().for_each(|e| *e = 0.0);
+        self.decay.iter_mut().for_each(|v| *v = 1.0);
+        self.statistic = 0.0;
+        self.settled_since = step;
+    }
+
+    /// The level in use (index into the model's levels, 0 = the designed σ).
+    pub fn level(&self) -> usize {
+        self.level
+    }
+
+    /// The report of [`crate::Estimator::force_level`].
+    pub fn report(&self, levels: &Levels) -> ForceLevel {
+        ForceLevel {
+            level: self.level,
+            factor: levels.factor(self.level),
+            statistic: self.statistic,
+            adapting: self.enabled,
+        }
+    }
+
+    /// Turns the adaptation on or off: off goes back to level 0 (the designed σ) and stays
+    /// there; either way the statistic starts afresh.
+    pub fn set_enabled(&mut self, on: bool) {
+        self.enabled = on;
+        self.reset();
+    }
+
+    /// After a successful update at step `step`: the whitened innovations `z[a]` of the phase's
+    /// active channels `active[a]` (NaN: no value) enter the statistic, and the level moves at
+    /// most one step (module docs); below the designed σ only when `told` (every estimated
+    /// load was given a value this step). Returns the level for the next step.
+    pub fn observe(
+        &mut self,
+        levels: &Levels,
+        step: u64,
+        active: &[u32],
+        z: &[f64],
+        told: bool,
+    ) -> usize {
+        if !self.enabled {
+            return self.level;
+        }
+        let mut seen = false;
+        for (&j, &z) in active.iter().zip(z) {
+            if z.is_nan() {
+                continue;
+            }
+            let j = j as usize;
+            let (a, keep) = (levels.smoothing[j], levels.keep[j]);
+            self.mean[j] = keep * self.mean[j] + a * z.clamp(-Z_CLIP, Z_CLIP);
+            self.decay[j] *= keep * keep;
+            seen = true;
+        }
+        if !seen {
+            return self.level;
+        }
+        let (mut sum, mut count) = (0.0, 0usize);
+        for ((&e, &v), &a) in self.mean.iter().zip(&self.decay).zip(&levels.smoothing) {
+            if v < 1.0 {
+                sum += e * e * (2.0 - a) / (a * (1.0 - v));
+                count += 1;
+            }
+        }
+        self.statistic = sum / count.max(1) as f64;
+        let next = if self.statistic > levels.raise_above {
+            levels.up[self.level]
+        } else if step.saturating_sub(self.settled_since) >= levels.hold {
+            // One window since the last change or check: T now summarises it.
+            self.settled_since = step;
+            if self.statistic < levels.lower_below {
+                levels.down[self.level].filter(|&l| told || levels.factors[l] >= 1.0)
+            } else {
+                None
+            }
+        } else {
+            None
+        };
+        if let Some(level) = next {
+            self.level = level;
+            self.restart(step);
+        }
+        self.level
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crokf_formats::synthetic::SplitMix64;
+
+    fn levels(hold: u32) -> Levels {
+        Levels::from_parts(
+            vec![1.0, 4.0, 0.25, 0.0625],
+            &ForceAdaptation {
+                smoothing: vec![2.0 / 21.0; 3],
+                raise_above: 5.0,
+                lower_below: 0.8,
+                hold,
+            },
+        )
+    }
+
+    /// The factors are ordered by size whatever their storage order.
+    #[test]
+    fn neighbours_follow_the_factors() {
+        let l = levels(20);
+        assert_eq!(l.up, vec![Some(1), None, Some(0), Some(2)]);
+        assert_eq!(l.down, vec![Some(2), Some(0), Some(3), None]);
+    }
+
+    /// White unit innovations: T averages 1 from the first update on (the transient is
+    /// normalised); a bias of 0.5 σ on every channel raises within a few window lengths; zero
+    /// innovations lower the level one step per `hold` steps down to the smallest; off keeps
+    /// level 0.
+    #[test]
+    fn the_statistic_is_unbiased_and_moves_one_level_at_a_time() {
+        let l = levels(20);
+        let active = [0u32, 1, 2];
+        let mut rng = SplitMix64(3);
+        let (mut sum, mut n) = (0.0, 0);
+        for run in 0..400 {
+            let mut s = AdaptationState::new(3);
+            for k in 1..=10u64 {
+                let z: Vec<f64> = (0..3).map(|_| rng.normal()).collect();
+                s.observe(&l, k + 1000 * run, &active, &z, true);
+                if k == 3 {
+                    sum += s.statistic;
+                    n += 1;
+                }
+            }
+        }
+        let mean = sum / n as f64;
+        assert!((mean - 1.0).abs() < 0.1, "mean T after 3 updates {mean}");
+
+        let mut s = AdaptationState::new(3);
+        let mut raised = None;
+        for k in 1..200u64 {
+            let z: Vec<f64> = (0..3).map(|_| 0.5 + rng.normal()).collect();
+            if s.observe(&l, k, &active, &z, true) == 1 {
+                raised = Some(k);
+                break;
+            }
+        }
+        let k = raised.expect("a 0.5 σ bias raises σ");
+        assert!(k < 60, "raised at step {k}");
+        assert_eq!(s.statistic, 0.0);
+
+        let mut s = AdaptationState::new(3);
+        let mut path = vec![s.level()];
+        for k in 1..=100u64 {
+            let level = s.observe(&l, k, &active, &[0.0; 3], true);
+            if level != *path.last().unwrap() {
+                path.push(level);
+                assert_eq!(k % 20, 0, "a change after exactly `hold` calm steps");
+            }
+        }
+        assert_eq!(path, vec![0, 2, 3]);
+        // Not told: the calm steps lower nothing below the designed σ; from above it, one.
+        let mut s = AdaptationState::new(3);
+        for k in 1..=100u64 {
+            assert_eq!(s.observe(&l, k, &active, &[0.0; 3], false), 0);
+        }
+        let mut s = AdaptationState::new(3);
+        s.observe(&l, 1, &active, &[9.0; 3], false);
+        assert_eq!(s.level(), 1);
+        for k in 2..=100u64 {
+            s.observe(&l, k, &active, &[0.0; 3], false);
+        }
+        assert_eq!(s.level(), 0);
+
+        let mut s = AdaptationState::new(3);
+        s.set_enabled(false);
+        for k in 1..100u64 {
+            assert_eq!(s.observe(&l, k, &active, &[9.0; 3], true), 0);
+        }
+        // Missing values change nothing.
+        let mut s = AdaptationState::new(3);
+        let before = s.clone();
+        s.observe(&l, 1, &active, &[f64::NAN; 3], true);
+        assert_eq!(s, before);
+    }
+}

@@ -1,0 +1,354 @@
+//! The co-rotational tier's force-σ levels (docs/design.md §11.10) end to end, on the small
+//! generated beam of `tier.rs` (12×2×2 cells, 288 tetrahedra) with its tip load estimated and
+//! its force σ derived from the load's range: the compiler stores the filter at each level,
+//! the runtime moves between them on its innovations, and off is the one-level filter exactly.
+//!
+//! `cargo test -p crokf-tests --test force_levels -- --nocapture` prints the figures.
+
+use std::path::PathBuf;
+use std::sync::OnceLock;
+
+use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
+use crokf_compile::{compile, CompileOptions};
+use crokf_formats::synthetic::SplitMix64;
+use crokf_formats::Model;
+use crokf_runtime::Estimator;
+
+/// The beam's tier, trained along the six axes to 30 N (as in `tier.rs`); the tip load states
+/// no σ, so its force σ is derived from the range (30 N) and the default rise time (0.2 s).
+const TIER: &str = "[reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
+    ranges = { tip = 30.0 }\nduration = 0.15\nevery = 2\norder = 10\necsw_tolerance = 1e-2\n\
+    newton_tolerance = 1e-12\nnewton_iterations = 60\ndirections = \"axes\"\n";
+
+/// Δt of the scene, s.
+const DT: f64 = 0.005;
+
+fn compiled() -> &'static Model {
+    static C: OnceLock<Model> = OnceLock::new();
+    C.get_or_init(|| {
+        let dir = std::env::temp_dir().join(format!("crokf-levels-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        write_msh22(
+            &box_mesh([12, 2, 2], [1.0, 0.1, 0.1]),
+            &dir.join("beam.msh"),
+        )
+        .unwrap();
+        let text = BeamScene {
+            sensors: vec![("tip".into(), [0.99, 0.05, 0.1])],
+            displays: vec![("end".into(), "xmax".into())],
+            dt: DT,
+            force_noise_std: None,
+            force_model: None,
+            ..BeamScene::default()
+        }
+        .toml()
+            + TIER;
+        let path: PathBuf = dir.join("scene.toml");
+        std::fs::write(&path, text).unwrap();
+        let options = CompileOptions {
+            order: Some(8),
+            skip_measured_error: true,
+            ..CompileOptions::default()
+        };
+        let model = compile(&path, &options).unwrap().model;
+        let _ = std::fs::remove_dir_all(&dir);
+        model
+    })
+}
+
+/// The model with its levels removed: the one-level filter of the same compile.
+fn one_level(model: &Model) -> Model {
+    let mut m = model.clone();
+    let t = m.tier.as_mut().unwrap();
+    (t.force_levels, t.adaptation) = (Vec::new(), None);
+    m
+}
+
+/// Largest |a − b| / max|b| over two matrices' entries.
+fn relative_difference(a: &[f64], b: &[f64]) -> f64 {
+    let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    a.iter()
+        .zip(b)
+        .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+        / scale
+}
+
+/// Each level is the designed filter with the force σ scaled: its process noise equals the
+/// designed one's with the force block times factor² (and nothing else changed), its force
+/// states' posterior variance and gains grow with the factor, and the statistic averages over
+/// the rise time in steps.
+#[test]
+fn each_level_is_the_designed_filter_with_the_force_sigma_scaled() {
+    let model = compiled();
+    let t = model.tier.as_ref().unwrap();
+    let n = t.state_dim();
+    let r3 = 3 * t.order as usize;
+    assert_eq!(t.force_loads, vec![0]);
+    let factors: Vec<f64> = t.force_levels.iter().map(|l| l.factor).collect();
+    assert_eq!(factors, vec![4.0, 0.25, 0.0625]);
+    let q0 = &t.kalman.process_noise.data;
+    let force_variance = |k: &crokf_formats::KalmanGains| {
+        let p = &k.phases[0].posterior_covariance.data;
+        (r3..n).map(|i| p[i * n + i]).sum::<f64>()
+    };
+    let force_gain = |k: &crokf_formats::KalmanGains| {
+        let g = &k.phases[0].gain;
+        (r3 * g.cols as usize..g.data.len())
+            .map(|i| g.data[i].abs())
+            .sum::<f64>()
+    };
+    let mut by_factor: Vec<(f64, f64, f64)> =
+        vec![(1.0, force_variance(&t.kalman), force_gain(&t.kalman))];
+    for level in &t.force_levels {
+        let f2 = level.factor * level.factor;
+        let expected: Vec<f64> = (0..n * n)
+            .map(|k| {
+                let (i, j) = (k / n, k % n);
+                if i >= r3 && j >= r3 {
+                    q0[k] * f2
+                } else {
+                    q0[k]
+                }
+            })
+            .collect();
+        let d = relative_difference(&level.kalman.process_noise.data, &expected);
+        assert!(d < 1e-12, "level × {}: Q differs by {d:e}", level.factor);
+        assert_eq!(level.scheduled.len(), t.scheduled.len());
+        for (s, base) in level.scheduled.iter().zip(&t.scheduled) {
+            let q = &base.kalman.process_noise.data;
+            let forces_only = (0..n * n).all(|k| {
+                let (i, j) = (k / n, k % n);
+                let e = if i >= r3 && j >= r3 { q[k] * f2 } else { q[k] };
+                (s.process_noise.data[k] - e).abs()
+                    <= 1e-12 * q.iter().fold(0.0f64, |m, v| m.max(v.abs()))
+            });
+            assert!(
+                forces_only,
+                "level × {}: a scheduled Q differs",
+                level.factor
+            );
+        }
+        by_factor.push((
+            level.factor,
+            force_variance(&level.kalman),
+            force_gain(&level.kalman),
+        ));
+    }
+    by_factor.sort_by(|a, b| a.0.total_cmp(&b.0));
+    eprintln!("factor, force-state posterior variance (N²), force gain: {by_factor:?}");
+    for w in by_factor.windows(2) {
+        assert!(w[1].1 > w[0].1 && w[1].2 > w[0].2, "{by_factor:?}");
+    }
+    let a = t.adaptation.as_ref().unwrap();
+    assert_eq!(a.hold, (0.2 / DT).round() as u32);
+    assert!(a.smoothing.iter().all(|&s| (s - 2.0 / 41.0).abs() < 1e-15));
+    assert!(
+        a.raise_above > 1.0 && a.lower_below < 1.0 && a.lower_below > 0.3,
+        "{a:?}"
+    );
+}
+
+/// Tip load history: a ramp to `peak` N along −z over 0.1 s starting at step `start`, held.
+fn ramp(k: usize, start: usize, peak: f64) -> f64 {
+    let t = k.saturating_sub(start) as f64 * DT;
+    -peak * (t / 0.1).min(1.0)
+}
+
+/// One filtered run against the tier's own open-loop trajectory under the load `load(k)`
+/// (markers: the truth plus the scene's noise, seed `seed`), the load given to the filter or
+/// withheld, the adaptation on or off: per step the tip error (m) and the level's factor.
+fn run(
+    model: &Model,
+    steps: usize,
+    load: impl Fn(usize) -> f64,
+    given: bool,
+    adapt: bool,
+    seed: u64,
+) -> (Vec<f64>, Vec<f64>) {
+    let zi = model
+        .inputs
+        .iter()
+        .position(|c| c.label == "tip.z")
+        .unwrap();
+    let sigma: Vec<f64> = model
+        .tier
+        .as_ref()
+        .unwrap()
+        .kalman
+        .measurement_variance
+        .iter()
+        .map(|v| v.sqrt())
+        .collect();
+    let mut truth = Estimator::new(model).unwrap();
+    let mut est = Estimator::new(model).unwrap();
+    est.set_innovation_gate(None);
+    est.set_force_adaptation(adapt);
+    let mut rng = SplitMix64(seed);
+    let mut u = vec![0.0; model.inputs.len()];
+    let zero = vec![0.0; model.inputs.len()];
+    let mut y = vec![0.0; model.measurements.len()];
+    let (mut tip, mut tip_ref) = ([0.0; 3], [0.0; 3]);
+    let (mut errors, mut factors) = (Vec::new(), Vec::new());
+    for k in 0..steps {
+        u[zi] = load(k);
+        truth.predict(&u).unwrap();
+        truth.measurement_estimates(&mut y).unwrap();
+        let measured: Vec<Option<f64>> = y
+            .iter()
+            .zip(&sigma)
+            .map(|(&v, s)| Some(v + s * rng.normal()))
+            .collect();
+        est.step(if given { &u } else { &zero }, &measured).unwrap();
+        truth.sensor_displacements(&mut tip_ref).unwrap();
+        est.sensor_displacements(&mut tip).unwrap();
+        errors.push(
+            (0..3)
+                .map(|c| (tip[c] - tip_ref[c]).powi(2))
+                .sum::<f64>()
+                .sqrt(),
+        );
+        factors.push(est.force_level().map_or(1.0, |l| l.factor));
+    }
+    (errors, factors)
+}
+
+fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
+}
+
+/// With the load given, the force states only absorb what the input does not explain: the
+/// innovations stay white and small, the level steps down one per hold to the smallest σ,
+/// and the tip follows the truth closer than with the designed σ alone (the markers' noise
+/// lets less in). With the load withheld, the level stays at or above the designed σ.
+#[test]
+fn the_level_falls_while_the_load_is_given_and_not_below_the_designed_sigma_when_withheld() {
+    let model = compiled();
+    let hold = model
+        .tier
+        .as_ref()
+        .unwrap()
+        .adaptation
+        .as_ref()
+        .unwrap()
+        .hold as usize;
+    let steps = 400;
+    let load = |k| ramp(k, 0, 20.0);
+    let (mut adaptive, mut designed) = (Vec::new(), Vec::new());
+    for seed in 1..=4 {
+        let (e, f) = run(model, steps, load, true, true, seed);
+        assert_eq!(f.last(), Some(&0.0625), "seed {seed}: levels {f:?}");
+        // Down one level per `hold` steps at most: two holds to the smallest (steps count
+        // from 1).
+        let first_low = 1 + f.iter().position(|&x| x == 0.0625).unwrap();
+        eprintln!("seed {seed}, load given: smallest level from step {first_low}");
+        assert!(
+            first_low >= 2 * hold,
+            "seed {seed}: lowest level at step {first_low}"
+        );
+        adaptive.push(rms(&e[steps / 2..]));
+        designed.push(rms(
+            &run(model, steps, load, true, false, seed).0[steps / 2..]
+        ));
+    }
+    eprintln!(
+        "loads given, tip error RMS over the second half (m): adaptive {adaptive:?}, designed \
+         σ {designed:?}"
+    );
+    for (a, d) in adaptive.iter().zip(&designed) {
+        assert!(a < &(0.7 * d), "adaptive {a:e} vs designed {d:e}");
+    }
+
+    // Withheld: nothing for 150 steps, then a 20 N ramp nobody tells the filter of. The level
+    // never goes below the designed σ (a lower σ would lag a withheld load before the
+    // statistic could show it); the estimate is as close as the designed σ's.
+    let start = 150;
+    let load = |k| ramp(k, start, 20.0);
+    for seed in 1..=4 {
+        let (e, f) = run(model, 450, load, false, true, seed);
+        let (d, _) = run(model, 450, load, false, false, seed);
+        let lowest = f.iter().fold(f64::INFINITY, |m, &x| m.min(x));
+        let highest = f.iter().fold(0.0f64, |m, &x| m.max(x));
+        eprintln!(
+            "seed {seed}, withheld ramp at step {start}: levels × {lowest} … × {highest}; tip \
+             error RMS over the ramp and hold {:.3e} m (designed σ {:.3e} m)",
+            rms(&e[start..]),
+            rms(&d[start..])
+        );
+        assert!(
+            lowest >= 1.0,
+            "seed {seed}: × {lowest} with the load withheld"
+        );
+        assert!(rms(&e[start..]) <= 1.05 * rms(&d[start..]), "seed {seed}");
+    }
+}
+
+/// Off, the estimator is the one-level filter of the same compile bit for bit; a failing step
+/// leaves the level and its statistic as they were.
+#[test]
+fn off_is_the_one_level_filter_and_a_failed_step_changes_no_level() {
+    let model = compiled();
+    let plain = one_level(model);
+    let mut off = Estimator::new(model).unwrap();
+    off.set_force_adaptation(false);
+    let mut single = Estimator::new(&plain).unwrap();
+    assert_eq!(single.force_level(), None);
+    let mut on = Estimator::new(model).unwrap();
+    let zi = model
+        .inputs
+        .iter()
+        .position(|c| c.label == "tip.z")
+        .unwrap();
+    let mut rng = SplitMix64(5);
+    let mut u = vec![0.0; model.inputs.len()];
+    let q = model.measurements.len();
+    for k in 0..200 {
+        u[zi] = ramp(k, 50, 10.0);
+        let y: Vec<Option<f64>> = (0..q).map(|_| Some(1e-3 * rng.normal())).collect();
+        off.step(&u, &y).unwrap();
+        single.step(&u, &y).unwrap();
+        on.step(&u, &y).unwrap();
+        let bits = |e: &Estimator| e.state().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&off), bits(&single), "step {k}");
+        assert_eq!(off.tier_filter(), single.tier_filter());
+        let level = off.force_level().unwrap();
+        assert_eq!((level.level, level.factor, level.adapting), (0, 1.0, false));
+    }
+    let before = on.force_level().unwrap();
+    assert!(before.adapting);
+    let state: Vec<u64> = on.state().iter().map(|v| v.to_bits()).collect();
+    let mut bad: Vec<Option<f64>> = vec![Some(0.0); q];
+    bad[0] = Some(f64::NAN);
+    assert!(on.step(&u, &bad).is_err());
+    assert_eq!(on.force_level(), Some(before));
+    assert_eq!(
+        on.state().iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+        state
+    );
+    // The C ABI: the level of a new estimator (the designed σ), pinned or not; a model with
+    // one level reports none; a NULL handle -1.
+    use crokf_runtime::capi::*;
+    for (m, expected) in [(model, 1), (&plain, 0)] {
+        let bytes = crokf_formats::encode(m);
+        unsafe {
+            let handle = crokf_model_from_bytes(bytes.as_ptr(), bytes.len());
+            assert!(!handle.is_null());
+            let e = crokf_estimator_new(handle);
+            let (mut level, mut factor, mut statistic) = (usize::MAX, 0.0, -1.0);
+            assert_eq!(crokf_set_force_adaptation(e, 0), 0);
+            let has = crokf_force_level(e, &mut level, &mut factor, &mut statistic);
+            assert_eq!(has, expected);
+            if expected == 1 {
+                assert_eq!((level, factor, statistic), (0, 1.0, 0.0));
+            } else {
+                assert_eq!((level, factor, statistic), (usize::MAX, 0.0, -1.0));
+            }
+            assert_eq!(
+                crokf_force_level(std::ptr::null(), &mut level, &mut factor, &mut statistic),
+                -1
+            );
+            assert_eq!(crokf_set_force_adaptation(std::ptr::null_mut(), 1), -1);
+            crokf_estimator_free(e);
+            crokf_model_free(handle);
+        }
+    }
+}
