@@ -1,19 +1,20 @@
 //! Adaptive force σ (docs/design.md §11.10): the tier's filter is stored at several levels of
 //! the force states' σ (`crokf_formats::CorotationalTier::force_levels`), and the level in use
-//! follows the innovations. Per measurement channel j an exponentially weighted mean of the whitened
-//! innovation z_j = ν_j / √s_j (s_j of the filter that made the update, the gate's variance;
-//! clipped to ±[`Z_CLIP`]),
+//! follows the innovations. Per measurement channel j an exponentially weighted mean of the
+//! whitened innovation z_j = ν_j / √s_j (s_j of the filter that made the update, the gate's
+//! variance; clipped to ±[`Z_CLIP`]),
 //! ```text
 //! e_j ← (1 − a_j) e_j + a_j z_j,   v_j ← (1 − a_j)² v_j   (e = 0, v = 1 after a change)
 //! T = (1/m) Σ_j e_j² (2 − a_j) / (a_j (1 − v_j))          (channels updated at least once)
 //! ```
-//! (T has mean 1 while the filter's model holds, for any number of updates since the change);
-//! σ goes one level up when T > `raise_above`; every `hold` steps since the last change or
-//! check T is checked against `lower_below`, and below it σ goes one level down, below the
+//! (T has mean 1 while the filter's model holds, for any number of updates since the change).
+//! σ goes one level up when T > `raise_above`. Every `hold` steps since the last change or
+//! check, T is compared with `lower_below`, and below it σ goes one level down: below the
 //! designed σ only while every estimated load is told (a load that is given leaves the force
 //! states only the model's error; one that is withheld and slower than stated would lag a
-//! lower σ before T could show it); after a change e restarts at 0. The compiler chose a_j and the thresholds; the runtime only counts. The
-//! state is allocated once and changed only by a successful update.
+//! lower σ before T could show it). After a change e restarts at 0. The compiler chose a_j and
+//! the thresholds; the runtime only counts. The state is allocated once and changed only after
+//! a successful update.
 
 use crokf_formats::{CorotationalTier, ForceAdaptation};
 

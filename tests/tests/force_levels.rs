@@ -14,6 +14,10 @@ use crokf_formats::synthetic::SplitMix64;
 use crokf_formats::Model;
 use crokf_runtime::Estimator;
 
+#[path = "../../runtime/tests/support/counting_alloc.rs"]
+mod counting_alloc;
+use counting_alloc::count;
+
 /// The beam's tier, trained along the six axes to 30 N (as in `tier.rs`); the tip load states
 /// no σ, so its force σ is derived from the range (30 N) and the default rise time (0.2 s).
 const TIER: &str = "[reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
@@ -351,4 +355,43 @@ fn off_is_the_one_level_filter_and_a_failed_step_changes_no_level() {
             crokf_model_free(handle);
         }
     }
+}
+
+/// Steps with the levels moving (down while the load is given, up on a large innovation)
+/// allocate nothing.
+#[test]
+fn steps_that_change_the_level_do_not_allocate() {
+    let model = compiled();
+    let mut est = Estimator::new(model).unwrap();
+    est.set_innovation_gate(None);
+    let zi = model
+        .inputs
+        .iter()
+        .position(|c| c.label == "tip.z")
+        .unwrap();
+    let mut u = vec![0.0; model.inputs.len()];
+    let q = model.measurements.len();
+    let mut sigma = vec![0.0; 3 * model.sensors.len()];
+    let mut predicted = vec![0.0; q];
+    let mut y = vec![None; q];
+    est.step(&u, &y).unwrap();
+    let mut factors = Vec::with_capacity(170);
+    let n = count(|| {
+        for k in 0..170 {
+            u[zi] = -1.0;
+            est.predict(&u).unwrap();
+            est.measurement_estimates(&mut predicted).unwrap();
+            // Calm markers, then a 5 mm (5σ) offset on every channel from step 150.
+            let jump = if k >= 150 { 0.005 } else { 0.0 };
+            for (v, p) in y.iter_mut().zip(&predicted) {
+                *v = Some(p + jump);
+            }
+            est.update(&y).unwrap();
+            est.sensor_std(&mut sigma).unwrap();
+            factors.push(est.force_level().unwrap().factor);
+        }
+    });
+    assert_eq!(n, 0, "allocations in 170 steps");
+    assert_eq!(factors[149], 0.0625, "{factors:?}");
+    assert!(factors[150..].iter().any(|&f| f > 0.0625), "{factors:?}");
 }

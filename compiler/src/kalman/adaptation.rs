@@ -15,8 +15,9 @@
 //! through the state error the channels share (C = D^{-1/2} S D^{-1/2}, D = diag S), and m T is
 //! then a sum of χ²₁ weighted by the eigenvalues of C, matched in mean and variance by
 //! c χ²(ν) with ν = m² / ‖C‖²_F, c = m / ν (Satterthwaite 1946): T ≈ χ²(ν)/ν. σ is raised one
-//! level when T > χ²_{p_raise}(ν)/ν and lowered one level when T has stayed below χ²_{0.5}(ν)/ν
-//! for the window W (steps) since the last change.
+//! level when T > χ²_{p_raise}(ν)/ν; every W steps since the last change or check T is compared
+//! with χ²_{0.5}(ν)/ν, and below it σ is lowered one level (below the designed σ only while
+//! every estimated load is told, `crokf_runtime`'s rule).
 //!
 //! The window W is the smallest stated rise time of the estimated loads in steps (at least
 //! [`MIN_WINDOW`]): a ramp's lag is averaged over about its own duration; a channel measured
@@ -79,7 +80,7 @@ pub struct Statistic {
     pub effective_channels: f64,
     /// χ²_{0.999}(ν)/ν: σ is raised one level when T exceeds it.
     pub raise_above: f64,
-    /// χ²_{0.5}(ν)/ν: σ is lowered one level when T stayed below it for W steps.
+    /// χ²_{0.5}(ν)/ν: σ is lowered one level when T is below it at a check (every W steps).
     pub lower_below: f64,
 }
 
