@@ -14,9 +14,9 @@ use crate::full_order::FullOrder;
 use crate::noise::{load_channel, NoiseModel};
 use crate::nonlinear::cubature::{Cubature, SampledElement};
 use crate::nonlinear::filter::{
-    derive_force_sigma, filter_of, measured_rows, scheduled_filters, LinearisedTier, TierFilter,
+    add_force_levels, derive_force_sigma, filter_of, measured_rows, scheduled_filters,
+    LinearisedTier, TierFilter,
 };
-use crate::nonlinear::levels::design_levels;
 use crate::nonlinear::reduced::ReducedModel;
 use crate::nonlinear::tier::{point_rows, Tier};
 use crate::nonlinear::training::{History, TrainingPlan};
@@ -361,8 +361,7 @@ pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, Nonline
     if !points.is_empty() {
         filter.scheduled = scheduled_filters(&lin, &reduced, &points, &measurements);
     }
-    (filter.levels, filter.adaptation, filter.level_notes) =
-        design_levels(&filter, &lin, &reduced, &noise, &measurements);
+    add_force_levels(&mut filter, &lin, &reduced, &noise, &measurements);
     t.force_loads = filter.force_loads.iter().map(|&g| g as u32).collect();
     t.force_rates = filter.force_rates;
     t.kalman = kalman_gains(&filter.schedule, &filter.process_noise, &measurements);

@@ -209,10 +209,57 @@ pub fn linearised_filter(
     filter.marker_model_error = marker_model_error(full, tier, &lin.measured_rows, measurements);
     let points = schedule_points(&tier.projected, SCHEDULE_POINTS);
     filter.scheduled = scheduled_filters(&lin, &tier.model, &points, measurements);
-    let (levels, adaptation, notes) =
-        design_levels(&filter, &lin, &tier.model, noise, measurements);
-    (filter.levels, filter.adaptation, filter.level_notes) = (levels, adaptation, notes);
+    add_force_levels(&mut filter, &lin, &tier.model, noise, measurements);
     Ok(filter)
+}
+
+/// Designs the force-σ levels of `filter` (designed on `lin`, its schedule's points
+/// re-linearised on `model`) and their statistic ([`super::levels`], docs/design.md §11.10):
+/// the same filters with every force (and rate) σ of `lin` × each factor; nothing without
+/// force states.
+pub fn add_force_levels(
+    filter: &mut TierFilter,
+    lin: &LinearisedTier,
+    model: &ReducedModel,
+    noise: &NoiseModel,
+    measurements: &Measurements,
+) {
+    let rise_time = noise
+        .shortest_rise_time()
+        .filter(|_| !lin.force_sigma.is_empty());
+    let design = |factor: f64| -> Result<FilterLevel, NonlinearError> {
+        let scaled = LinearisedTier {
+            force_sigma: lin.force_sigma.iter().map(|s| s * factor).collect(),
+            rate_sigma: lin.rate_sigma.iter().map(|s| s * factor).collect(),
+            ..lin.clone()
+        };
+        let rest = filter_of(&scaled, measurements)?;
+        let scheduled = filter
+            .scheduled
+            .iter()
+            .map(|(q, _, _)| {
+                filter_of(&scaled.at(model, q), measurements).map(|f| (f.schedule, f.process_noise))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(FilterLevel {
+            factor,
+            schedule: rest.schedule,
+            process_noise: rest.process_noise,
+            scheduled,
+        })
+    };
+    let designed: Vec<&PeriodicSchedule> = std::iter::once(&filter.schedule)
+        .chain(filter.scheduled.iter().map(|(_, s, _)| s))
+        .collect();
+    let (levels, adaptation, notes) = design_levels(
+        design,
+        &designed,
+        &lin.measured_rows,
+        measurements,
+        rise_time,
+        lin.wilson.dt,
+    );
+    (filter.levels, filter.adaptation, filter.level_notes) = (levels, adaptation, notes);
 }
 
 /// The tier linearised at rest with the noise model `noise` (see [`linearised_filter`]).

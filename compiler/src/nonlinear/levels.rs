@@ -10,14 +10,11 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::kalman::adaptation::{effective_channels, Statistic, LEVEL_FACTORS};
 use crate::kalman::PeriodicSchedule;
-use crate::noise::NoiseModel;
 use crate::outputs::Measurements;
 
-use super::filter::{filter_of, LinearisedTier, TierFilter};
-use super::reduced::ReducedModel;
-
 /// One level of the force σ: the filter at rest and at each operating point of the gain
-/// schedule (in the order of [`TierFilter::scheduled`]), designed with the force σ × `factor`.
+/// schedule (in the order of the tier filter's `scheduled`), designed with the force σ ×
+/// `factor`.
 #[derive(Clone, Debug)]
 pub struct FilterLevel {
     /// Factor on the designed force (and rate) σ.
@@ -29,48 +26,28 @@ pub struct FilterLevel {
     pub scheduled: Vec<(PeriodicSchedule, Mat<f64>)>,
 }
 
-/// The levels of `filter` (designed on `lin`, its schedule's points re-linearised on `model`)
-/// and their statistic, for the noise model `noise`; nothing without force states. A level
-/// whose DARE fails at rest or at any scheduled point is left out, named in the returned notes.
-pub fn design_levels(
-    filter: &TierFilter,
-    lin: &LinearisedTier,
-    model: &ReducedModel,
-    noise: &NoiseModel,
+/// The levels of [`LEVEL_FACTORS`] designed by `design` (the filter at rest and at every
+/// scheduled point with the force σ × the factor) and the statistic that moves between them:
+/// its window from the shortest stated rise time `rise_time` (s) at time step `dt` (s), its
+/// thresholds from the smallest effective channel count over the designed filters `designed`
+/// and the levels (innovation covariances through the measured rows `rows`, channels × r, and
+/// the markers' variance). Nothing without a rise time (no force states). A level `design`
+/// fails for is left out, named in the returned notes.
+pub fn design_levels<E: std::fmt::Display>(
+    design: impl Fn(f64) -> Result<FilterLevel, E>,
+    designed: &[&PeriodicSchedule],
+    rows: &DMatrix<f64>,
     measurements: &Measurements,
+    rise_time: Option<f64>,
+    dt: f64,
 ) -> (Vec<FilterLevel>, Option<Statistic>, Vec<String>) {
-    let Some(rise_time) = noise.shortest_rise_time() else {
+    let Some(rise_time) = rise_time else {
         return (Vec::new(), None, Vec::new());
     };
-    if lin.force_sigma.is_empty() {
-        return (Vec::new(), None, Vec::new());
-    }
     let mut levels = Vec::new();
     let mut notes = Vec::new();
     for factor in LEVEL_FACTORS {
-        let scaled = LinearisedTier {
-            force_sigma: lin.force_sigma.iter().map(|s| s * factor).collect(),
-            rate_sigma: lin.rate_sigma.iter().map(|s| s * factor).collect(),
-            ..lin.clone()
-        };
-        let level = (|| {
-            let rest = filter_of(&scaled, measurements)?;
-            let scheduled = filter
-                .scheduled
-                .iter()
-                .map(|(q, _, _)| {
-                    filter_of(&scaled.at(model, q), measurements)
-                        .map(|f| (f.schedule, f.process_noise))
-                })
-                .collect::<Result<Vec<_>, _>>()?;
-            Ok::<_, super::NonlinearError>(FilterLevel {
-                factor,
-                schedule: rest.schedule,
-                process_noise: rest.process_noise,
-                scheduled,
-            })
-        })();
-        match level {
+        match design(factor) {
             Ok(level) => levels.push(level),
             Err(e) => notes.push(format!(
                 "force σ level × {factor}: left out, its filter could not be designed ({e})"
@@ -80,18 +57,17 @@ pub fn design_levels(
     if levels.is_empty() {
         return (levels, None, notes);
     }
-    let schedules =
-        std::iter::once(&filter.schedule)
-            .chain(filter.scheduled.iter().map(|(_, s, _)| s))
-            .chain(levels.iter().flat_map(|l| {
-                std::iter::once(&l.schedule).chain(l.scheduled.iter().map(|(s, _)| s))
-            }));
+    let schedules = designed.iter().copied().chain(
+        levels
+            .iter()
+            .flat_map(|l| std::iter::once(&l.schedule).chain(l.scheduled.iter().map(|(s, _)| s))),
+    );
     let effective = schedules
         .flat_map(|s| &s.phases)
         .filter(|p| !p.measured.is_empty())
         .map(|p| {
             effective_channels(&innovation_covariance(
-                &lin.measured_rows,
+                rows,
                 &p.prior_covariance,
                 &p.measured,
                 &measurements.variance,
@@ -100,7 +76,7 @@ pub fn design_levels(
         .fold(f64::INFINITY, f64::min);
     let statistic = Statistic::new(
         rise_time,
-        lin.wilson.dt,
+        dt,
         &measurements.every,
         if effective.is_finite() {
             effective
