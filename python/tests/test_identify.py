@@ -187,19 +187,27 @@ def test_refusals_raise_identify_error_and_write_nothing(beam):
 
 def test_the_force_level_is_reported_and_can_be_held(beam, cantilever_path):
     """The beam's tier stores force-sigma levels: a new estimator is at the designed sigma; with
-    nothing moving (zero innovations) it steps down one level per hold; held, it is back at the
-    designed sigma and stays there. A model with one level reports None."""
+    the load told and markers equal to its own estimates (zero innovations) it steps down one
+    level per window; with the load not told it stays at the designed sigma; held, it is back at
+    the designed sigma and stays there. A model with one level reports None."""
     model = crokf.Model.load(beam / "model.crokf")
     est = crokf.Estimator(model)
     assert est.force_level == {"level": 0, "factor": 1.0, "statistic": 0.0, "adapting": True}
-    zero_u = np.zeros(len(model.inputs))
-    zero_y = np.zeros(len(model.measurement_channels))
-    for _ in range(100):
-        est.step(zero_u, zero_y)
+    told = np.zeros(len(model.inputs))
+    told[model.inputs.index("tip.z")] = -1.0
+
+    def calm(inputs, steps=100):
+        for _ in range(steps):
+            est.predict(inputs)
+            est.update(est.measurement_estimates())
+
+    calm(told)
     level = est.force_level
     assert level["factor"] < 1.0 and level["adapting"], level
+    est.reset()
+    calm(np.zeros(len(model.inputs)))
+    assert est.force_level["factor"] == 1.0
     est.set_force_adaptation(False)
-    for _ in range(100):
-        est.step(zero_u, zero_y)
+    calm(told)
     assert est.force_level == {"level": 0, "factor": 1.0, "statistic": 0.0, "adapting": False}
     assert crokf.Estimator(crokf.Model.load(cantilever_path)).force_level is None
