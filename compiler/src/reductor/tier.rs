@@ -277,8 +277,9 @@ impl<'a> TierReductor<'a> {
             notes.push(format!(
                 "co-rotational tier force σ levels (docs/design.md §11.10): × {} the designed \
                  σ, chosen at run time from the whitened innovations averaged over {} steps \
-                 (the shortest rise time): one level up when the statistic exceeds {:.2}, one \
-                 down after {} steps below {:.2} ({:.1} effective channels)",
+                 (the shortest rise time): one level up when the statistic exceeds {:.2}; \
+                 checked every {} steps, one down when it is below {:.2}, below the designed σ \
+                 only while every estimated load is told ({:.1} effective channels)",
                 factors
                     .iter()
                     .map(|f| format!("{f}"))
