@@ -106,7 +106,8 @@ pub struct ForceLevel {
 /// docs/design.md §11.10). Per measurement channel j an exponentially weighted mean of the
 /// whitened innovation, e_j ← (1 − a_j) e_j + a_j z_j (z_j clipped to ±5); T is the mean over
 /// the updated channels of e_j² normalised to unit mean. σ goes one level up when
-/// T > `raise_above`, one level down when T stayed below `lower_below` for `hold` steps.
+/// T > `raise_above`; every `hold` steps since the last change or check, one level down when
+/// T < `lower_below` (below the designed σ only while every estimated load is told).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ForceAdaptation {
@@ -114,9 +115,9 @@ pub struct ForceAdaptation {
     pub smoothing: Vec<f64>,
     /// Threshold above which σ is raised one level (> `lower_below`).
     pub raise_above: f64,
-    /// Threshold below which T must stay for `hold` steps before σ is lowered one level (> 0).
+    /// Threshold below which T, checked every `hold` steps, lowers σ one level (> 0).
     pub lower_below: f64,
-    /// Steps (≥ 1).
+    /// Steps between two checks against `lower_below` (≥ 1).
     pub hold: u32,
 }
 
