@@ -134,6 +134,19 @@ pub struct ScheduledFilter {
 }
 
 impl CorotationalTier {
+    /// Every stored filter, level by level (the designed σ, then `force_levels` in order), and
+    /// within a level at rest then at each `scheduled` point: level l's filter at point i is
+    /// the (l·(1 + `scheduled.len()`) + i)-th (the numbering of the runtime's `tier_filter`).
+    pub fn filters(&self) -> impl Iterator<Item = &KalmanGains> {
+        std::iter::once(&self.kalman)
+            .chain(self.scheduled.iter().map(|s| &s.kalman))
+            .chain(
+                self.force_levels
+                    .iter()
+                    .flat_map(|l| std::iter::once(&l.kalman).chain(&l.scheduled)),
+            )
+    }
+
     /// Dimension of the filter's state s = (q, q̇, q̈, f[, ḟ]): 3r + 3·`force_loads.len()`,
     /// twice that many force states with `force_rates`.
     pub fn state_dim(&self) -> usize {

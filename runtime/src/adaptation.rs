@@ -30,9 +30,8 @@ pub struct Levels {
     /// Per level: the next larger and the next smaller factor's level.
     up: Vec<Option<usize>>,
     down: Vec<Option<usize>>,
-    /// Per measurement channel: a_j and 1 − a_j.
+    /// Per measurement channel: a_j.
     smoothing: Vec<f64>,
-    keep: Vec<f64>,
     raise_above: f64,
     lower_below: f64,
     hold: u64,
@@ -76,7 +75,6 @@ impl Levels {
         Levels {
             up: neighbour(true),
             down: neighbour(false),
-            keep: a.smoothing.iter().map(|a| 1.0 - a).collect(),
             smoothing: a.smoothing.clone(),
             raise_above: a.raise_above,
             lower_below: a.lower_below,
@@ -104,10 +102,9 @@ pub struct ForceLevel {
     pub adapting: bool,
 }
 
-/// The adaptation's state: the level in use and the statistic.
+/// The adaptation's statistic (the level it moves is the tier state's, `TierState::level`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct AdaptationState {
-    level: usize,
     /// Per channel: e_j and (1 − a_j)^{2n_j} (1 before any update since the change).
     mean: Vec<f64>,
     decay: Vec<f64>,
@@ -120,10 +117,9 @@ pub struct AdaptationState {
 }
 
 impl AdaptationState {
-    /// At level 0 (the designed σ), for `channels` measurement channels.
+    /// Cleared, for `channels` measurement channels.
     pub fn new(channels: usize) -> AdaptationState {
         AdaptationState {
-            level: 0,
             mean: vec![0.0; channels],
             decay: vec![1.0; channels],
             statistic: 0.0,
@@ -132,9 +128,8 @@ impl AdaptationState {
         }
     }
 
-    /// Back to level 0 with the statistic cleared (keeps `enabled`).
+    /// The statistic cleared (keeps `enabled`); the level goes back to 0 with it.
     pub fn reset(&mut self) {
-        self.level = 0;
         self.restart(0);
     }
 
@@ -145,42 +140,39 @@ impl AdaptationState {
         self.settled_since = step;
     }
 
-    /// The level in use (index into the model's levels, 0 = the designed σ).
-    pub fn level(&self) -> usize {
-        self.level
-    }
-
-    /// The report of [`crate::Estimator::force_level`].
-    pub fn report(&self, levels: &Levels) -> ForceLevel {
+    /// The report of [`crate::Estimator::force_level`] at level `level`.
+    pub fn report(&self, levels: &Levels, level: usize) -> ForceLevel {
         ForceLevel {
-            level: self.level,
-            factor: levels.factor(self.level),
+            level,
+            factor: levels.factor(level),
             statistic: self.statistic,
             adapting: self.enabled,
         }
     }
 
-    /// Turns the adaptation on or off: off goes back to level 0 (the designed σ) and stays
-    /// there; either way the statistic starts afresh.
+    /// Turns the adaptation on or off: either way the statistic starts afresh and the level
+    /// goes back to 0 (the designed σ); off, [`AdaptationState::observe`] keeps it there.
     pub fn set_enabled(&mut self, on: bool) {
         self.enabled = on;
         self.reset();
     }
 
-    /// After a successful update at step `step`: the whitened innovations `z[a]` of the phase's
-    /// active channels `active[a]` (NaN: no value) enter the statistic, and the level moves at
-    /// most one step (module docs); below the designed σ only when `told` (every estimated
-    /// load was given a value this step). Returns the level for the next step.
+    /// After a successful update at step `step` made at level `level`: the whitened
+    /// innovations `z[a]` of the phase's active channels `active[a]` (NaN: no value) enter the
+    /// statistic, and the level moves at most one step (module docs); below the designed σ
+    /// only when `told` (every estimated load was given a value this step). Returns the level
+    /// for the next step.
     pub fn observe(
         &mut self,
         levels: &Levels,
+        level: usize,
         step: u64,
         active: &[u32],
         z: &[f64],
         told: bool,
     ) -> usize {
         if !self.enabled {
-            return self.level;
+            return level;
         }
         let mut seen = false;
         for (&j, &z) in active.iter().zip(z) {
@@ -188,13 +180,14 @@ impl AdaptationState {
                 continue;
             }
             let j = j as usize;
-            let (a, keep) = (levels.smoothing[j], levels.keep[j]);
+            let a = levels.smoothing[j];
+            let keep = 1.0 - a;
             self.mean[j] = keep * self.mean[j] + a * z.clamp(-Z_CLIP, Z_CLIP);
             self.decay[j] *= keep * keep;
             seen = true;
         }
         if !seen {
-            return self.level;
+            return level;
         }
         let (mut sum, mut count) = (0.0, 0usize);
         for ((&e, &v), &a) in self.mean.iter().zip(&self.decay).zip(&levels.smoothing) {
@@ -205,23 +198,25 @@ impl AdaptationState {
         }
         self.statistic = sum / count.max(1) as f64;
         let next = if self.statistic > levels.raise_above {
-            levels.up[self.level]
+            levels.up[level]
         } else if step.saturating_sub(self.settled_since) >= levels.hold {
             // One window since the last change or check: T now summarises it.
             self.settled_since = step;
             if self.statistic < levels.lower_below {
-                levels.down[self.level].filter(|&l| told || levels.factors[l] >= 1.0)
+                levels.down[level].filter(|&l| told || levels.factors[l] >= 1.0)
             } else {
                 None
             }
         } else {
             None
         };
-        if let Some(level) = next {
-            self.level = level;
-            self.restart(step);
+        match next {
+            Some(next) => {
+                self.restart(step);
+                next
+            }
+            None => level,
         }
-        self.level
     }
 }
 
@@ -264,7 +259,7 @@ mod tests {
             let mut s = AdaptationState::new(3);
             for k in 1..=10u64 {
                 let z: Vec<f64> = (0..3).map(|_| rng.normal()).collect();
-                s.observe(&l, k + 1000 * run, &active, &z, true);
+                s.observe(&l, 0, k + 1000 * run, &active, &z, true);
                 if k == 3 {
                     sum += s.statistic;
                     n += 1;
@@ -278,7 +273,7 @@ mod tests {
         let mut raised = None;
         for k in 1..200u64 {
             let z: Vec<f64> = (0..3).map(|_| 0.5 + rng.normal()).collect();
-            if s.observe(&l, k, &active, &z, true) == 1 {
+            if s.observe(&l, 0, k, &active, &z, true) == 1 {
                 raised = Some(k);
                 break;
             }
@@ -288,9 +283,9 @@ mod tests {
         assert_eq!(s.statistic, 0.0);
 
         let mut s = AdaptationState::new(3);
-        let mut path = vec![s.level()];
+        let mut path = vec![0];
         for k in 1..=100u64 {
-            let level = s.observe(&l, k, &active, &[0.0; 3], true);
+            let level = s.observe(&l, *path.last().unwrap(), k, &active, &[0.0; 3], true);
             if level != *path.last().unwrap() {
                 path.push(level);
                 assert_eq!(k % 20, 0, "a change after exactly `hold` calm steps");
@@ -300,25 +295,25 @@ mod tests {
         // Not told: the calm steps lower nothing below the designed σ; from above it, one.
         let mut s = AdaptationState::new(3);
         for k in 1..=100u64 {
-            assert_eq!(s.observe(&l, k, &active, &[0.0; 3], false), 0);
+            assert_eq!(s.observe(&l, 0, k, &active, &[0.0; 3], false), 0);
         }
         let mut s = AdaptationState::new(3);
-        s.observe(&l, 1, &active, &[9.0; 3], false);
-        assert_eq!(s.level(), 1);
+        let mut level = s.observe(&l, 0, 1, &active, &[9.0; 3], false);
+        assert_eq!(level, 1);
         for k in 2..=100u64 {
-            s.observe(&l, k, &active, &[0.0; 3], false);
+            level = s.observe(&l, level, k, &active, &[0.0; 3], false);
         }
-        assert_eq!(s.level(), 0);
+        assert_eq!(level, 0);
 
         let mut s = AdaptationState::new(3);
         s.set_enabled(false);
         for k in 1..100u64 {
-            assert_eq!(s.observe(&l, k, &active, &[9.0; 3], true), 0);
+            assert_eq!(s.observe(&l, 0, k, &active, &[9.0; 3], true), 0);
         }
         // Missing values change nothing.
         let mut s = AdaptationState::new(3);
         let before = s.clone();
-        s.observe(&l, 1, &active, &[f64::NAN; 3], true);
+        s.observe(&l, 0, 1, &active, &[f64::NAN; 3], true);
         assert_eq!(s, before);
     }
 }

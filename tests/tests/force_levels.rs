@@ -5,10 +5,9 @@
 //!
 //! `cargo test -p crokf-tests --test force_levels -- --nocapture` prints the figures.
 
-use std::path::PathBuf;
 use std::sync::OnceLock;
 
-use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
+use crokf_compile::mesh::procedural::BeamScene;
 use crokf_compile::{compile, CompileOptions};
 use crokf_formats::synthetic::SplitMix64;
 use crokf_formats::Model;
@@ -18,37 +17,22 @@ use crokf_runtime::Estimator;
 mod counting_alloc;
 use counting_alloc::count;
 
-/// The beam's tier, trained along the six axes to 30 N (as in `tier.rs`); the tip load states
-/// no σ, so its force σ is derived from the range (30 N) and the default rise time (0.2 s).
-const TIER: &str = "[reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
-    ranges = { tip = 30.0 }\nduration = 0.15\nevery = 2\norder = 10\necsw_tolerance = 1e-2\n\
-    newton_tolerance = 1e-12\nnewton_iterations = 60\ndirections = \"axes\"\n";
-
-/// Δt of the scene, s.
-const DT: f64 = 0.005;
+#[path = "support/beam_tier.rs"]
+mod beam_tier;
+use beam_tier::{tip_beam, write_tier_scene, DT};
 
 fn compiled() -> &'static Model {
     static C: OnceLock<Model> = OnceLock::new();
     C.get_or_init(|| {
+        // The tip load states no σ: its force σ is derived from the tier's range (30 N) and
+        // the default rise time (0.2 s).
         let dir = std::env::temp_dir().join(format!("crokf-levels-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        write_msh22(
-            &box_mesh([12, 2, 2], [1.0, 0.1, 0.1]),
-            &dir.join("beam.msh"),
-        )
-        .unwrap();
-        let text = BeamScene {
-            sensors: vec![("tip".into(), [0.99, 0.05, 0.1])],
-            displays: vec![("end".into(), "xmax".into())],
-            dt: DT,
+        let scene = BeamScene {
             force_noise_std: None,
             force_model: None,
-            ..BeamScene::default()
-        }
-        .toml()
-            + TIER;
-        let path: PathBuf = dir.join("scene.toml");
-        std::fs::write(&path, text).unwrap();
+            ..tip_beam()
+        };
+        let path = write_tier_scene(&dir, "scene.toml", &scene);
         let options = CompileOptions {
             order: Some(8),
             skip_measured_error: true,

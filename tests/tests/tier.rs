@@ -7,7 +7,7 @@
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
-use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
+use crokf_compile::mesh::procedural::BeamScene;
 use crokf_compile::model_file::tier as section;
 use crokf_compile::nonlinear::ecsw::EcswOptions;
 use crokf_compile::nonlinear::identify::identify_noise;
@@ -26,38 +26,19 @@ use nalgebra::DVector;
 mod counting_alloc;
 use counting_alloc::count;
 
+#[path = "support/beam_tier.rs"]
+mod beam_tier;
+use beam_tier::{tip_beam, write_tier_scene, TIER};
+
 /// Training range of the tip load, N (37.5 N bends this stiff, coarse beam by about 30°).
 const RANGE: f64 = 30.0;
-
-/// The beam's tier is trained along the six axes (`directions = "axes"`, 12 runs): the tests
-/// below were measured on it; the default directions are measured on the held-out bodies
-/// (docs/corotational-tier.md §11) and in `compiler/src/nonlinear/training.rs`'s tests.
-const TIER: &str = "[reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
-    ranges = { tip = 30.0 }\nduration = 0.15\nevery = 2\norder = 10\necsw_tolerance = 1e-2\n\
-    newton_tolerance = 1e-12\nnewton_iterations = 60\ndirections = \"axes\"\n";
 
 /// The scene directory (mesh + tier scene), written once per test process.
 fn scene() -> &'static PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
         let dir = std::env::temp_dir().join(format!("crokf-tier-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        write_msh22(
-            &box_mesh([12, 2, 2], [1.0, 0.1, 0.1]),
-            &dir.join("beam.msh"),
-        )
-        .unwrap();
-        let text = BeamScene {
-            sensors: vec![("tip".into(), [0.99, 0.05, 0.1])],
-            displays: vec![("end".into(), "xmax".into())],
-            dt: 0.005,
-            ..BeamScene::default()
-        }
-        .toml()
-            + TIER;
-        let path = dir.join("scene.toml");
-        std::fs::write(&path, text).unwrap();
-        path
+        write_tier_scene(&dir, "scene.toml", &tip_beam())
     })
 }
 
@@ -447,20 +428,16 @@ const FORCE_SIGMA: f64 = 0.05;
 fn random_walk_scene() -> &'static PathBuf {
     static PATH: OnceLock<PathBuf> = OnceLock::new();
     PATH.get_or_init(|| {
-        let dir = scene().parent().unwrap();
-        let text = BeamScene {
-            sensors: vec![("tip".into(), [0.99, 0.05, 0.1])],
-            displays: vec![("end".into(), "xmax".into())],
-            dt: 0.005,
+        let random_walk = BeamScene {
             force_noise_std: Some(FORCE_SIGMA),
             force_model: Some("random_walk".into()),
-            ..BeamScene::default()
-        }
-        .toml()
-            + TIER;
-        let path = dir.join("scene_random_walk.toml");
-        std::fs::write(&path, text).unwrap();
-        path
+            ..tip_beam()
+        };
+        write_tier_scene(
+            scene().parent().unwrap(),
+            "scene_random_walk.toml",
+            &random_walk,
+        )
     })
 }
 

@@ -50,7 +50,9 @@
 //! the update, on stderr; `CROKF_MARKER_PHASE=o` makes
 //! sparse markers arrive o steps earlier in their period (o predictions at rest first);
 //! `CROKF_ERROR_TRACE=1` prints each step's error and reference norm over the displayed nodes,
-//! the phase and the tier's force states on stderr (lines starting `ERR`).
+//! the phase and the tier's force states on stderr (lines starting `ERR`);
+//! `CROKF_HOLD_FORCE_SIGMA=1` holds the tier's force σ at its designed level (no levels,
+//! docs/design.md §11.10: `Estimator::set_force_adaptation(false)`).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -677,6 +679,7 @@ fn run_model(
     let steps = reference.inputs.len();
     let mut est = Estimator::new(model)?;
     est.set_innovation_gate(None);
+    est.set_force_adaptation(std::env::var_os("CROKF_HOLD_FORCE_SIGMA").is_none());
     // CROKF_MARKER_PHASE=o (a measuring aid): o predictions at rest before the scenario starts,
     // so that sparse markers (period L) arrive at steps k ≡ L − 1 − o (mod L) instead of
     // k ≡ L − 1: the camera's clock is not synchronised with the load's start.

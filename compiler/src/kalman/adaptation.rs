@@ -36,11 +36,8 @@ pub const LEVEL_FACTORS: [f64; 3] = [4.0, 0.25, 0.0625];
 /// Shortest averaging window, steps (also per channel, in updates).
 pub const MIN_WINDOW: usize = 5;
 
-/// Probability that T stays below the raising threshold at one update when the filter's model
-/// holds: a false raise at most once per 1,000 updates.
-pub const RAISE_PROBABILITY: f64 = 0.999;
-
-/// The standard normal quantile of [`RAISE_PROBABILITY`] (Φ⁻¹(0.999)).
+/// Φ⁻¹(0.999): T stays below the raising threshold at one update with probability 0.999 when
+/// the filter's model holds (a false raise at most once per 1,000 updates).
 const RAISE_NORMAL_QUANTILE: f64 = 3.090_232_306_167_813_5;
 
 /// The χ² quantile of probability p for ν degrees of freedom (ν > 0, real), given z = Φ⁻¹(p):

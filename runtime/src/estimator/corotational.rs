@@ -68,6 +68,7 @@ impl CorotationalStep {
         }
         self.state.level = adaptation.observe(
             levels,
+            self.state.level,
             step,
             measured,
             &self.whitened[..measured.len()],
@@ -220,13 +221,13 @@ impl TierStep for CorotationalStep {
 
     fn force_level(&self, shared: &PreparedModel) -> Option<ForceLevel> {
         let levels = tier(shared).levels()?;
-        Some(self.adaptation.as_ref()?.report(levels))
+        Some(self.adaptation.as_ref()?.report(levels, self.state.level))
     }
 
     fn set_force_adaptation(&mut self, on: bool) {
         if let Some(a) = self.adaptation.as_mut() {
             a.set_enabled(on);
-            self.state.level = a.level();
+            self.state.level = 0;
         }
     }
 }

@@ -173,15 +173,7 @@ impl TierModel {
                 node_std: [n_prior, n_post],
             }
         };
-        let filters: Vec<PointFilter> = std::iter::once(k)
-            .chain(tier.scheduled.iter().map(|s| &s.kalman))
-            .chain(
-                tier.force_levels
-                    .iter()
-                    .flat_map(|l| std::iter::once(&l.kalman).chain(&l.scheduled)),
-            )
-            .map(filter)
-            .collect();
+        let filters: Vec<PointFilter> = tier.filters().map(filter).collect();
         let points = tier
             .scheduled
             .iter()
@@ -274,11 +266,6 @@ impl TierModel {
     /// force-σ level.
     pub fn filter_count(&self) -> usize {
         self.per_level
-    }
-
-    /// Number of force-σ levels (1: the designed σ only; docs/design.md §11.10).
-    pub fn level_count(&self) -> usize {
-        self.filters.len() / self.per_level
     }
 
     /// The force-σ levels and their statistic (`None`: one level).

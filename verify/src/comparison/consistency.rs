@@ -410,15 +410,9 @@ impl FilterBlocks {
                 let sensors: Vec<&fmt::Matrix> = tier.sensor_rows.iter().collect();
                 let sets: Vec<&fmt::Matrix> = tier.node_set_rows.iter().collect();
                 FilterBlocks {
-                    // In the order of `Estimator::tier_filter`: per force-σ level, the
-                    // filter at rest then at each scheduled point.
-                    filters: std::iter::once(&tier.kalman)
-                        .chain(tier.scheduled.iter().map(|s| &s.kalman))
-                        .chain(
-                            tier.force_levels
-                                .iter()
-                                .flat_map(|l| std::iter::once(&l.kalman).chain(&l.scheduled)),
-                        )
+                    // In the order of `Estimator::tier_filter`.
+                    filters: tier
+                        .filters()
                         .map(|k| Filter::new(k, &sensors, &sets, display))
                         .collect(),
                     display: display.to_vec(),
