@@ -93,7 +93,9 @@ pub struct ReferenceResponses {
 
 impl ReferenceResponses {
     /// Runs the full-order linear Wilson-θ reference through every test and records the
-    /// displacement rows of the sensors and displayed nodes.
+    /// displacement rows of the sensors and displayed nodes. The tests are stepped together,
+    /// one column each, on one factor of J ([`LinearSimulator::batch`]); a test shorter than
+    /// the longest is stepped on at zero load and no longer recorded.
     pub fn simulate(
         full: &FullOrder,
         rows: &OutputRows,
@@ -102,29 +104,43 @@ impl ReferenceResponses {
         let fem = &full.fem;
         let n = fem.dof_count();
         let measured = measured_rows(rows);
-        let mut values = Vec::with_capacity(tests.len());
-        for test in &tests {
-            let mut reference = LinearSimulator::new(fem, full.wilson)?;
-            let mut f = vec![0.0; n];
-            let mut recorded = Vec::with_capacity(test.inputs.len() * measured.len());
-            for u in &test.inputs {
-                f.iter_mut().for_each(|v| *v = 0.0);
-                for (channel, &value) in full.operators.inputs.iter().zip(u) {
-                    if value != 0.0 {
-                        f.iter_mut()
-                            .zip(&channel.column)
-                            .for_each(|(fi, b)| *fi += value * b);
+        let mut values: Vec<Vec<f64>> = tests
+            .iter()
+            .map(|t| Vec::with_capacity(t.inputs.len() * measured.len()))
+            .collect();
+        let steps = tests.iter().map(|t| t.inputs.len()).max().unwrap_or(0);
+        // n > 0: the modal stage refuses a model without free DOFs before this runs.
+        if steps > 0 && n > 0 {
+            let mut reference = LinearSimulator::batch(fem, full.wilson, tests.len())?;
+            let mut f = vec![0.0; n * tests.len()];
+            for k in 0..steps {
+                for (test, f) in tests.iter().zip(f.chunks_exact_mut(n)) {
+                    f.iter_mut().for_each(|v| *v = 0.0);
+                    let Some(u) = test.inputs.get(k) else {
+                        continue;
+                    };
+                    for (channel, &value) in full.operators.inputs.iter().zip(u) {
+                        if value != 0.0 {
+                            f.iter_mut()
+                                .zip(&channel.column)
+                                .for_each(|(fi, b)| *fi += value * b);
+                        }
                     }
                 }
                 reference.step(&f)?;
-                let full_u = reference.displacement();
-                recorded.extend(
-                    measured
-                        .iter()
-                        .map(|(_, row)| row.iter().map(|&(d, w)| w * full_u[d]).sum::<f64>()),
-                );
+                let all = reference.displacement();
+                for ((test, recorded), full_u) in
+                    tests.iter().zip(&mut values).zip(all.chunks_exact(n))
+                {
+                    if k < test.inputs.len() {
+                        recorded.extend(
+                            measured.iter().map(|(_, row)| {
+                                row.iter().map(|&(d, w)| w * full_u[d]).sum::<f64>()
+                            }),
+                        );
+                    }
+                }
             }
-            values.push(recorded);
         }
         Ok(ReferenceResponses {
             tests,

@@ -6,8 +6,8 @@
 //! linearised rotation ω_p = Ω_p d (rad per N; Ω_p the 3×3 block of the ω rows of
 //! [`Reductor::static_outputs`] against the group's x, y, z channels). The largest rotation per
 //! newton over directions and points is θ′_g = max_p σ_max(Ω_p) (rad/N), and at the group's
-//! range F_g (the load's `range`, or its `[reduction.corotational] ranges` entry, when given) θ_g = F_g θ′_g. One sparse
-//! Cholesky of K, shared with the force states' static residual.
+//! range F_g (the load's `range`, or its `[reduction.corotational] ranges` entry, when given) θ_g = F_g θ′_g. No factorisation
+//! of its own: the modal stage's K⁻¹B, shared with the force states' static residual.
 //!
 //! The rule compares θ_g with the rotation up to which the warped tier's open-loop error stayed
 //! under 5 % against the full-order co-rotational FEM, measured on the example scenes' report

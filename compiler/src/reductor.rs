@@ -295,8 +295,10 @@ impl<'a> Reductor<'a> {
 
     /// The full-order static response K⁻¹ b_j of every deterministic input channel j on every
     /// output row (p × m, unweighted, [`OutputRows::weighted`] order; m per channel, or per N
-    /// for load channels), computed once (one sparse Cholesky of K) on first use. The force
-    /// states' static residual is built from it (docs/design.md §11).
+    /// for load channels), computed once on first use: from the modal stage's K⁻¹B (its first
+    /// columns are the deterministic inputs), or by one sparse Cholesky of K when that stage
+    /// made no static correction. The force states' static residual is built from it
+    /// (docs/design.md §11).
     pub fn static_outputs(&self) -> Result<&Mat<f64>, CompileError> {
         if let Some(s) = self.static_outputs.get() {
             return Ok(s);
@@ -305,19 +307,25 @@ impl<'a> Reductor<'a> {
         let inputs = &self.full.operators.inputs;
         let weighted = self.rows.weighted();
         let n = fem.dof_count();
-        let llt =
-            fem.stiffness
-                .sp_cholesky(faer::Side::Lower)
-                .map_err(|e| CompileError::Stepping {
+        let solved;
+        let u = if self.basis.static_response.ncols() >= inputs.len() {
+            self.basis.static_response.subcols(0, inputs.len())
+        } else {
+            let llt = fem.stiffness.sp_cholesky(faer::Side::Lower).map_err(|e| {
+                CompileError::Stepping {
                     path: self.full.scene_path().to_owned(),
                     source: crate::stepping::SteppingError::NotPositiveDefinite {
                         what: "stiffness K (static response of the force states)".into(),
                         n,
                         detail: format!("{e:?}"),
                     },
-                })?;
-        let mut u = Mat::from_fn(n, inputs.len(), |i, j| inputs[j].column[i]);
-        llt.solve_in_place(u.as_mut());
+                }
+            })?;
+            let mut u = Mat::from_fn(n, inputs.len(), |i, j| inputs[j].column[i]);
+            llt.solve_in_place(u.as_mut());
+            solved = u;
+            solved.as_ref()
+        };
         let mut out = Mat::<f64>::zeros(weighted.len(), inputs.len());
         for j in 0..inputs.len() {
             for (i, (row, _)) in weighted.iter().enumerate() {

@@ -600,6 +600,14 @@ fn static_correction_spans_the_static_response() {
             ..Default::default()
         };
         let basis = modal_basis(lat.k.as_ref(), lat.m.as_ref(), b.as_ref(), &opts).unwrap();
+        // The stage's K⁻¹B, reused for the full-order static response (or none without the
+        // static correction).
+        if static_correction {
+            let d = (&basis.static_response - &u_static).norm_l2() / u_static.norm_l2();
+            assert!(d < 1e-10, "static response against the dense solve: {d:e}");
+        } else {
+            assert_eq!(basis.static_response.ncols(), 0);
+        }
         let v = &basis.vectors;
         // M-orthogonal projection of u_static onto span V.
         let proj = v * (v.transpose() * &md * &u_static);

@@ -92,6 +92,10 @@ pub struct ModalBasis {
     pub static_correction: Vec<bool>,
     /// Number of eigenmodes (columns not flagged static).
     pub n_eigenmodes: usize,
+    /// K⁻¹B, n × m, every input column solved with the stage's factor of K before the static
+    /// correction orthogonalises it (n × 0 without static correction): the full-order static
+    /// response, reused by whoever needs it instead of factoring K again.
+    pub static_response: Mat<f64>,
     /// Relative residual ‖K v − ω² M v‖₂ / (ω² ‖M v‖₂) of each column (not small for the
     /// static-correction columns: they are not eigenvectors).
     pub residuals: Vec<f64>,
@@ -559,9 +563,11 @@ pub fn modal_basis(
     // Static correction K⁻¹B, M-orthogonalised against the modes, rank revealed.
     let t = Instant::now();
     let mut statics = Mat::zeros(n, 0);
+    let mut static_response = Mat::zeros(n, 0);
     if options.static_correction && inputs.ncols() > 0 {
         let mut s = inputs.to_owned();
         llt.solve_in_place(s.as_mut());
+        static_response = s.clone();
         let ms = mass_mul(mass, s.as_ref(), par);
         let norms: Vec<f64> = (0..s.ncols())
             .map(|j| (s.col(j).transpose() * ms.col(j)).max(0.0).sqrt())
@@ -676,6 +682,7 @@ pub fn modal_basis(
     Ok(ModalBasis {
         vectors,
         n_eigenmodes: static_correction.iter().filter(|&&s| !s).count(),
+        static_response,
         omega2,
         frequencies_hz,
         static_correction,

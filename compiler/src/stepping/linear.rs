@@ -4,6 +4,8 @@
 use crate::dynamics::WilsonTheta;
 use crate::fem::FemModel;
 
+use faer::Par;
+
 use super::sparse::{Factor, Pattern};
 use super::{advance_all, check_len, map_state, Simulator, SteppingError};
 
@@ -25,7 +27,25 @@ pub fn static_solve(fem: &FemModel, f: &[f64]) -> Result<Vec<f64>, SteppingError
 /// Each [`step`](Simulator::step) holds f (n, N) constant over [t, t + Δt] and solves
 /// `J Û = f + M(a₀U + 6/τ U̇ + 2Ü) + C(a₂U + 2U̇ + τ/2 Ü)`, then advances with
 /// [`WilsonTheta::advance`].
+///
+/// [`LinearSimulator::batch`] runs k independent load histories on the one factor of J: f and
+/// the state are then n × k, column-major, and each step works on the k columns side by side,
+/// one thread per core, each solving on its own thread with the shared factor.
 pub struct LinearSimulator {
+    system: WilsonSystem,
+    u: Vec<f64>,
+    v: Vec<f64>,
+    a: Vec<f64>,
+    time: f64,
+    /// k, the number of histories stepped together.
+    columns: usize,
+    /// Threads a step of k > 1 columns uses (≤ k, ≤ the cores).
+    threads: usize,
+    work: [Vec<f64>; 3],
+}
+
+/// What every column of a [`LinearSimulator`] shares: the matrices on one pattern and J's factor.
+struct WilsonSystem {
     wilson: WilsonTheta,
     alpha: f64,
     beta: f64,
@@ -33,61 +53,29 @@ pub struct LinearSimulator {
     stiffness: Vec<f64>,
     mass: Vec<f64>,
     jacobian: Factor,
-    u: Vec<f64>,
-    v: Vec<f64>,
-    a: Vec<f64>,
-    time: f64,
-    work: [Vec<f64>; 3],
 }
 
-impl LinearSimulator {
-    /// Factors J for the model and time step; the state starts at rest (U = U̇ = Ü = 0).
-    pub fn new(fem: &FemModel, wilson: WilsonTheta) -> Result<Self, SteppingError> {
-        let pattern = Pattern::new(fem)?;
-        let stiffness = pattern.scatter(&fem.stiffness);
-        let mass = pattern.scatter(&fem.mass);
-        let a0 = wilson.mass_coefficient();
-        let a2 = wilson.damping_coefficient();
-        let (alpha, beta) = (fem.alpha, fem.beta);
-        let j: Vec<f64> = stiffness
-            .iter()
-            .zip(&mass)
-            .map(|(k, m)| k * (1.0 + a2 * beta) + m * (a0 + a2 * alpha))
-            .collect();
-        let jacobian = pattern.factor(&j, "Wilson-θ matrix J = K + a₀M + a₂C")?;
-        let n = pattern.n;
-        Ok(LinearSimulator {
-            wilson,
-            alpha,
-            beta,
-            pattern,
-            stiffness,
-            mass,
-            jacobian,
-            u: vec![0.0; n],
-            v: vec![0.0; n],
-            a: vec![0.0; n],
-            time: 0.0,
-            work: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
-        })
-    }
-}
-
-impl Simulator for LinearSimulator {
-    fn step(&mut self, f: &[f64]) -> Result<(), SteppingError> {
-        let n = self.pattern.n;
-        check_len("load vector f", n, f.len())?;
+impl WilsonSystem {
+    /// Û of one column, left in `rhs`: rhs = f + M(a₀U + 6/τ U̇ + 2Ü) + C(a₂U + 2U̇ + τ/2 Ü),
+    /// then J⁻¹ rhs (`par`: see [`Factor::solve_in_place_with`]).
+    #[allow(clippy::too_many_arguments)]
+    fn solve_column(
+        &self,
+        (u, v, a): (&[f64], &[f64], &[f64]),
+        f: &[f64],
+        rhs: &mut [f64],
+        x: &mut [f64],
+        y: &mut [f64],
+        par: Option<Par>,
+    ) {
         let w = self.wilson;
-        let [rhs, x, y] = &mut self.work;
         // rhs = f + M·(a₀U + 6/τ U̇ + 2Ü)
-        map_state(&self.u, &self.v, &self.a, x, |u, v, a| w.mass_rhs(u, v, a));
+        map_state(u, v, a, x, |u, v, a| w.mass_rhs(u, v, a));
         self.pattern.mul(&self.mass, x, rhs);
         rhs.iter_mut().zip(f).for_each(|(r, f)| *r += f);
         // + C·(a₂U + 2U̇ + τ/2 Ü), C = αM + βK
         if self.alpha != 0.0 || self.beta != 0.0 {
-            map_state(&self.u, &self.v, &self.a, x, |u, v, a| {
-                w.damping_rhs(u, v, a)
-            });
+            map_state(u, v, a, x, |u, v, a| w.damping_rhs(u, v, a));
             if self.alpha != 0.0 {
                 self.pattern.mul(&self.mass, x, y);
                 rhs.iter_mut()
@@ -101,7 +89,103 @@ impl Simulator for LinearSimulator {
                     .for_each(|(r, v)| *r += self.beta * v);
             }
         }
-        self.jacobian.solve_in_place(rhs);
+        self.jacobian.solve_in_place_with(rhs, par);
+    }
+}
+
+impl LinearSimulator {
+    /// Factors J for the model and time step; the state starts at rest (U = U̇ = Ü = 0).
+    pub fn new(fem: &FemModel, wilson: WilsonTheta) -> Result<Self, SteppingError> {
+        Self::batch(fem, wilson, 1)
+    }
+
+    /// The simulator of `columns` ≥ 1 independent histories sharing one factor of J: every
+    /// vector (f, U, U̇, Ü) is n × `columns`, column-major. Column j steps as a one-column
+    /// simulator would.
+    pub fn batch(
+        fem: &FemModel,
+        wilson: WilsonTheta,
+        columns: usize,
+    ) -> Result<Self, SteppingError> {
+        if columns == 0 {
+            return Err(SteppingError::Solver(
+                "a batch of linear simulations needs at least one column".into(),
+            ));
+        }
+        let pattern = Pattern::new(fem)?;
+        let stiffness = pattern.scatter(&fem.stiffness);
+        let mass = pattern.scatter(&fem.mass);
+        let a0 = wilson.mass_coefficient();
+        let a2 = wilson.damping_coefficient();
+        let (alpha, beta) = (fem.alpha, fem.beta);
+        let j: Vec<f64> = stiffness
+            .iter()
+            .zip(&mass)
+            .map(|(k, m)| k * (1.0 + a2 * beta) + m * (a0 + a2 * alpha))
+            .collect();
+        let jacobian = pattern.factor(&j, "Wilson-θ matrix J = K + a₀M + a₂C")?;
+        let n = pattern.n * columns;
+        let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+        Ok(LinearSimulator {
+            system: WilsonSystem {
+                wilson,
+                alpha,
+                beta,
+                pattern,
+                stiffness,
+                mass,
+                jacobian,
+            },
+            u: vec![0.0; n],
+            v: vec![0.0; n],
+            a: vec![0.0; n],
+            time: 0.0,
+            columns,
+            threads: columns.min(cores),
+            work: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
+        })
+    }
+}
+
+impl Simulator for LinearSimulator {
+    fn step(&mut self, f: &[f64]) -> Result<(), SteppingError> {
+        let n = self.system.pattern.n;
+        check_len("load vector f", n * self.columns, f.len())?;
+        let system = &self.system;
+        let [rhs, x, y] = &mut self.work;
+        let columns = self
+            .u
+            .chunks_exact(n)
+            .zip(self.v.chunks_exact(n))
+            .zip(self.a.chunks_exact(n))
+            .zip(f.chunks_exact(n))
+            .zip(rhs.chunks_exact_mut(n))
+            .zip(x.chunks_exact_mut(n))
+            .zip(y.chunks_exact_mut(n));
+        // A batch solves every column on one thread, however many the machine has: its
+        // results do not depend on the core count.
+        let par = (self.columns > 1).then_some(Par::Seq);
+        if self.threads <= 1 {
+            for ((((((u, v), a), f), rhs), x), y) in columns {
+                system.solve_column((u, v, a), f, rhs, x, y, par);
+            }
+        } else {
+            // Columns dealt round-robin to the threads.
+            let mut shares: Vec<Vec<_>> = (0..self.threads).map(|_| Vec::new()).collect();
+            for (c, column) in columns.enumerate() {
+                shares[c % self.threads].push(column);
+            }
+            std::thread::scope(|scope| {
+                for share in shares {
+                    scope.spawn(move || {
+                        for ((((((u, v), a), f), rhs), x), y) in share {
+                            system.solve_column((u, v, a), f, rhs, x, y, par);
+                        }
+                    });
+                }
+            });
+        }
+        let w = system.wilson;
         advance_all(&w, &mut self.u, &mut self.v, &mut self.a, rhs);
         self.time += w.dt;
         Ok(())

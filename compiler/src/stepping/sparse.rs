@@ -170,6 +170,12 @@ impl Factor {
 
     /// Overwrites `b` with A⁻¹ b.
     pub fn solve_in_place(&self, b: &mut [f64]) {
+        self.solve_in_place_with(b, None);
+    }
+
+    /// Overwrites `b` with A⁻¹ b, on the calling thread only when `par` is `Some(Par::Seq)`
+    /// (for solves run several at a time), else with the factor's own parallelism.
+    pub fn solve_in_place_with(&self, b: &mut [f64], par: Option<Par>) {
         let n = b.len();
         let rhs = MatMut::from_column_major_slice_mut(b, n, 1);
         match self {
@@ -177,13 +183,14 @@ impl Factor {
             Factor::OnPattern {
                 symbolic,
                 values,
-                par,
+                par: own,
             } => {
-                let mut scratch = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, *par));
+                let par = par.unwrap_or(*own);
+                let mut scratch = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, par));
                 LltRef::new(symbolic, values).solve_in_place_with_conj(
                     Conj::No,
                     rhs,
-                    *par,
+                    par,
                     MemStack::new(&mut scratch),
                 );
             }
