@@ -51,7 +51,11 @@ fn the_quickstart_block_is_found() {
 }
 
 /// The folder of this build's binaries, with `crokf-compile` and `crokf-run` built (cargo's
-/// own freshness check: nothing is rebuilt when they are up to date).
+/// own freshness check: nothing is rebuilt when they are up to date). Every binary of the
+/// workspace is built, as `cargo test --workspace` builds them: the same packages and so the
+/// same features, so that after that command this build is a no-op (the dev-dependencies add
+/// no feature to a normal dependency; a `--bin` build of two packages alone resolves fewer
+/// features and compiled both crates again).
 fn tools() -> PathBuf {
     // target/<profile>/deps/quickstart-<hash> → target/<profile>
     let exe = std::env::current_exe().expect("test executable path");
@@ -68,8 +72,14 @@ fn tools() -> PathBuf {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| env!("CARGO").into());
     let out = Command::new(cargo)
         .current_dir(repository())
-        .args(["build", "--locked", "--profile", &profile])
-        .args(["--bin", "crokf-compile", "--bin", "crokf-run"])
+        .args([
+            "build",
+            "--locked",
+            "--workspace",
+            "--bins",
+            "--profile",
+            &profile,
+        ])
         .output()
         .expect("cargo runs");
     assert!(
