@@ -8,7 +8,6 @@ pub mod tier;
 use std::cell::OnceCell;
 use std::collections::BTreeMap;
 
-use faer::linalg::solvers::Solve as _;
 use faer::sparse::SparseColMat;
 use faer::Mat;
 
@@ -72,7 +71,7 @@ pub struct Reductor<'a> {
     /// The modal Wilson-θ system with weighted outputs.
     pub system: ModalSystem,
     reference: OnceCell<ReferenceResponses>,
-    static_outputs: OnceCell<Mat<f64>>,
+    static_outputs: Mat<f64>,
 }
 
 impl<'a> Reductor<'a> {
@@ -118,6 +117,7 @@ impl<'a> Reductor<'a> {
             // numerically), capped; static correction covers the quasi-static rest.
             (None, None) => (Some(resolved), DEFAULT_MAX_MODES),
         };
+        // The default makes the static correction: its K⁻¹B gives `static_outputs` below.
         let modal_options = reduce::ModalOptions {
             modes,
             max_frequency_hz,
@@ -149,6 +149,11 @@ impl<'a> Reductor<'a> {
                 )
             })
             .map_err(reduce_err)?;
+        // K⁻¹b_j of the deterministic inputs (B's first columns) on every output row.
+        let solved = basis.static_response.subcols(0, ops.inputs.len());
+        let static_outputs = Mat::from_fn(weighted.len(), ops.inputs.len(), |i, j| {
+            weighted[i].0.iter().map(|&(d, w)| w * solved[(d, j)]).sum()
+        });
         Ok(Reductor {
             full,
             measurements: Measurements::new(ops),
@@ -157,7 +162,7 @@ impl<'a> Reductor<'a> {
             basis,
             system,
             reference: OnceCell::new(),
-            static_outputs: OnceCell::new(),
+            static_outputs,
         })
     }
 
@@ -189,7 +194,7 @@ impl<'a> Reductor<'a> {
         if noise.groups.is_empty() {
             return Ok(reduced);
         }
-        let exact = self.static_outputs()?;
+        let exact = self.static_outputs();
         let r = reduced.transition.nrows();
         let with_forces = |noise: &NoiseModel| {
             let loads: Vec<(usize, f64)> = noise.groups.iter().map(|g| (g.load, g.sigma)).collect();
@@ -295,44 +300,10 @@ impl<'a> Reductor<'a> {
 
     /// The full-order static response K⁻¹ b_j of every deterministic input channel j on every
     /// output row (p × m, unweighted, [`OutputRows::weighted`] order; m per channel, or per N
-    /// for load channels), computed once on first use: from the modal stage's K⁻¹B (its first
-    /// columns are the deterministic inputs), or by one sparse Cholesky of K when that stage
-    /// made no static correction. The force states' static residual is built from it
-    /// (docs/design.md §11).
-    pub fn static_outputs(&self) -> Result<&Mat<f64>, CompileError> {
-        if let Some(s) = self.static_outputs.get() {
-            return Ok(s);
-        }
-        let fem = &self.full.fem;
-        let inputs = &self.full.operators.inputs;
-        let weighted = self.rows.weighted();
-        let n = fem.dof_count();
-        let solved;
-        let u = if self.basis.static_response.ncols() >= inputs.len() {
-            self.basis.static_response.subcols(0, inputs.len())
-        } else {
-            let llt = fem.stiffness.sp_cholesky(faer::Side::Lower).map_err(|e| {
-                CompileError::Stepping {
-                    path: self.full.scene_path().to_owned(),
-                    source: crate::stepping::SteppingError::NotPositiveDefinite {
-                        what: "stiffness K (static response of the force states)".into(),
-                        n,
-                        detail: format!("{e:?}"),
-                    },
-                }
-            })?;
-            let mut u = Mat::from_fn(n, inputs.len(), |i, j| inputs[j].column[i]);
-            llt.solve_in_place(u.as_mut());
-            solved = u;
-            solved.as_ref()
-        };
-        let mut out = Mat::<f64>::zeros(weighted.len(), inputs.len());
-        for j in 0..inputs.len() {
-            for (i, (row, _)) in weighted.iter().enumerate() {
-                out[(i, j)] = row.iter().map(|&(d, w)| w * u[(d, j)]).sum();
-            }
-        }
-        Ok(self.static_outputs.get_or_init(|| out))
+    /// for load channels), from the modal stage's K⁻¹B: no factorisation of its own. The force
+    /// states' static residual is built from it (docs/design.md §11).
+    pub fn static_outputs(&self) -> &Mat<f64> {
+        &self.static_outputs
     }
 
     /// The steady-state (periodic) Kalman schedule of a reduced model (docs/design.md §6).

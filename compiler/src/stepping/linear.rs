@@ -58,7 +58,6 @@ struct WilsonSystem {
 impl WilsonSystem {
     /// Û of one column, left in `rhs`: rhs = f + M(a₀U + 6/τ U̇ + 2Ü) + C(a₂U + 2U̇ + τ/2 Ü),
     /// then J⁻¹ rhs (`par`: see [`Factor::solve_in_place_with`]).
-    #[allow(clippy::too_many_arguments)]
     fn solve_column(
         &self,
         (u, v, a): (&[f64], &[f64], &[f64]),
