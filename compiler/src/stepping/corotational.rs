@@ -10,7 +10,7 @@ use nalgebra::Vector3;
 use crate::dynamics::WilsonTheta;
 use crate::fem::{FemModel, TetGeometry};
 
-use super::element::Kinematics;
+use super::element::{corotated_forces, warped_forces, Kinematics};
 use super::load_stepping::{load_steps, LoadStepError};
 use super::sparse::Pattern;
 use super::{advance_all, check_len, norm, Simulator, SteppingError};
@@ -68,12 +68,15 @@ pub struct NewtonStats {
 /// Newton matrix J_t is kept across iterations and time steps while the iteration contracts,
 /// and refactored at the current iterate when it stalls. Iteration k solves J_t* δₖ = r(Ûₖ)
 /// with the stale J_t*; ρₖ = ‖δₖ‖/‖δₖ₋₁‖ estimates the contraction, and the iterate is accepted
-/// when its estimated error η‖δₖ‖ ≤ tolerance·‖Û‖, η = max(ρ/(1−ρ), 1) (Hairer & Wanner,
-/// *Solving ODEs II*, §IV.8; ρ of the previous step at k = 1). A factorisation is redone when
-/// ρₖ > `contraction`, when ρₖ ≥ 1, or after `iterations` iterations without acceptance. The
-/// converged state meets the same tolerance as full Newton (to the accuracy of the η
-/// estimate); the path is an option of [`CorotationalSimulator`], off by default (the
-/// full-order reference keeps full Newton).
+/// when its estimated error η‖δₖ‖ ≤ tolerance·‖Û‖ (Hairer & Wanner, *Solving ODEs II*, §IV.8):
+/// η = ρ/(1−ρ) with ρ measured in this step on this factorisation (from the second iteration
+/// after a factorisation), else η = max(ρ/(1−ρ), 1) with the ρ carried from before, so that a
+/// first iterate is accepted only when its increment itself meets the tolerance. A
+/// factorisation is redone when ρₖ > `contraction`, when ρₖ ≥ 1, or after `iterations`
+/// iterations without acceptance. The accepted state is within the tolerance of the root (to
+/// the accuracy of the η estimate; full Newton's test bounds its last increment instead); the
+/// path is an option of [`CorotationalSimulator`], off by default (the full-order reference
+/// keeps full Newton).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ModifiedNewton {
     /// Refactor when the measured contraction ρ exceeds this (0 < contraction < 1).
@@ -96,11 +99,20 @@ impl Default for ModifiedNewton {
     }
 }
 
-/// Per-element data kept between steps.
+/// Per-element data kept between steps: what every force evaluation reads (the element
+/// matrices the tangents need are kept apart in [`ElementMatrices`], so that the force loop
+/// streams about 350 bytes per element instead of 2 kB).
 struct ElementData {
     nodes: [usize; 4],
     dofs: [Option<usize>; 12],
     geometry: TetGeometry,
+    /// (Vλ, Vμ): volume times the Lamé constants, N·m (the closed-form force of
+    /// [`corotated_forces`]).
+    lame: [f64; 2],
+}
+
+/// Per-element data of the tangent assembly.
+struct ElementMatrices {
     ke: [[f64; 12]; 12],
     /// Value slot of entry (i, j) of the element matrix in the pattern (row-major, 12×12),
     /// `u32::MAX` where a DOF is fixed.
@@ -110,15 +122,26 @@ struct ElementData {
 impl ElementData {
     /// Co-rotated kinematics at the free-DOF displacement u (m): the rest positions of the
     /// element's vertices (from `rest`, all nodes) plus u at its free DOFs.
-    fn kinematics(&self, rest: &[[f64; 3]], u: &[f64]) -> Kinematics {
-        let rest = self.nodes.map(|n| rest[n]);
-        let mut current = rest;
+    fn kinematics(&self, ke: &[[f64; 12]; 12], rest: &[[f64; 3]], u: &[f64]) -> Kinematics {
+        let current = self.current(rest, u);
+        Kinematics::new(&self.geometry, ke, &self.nodes.map(|n| rest[n]), &current)
+    }
+
+    /// The current vertex positions (m): rest positions from `rest` (all nodes) plus u at the
+    /// free DOFs.
+    fn current(&self, rest: &[[f64; 3]], u: &[f64]) -> [[f64; 3]; 4] {
+        let mut current = self.nodes.map(|n| rest[n]);
         for (k, dof) in self.dofs.iter().enumerate() {
             if let Some(d) = dof {
                 current[k / 3][k % 3] += u[*d];
             }
         }
-        Kinematics::new(&self.geometry, &self.ke, &rest, &current)
+        current
+    }
+
+    /// The element's nodal values of a free-DOF vector (0 at fixed DOFs).
+    fn nodal(&self, v: &[f64]) -> [[f64; 3]; 4] {
+        std::array::from_fn(|a| std::array::from_fn(|i| self.dofs[3 * a + i].map_or(0.0, |d| v[d])))
     }
 
     /// Adds the world-frame node forces `force(a)` (a = 0..3, N) into `out` at the element's
@@ -153,6 +176,8 @@ pub struct CorotationalSimulator {
     options: NewtonOptions,
     rest: Vec<[f64; 3]>,
     elements: Vec<ElementData>,
+    /// The elements' matrices, in the order of `elements`.
+    matrices: Vec<ElementMatrices>,
     pattern: Pattern,
     mass: Vec<f64>,
     /// Warped stiffness K_t values.
@@ -194,16 +219,18 @@ impl CorotationalSimulator {
         }
         let pattern = Pattern::new(fem)?;
         let mass = pattern.scatter(&fem.mass);
-        let mut elements = fem
+        let elements = fem
             .elements
             .iter()
-            .enumerate()
-            .map(|(e, el)| ElementData {
+            .map(|el| ElementData {
                 nodes: el.nodes,
                 dofs: fem.dofs.element(&el.nodes),
                 geometry: el.geometry,
-                ke: fem.element_stiffness(e),
-                slots: [0; 144],
+                lame: {
+                    let (lambda, mu) = fem.materials[el.material].lame();
+                    let v = el.geometry.volume.abs();
+                    [v * lambda, v * mu]
+                },
             })
             .collect::<Vec<_>>();
         if pattern.nnz() >= u32::MAX as usize {
@@ -212,16 +239,17 @@ impl CorotationalSimulator {
                 pattern.nnz()
             )));
         }
-        for el in &mut elements {
-            for i in 0..12 {
-                for j in 0..12 {
-                    el.slots[12 * i + j] = match (el.dofs[i], el.dofs[j]) {
-                        (Some(r), Some(c)) => pattern.slot(r, c) as u32,
-                        _ => u32::MAX,
-                    };
-                }
-            }
-        }
+        let matrices = elements
+            .iter()
+            .enumerate()
+            .map(|(e, el)| ElementMatrices {
+                ke: fem.element_stiffness(e),
+                slots: std::array::from_fn(|k| match (el.dofs[k / 12], el.dofs[k % 12]) {
+                    (Some(r), Some(c)) => pattern.slot(r, c) as u32,
+                    _ => u32::MAX,
+                }),
+            })
+            .collect();
         let n = pattern.n;
         let nnz = pattern.nnz();
         Ok(CorotationalSimulator {
@@ -231,6 +259,7 @@ impl CorotationalSimulator {
             options,
             rest: fem.positions.clone(),
             elements,
+            matrices,
             pattern,
             mass,
             warped: vec![0.0; nnz],
@@ -294,18 +323,11 @@ impl CorotationalSimulator {
         self.internal.iter_mut().for_each(|v| *v = 0.0);
         self.damping_force.iter_mut().for_each(|v| *v = 0.0);
         for el in &self.elements {
-            let kin = el.kinematics(&self.rest, u);
-            el.scatter(&mut self.internal, |a| kin.force(a));
+            let (r, force) = corotated_forces(&el.geometry, el.lame, &el.current(&self.rest, u));
+            el.scatter(&mut self.internal, |a| force[a]);
             if let Some(vel) = velocity {
-                let mut local = [0.0; 12];
-                for a in 0..4 {
-                    let va = Vector3::from_fn(|i, _| el.dofs[3 * a + i].map_or(0.0, |d| vel[d]));
-                    local[3 * a..3 * a + 3].copy_from_slice(kin.r.tr_mul(&va).as_slice());
-                }
-                let k_local = crate::fem::element::mul12(&el.ke, &local);
-                el.scatter(&mut self.damping_force, |a| {
-                    kin.r * Vector3::new(k_local[3 * a], k_local[3 * a + 1], k_local[3 * a + 2])
-                });
+                let damping = warped_forces(&el.geometry, el.lame, &r, &el.nodal(vel));
+                el.scatter(&mut self.damping_force, |a| damping[a]);
             }
         }
         self.stats.assembly_seconds += started.elapsed().as_secs_f64();
@@ -320,13 +342,13 @@ impl CorotationalSimulator {
         self.warped.iter_mut().for_each(|v| *v = 0.0);
         self.consistent.iter_mut().for_each(|v| *v = 0.0);
         let (warped, consistent_values) = (&mut self.warped, &mut self.consistent);
-        for el in &self.elements {
-            let kin = el.kinematics(&self.rest, u);
+        for (el, mats) in self.elements.iter().zip(&self.matrices) {
+            let kin = el.kinematics(&mats.ke, &self.rest, u);
             el.scatter(&mut self.internal, |a| kin.force(a));
-            kin.tangents(&el.geometry, &el.ke, consistent, |a, b, kw, kc| {
+            kin.tangents(&el.geometry, &mats.ke, consistent, |a, b, kw, kc| {
                 for i in 0..3 {
                     for j in 0..3 {
-                        let slot = el.slots[12 * (3 * a + i) + 3 * b + j];
+                        let slot = mats.slots[12 * (3 * a + i) + 3 * b + j];
                         if slot == u32::MAX {
                             continue;
                         }
@@ -546,10 +568,16 @@ impl CorotationalSimulator {
                 self.contraction = step / previous;
             }
             previous = step;
-            let eta = if self.contraction < 1.0 {
-                (self.contraction / (1.0 - self.contraction)).max(1.0)
-            } else {
+            // ρ measured in this step on this factorisation: the accepted iterate is within
+            // ρ/(1−ρ)‖δ‖ of the root. Otherwise (first iteration on a factorisation, ρ carried
+            // from before) the increment itself must meet the tolerance (η ≥ 1).
+            let rho = self.contraction;
+            let eta = if rho >= 1.0 {
                 f64::INFINITY
+            } else if since_factor >= 2 {
+                rho / (1.0 - rho)
+            } else {
+                (rho / (1.0 - rho)).max(1.0)
             };
             estimate = if step <= self.floor {
                 0.0
@@ -648,8 +676,11 @@ mod tests {
     use crate::scene::Scene;
 
     /// Modified Newton (the training runs' path) against full Newton (the reference) on a
-    /// 6×1×1 beam swung by a tip load ramped to a large rotation: the same trajectory to the
-    /// Newton tolerance, with fewer factorisations than steps.
+    /// 6×1×1 beam swung by a tip load ramped to a large rotation: the same trajectory to within
+    /// what the Newton tolerance allows, with fewer factorisations than steps. Each accepted
+    /// state is within the tolerance of its root (estimated); the swing carries each step's
+    /// error into the velocity and acceleration, so the trajectories part by about 10³ × the
+    /// tolerance over the 120 steps, and the gap shrinks with the tolerance.
     #[test]
     fn modified_newton_follows_full_newton_with_fewer_factorisations() {
         let dt = 5e-3;
@@ -667,30 +698,45 @@ mod tests {
         let column = &ops.inputs[2].column;
         let wilson = WilsonTheta::from(&scene.time);
         let options = NewtonOptions::default();
-        let mut full = CorotationalSimulator::new(&fem, wilson, options).expect("simulator");
-        let mut modified = CorotationalSimulator::new(&fem, wilson, options).expect("simulator");
-        modified
-            .set_modified_newton(Some(ModifiedNewton::default()))
-            .expect("settings");
-        let (mut worst, mut largest) = (0.0f64, 0.0f64);
-        let steps = 120;
-        for k in 1..=steps {
-            // −z tip force ramped to 60 N over 60 steps, then held.
-            let m = -60.0 * (k as f64 / 60.0).min(1.0);
-            let f: Vec<f64> = column.iter().map(|b| m * b).collect();
-            full.step(&f).expect("full Newton step");
-            modified.step(&f).expect("modified Newton step");
-            let (a, b) = (full.displacement(), modified.displacement());
-            let diff = norm(&a.iter().zip(b).map(|(x, y)| x - y).collect::<Vec<_>>());
-            worst = worst.max(diff / norm(a));
-            largest = largest.max(a.iter().fold(0.0f64, |m, v| m.max(v.abs())));
-        }
-        let (sf, sm) = (full.stats(), modified.stats());
-        assert!(
-            largest > 0.3,
-            "a large deflection expected, got {largest} m"
-        );
-        assert!(worst < 1e-6, "modified vs full Newton: {worst:.2e}");
+        // Worst relative gap over the run, and the two simulators' counters, for the modified
+        // Newton at `tolerance` (full Newton at the default 1e-8).
+        let run = |tolerance: f64| {
+            let mut full = CorotationalSimulator::new(&fem, wilson, options).expect("simulator");
+            let mut modified = CorotationalSimulator::new(
+                &fem,
+                wilson,
+                NewtonOptions {
+                    tolerance,
+                    ..options
+                },
+            )
+            .expect("simulator");
+            modified
+                .set_modified_newton(Some(ModifiedNewton::default()))
+                .expect("settings");
+            let (mut worst, mut largest) = (0.0f64, 0.0f64);
+            for k in 1..=120 {
+                // −z tip force ramped to 60 N over 60 steps, then held.
+                let m = -60.0 * (k as f64 / 60.0).min(1.0);
+                let f: Vec<f64> = column.iter().map(|b| m * b).collect();
+                full.step(&f).expect("full Newton step");
+                modified.step(&f).expect("modified Newton step");
+                let (a, b) = (full.displacement(), modified.displacement());
+                let diff = norm(&a.iter().zip(b).map(|(x, y)| x - y).collect::<Vec<_>>());
+                worst = worst.max(diff / norm(a));
+                largest = largest.max(a.iter().fold(0.0f64, |m, v| m.max(v.abs())));
+            }
+            assert!(
+                largest > 0.3,
+                "a large deflection expected, got {largest} m"
+            );
+            (worst, full.stats(), modified.stats())
+        };
+        let (worst, sf, sm) = run(1e-8);
+        let (tighter, _, _) = run(1e-10);
+        println!("modified vs full Newton: {worst:.2e} at 1e-8, {tighter:.2e} at 1e-10");
+        assert!(worst < 1e-4, "modified vs full Newton: {worst:.2e}");
+        assert!(tighter < 1e-6 && tighter < 0.1 * worst, "{tighter:.2e}");
         assert_eq!(sm.unconverged, 0, "{sm:?}");
         assert_eq!(sf.factorisations, sf.solves, "{sf:?}");
         assert!(

@@ -59,6 +59,70 @@ pub fn deformation_gradient(geometry: &TetGeometry, x: &[[f64; 3]; 4]) -> Matrix
     f
 }
 
+/// The element-frame nodal forces zₐ = V σ(H) ∇Nₐ (a = 0..3, N) of a displacement gradient
+/// H: σ = λ tr(ε) I + 2μ ε, ε = ½(H + Hᵀ). With the isotropic element stiffness
+/// Kₑ = V Bᵀ D B this is Kₑ y for any nodal vector y with Σₐ yₐ ⊗ ∇Nₐ = H (B y is the
+/// engineering strain of H, Bᵀσ at node a is σ ∇Nₐ), at a fraction of the 12 × 12 product.
+/// `lame` = (Vλ, Vμ) of the element (N·m).
+#[inline]
+pub(super) fn stress_forces(
+    geometry: &TetGeometry,
+    lame: [f64; 2],
+    h: &Matrix3<f64>,
+) -> [Vector3<f64>; 4] {
+    let [vl, vm] = lame;
+    let eps = (h + h.transpose()) * 0.5;
+    let sigma = eps * (2.0 * vm) + Matrix3::identity() * (vl * eps.trace());
+    std::array::from_fn(|a| sigma * Vector3::from(geometry.gradients[a]))
+}
+
+/// The co-rotational force of one element in closed form ([`stress_forces`]): its rotation R
+/// and the world-frame nodal forces R zₐ, zₐ = Kₑ (Rᵀ(xₐ − x₀) − (Xₐ − X₀)) as [`Kinematics`]
+/// computes them (the displacement gradient of that nodal vector is RᵀF − I = S − I). F is
+/// formed from the positions relative to vertex 0 (exact since Σₐ ∇Nₐ = 0), so a tiny strain
+/// keeps its digits.
+#[inline]
+pub(super) fn corotated_forces(
+    geometry: &TetGeometry,
+    lame: [f64; 2],
+    current: &[[f64; 3]; 4],
+) -> (Matrix3<f64>, [Vector3<f64>; 4]) {
+    let mut f = Matrix3::zeros();
+    for (xa, g) in current.iter().zip(&geometry.gradients).skip(1) {
+        for i in 0..3 {
+            let d = xa[i] - current[0][i];
+            for j in 0..3 {
+                f[(i, j)] += d * g[j];
+            }
+        }
+    }
+    let r = polar_rotation(&f);
+    let h = r.tr_mul(&f) - Matrix3::identity();
+    let z = stress_forces(geometry, lame, &h);
+    (r, z.map(|za| r * za))
+}
+
+/// The warped stiffness force R Kₑ Rᵀ vₑ of one element in closed form ([`stress_forces`]
+/// of H = Rᵀ Σₐ vₐ ⊗ ∇Nₐ), world frame, N; `velocity` the nodal vectors vₐ.
+#[inline]
+pub(super) fn warped_forces(
+    geometry: &TetGeometry,
+    lame: [f64; 2],
+    r: &Matrix3<f64>,
+    velocity: &[[f64; 3]; 4],
+) -> [Vector3<f64>; 4] {
+    let mut l = Matrix3::zeros();
+    for (va, g) in velocity.iter().zip(&geometry.gradients) {
+        for i in 0..3 {
+            for j in 0..3 {
+                l[(i, j)] += va[i] * g[j];
+            }
+        }
+    }
+    let z = stress_forces(geometry, lame, &r.tr_mul(&l));
+    z.map(|za| r * za)
+}
+
 /// Co-rotated kinematics of one element: R and S = RᵀF of F = R S, the unrotated relative
 /// positions pₐ = Rᵀ(xₐ − x₀) and the element-frame forces z = Kₑ (p − (X − X₀)).
 pub(super) struct Kinematics {
@@ -177,4 +241,91 @@ pub fn element_tangent(
         }
     });
     t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fem::element::{mul12, ElasticMaterial};
+    use nalgebra::Rotation3;
+
+    /// The closed-form forces against the 12 × 12 products they replace, on elements rotated
+    /// up to ~170°, stretched by up to ±40 % and sheared, down to a strain of 1e-9: equal to
+    /// within the round-off of the strain's digits, and the damping force to 1e-12.
+    #[test]
+    fn closed_form_forces_match_the_element_stiffness_products() {
+        let material = ElasticMaterial {
+            young_modulus: 3.0e5,
+            poisson_ratio: 0.45,
+            density: 1000.0,
+        };
+        let (lambda, mu) = material.lame();
+        let rest = [
+            [0.10, 0.20, 0.05],
+            [0.13, 0.21, 0.05],
+            [0.11, 0.24, 0.06],
+            [0.10, 0.21, 0.09],
+        ];
+        let geometry = TetGeometry::new(&rest);
+        let ke = geometry.stiffness(&material);
+        let lame = [geometry.volume * lambda, geometry.volume * mu];
+        let mut worst: f64 = 0.0;
+        for k in 0..40 {
+            let t = k as f64;
+            let rot = Rotation3::from_euler_angles(0.3 * t, 1.1 - 0.05 * t, 0.7 * t.sin());
+            let size = [1e-9, 1e-5, 1e-2, 0.4][k % 4];
+            let s = Matrix3::new(
+                1.0 + size * (0.7 * t).sin(),
+                0.5 * size * (1.3 * t).cos(),
+                0.2 * size,
+                0.5 * size * (1.3 * t).cos(),
+                1.0 - 0.7 * size * (0.4 * t).cos(),
+                -0.1 * size * t.sin(),
+                0.2 * size,
+                -0.1 * size * t.sin(),
+                1.0 + 0.3 * size * t.cos(),
+            );
+            let map = rot.matrix() * s;
+            let shift = Vector3::new(0.01 * t, -0.02, 0.3);
+            let current: [[f64; 3]; 4] = std::array::from_fn(|a| {
+                let x = map * Vector3::from(rest[a]) + shift;
+                [x[0], x[1], x[2]]
+            });
+            let (f_ref, r_ref) = element_force(&geometry, &ke, &rest, &current);
+            let (r, force) = corotated_forces(&geometry, lame, &current);
+            let scale = f_ref.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let mut error: f64 = 0.0;
+            for a in 0..4 {
+                for i in 0..3 {
+                    error = error.max((force[a][i] - f_ref[3 * a + i]).abs() / scale);
+                }
+            }
+            // Both lose the digits of a small strain to round-off: a few ε over the strain.
+            assert!(
+                error < 64.0 * f64::EPSILON / size,
+                "strain {size:e}: {error:.2e}"
+            );
+            worst = worst.max(error * size / f64::EPSILON);
+            assert!((r - r_ref).norm() < 1e-13);
+            // R Kₑ Rᵀ v against the product.
+            let velocity: [[f64; 3]; 4] =
+                std::array::from_fn(|a| [0.3 * a as f64 - t.cos(), 0.1 * t, -0.2 + a as f64]);
+            let mut local = [0.0; 12];
+            for a in 0..4 {
+                let v = r.tr_mul(&Vector3::from(velocity[a]));
+                local[3 * a..3 * a + 3].copy_from_slice(v.as_slice());
+            }
+            let product = mul12(&ke, &local);
+            let damping = warped_forces(&geometry, lame, &r, &velocity);
+            let dscale = product.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for a in 0..4 {
+                let expected =
+                    r * Vector3::new(product[3 * a], product[3 * a + 1], product[3 * a + 2]);
+                assert!((damping[a] - expected).norm() < 1e-12 * dscale);
+            }
+        }
+        println!(
+            "closed-form element force vs Kₑ product: worst {worst:.1} ε / strain of the largest"
+        );
+    }
 }
