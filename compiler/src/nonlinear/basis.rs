@@ -191,27 +191,51 @@ pub fn pod(
         return (Vec::new(), Vec::new());
     }
     let n = snapshots[0].len();
-    let ms: Vec<Vec<f64>> = snapshots.iter().map(|u| sparse_mul(mass, u)).collect();
-    let gram = DMatrix::from_fn(s, s, |i, j| dot(&snapshots[i], &ms[j]));
-    let gram = (&gram + gram.transpose()) * 0.5;
-    let eig = gram.symmetric_eigen();
-    let mut order: Vec<usize> = (0..s).collect();
-    order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
-    let values: Vec<f64> = order.iter().map(|&k| eig.eigenvalues[k]).collect();
-    let top = values.first().copied().unwrap_or(0.0);
-    let mut modes = Vec::new();
-    for (rank, &k) in order.iter().enumerate() {
-        let lambda = eig.eigenvalues[k];
-        if modes.len() >= max_modes || lambda <= 0.0 || lambda < relative_floor * top {
-            break;
-        }
-        let mut v = vec![0.0; n];
-        for (c, u) in snapshots.iter().enumerate() {
-            let w = eig.eigenvectors[(c, k)] / lambda.sqrt();
-            v.iter_mut().zip(u).for_each(|(vi, ui)| *vi += w * ui);
-        }
-        modes.push((format!("pod {}", rank + 1), v));
+    // S (n × s) and MS; G = Sᵀ(MS) and the modes SΨ by blocked products (faer), the
+    // eigen-decomposition of G by faer's blocked tridiagonal solver.
+    let snap = faer::Mat::from_fn(n, s, |i, j| snapshots[j][i]);
+    let mut ms = faer::Mat::<f64>::zeros(n, s);
+    for (j, u) in snapshots.iter().enumerate() {
+        let m_u = sparse_mul(mass, u);
+        ms.col_mut(j)
+            .iter_mut()
+            .zip(&m_u)
+            .for_each(|(d, v)| *d = *v);
     }
+    let product = snap.as_ref().transpose() * ms.as_ref();
+    drop(ms);
+    let gram = faer::Mat::from_fn(s, s, |i, j| 0.5 * (product[(i, j)] + product[(j, i)]));
+    // The solver fails only on non-finite entries, and the training keeps no non-finite
+    // snapshot (such a run is reported as failed and skipped).
+    let Ok(eig) = gram.self_adjoint_eigen(faer::Side::Lower) else {
+        return (Vec::new(), Vec::new());
+    };
+    let eigenvalues = eig.S().column_vector();
+    let mut order: Vec<usize> = (0..s).collect();
+    order.sort_by(|&a, &b| eigenvalues[b].total_cmp(&eigenvalues[a]));
+    let values: Vec<f64> = order.iter().map(|&k| eigenvalues[k]).collect();
+    let top = values.first().copied().unwrap_or(0.0);
+    let kept: Vec<usize> = order
+        .iter()
+        .copied()
+        .take(max_modes)
+        .take_while(|&k| {
+            let lambda = eigenvalues[k];
+            lambda > 0.0 && lambda >= relative_floor * top
+        })
+        .collect();
+    let psi = faer::Mat::from_fn(s, kept.len(), |c, m| {
+        eig.U()[(c, kept[m])] / eigenvalues[kept[m]].sqrt()
+    });
+    let vectors = &snap * &psi;
+    let modes = (0..kept.len())
+        .map(|m| {
+            (
+                format!("pod {}", m + 1),
+                vectors.col(m).iter().copied().collect(),
+            )
+        })
+        .collect();
     (modes, values)
 }
 
