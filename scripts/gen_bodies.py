@@ -4,6 +4,9 @@
 
     python3 scripts/gen_bodies.py [NAME ...]     # mesh the named bodies (default: all)
     python3 scripts/gen_bodies.py --check        # check the committed meshes only
+    python3 scripts/gen_bodies.py horn --size 0.55 --out DIR
+        # a finer mesh (element size × 0.55: 20,100 tetrahedra for the horn) in DIR/horn/,
+        # for benchmarks; no bound on the count
 
 Organic shapes (OpenCASCADE kernel, metres), each one volume named "body" and nothing else:
 the scenes fix, load and measure them with geometric selections, as a user with a mesh from
@@ -127,7 +130,7 @@ CUTS = {
 }
 
 
-def generate(name):
+def generate(name, scale=1.0):
     import gmsh
 
     gmsh.initialize()
@@ -136,6 +139,7 @@ def generate(name):
     gmsh.model.add(name)
     occ = gmsh.model.occ
     parts, size = BODIES[name](occ)
+    size *= scale
     if len(parts) > 1:
         fused, _ = occ.fuse(parts[:1], parts[1:])
     else:
@@ -236,14 +240,44 @@ def check(name, cad_volume=None):
     return ok
 
 
+def option(args, flag):
+    """The value after `flag` in `args` (removed from `args` with it), or None."""
+    if flag not in args:
+        return None
+    i = args.index(flag)
+    if i + 1 >= len(args):
+        raise SystemExit(f"{flag} needs a value")
+    value = args[i + 1]
+    del args[i:i + 2]
+    return value
+
+
 def main():
-    args = [a for a in sys.argv[1:] if not a.startswith("--")]
-    names = args or list(BODIES)
+    global OUT, MAX_TETS
+    args = sys.argv[1:]
+    scale = option(args, "--size")
+    out = option(args, "--out")
+    if scale is not None:
+        try:
+            scale = float(scale)
+        except ValueError:
+            raise SystemExit(f"--size: expected a number, got '{scale}'")
+        if not (0.05 <= scale <= 20):
+            raise SystemExit(f"--size: expected a factor in [0.05, 20], got {scale}")
+        if out is None:
+            raise SystemExit("--size needs --out DIR (the committed meshes keep their size)")
+        MAX_TETS = 10**7
+    if out is not None:
+        OUT = os.path.abspath(out)
+    unknown = [a for a in args if a.startswith("--") and a != "--check"]
+    if unknown:
+        raise SystemExit(f"unknown option {unknown[0]} (--check, --size S, --out DIR)")
+    names = [a for a in args if not a.startswith("--")] or list(BODIES)
     ok = True
     for name in names:
         if name not in BODIES:
             raise SystemExit(f"unknown body '{name}' (one of {', '.join(BODIES)})")
-        cad = None if "--check" in sys.argv[1:] else generate(name)
+        cad = None if "--check" in args else generate(name, scale or 1.0)
         ok &= check(name, cad)
     sys.exit(0 if ok else 1)
 

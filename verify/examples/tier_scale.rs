@@ -6,6 +6,9 @@
 //! # training only (the scene's [reduction.corotational] plan): runs, steps, Newton solves,
 //! # factorisations, time in assembly / factorisation / triangular solves
 //! cargo run --release -p crokf-verify --example tier_scale -- train SCENE [--full-newton] [--no-predictor] [--threads N] [--sequential]
+//! # the same counters for one run of the plan (index as `crokf-compile SCENE --list-cases`
+//! # lists it), optionally shortened to its first S seconds
+//! cargo run --release -p crokf-verify --example tier_scale -- train SCENE --case K [--duration S] [--contraction RHO]
 //! # step speed: tier step (runtime, MODEL compiled from SCENE) against the full-order
 //! # co-rotational step of SCENE's mesh, medians of the same run
 //! cargo run --release -p crokf-verify --example tier_scale -- bench SCENE MODEL [--steps N]
@@ -22,9 +25,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
-use crokf_compile::nonlinear::training::{train, TrainingPlan};
+use crokf_compile::nonlinear::training::{run_case, train, TrainingPlan};
 use crokf_compile::report::StageTimer;
-use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, Simulator};
+use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, NewtonStats, Simulator};
 use crokf_compile::FullOrder;
 use crokf_runtime::{load_model, Estimator};
 use crokf_verify::bench::{step_clock_seconds, STEP_CLOCK};
@@ -85,15 +88,38 @@ fn train_cost(full: &FullOrder, args: &[String]) -> Result<(), Box<dyn std::erro
             m.predictor = false;
         }
     }
+    if let Some(c) = flag_value(args, "--contraction") {
+        if let Some(m) = plan.modified.as_mut() {
+            m.contraction = c.parse()?;
+        }
+    }
     if let Some(t) = flag_value(args, "--threads") {
         plan.threads = t.parse()?;
+    }
+    if let Some(d) = flag_value(args, "--duration") {
+        plan.duration = d.parse()?;
+    }
+    if let Some(k) = flag_value(args, "--case") {
+        let k: usize = k.parse()?;
+        let label = plan
+            .runs()
+            .get(k)
+            .map(|r| r.label.clone())
+            .unwrap_or_default();
+        let started = Instant::now();
+        let (frames, s) = run_case(full, &plan, k)??;
+        println!(
+            "case {k} ({label}): {} snapshots, wall {:.1} s",
+            frames.len(),
+            started.elapsed().as_secs_f64()
+        );
+        print_stats(&s);
+        return Ok(());
     }
     let mut progress = |k: usize, of: usize, label: &str| {
         eprintln!("run {}/{of}: {label}", k + 1);
     };
     let training = train(full, &plan, &mut progress)?;
-    let s = training.newton;
-    let per_step = |v: f64| v / s.steps.max(1) as f64;
     println!(
         "training: {} runs ({} failed), {} snapshots, wall {:.1} s ({} thread(s), {})",
         training.runs.len(),
@@ -107,6 +133,13 @@ fn train_cost(full: &FullOrder, args: &[String]) -> Result<(), Box<dyn std::erro
             "full Newton"
         }
     );
+    print_stats(&training.newton);
+    Ok(())
+}
+
+/// The Newton counters and thread times of `s`, totals and per step.
+fn print_stats(s: &NewtonStats) {
+    let per_step = |v: f64| v / s.steps.max(1) as f64;
     println!(
         "steps {}, Newton solves {} ({:.2}/step), factorisations {} ({:.2}/step), unconverged \
          {}, fallbacks {}, worst estimated error {:.1e}",
@@ -129,7 +162,6 @@ fn train_cost(full: &FullOrder, args: &[String]) -> Result<(), Box<dyn std::erro
         1e3 * per_step(s.factor_seconds),
         1e3 * per_step(s.solve_seconds)
     );
-    Ok(())
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
