@@ -87,15 +87,8 @@ pub(super) fn corotated_forces(
     lame: [f64; 2],
     current: &[[f64; 3]; 4],
 ) -> (Matrix3<f64>, [Vector3<f64>; 4]) {
-    let mut f = Matrix3::zeros();
-    for (xa, g) in current.iter().zip(&geometry.gradients).skip(1) {
-        for i in 0..3 {
-            let d = xa[i] - current[0][i];
-            for j in 0..3 {
-                f[(i, j)] += d * g[j];
-            }
-        }
-    }
+    let relative = current.map(|xa| std::array::from_fn(|i| xa[i] - current[0][i]));
+    let f = deformation_gradient(geometry, &relative);
     let r = polar_rotation(&f);
     let h = r.tr_mul(&f) - Matrix3::identity();
     let z = stress_forces(geometry, lame, &h);
@@ -111,14 +104,7 @@ pub(super) fn warped_forces(
     r: &Matrix3<f64>,
     velocity: &[[f64; 3]; 4],
 ) -> [Vector3<f64>; 4] {
-    let mut l = Matrix3::zeros();
-    for (va, g) in velocity.iter().zip(&geometry.gradients) {
-        for i in 0..3 {
-            for j in 0..3 {
-                l[(i, j)] += va[i] * g[j];
-            }
-        }
-    }
+    let l = deformation_gradient(geometry, velocity);
     let z = stress_forces(geometry, lame, &r.tr_mul(&l));
     z.map(|za| r * za)
 }
