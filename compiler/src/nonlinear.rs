@@ -22,7 +22,10 @@
 //!   the runtime moves between them with;
 //! - [`identify`]: the noise model's σ identified from a filter run's innovations;
 //! - [`self_check`]: the compiled tier re-run on its own training loads against the training
-//!   snapshots (in-sample error per run, a warning above 5 %).
+//!   snapshots (in-sample error per run, a warning above 5 %), and a tier built without some
+//!   runs re-run on those (out of sample);
+//! - [`fidelity`]: the basis size and cubature accuracy chosen on the out-of-sample error when
+//!   the scene does not state them.
 //!
 //! The model file's tier section lives with the other sections (`crate::model_file::tier`);
 //! `crate::reductor::tier::TierReductor` wires the tier into a compile. The floors of candidate
@@ -33,6 +36,7 @@ pub mod basis;
 pub mod cases;
 pub mod cubature;
 pub mod ecsw;
+pub mod fidelity;
 pub mod filter;
 pub mod identify;
 pub mod levels;

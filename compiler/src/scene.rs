@@ -648,12 +648,11 @@ pub struct CorotationalSpec {
     /// Multiple of the range of the step runs (0 = no step runs).
     #[serde(default = "default_step_multiple")]
     pub step_multiple: f64,
-    /// Basis size r (POD vectors of the training snapshots).
-    #[serde(default = "default_tier_order")]
-    pub order: usize,
-    /// ECSW relative tolerance on the training forces.
-    #[serde(default = "default_ecsw_tolerance")]
-    pub ecsw_tolerance: f64,
+    /// Basis size r (POD vectors of the training snapshots); None: [`CorotationalSpec::order`]
+    /// (the fidelity rule's choice, `crate::nonlinear::fidelity`).
+    pub order: Option<usize>,
+    /// ECSW relative tolerance on the training forces; None: as `order`.
+    pub ecsw_tolerance: Option<f64>,
     /// Runtime Newton: converged when ‖δq‖ ≤ tolerance ‖q‖.
     #[serde(default = "default_newton_tolerance")]
     pub newton_tolerance: f64,
@@ -676,9 +675,8 @@ pub struct CorotationalSpec {
     pub basis_tolerance: Option<f64>,
     /// Largest r with `basis_tolerance` (≥ `order`; default max(order, 60)).
     pub max_order: Option<usize>,
-    /// Most ECSW-sampled elements.
-    #[serde(default = "default_ecsw_max_elements")]
-    pub ecsw_max_elements: usize,
+    /// Most ECSW-sampled elements; None: as `order`.
+    pub ecsw_max_elements: Option<usize>,
 }
 
 /// `[reduction.corotational] directions`: the world directions of the training loads.
@@ -699,10 +697,6 @@ pub enum TrainingDirections {
 /// Most ECSW-sampled elements unless a scene says otherwise (also `EcswOptions::default`'s).
 pub const DEFAULT_ECSW_MAX_ELEMENTS: usize = 200;
 
-fn default_ecsw_max_elements() -> usize {
-    DEFAULT_ECSW_MAX_ELEMENTS
-}
-
 fn default_combinations() -> bool {
     true
 }
@@ -716,12 +710,6 @@ fn default_ramp_multiple() -> f64 {
 fn default_step_multiple() -> f64 {
     0.6
 }
-fn default_tier_order() -> usize {
-    20
-}
-fn default_ecsw_tolerance() -> f64 {
-    5e-3
-}
 fn default_newton_tolerance() -> f64 {
     1e-6
 }
@@ -729,10 +717,41 @@ fn default_newton_iterations() -> usize {
     20
 }
 
+/// The tier's basis size unless the scene or the fidelity rule says otherwise.
+pub const DEFAULT_TIER_ORDER: usize = 20;
+
+/// The ECSW tolerance unless the scene or the fidelity rule says otherwise.
+pub const DEFAULT_ECSW_TOLERANCE: f64 = 5e-3;
+
 impl CorotationalSpec {
+    /// The pooled POD size: `order` as stated, else [`DEFAULT_TIER_ORDER`].
+    pub fn order(&self) -> usize {
+        self.order.unwrap_or(DEFAULT_TIER_ORDER)
+    }
+
+    /// The ECSW tolerance: as stated, else [`DEFAULT_ECSW_TOLERANCE`].
+    pub fn ecsw_tolerance(&self) -> f64 {
+        self.ecsw_tolerance.unwrap_or(DEFAULT_ECSW_TOLERANCE)
+    }
+
+    /// The ECSW element cap: as stated, else [`DEFAULT_ECSW_MAX_ELEMENTS`].
+    pub fn ecsw_max_elements(&self) -> usize {
+        self.ecsw_max_elements.unwrap_or(DEFAULT_ECSW_MAX_ELEMENTS)
+    }
+
+    /// Whether the scene states the tier's size: any of `order`, `basis_tolerance`,
+    /// `ecsw_tolerance`, `ecsw_max_elements`. Otherwise the compiler chooses it by the
+    /// fidelity rule (`crate::nonlinear::fidelity`).
+    pub fn states_size(&self) -> bool {
+        self.order.is_some()
+            || self.basis_tolerance.is_some()
+            || self.ecsw_tolerance.is_some()
+            || self.ecsw_max_elements.is_some()
+    }
+
     /// The bound on r: `max_order`, or max(order, 60).
     pub fn largest_order(&self) -> usize {
-        self.max_order.unwrap_or(self.order.max(60))
+        self.max_order.unwrap_or(self.order().max(60))
     }
 }
 

@@ -1030,9 +1030,9 @@ fn built_tier(full: &FullOrder) -> (TrainingPlan, tier::Tier) {
     let built = tier::build(
         full,
         &plan,
-        spec.order,
+        spec.order(),
         &EcswOptions {
-            tolerance: spec.ecsw_tolerance,
+            tolerance: spec.ecsw_tolerance(),
             ..EcswOptions::default()
         },
         &mut |_, _, _| {},
@@ -1181,9 +1181,16 @@ fn the_out_of_sample_check_holds_runs_out_and_flags_a_tier_that_misses_them() {
         tolerance: 1e-2,
         ..EcswOptions::default()
     };
-    let held = out_of_sample(&full, &plan, &built, &BasisChoice::pod(14), &ecsw, newton)
-        .unwrap()
-        .expect("12 runs: an out-of-sample check");
+    let held = out_of_sample(
+        &full,
+        &plan,
+        &built.training,
+        &BasisChoice::pod(14),
+        &ecsw,
+        newton,
+    )
+    .unwrap()
+    .expect("12 runs: an out-of-sample check");
     let labels: Vec<&str> = held.check.runs.iter().map(|r| r.label.as_str()).collect();
     let runs = plan.runs();
     assert_eq!(labels, vec![runs[2].label.as_str(), runs[7].label.as_str()]);
@@ -1203,9 +1210,16 @@ fn the_out_of_sample_check_holds_runs_out_and_flags_a_tier_that_misses_them() {
     );
     assert_eq!(held.runs, 12);
 
-    let crippled = out_of_sample(&full, &plan, &built, &BasisChoice::pod(2), &ecsw, newton)
-        .unwrap()
-        .unwrap();
+    let crippled = out_of_sample(
+        &full,
+        &plan,
+        &built.training,
+        &BasisChoice::pod(2),
+        &ecsw,
+        newton,
+    )
+    .unwrap()
+    .unwrap();
     let w = crippled.warning().expect("r = 2 misses the held-out runs");
     let worst = crippled.check.worst().unwrap();
     assert!(worst.error > OUT_OF_SAMPLE_THRESHOLD, "{}", worst.error);
@@ -1221,6 +1235,121 @@ fn the_out_of_sample_check_holds_runs_out_and_flags_a_tier_that_misses_them() {
             .notes
             .iter()
             .any(|n| n.starts_with("co-rotational tier out-of-sample check: 2 of the 12")),
+        "{:?}",
+        model.report.notes
+    );
+}
+
+/// The fidelity rule (docs/design.md §10): on the beam's training, every rung the rule measured
+/// carries the worst held-out error that the out-of-sample check gives for that size on its
+/// own; the rungs before the chosen one are above the threshold, and the chosen one is within
+/// it or, when none is, the most accurate. A scene that states no size compiles with the rule
+/// and says so; one that states `order` does not run it.
+#[test]
+fn the_fidelity_rule_takes_the_first_size_within_the_held_out_threshold() {
+    use crokf_compile::nonlinear::fidelity::{self, Fidelity, Rung, LADDER};
+    use crokf_compile::nonlinear::self_check::{
+        out_of_sample, runtime_newton, OUT_OF_SAMPLE_THRESHOLD,
+    };
+    let full = FullOrder::build(scene(), &mut StageTimer::default()).unwrap();
+    let (plan, built) = built_tier(&full);
+    let newton = runtime_newton(1e-12, 60);
+    // Each measured rung carries the out-of-sample check's own figure for its size; the
+    // rungs before the chosen one are above the threshold.
+    let check = |chosen: &Fidelity, ladder: &[Rung]| {
+        eprintln!("{}", chosen.note());
+        assert!(!chosen.tried.is_empty() && chosen.tried.len() <= ladder.len());
+        for (k, (rung, worst)) in chosen.tried.iter().enumerate() {
+            assert_eq!(*rung, ladder[k]);
+            let direct = out_of_sample(
+                &full,
+                &plan,
+                &built.training,
+                &rung.basis(),
+                &rung.ecsw(),
+                newton,
+            )
+            .unwrap()
+            .unwrap();
+            let direct_worst = direct.check.worst().unwrap().error;
+            assert_eq!(direct_worst.to_bits(), worst.to_bits(), "{}", rung.label());
+            if k + 1 < chosen.tried.len() {
+                assert!(
+                    *worst > OUT_OF_SAMPLE_THRESHOLD,
+                    "{}: {worst}",
+                    rung.label()
+                );
+            }
+        }
+        chosen
+            .out_of_sample
+            .as_ref()
+            .unwrap()
+            .check
+            .worst()
+            .unwrap()
+            .error
+    };
+    let rung = |order: usize, ecsw_tolerance: f64| Rung {
+        order,
+        ecsw_tolerance,
+        ecsw_max_elements: 200,
+    };
+
+    // A first size too small to follow the held-out runs (r = 2): the rule climbs.
+    let ladder = [rung(2, 1e-2), LADDER[0]];
+    let chosen = fidelity::choose_from(&ladder, &full, &plan, &built.training, newton).unwrap();
+    let worst = check(&chosen, &ladder);
+    assert_eq!(chosen.tried.len(), 2);
+    assert!(chosen.met() && worst <= OUT_OF_SAMPLE_THRESHOLD, "{worst}");
+    assert_eq!(chosen.rung, LADDER[0]);
+    assert!(!chosen.note().starts_with("WARNING"), "{}", chosen.note());
+
+    // No size within the threshold: the most accurate is taken, with a warning.
+    let ladder = [rung(3, 1e-2), rung(2, 1e-2)];
+    let chosen = fidelity::choose_from(&ladder, &full, &plan, &built.training, newton).unwrap();
+    let worst = check(&chosen, &ladder);
+    assert!(!chosen.met() && worst > OUT_OF_SAMPLE_THRESHOLD, "{worst}");
+    assert_eq!(chosen.tried.len(), 2);
+    assert!(
+        chosen.tried.iter().all(|(_, w)| *w >= worst),
+        "{:?}",
+        chosen.tried
+    );
+    assert!(
+        chosen.note().starts_with("WARNING")
+            && chosen.note().contains("is used, the most accurate"),
+        "{}",
+        chosen.note()
+    );
+
+    // The product's ladder on this beam.
+    let chosen = fidelity::choose(&full, &plan, &built.training, newton).unwrap();
+    check(&chosen, &LADDER);
+
+    let dir = scene().parent().unwrap().to_path_buf();
+    let base = std::fs::read_to_string(scene()).unwrap();
+    let path = dir.join("unsized.toml");
+    std::fs::write(
+        &path,
+        base.replace("order = 10\n", "")
+            .replace("ecsw_tolerance = 1e-2\n", ""),
+    )
+    .unwrap();
+    let unsized_notes = compile(&path, &options()).unwrap().model.report.notes;
+    assert!(
+        unsized_notes
+            .iter()
+            .any(|n| n.contains("fidelity rule") && n.contains(&chosen.rung.label())),
+        "{unsized_notes:?}"
+    );
+    let (_, model) = compiled();
+    assert!(
+        !model
+            .report
+            .notes
+            .iter()
+            .any(|n| n.contains("fidelity rule")),
         "{:?}",
         model.report.notes
     );

@@ -245,7 +245,7 @@ fn run() -> Result<(), Failure> {
         .ok_or("the scene has no [reduction.corotational] table")?;
     let plan = TrainingPlan::of_scene(&full).ok_or("no training plan")?;
     let cache = flag(&args, "--cache").map(PathBuf::from);
-    let pooled = flag(&args, "--pooled").map_or(Ok(spec.order), |s| s.parse())?;
+    let pooled = flag(&args, "--pooled").map_or(Ok(spec.order()), |s| s.parse())?;
     let max_order = flag(&args, "--max-order").map_or(Ok(60), |s| s.parse())?;
     let tolerances: Vec<f64> = flag(&args, "--tolerances")
         .unwrap_or_else(|| "1e-1,3e-2,1e-2".into())
@@ -440,7 +440,7 @@ fn run() -> Result<(), Failure> {
                 &b.mass_vectors,
                 &training.snapshots,
                 &EcswOptions {
-                    tolerance: spec.ecsw_tolerance,
+                    tolerance: spec.ecsw_tolerance(),
                     max_elements: ecsw_max,
                     max_snapshots: ecsw_snapshots,
                 },

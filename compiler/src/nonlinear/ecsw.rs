@@ -45,6 +45,7 @@ pub fn nnls(g: &DMatrix<f64>, b: &DVector<f64>, tolerance: f64, max_active: usiz
         };
     }
     let gtb = g.tr_mul(b);
+    let mut gram = Gram::new(n);
     while residual.norm() > tolerance * bnorm && active.len() < max_active.min(n) {
         let gradient = g.tr_mul(&residual);
         let mut best = None;
@@ -59,10 +60,10 @@ pub fn nnls(g: &DMatrix<f64>, b: &DVector<f64>, tolerance: f64, max_active: usiz
         let Some((j, _)) = best else { break };
         active.push(j);
         iterations += 1;
+        gram.admit(g, j);
         loop {
             let k = active.len();
-            let gp = DMatrix::from_fn(m, k, |i, c| g[(i, active[c])]);
-            let normal = gp.tr_mul(&gp);
+            let normal = DMatrix::from_fn(k, k, |a, b| gram.get(active[a], active[b]));
             let rhs = DVector::from_fn(k, |c, _| gtb[active[c]]);
             let Some(ch) = normal.cholesky() else {
                 // The new column is dependent on the active ones: drop it for good.
@@ -116,6 +117,55 @@ pub fn nnls(g: &DMatrix<f64>, b: &DVector<f64>, tolerance: f64, max_active: usiz
         weights,
         relative_residual: residual.norm() / bnorm,
         iterations,
+    }
+}
+
+/// The inner products of the columns of G that have been active, each computed once when its
+/// column first enters the active set: the normal equations of an active set are gathered
+/// from it instead of formed again (m k² per inner iteration) from the columns.
+struct Gram {
+    /// Slot of each column (`usize::MAX`: never active).
+    slot: Vec<usize>,
+    /// Column of each slot.
+    columns: Vec<usize>,
+    /// `products[s][t]` = ⟨g_columns[s], g_columns[t]⟩ for t ≤ s.
+    products: Vec<Vec<f64>>,
+}
+
+impl Gram {
+    fn new(n: usize) -> Self {
+        Gram {
+            slot: vec![usize::MAX; n],
+            columns: Vec::new(),
+            products: Vec::new(),
+        }
+    }
+
+    /// Gives column `j` a slot with its products against every slotted column.
+    fn admit(&mut self, g: &DMatrix<f64>, j: usize) {
+        if self.slot[j] != usize::MAX {
+            return;
+        }
+        let column = g.column(j);
+        let mut row: Vec<f64> = self
+            .columns
+            .iter()
+            .map(|&c| column.dot(&g.column(c)))
+            .collect();
+        row.push(column.dot(&column));
+        self.slot[j] = self.columns.len();
+        self.columns.push(j);
+        self.products.push(row);
+    }
+
+    /// ⟨g_a, g_b⟩ for two admitted columns.
+    fn get(&self, a: usize, b: usize) -> f64 {
+        let (s, t) = (self.slot[a], self.slot[b]);
+        if s >= t {
+            self.products[s][t]
+        } else {
+            self.products[t][s]
+        }
     }
 }
 

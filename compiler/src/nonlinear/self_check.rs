@@ -422,17 +422,16 @@ pub struct OutOfSample {
     pub sampled: usize,
 }
 
-/// Builds the held-out tier of `tier`'s training and checks it ([`OutOfSample`]); `Ok(None)`
-/// when the plan has fewer than five runs or a held-out run failed in training.
+/// Builds the held-out tier of `training` and checks it ([`OutOfSample`]); `Ok(None)` when the
+/// plan has fewer than five runs or a held-out run failed in training.
 pub fn out_of_sample(
     full: &FullOrder,
     plan: &TrainingPlan,
-    tier: &Tier,
+    training: &Training,
     choice: &BasisChoice,
     ecsw: &EcswOptions,
     newton: ReducedNewton,
 ) -> Result<Option<OutOfSample>, NonlinearError> {
-    let training = &tier.training;
     let held = held_out_runs(training.runs.len());
     if held.is_empty() || held.iter().any(|&k| training.runs[k].1.is_some()) {
         return Ok(None);

@@ -18,6 +18,7 @@ use crate::noise::{Derivation, NoiseModel};
 use crate::nonlinear::basis::BasisChoice;
 use crate::nonlinear::cases::{self, CaseCache};
 use crate::nonlinear::ecsw::EcswOptions;
+use crate::nonlinear::fidelity;
 use crate::nonlinear::filter::{
     derive_force_sigma, linearise_at_rest, linearised_filter, TierFilter, SCHEDULE_POINTS,
 };
@@ -56,6 +57,11 @@ pub struct TierReductor<'a> {
     /// A tier built without every fifth training run, re-run on those runs
     /// ([`self_check::out_of_sample`]; None with fewer than five runs).
     pub out_of_sample: Option<OutOfSample>,
+    /// The basis and cubature settings the tier was built with: the scene's, or the fidelity
+    /// rule's.
+    pub size: (BasisChoice, EcswOptions),
+    /// The fidelity rule's choice (None when the scene states the tier's size).
+    pub fidelity: Option<fidelity::Fidelity>,
     /// What the build decided and measured, for the compile report (training runs skipped,
     /// basis, cubature, filter, model error at the markers).
     pub notes: Vec<String>,
@@ -127,22 +133,33 @@ impl<'a> TierReductor<'a> {
                 ));
             }
         }
-        let ecsw = EcswOptions {
-            tolerance: spec.ecsw_tolerance,
-            max_elements: spec.ecsw_max_elements,
-            ..EcswOptions::default()
-        };
-        let choice = BasisChoice {
-            order: spec.order,
-            tolerance: spec.basis_tolerance,
-            max_order: spec.largest_order(),
+        let newton = self_check::runtime_newton(spec.newton_tolerance, spec.newton_iterations);
+        // The scene's size, or the fidelity rule's choice measured out of sample.
+        let (choice, ecsw, fidelity) = if spec.states_size() {
+            let ecsw = EcswOptions {
+                tolerance: spec.ecsw_tolerance(),
+                max_elements: spec.ecsw_max_elements(),
+                ..EcswOptions::default()
+            };
+            let choice = BasisChoice {
+                order: spec.order(),
+                tolerance: spec.basis_tolerance,
+                max_order: spec.largest_order(),
+            };
+            (choice, ecsw, None)
+        } else {
+            let chosen = timer
+                .stage("tier_fidelity", || {
+                    fidelity::choose(full, &plan, &training, newton)
+                })
+                .map_err(|e| fail(&e))?;
+            (chosen.rung.basis(), chosen.rung.ecsw(), Some(chosen))
         };
         let built = timer
             .stage("tier_reduction", || {
                 tier::from_training_with(full, training, &choice, &ecsw)
             })
             .map_err(|e| fail(&e))?;
-        let newton = self_check::runtime_newton(spec.newton_tolerance, spec.newton_iterations);
         let check = timer
             .stage("tier_self_check", || {
                 self_check::self_check(
@@ -154,11 +171,17 @@ impl<'a> TierReductor<'a> {
                 )
             })
             .map_err(|e| fail(&e))?;
-        let out_of_sample = timer
-            .stage("tier_out_of_sample", || {
-                self_check::out_of_sample(full, &plan, &built, &choice, &ecsw, newton)
-            })
-            .map_err(|e| fail(&e))?;
+        let out_of_sample = match fidelity.as_ref() {
+            Some(f) => f.out_of_sample.clone(),
+            None => timer
+                .stage("tier_out_of_sample", || {
+                    self_check::out_of_sample(full, &plan, &built.training, &choice, &ecsw, newton)
+                })
+                .map_err(|e| fail(&e))?,
+        };
+        if let Some(f) = &fidelity {
+            notes.push(f.note());
+        }
         let model_error = check.model_error_covariance();
         let (derived, filter) = timer
             .stage("tier_kalman", || {
@@ -178,6 +201,8 @@ impl<'a> TierReductor<'a> {
             filter,
             check,
             out_of_sample,
+            size: (choice, ecsw),
+            fidelity,
             notes,
             measurements,
         };
@@ -189,6 +214,7 @@ impl<'a> TierReductor<'a> {
     fn build_notes(&self) -> Vec<String> {
         let (full, spec, plan, built, filter) =
             (self.full, self.spec, &self.plan, &self.tier, &self.filter);
+        let (choice, ecsw) = &self.size;
         let mut notes = Vec::new();
         let env = &built.training.envelope;
         let r = built.model.order();
@@ -205,13 +231,13 @@ impl<'a> TierReductor<'a> {
                 spec.largest_order()
             ));
         }
-        if spec.basis_tolerance.is_none() && r < spec.order {
+        if choice.tolerance.is_none() && r < choice.order {
             notes.push(format!(
                 "WARNING: co-rotational tier order {} asked, r = {r} given: the {} training \
                  snapshots span only {r} independent directions. More snapshots (a smaller \
                  [reduction.corotational] every = {}, or longer training) or a smaller order \
                  remove this warning",
-                spec.order, env.snapshots, spec.every
+                choice.order, env.snapshots, spec.every
             ));
         }
         notes.push(format!(
@@ -223,7 +249,7 @@ impl<'a> TierReductor<'a> {
             built.model.cubature.len(),
             full.fem.elements.len(),
             built.sampling.relative_residual,
-            spec.ecsw_tolerance,
+            ecsw.tolerance,
             plan.ranges
                 .iter()
                 .map(|(n, f)| format!("{n} ≤ {:.4} N", f * plan.max_multiple()))
@@ -231,13 +257,13 @@ impl<'a> TierReductor<'a> {
                 .join(", ")
         ));
         let (residual, sampled) = (built.sampling.relative_residual, built.model.cubature.len());
-        if residual > spec.ecsw_tolerance {
+        if residual > ecsw.tolerance {
             notes.push(format!(
                 "WARNING: the tier's cubature (ECSW) stopped at {sampled} sampled elements with \
                  a relative residual {residual:.2e} above its tolerance {:.0e}: the reduced \
                  forces are less accurate than asked. Raise [reduction.corotational] \
                  ecsw_max_elements (now {}) or loosen ecsw_tolerance",
-                spec.ecsw_tolerance, spec.ecsw_max_elements
+                ecsw.tolerance, ecsw.max_elements
             ));
         }
         notes.push(format!(

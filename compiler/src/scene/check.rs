@@ -178,11 +178,10 @@ impl CorotationalSpec {
         if let Some(t) = self.ramp_time {
             in_range(&f("ramp_time"), t, (0.0, self.duration), "s")?;
         }
-        if !(1..=200).contains(&self.order) {
+        if let Some(order) = self.order.filter(|r| !(1..=200).contains(r)) {
             return Err(format!(
-                "{} = {} is out of range: it must be within [1, 200]",
-                f("order"),
-                self.order
+                "{} = {order} is out of range: it must be within [1, 200]",
+                f("order")
             ));
         }
         if let Some(eps) = self.basis_tolerance {
@@ -191,23 +190,27 @@ impl CorotationalSpec {
                 return Err(format!("{} must be > 0", f("basis_tolerance")));
             }
         }
-        if let Some(max) = self.max_order.filter(|m| !(self.order..=400).contains(m)) {
+        if let Some(max) = self.max_order.filter(|m| !(self.order()..=400).contains(m)) {
             return Err(format!(
                 "{} = {max} is out of range: it must be within [order = {}, 400]",
                 f("max_order"),
-                self.order
+                self.order()
             ));
         }
-        if !(1..=100_000).contains(&self.ecsw_max_elements) {
+        if let Some(cap) = self
+            .ecsw_max_elements
+            .filter(|c| !(1..=100_000).contains(c))
+        {
             return Err(format!(
-                "{} = {} is out of range: it must be within [1, 100000]",
-                f("ecsw_max_elements"),
-                self.ecsw_max_elements
+                "{} = {cap} is out of range: it must be within [1, 100000]",
+                f("ecsw_max_elements")
             ));
         }
-        in_range(&f("ecsw_tolerance"), self.ecsw_tolerance, (1e-8, 0.5), "")?;
-        if self.ecsw_tolerance <= 0.0 {
-            return Err(format!("{} must be > 0", f("ecsw_tolerance")));
+        if let Some(tolerance) = self.ecsw_tolerance {
+            in_range(&f("ecsw_tolerance"), tolerance, (1e-8, 0.5), "")?;
+            if tolerance <= 0.0 {
+                return Err(format!("{} must be > 0", f("ecsw_tolerance")));
+            }
         }
         in_range(
             &f("newton_tolerance"),
