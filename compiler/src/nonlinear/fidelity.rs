@@ -24,7 +24,7 @@ use crate::full_order::FullOrder;
 use super::basis::BasisChoice;
 use super::ecsw::EcswOptions;
 use super::reduced::ReducedNewton;
-use super::self_check::{self, OutOfSample, OUT_OF_SAMPLE_THRESHOLD};
+use super::self_check::{self, percent, OutOfSample, OUT_OF_SAMPLE_THRESHOLD};
 use super::training::{Training, TrainingPlan};
 use super::NonlinearError;
 
@@ -194,13 +194,4 @@ pub fn choose_from(
             tried,
         },
     })
-}
-
-/// `0.0123` → `1.23 %`.
-fn percent(x: f64) -> String {
-    if x.is_finite() {
-        format!("{:.2} %", 100.0 * x)
-    } else {
-        format!("{x}")
-    }
 }

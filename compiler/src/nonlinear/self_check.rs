@@ -232,7 +232,7 @@ impl SelfCheck {
 }
 
 /// `0.0123` → `1.23 %` (two significant decimals below 10 %).
-fn percent(x: f64) -> String {
+pub(crate) fn percent(x: f64) -> String {
     if !x.is_finite() {
         return format!("{x}");
     }
