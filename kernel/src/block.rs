@@ -35,6 +35,76 @@ const GRADIENTS: usize = REST_DIFF + 12;
 const STIFFNESS: usize = GRADIENTS + 12;
 const COLUMNS: usize = STIFFNESS + 144;
 
+/// An instruction set the blocked kernels run on, held only where this CPU has it: a value
+/// comes from [`Isa::best`], [`Isa::available`] or [`Isa::portable`], so passing one to
+/// [`Blocks::reduced_force_on`] or [`Blocks::add_warped_tangent_on`] is always safe. The
+/// plain methods use [`Isa::best`]; the `_on` forms let a benchmark or a test run each path
+/// on the same machine.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Isa(Path);
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Path {
+    Portable,
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
+}
+
+impl Isa {
+    /// The portable lanes (no CPU feature; each element's force bit for bit the scalar
+    /// kernel's).
+    pub fn portable() -> Self {
+        Isa(Path::Portable)
+    }
+
+    /// Every path this CPU runs, portable first, the fastest last.
+    pub fn available() -> Vec<Self> {
+        #[allow(unused_mut)]
+        let mut paths = vec![Isa(Path::Portable)];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                paths.push(Isa(Path::Avx2));
+            }
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                paths.push(Isa(Path::Avx512));
+            }
+        }
+        paths
+    }
+
+    /// The fastest path this CPU runs (AVX-512, else AVX2 + FMA, else portable).
+    pub fn best() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                return Isa(Path::Avx512);
+            }
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                return Isa(Path::Avx2);
+            }
+        }
+        Isa(Path::Portable)
+    }
+
+    /// "portable", "avx2" or "avx512".
+    pub fn name(self) -> &'static str {
+        match self.0 {
+            Path::Portable => "portable",
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx2 => "avx2",
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx512 => "avx512",
+        }
+    }
+}
+
 /// The sampled elements of a reduced model, packed by [`LANES`] (module docs). Padding lanes
 /// of the last block hold a unit tetrahedron with zero weight, stiffness and basis rows: F = I,
 /// no force. There is no empty default: build it with [`Blocks::new`].
@@ -126,10 +196,24 @@ impl Blocks {
     /// elements (the sum of [`crate::add_reduced_force`] over them, to round-off: module
     /// docs), `rotations[e]` = Rₑ; `scratch` of [`Blocks::scratch_len`]. On an element the
     /// polar decomposition refuses, returns the first such element (index, cause), `out` and
-    /// `rotations` then unspecified. Runs with AVX-512 or AVX2 + FMA when the CPU has them
-    /// (chosen at run time), portable otherwise.
+    /// `rotations` then unspecified. Runs on [`Isa::best`].
     pub fn reduced_force(
         &self,
+        q: &[f64],
+        velocity: &[f64],
+        beta: f64,
+        out: &mut [f64],
+        rotations: &mut [Mat3],
+        scratch: &mut [f64],
+    ) -> Result<(), (usize, PolarError)> {
+        self.reduced_force_on(Isa::best(), q, velocity, beta, out, rotations, scratch)
+    }
+
+    /// [`Blocks::reduced_force`] on the path `isa`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn reduced_force_on(
+        &self,
+        isa: Isa,
         q: &[f64],
         velocity: &[f64],
         beta: f64,
@@ -146,21 +230,20 @@ impl Blocks {
                 && scratch.len() >= LANES * r,
             "Blocks::reduced_force: lengths"
         );
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                // SAFETY: the CPU has AVX-512F (checked just above; it implies AVX2 and FMA).
-                return unsafe { forces_avx512(self, q, velocity, beta, out, rotations, scratch) };
-            }
-            if std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-            {
-                // SAFETY: the CPU has AVX2 and FMA (checked just above).
-                return unsafe { forces_avx2(self, q, velocity, beta, out, rotations, scratch) };
-            }
+        match isa.0 {
+            // SAFETY: the portable lanes use no CPU feature.
+            Path::Portable => unsafe {
+                forces::<Lanes8>(self, q, velocity, beta, out, rotations, scratch)
+            },
+            // SAFETY: an `Isa` holds AVX2 only where the CPU has AVX2 and FMA.
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx2 => unsafe { forces_avx2(self, q, velocity, beta, out, rotations, scratch) },
+            // SAFETY: an `Isa` holds AVX-512 only where the CPU has AVX-512F.
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx512 => unsafe {
+                forces_avx512(self, q, velocity, beta, out, rotations, scratch)
+            },
         }
-        // SAFETY: the portable lanes use no CPU feature.
-        unsafe { forces::<Lanes8>(self, q, velocity, beta, out, rotations, scratch) }
     }
 
     /// Length of the scratch [`Blocks::add_warped_tangent`] needs:
@@ -181,6 +264,18 @@ impl Blocks {
         out: &mut [f64],
         scratch: &mut [f64],
     ) {
+        self.add_warped_tangent_on(Isa::best(), rotations, scale, out, scratch)
+    }
+
+    /// [`Blocks::add_warped_tangent`] on the path `isa`.
+    pub fn add_warped_tangent_on(
+        &self,
+        isa: Isa,
+        rotations: &[Mat3],
+        scale: f64,
+        out: &mut [f64],
+        scratch: &mut [f64],
+    ) {
         let r = self.r;
         assert!(
             rotations.len() >= self.count
@@ -188,21 +283,16 @@ impl Blocks {
                 && scratch.len() >= self.tangent_scratch_len(),
             "Blocks::add_warped_tangent: lengths"
         );
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                // SAFETY: the CPU has AVX-512F (checked just above; it implies AVX2 and FMA).
-                return unsafe { tangent_avx512(self, rotations, scale, out, scratch) };
-            }
-            if std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-            {
-                // SAFETY: the CPU has AVX2 and FMA (checked just above).
-                return unsafe { tangent_avx2(self, rotations, scale, out, scratch) };
-            }
+        match isa.0 {
+            // SAFETY: the portable lanes use no CPU feature.
+            Path::Portable => unsafe { tangent::<Lanes8>(self, rotations, scale, out, scratch) },
+            // SAFETY: an `Isa` holds AVX2 only where the CPU has AVX2 and FMA.
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx2 => unsafe { tangent_avx2(self, rotations, scale, out, scratch) },
+            // SAFETY: an `Isa` holds AVX-512 only where the CPU has AVX-512F.
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx512 => unsafe { tangent_avx512(self, rotations, scale, out, scratch) },
         }
-        // SAFETY: the portable lanes use no CPU feature.
-        unsafe { tangent::<Lanes8>(self, rotations, scale, out, scratch) }
     }
 }
 
@@ -426,25 +516,24 @@ fn block_force<S: Simd>(
 ) -> (Mat3S<S>, [Result<(), PolarError>; 8]) {
     let at = |k: usize| at::<S>(block, k);
     let zero = S::splat(0.0);
-    // u = V_e q, v = V_e q̇ (12 rows per lane), ROWS rows at a time over all columns (few
-    // accumulators live: no spills with 16 AVX2 registers).
+    // u = V_e q, v = V_e q̇ (12 rows per lane), GATHER_ROWS rows at a time over all columns.
     let mut u = [zero; 12];
     let mut v = [zero; 12];
     let columns = &block[COLUMNS * LANES..(COLUMNS + 12 * r) * LANES];
-    const ROWS: usize = 3;
-    for first in (0..12).step_by(ROWS) {
-        let mut uc = [zero; ROWS];
-        let mut vc = [zero; ROWS];
+    let rows = S::GATHER_ROWS;
+    for first in (0..12).step_by(rows) {
+        let mut uc = [zero; 12];
+        let mut vc = [zero; 12];
         for (j, col) in columns.chunks_exact(12 * LANES).enumerate() {
             let (qj, vj) = (S::splat(q[j]), S::splat(velocity[j]));
-            for k in 0..ROWS {
+            for k in 0..rows {
                 let c = S::load(&col[(first + k) * LANES..]);
                 uc[k] = c.mul_add(qj, uc[k]);
                 vc[k] = c.mul_add(vj, vc[k]);
             }
         }
-        u[first..first + ROWS].copy_from_slice(&uc);
-        v[first..first + ROWS].copy_from_slice(&vc);
+        u[first..first + rows].copy_from_slice(&uc[..rows]);
+        v[first..first + rows].copy_from_slice(&vc[..rows]);
     }
     // x = X + u, F = Σₐ xₐ ⊗ ∇Nₐ (the scalar gather's operations).
     let mut x = [[zero; 3]; 4];
@@ -476,6 +565,7 @@ fn block_force<S: Simd>(
     }
     // z = Kₑ local as Σ_j local_j Kₑ[j, ·] (Kₑ symmetric).
     let mut z = [zero; 12];
+    const ROWS: usize = 3;
     for first in (0..12).step_by(ROWS) {
         let mut zc = [zero; ROWS];
         for j in 0..12 {
@@ -494,16 +584,19 @@ fn block_force<S: Simd>(
                 w * (rot[c][0] * z[3 * a] + rot[c][1] * z[3 * a + 1] + rot[c][2] * z[3 * a + 2]);
         }
     }
-    // acc[j] += Σᵢ V_e[i][j] forceᵢ, per lane.
-    for (col, a) in columns
-        .chunks_exact(12 * LANES)
-        .zip(acc.chunks_exact_mut(LANES))
-    {
-        let mut s = S::load(a);
-        for i in 0..12 {
-            s = S::load(&col[i * LANES..(i + 1) * LANES]).mul_add(force[i], s);
+    // acc[j] += Σᵢ V_e[i][j] forceᵢ, per lane, in the order of i (SCATTER_ROWS rows per pass
+    // over the columns).
+    for first in (0..12).step_by(S::SCATTER_ROWS) {
+        for (col, a) in columns
+            .chunks_exact(12 * LANES)
+            .zip(acc.chunks_exact_mut(LANES))
+        {
+            let mut s = S::load(a);
+            for i in first..first + S::SCATTER_ROWS {
+                s = S::load(&col[i * LANES..(i + 1) * LANES]).mul_add(force[i], s);
+            }
+            s.store(a);
         }
-        s.store(a);
     }
     (rot, status)
 }
@@ -747,71 +840,6 @@ mod tests {
             .collect()
     }
 
-    type ForceFn = fn(
-        &Blocks,
-        &[f64],
-        &[f64],
-        f64,
-        &mut [f64],
-        &mut [Mat3],
-        &mut [f64],
-    ) -> Result<(), (usize, PolarError)>;
-    type TangentFn = fn(&Blocks, &[Mat3], f64, &mut [f64], &mut [f64]);
-
-    /// Every force path this CPU can run, by name.
-    fn force_paths() -> Vec<(&'static str, ForceFn)> {
-        let mut paths: Vec<(&'static str, ForceFn)> =
-            // SAFETY: the portable lanes use no CPU feature.
-            vec![("portable", |b, q, v, beta, o, r, s| unsafe {
-                forces::<Lanes8>(b, q, v, beta, o, r, s)
-            })];
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-            {
-                // SAFETY: the CPU has AVX2 and FMA (checked just above).
-                paths.push(("avx2", |b, q, v, beta, o, r, s| unsafe {
-                    forces_avx2(b, q, v, beta, o, r, s)
-                }));
-            }
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                // SAFETY: the CPU has AVX-512F (checked just above).
-                paths.push(("avx512", |b, q, v, beta, o, r, s| unsafe {
-                    forces_avx512(b, q, v, beta, o, r, s)
-                }));
-            }
-        }
-        paths
-    }
-
-    /// Every tangent path this CPU can run, by name.
-    fn tangent_paths() -> Vec<(&'static str, TangentFn)> {
-        // SAFETY: the portable lanes use no CPU feature.
-        let mut paths: Vec<(&'static str, TangentFn)> =
-            vec![("portable", |b, r, sc, o, s| unsafe {
-                tangent::<Lanes8>(b, r, sc, o, s)
-            })];
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-            {
-                // SAFETY: the CPU has AVX2 and FMA (checked just above).
-                paths.push(("avx2", |b, r, sc, o, s| unsafe {
-                    tangent_avx2(b, r, sc, o, s)
-                }));
-            }
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                // SAFETY: the CPU has AVX-512F (checked just above).
-                paths.push(("avx512", |b, r, sc, o, s| unsafe {
-                    tangent_avx512(b, r, sc, o, s)
-                }));
-            }
-        }
-        paths
-    }
-
     /// The blocked force against the scalar kernel summed element by element, to round-off.
     /// Portable path: rotations bit for bit (each element's force is the scalar one, only the
     /// order of the sum over elements differs); SIMD paths: the fused gather changes F, so
@@ -838,20 +866,13 @@ mod tests {
                 want.iter_mut().zip(&one).for_each(|(w, o)| *w += o);
             }
             let mut scratch = vec![0.0; blocks.scratch_len()];
-            for (path, f) in force_paths() {
-                let portable = path == "portable";
+            for isa in Isa::available() {
+                let (path, portable) = (isa.name(), isa == Isa::portable());
                 let mut out = vec![0.0; r];
                 let mut rot = vec![[[0.0; 3]; 3]; n];
-                f(
-                    &blocks,
-                    &q,
-                    &velocity,
-                    beta,
-                    &mut out,
-                    &mut rot,
-                    &mut scratch,
-                )
-                .unwrap();
+                blocks
+                    .reduced_force_on(isa, &q, &velocity, beta, &mut out, &mut rot, &mut scratch)
+                    .unwrap();
                 if portable {
                     assert_eq!(rot, want_rot, "rotations");
                 } else {
@@ -901,9 +922,10 @@ mod tests {
             }
             let size = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             let mut scratch = vec![0.0; blocks.tangent_scratch_len()];
-            for (path, f) in tangent_paths() {
+            for isa in Isa::available() {
+                let path = isa.name();
                 let mut got = vec![1.0; r * r];
-                f(&blocks, &rotations, scale, &mut got, &mut scratch);
+                blocks.add_warped_tangent_on(isa, &rotations, scale, &mut got, &mut scratch);
                 let mut worst: f64 = 0.0;
                 for i in 0..r {
                     for j in 0..r {

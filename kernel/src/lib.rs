@@ -18,7 +18,7 @@ mod lanes;
 mod simd;
 pub mod wilson;
 
-pub use block::Blocks;
+pub use block::{Blocks, Isa};
 
 /// 3×3 matrix, row-major.
 pub type Mat3 = [[f64; 3]; 3];

@@ -13,6 +13,13 @@ pub trait Simd:
 {
     /// Number of lanes.
     const LANES: usize;
+    /// Rows of the blocked gather u = V_e q, v = V_e q̇ per pass over the basis columns
+    /// ([`crate::block`]; divides 12): two accumulators per row plus two splats and a load
+    /// stay in the registers.
+    const GATHER_ROWS: usize = 3;
+    /// Rows of the blocked scatter Σᵢ V_e[i][j] forceᵢ per pass over the columns (divides 12):
+    /// these force rows stay in the registers across the pass.
+    const SCATTER_ROWS: usize = 12;
     /// Every lane `v`.
     fn splat(v: f64) -> Self;
     /// Lanes from `s[..LANES]`.
@@ -211,6 +218,11 @@ mod avx512 {
     // loads and stores check their slice length first.
     impl Simd for Avx512 {
         const LANES: usize = 8;
+        // 32 registers of 8 lanes: all 12 rows of the gather at once (24 accumulators), the
+        // whole force across the scatter. Against 3 gather rows: the meniscus tier's force
+        // evaluation 8.7 → 7.6 µs on a Zen 5 (`tier_step`, docs/benchmarks.md).
+        const GATHER_ROWS: usize = 12;
+        const SCATTER_ROWS: usize = 12;
         #[inline(always)]
         fn splat(v: f64) -> Self {
             Avx512(unsafe { _mm512_set1_pd(v) })
@@ -334,6 +346,12 @@ mod avx2 {
     // loads and stores check their slice length first.
     impl Simd for Avx2 {
         const LANES: usize = 8;
+        // 16 registers of 4 lanes, 8 values of 8 lanes: 2 gather rows (4 accumulators, 2
+        // splats, a load), 4 force rows per scatter pass (the whole force, 12 values, spilled
+        // and was re-read from the stack for every column). Against 3 and 12: the meniscus
+        // tier's force evaluation 13.8 → 12.5 µs on a Zen 5 (`tier_step`).
+        const GATHER_ROWS: usize = 2;
+        const SCATTER_ROWS: usize = 4;
         #[inline(always)]
         fn splat(v: f64) -> Self {
             unsafe { Avx2(_mm256_set1_pd(v), _mm256_set1_pd(v)) }
@@ -351,9 +369,14 @@ mod avx2 {
         #[inline(always)]
         fn store(self, s: &mut [f64]) {
             assert!(s.len() >= 8);
+            // Plain unaligned writes rather than `_mm256_storeu_pd`: the intrinsic carries
+            // `#[target_feature(enable = "avx")]`, which LLVM would not inline through this
+            // feature-less method, leaving a call per store in the AVX2 kernels (seen in
+            // `perf`); the writes compile to the same `vmovupd` inside AVX2 code.
             unsafe {
-                _mm256_storeu_pd(s.as_mut_ptr(), self.0);
-                _mm256_storeu_pd(s.as_mut_ptr().add(4), self.1);
+                let p = s.as_mut_ptr().cast::<__m256d>();
+                p.write_unaligned(self.0);
+                p.add(1).write_unaligned(self.1);
             }
         }
         #[inline(always)]

@@ -8,7 +8,10 @@
 //! and every `step` (predict + constant-gain update, measurements = the open-loop estimates,
 //! i.e. zero innovation) separately, and prints medians, Newton iterations per step, the
 //! slowest step and the median of the steps that refreshed the tangent, and the envelope
-//! status. Times are this thread's CPU time (the machine is shared).
+//! status; then one reduced force evaluation and one warped tangent at the final state on each
+//! kernel path this CPU has (`crokf_kernel::Isa::available`: portable, AVX2 + FMA, AVX-512),
+//! in alternating rounds so that the paths share clock and cache. Times are this thread's CPU
+//! time (the machine is shared).
 
 use crokf_runtime::{load_model, Estimator};
 
@@ -180,5 +183,63 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         force * 1e6,
         force * 1e6 / tm.element_count() as f64
     );
+    // Each instruction-set path of the kernel on this CPU, at the same state, in alternating
+    // rounds (same clock, same cache state): force evaluation and warped tangent.
+    let isas = crokf_kernel::Isa::available();
+    let blocks = tm.blocks();
+    let beta = tm.damping_beta();
+    let mut tangent = vec![0.0; r * r];
+    let mut tangent_scratch = vec![0.0; blocks.tangent_scratch_len()];
+    let mut force_times = vec![Vec::with_capacity(200); isas.len()];
+    let mut tangent_times = vec![Vec::with_capacity(200); isas.len()];
+    for _ in 0..200 {
+        for (i, &isa) in isas.iter().enumerate() {
+            let clock = Instant::now();
+            for _ in 0..20 {
+                blocks
+                    .reduced_force_on(
+                        isa,
+                        &s[..r],
+                        &s[r..2 * r],
+                        beta,
+                        std::hint::black_box(&mut out),
+                        &mut rotations,
+                        &mut scratch,
+                    )
+                    .map_err(|(e, _)| format!("inverted element {e}"))?;
+            }
+            force_times[i].push(clock.elapsed().as_secs_f64() / 20.0);
+            let clock = Instant::now();
+            for _ in 0..5 {
+                blocks.add_warped_tangent_on(
+                    isa,
+                    &rotations,
+                    1.0,
+                    std::hint::black_box(&mut tangent),
+                    &mut tangent_scratch,
+                );
+            }
+            tangent_times[i].push(clock.elapsed().as_secs_f64() / 5.0);
+        }
+    }
+    let per_element = 1e9 / tm.element_count() as f64;
+    let fastest = force_times.len() - 1;
+    let (best_force, best_tangent) = (
+        median(force_times[fastest].clone()),
+        median(tangent_times[fastest].clone()),
+    );
+    for ((isa, f), t) in isas.iter().zip(force_times).zip(tangent_times) {
+        let (f, t) = (median(f), median(t));
+        println!(
+            "kernel path {:>8}: force {:.2} µs ({:.1} ns per element, {:.2}× the fastest), \
+             tangent {:.1} µs ({:.2}×)",
+            isa.name(),
+            f * 1e6,
+            f * per_element,
+            f / best_force,
+            t * 1e6,
+            t / best_tangent
+        );
+    }
     Ok(())
 }

@@ -349,6 +349,17 @@ impl TierModel {
     pub fn force_scratch_len(&self) -> usize {
         self.blocks.scratch_len()
     }
+
+    /// The sampled elements as the kernel holds them (to run its paths one by one:
+    /// [`kernel::Blocks::reduced_force_on`]).
+    pub fn blocks(&self) -> &kernel::Blocks {
+        &self.blocks
+    }
+
+    /// The stiffness-proportional damping β of the reduced force (s).
+    pub fn damping_beta(&self) -> f64 {
+        self.beta
+    }
 }
 
 /// a · b.
