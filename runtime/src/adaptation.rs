@@ -12,9 +12,12 @@
 //! check, T is compared with `lower_below`, and below it σ goes one level down: below the
 //! designed σ only while every estimated load is told (a load that is given leaves the force
 //! states only the model's error; one that is withheld and slower than stated would lag a
-//! lower σ before T could show it). After a change e restarts at 0. The compiler chose a_j and
-//! the thresholds; the runtime only counts. The state is allocated once and changed only after
-//! a successful update.
+//! lower σ before T could show it). Told from the first update on, with every channel measured
+//! every step, the level goes to the lowest at once: σ above it would let the markers' noise
+//! into the force states, and a random walk of low σ sheds that only slowly. With sparser
+//! markers the model runs alone between them, and the lowest σ did not cover its error there
+//! (docs/design.md §11.10). After a change e restarts at 0. The compiler chose a_j and the thresholds; the runtime only counts. The state
+//! is allocated once and changed only after a successful update.
 
 use crokf_formats::{CorotationalTier, ForceAdaptation};
 
@@ -30,6 +33,11 @@ pub struct Levels {
     /// Per level: the next larger and the next smaller factor's level.
     up: Vec<Option<usize>>,
     down: Vec<Option<usize>>,
+    /// The level of the smallest factor.
+    lowest: usize,
+    /// Whether every measurement channel is measured every step (the tier's `kalman.period`
+    /// is 1): only then do told loads start at the lowest level (module docs).
+    every_step: bool,
     /// Per measurement channel: a_j.
     smoothing: Vec<f64>,
     raise_above: f64,
@@ -48,11 +56,11 @@ impl Levels {
         let factors: Vec<f64> = std::iter::once(1.0)
             .chain(tier.force_levels.iter().map(|l| l.factor))
             .collect();
-        Some(Levels::from_parts(factors, a))
+        Some(Levels::from_parts(factors, a, tier.kalman.period == 1))
     }
 
     /// The levels of the factors `factors` (level 0 first) and the statistic `a`.
-    fn from_parts(factors: Vec<f64>, a: &ForceAdaptation) -> Levels {
+    fn from_parts(factors: Vec<f64>, a: &ForceAdaptation, every_step: bool) -> Levels {
         let neighbour = |larger: bool| -> Vec<Option<usize>> {
             (0..factors.len())
                 .map(|l| {
@@ -72,7 +80,12 @@ impl Levels {
                 })
                 .collect()
         };
+        let lowest = (0..factors.len())
+            .min_by(|&a, &b| factors[a].total_cmp(&factors[b]))
+            .unwrap_or(0);
         Levels {
+            lowest,
+            every_step,
             up: neighbour(true),
             down: neighbour(false),
             smoothing: a.smoothing.clone(),
@@ -112,6 +125,8 @@ pub struct AdaptationState {
     statistic: f64,
     /// The step of the last change or of the last check against `lower_below`.
     settled_since: u64,
+    /// Whether the level has moved since the last reset.
+    moved: bool,
     /// Whether the level follows the statistic (else it stays where it is).
     enabled: bool,
 }
@@ -124,6 +139,7 @@ impl AdaptationState {
             decay: vec![1.0; channels],
             statistic: 0.0,
             settled_since: 0,
+            moved: false,
             enabled: true,
         }
     }
@@ -131,6 +147,7 @@ impl AdaptationState {
     /// The statistic cleared (keeps `enabled`); the level goes back to 0 with it.
     pub fn reset(&mut self) {
         self.restart(0);
+        self.moved = false;
     }
 
     fn restart(&mut self, step: u64) {
@@ -159,9 +176,10 @@ impl AdaptationState {
 
     /// After a successful update at step `step` made at level `level`: the whitened
     /// innovations `z[a]` of the phase's active channels `active[a]` (NaN: no value) enter the
-    /// statistic, and the level moves at most one step (module docs); below the designed σ
-    /// only when `told` (every estimated load was given a value this step). Returns the level
-    /// for the next step.
+    /// statistic, and the level moves (module docs): up or down one level, below the designed
+    /// σ only when `told` (every estimated load was given a value this step), or, told at the
+    /// first update since the reset with every channel measured every step, to the lowest
+    /// level. Returns the level for the next step.
     pub fn observe(
         &mut self,
         levels: &Levels,
@@ -197,8 +215,12 @@ impl AdaptationState {
             }
         }
         self.statistic = sum / count.max(1) as f64;
+        let lowest = (level != levels.lowest).then_some(levels.lowest);
         let next = if self.statistic > levels.raise_above {
             levels.up[level]
+        } else if told && !self.moved && levels.every_step {
+            // Every load told from the start: the force states carry only the model's error.
+            lowest
         } else if step.saturating_sub(self.settled_since) >= levels.hold {
             // One window since the last change or check: T now summarises it.
             self.settled_since = step;
@@ -213,6 +235,7 @@ impl AdaptationState {
         match next {
             Some(next) => {
                 self.restart(step);
+                self.moved = true;
                 next
             }
             None => level,
@@ -226,6 +249,11 @@ mod tests {
     use crokf_formats::synthetic::SplitMix64;
 
     fn levels(hold: u32) -> Levels {
+        levels_at(hold, true)
+    }
+
+    /// `every_step`: every channel measured every step.
+    fn levels_at(hold: u32, every_step: bool) -> Levels {
         Levels::from_parts(
             vec![1.0, 4.0, 0.25, 0.0625],
             &ForceAdaptation {
@@ -234,6 +262,7 @@ mod tests {
                 lower_below: 0.8,
                 hold,
             },
+            every_step,
         )
     }
 
@@ -246,9 +275,9 @@ mod tests {
     }
 
     /// White unit innovations: T averages 1 from the first update on (the transient is
-    /// normalised); a bias of 0.5 σ on every channel raises within a few window lengths; zero
-    /// innovations lower the level one step per `hold` steps down to the smallest; off keeps
-    /// level 0.
+    /// normalised); a bias of 0.5 σ on every channel raises within a few window lengths; not
+    /// told, zero innovations lower nothing below the designed σ and come down one level per
+    /// `hold` steps from above it; off keeps level 0.
     #[test]
     fn the_statistic_is_unbiased_and_moves_one_level_at_a_time() {
         let l = levels(20);
@@ -259,7 +288,7 @@ mod tests {
             let mut s = AdaptationState::new(3);
             for k in 1..=10u64 {
                 let z: Vec<f64> = (0..3).map(|_| rng.normal()).collect();
-                s.observe(&l, 0, k + 1000 * run, &active, &z, true);
+                s.observe(&l, 0, k + 1000 * run, &active, &z, false);
                 if k == 3 {
                     sum += s.statistic;
                     n += 1;
@@ -273,7 +302,7 @@ mod tests {
         let mut raised = None;
         for k in 1..200u64 {
             let z: Vec<f64> = (0..3).map(|_| 0.5 + rng.normal()).collect();
-            if s.observe(&l, 0, k, &active, &z, true) == 1 {
+            if s.observe(&l, 0, k, &active, &z, false) == 1 {
                 raised = Some(k);
                 break;
             }
@@ -282,16 +311,6 @@ mod tests {
         assert!(k < 60, "raised at step {k}");
         assert_eq!(s.statistic, 0.0);
 
-        let mut s = AdaptationState::new(3);
-        let mut path = vec![0];
-        for k in 1..=100u64 {
-            let level = s.observe(&l, *path.last().unwrap(), k, &active, &[0.0; 3], true);
-            if level != *path.last().unwrap() {
-                path.push(level);
-                assert_eq!(k % 20, 0, "a change after exactly `hold` calm steps");
-            }
-        }
-        assert_eq!(path, vec![0, 2, 3]);
         // Not told: the calm steps lower nothing below the designed σ; from above it, one.
         let mut s = AdaptationState::new(3);
         for k in 1..=100u64 {
@@ -301,7 +320,11 @@ mod tests {
         let mut level = s.observe(&l, 0, 1, &active, &[9.0; 3], false);
         assert_eq!(level, 1);
         for k in 2..=100u64 {
-            level = s.observe(&l, level, k, &active, &[0.0; 3], false);
+            let next = s.observe(&l, level, k, &active, &[0.0; 3], false);
+            if next != level {
+                assert_eq!(k % 20, 1, "a change after exactly `hold` calm steps");
+            }
+            level = next;
         }
         assert_eq!(level, 0);
 
@@ -315,5 +338,63 @@ mod tests {
         let before = s.clone();
         s.observe(&l, 0, 1, &active, &[f64::NAN; 3], true);
         assert_eq!(s, before);
+    }
+
+    /// Every load told from the first update, every channel measured every step: the lowest
+    /// level at once (the force states carry only the model's error); a bias still raises, and
+    /// calm checks come down one level each. With sparser markers, told loads come down one
+    /// level per `hold` calm steps from the designed σ.
+    #[test]
+    fn told_loads_start_at_the_lowest_level_with_markers_every_step() {
+        let l = levels(20);
+        let active = [0u32, 1, 2];
+        let mut s = AdaptationState::new(3);
+        assert_eq!(s.observe(&l, 0, 1, &active, &[0.0; 3], true), 3);
+        let mut level = 3;
+        for k in 2..=100u64 {
+            level = s.observe(&l, level, k, &active, &[0.0; 3], true);
+            assert_eq!(level, 3, "step {k}");
+        }
+        // Raised twice by a bias (3 → 2 → 0), then calm: down one level per `hold`.
+        let mut path = vec![level];
+        let mut k = 100;
+        while level != 0 {
+            k += 1;
+            level = s.observe(&l, level, k, &active, &[9.0; 3], true);
+            if level != *path.last().unwrap() {
+                path.push(level);
+            }
+            assert!(k < 200, "a 9 σ bias raises");
+        }
+        let raised_at = k;
+        for k in raised_at + 1..=raised_at + 60 {
+            let next = s.observe(&l, level, k, &active, &[0.0; 3], true);
+            if next != level {
+                assert_eq!(
+                    (k - raised_at) % 20,
+                    0,
+                    "a change after exactly `hold` calm steps"
+                );
+                path.push(next);
+            }
+            level = next;
+        }
+        assert_eq!(path, vec![3, 2, 0, 2, 3]);
+        // reset: the first told update goes there again.
+        s.reset();
+        assert_eq!(s.observe(&l, 0, 1, &active, &[0.0; 3], true), 3);
+
+        // Sparser markers: one level per `hold` calm steps, from the designed σ.
+        let l = levels_at(20, false);
+        let mut s = AdaptationState::new(3);
+        let mut path = vec![0];
+        for k in 1..=100u64 {
+            let level = s.observe(&l, *path.last().unwrap(), k, &active, &[0.0; 3], true);
+            if level != *path.last().unwrap() {
+                path.push(level);
+                assert_eq!(k % 20, 0, "a change after exactly `hold` calm steps");
+            }
+        }
+        assert_eq!(path, vec![0, 2, 3]);
     }
 }
