@@ -187,8 +187,8 @@ def test_refusals_raise_identify_error_and_write_nothing(beam):
 
 def test_the_force_level_is_reported_and_can_be_held(beam, cantilever_path):
     """The beam's tier stores force-sigma levels: a new estimator is at the designed sigma; with
-    the load told and markers equal to its own estimates (zero innovations) it steps down one
-    level per window; with the load not told it stays at the designed sigma; held, it is back at
+    the load told and markers equal to its own estimates (zero innovations) it goes below the
+    designed sigma; with the load not told it stays at the designed sigma; held, it is back at
     the designed sigma and stays there. A model with one level reports None."""
     model = crokf.Model.load(beam / "model.crokf")
     est = crokf.Estimator(model)
