@@ -59,38 +59,38 @@ impl Isa {
         Isa(Path::Portable)
     }
 
+    /// AVX2 + FMA, where the CPU has them.
+    pub fn avx2() -> Option<Self> {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            return Some(Isa(Path::Avx2));
+        }
+        None
+    }
+
+    /// AVX-512F, where the CPU has it (it implies AVX2 and FMA).
+    pub fn avx512() -> Option<Self> {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            return Some(Isa(Path::Avx512));
+        }
+        None
+    }
+
     /// Every path this CPU runs, portable first, the fastest last.
     pub fn available() -> Vec<Self> {
-        #[allow(unused_mut)]
-        let mut paths = vec![Isa(Path::Portable)];
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-            {
-                paths.push(Isa(Path::Avx2));
-            }
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                paths.push(Isa(Path::Avx512));
-            }
-        }
-        paths
+        std::iter::once(Isa::portable())
+            .chain(Isa::avx2())
+            .chain(Isa::avx512())
+            .collect()
     }
 
     /// The fastest path this CPU runs (AVX-512, else AVX2 + FMA, else portable).
     pub fn best() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                return Isa(Path::Avx512);
-            }
-            if std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-            {
-                return Isa(Path::Avx2);
-            }
-        }
-        Isa(Path::Portable)
+        Isa::avx512()
+            .or_else(Isa::avx2)
+            .unwrap_or_else(Isa::portable)
     }
 
     /// "portable", "avx2" or "avx512".
