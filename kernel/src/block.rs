@@ -520,6 +520,7 @@ fn block_force<S: Simd>(
     let mut u = [zero; 12];
     let mut v = [zero; 12];
     let columns = &block[COLUMNS * LANES..(COLUMNS + 12 * r) * LANES];
+    const { assert!(12 % S::GATHER_ROWS == 0 && 12 % S::SCATTER_ROWS == 0) };
     let rows = S::GATHER_ROWS;
     for first in (0..12).step_by(rows) {
         let mut uc = [zero; 12];
@@ -866,6 +867,8 @@ mod tests {
                 want.iter_mut().zip(&one).for_each(|(w, o)| *w += o);
             }
             let mut scratch = vec![0.0; blocks.scratch_len()];
+            // The fused paths (AVX2, AVX-512) run the same operations in the same order.
+            let mut fused: Option<(Vec<f64>, Vec<Mat3>)> = None;
             for isa in Isa::available() {
                 let (path, portable) = (isa.name(), isa == Isa::portable());
                 let mut out = vec![0.0; r];
@@ -875,7 +878,16 @@ mod tests {
                     .unwrap();
                 if portable {
                     assert_eq!(rot, want_rot, "rotations");
+                } else if let Some((first_out, first_rot)) = &fused {
+                    assert_eq!(
+                        (first_out, first_rot),
+                        (&out, &rot),
+                        "{path} against the other fused path"
+                    );
                 } else {
+                    fused = Some((out.clone(), rot.clone()));
+                }
+                if !portable {
                     let off = rot
                         .iter()
                         .flatten()
