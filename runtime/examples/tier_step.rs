@@ -13,6 +13,7 @@
 //! in alternating rounds so that the paths share clock and cache. Times are this thread's CPU
 //! time (the machine is shared).
 
+use crokf_formats::synthetic::SplitMix64;
 use crokf_runtime::{load_model, Estimator};
 
 /// This thread's CPU time, s (Linux `clock_gettime(CLOCK_THREAD_CPUTIME_ID)`): on a shared
@@ -44,24 +45,6 @@ struct Elapsed(f64);
 impl Elapsed {
     fn as_secs_f64(&self) -> f64 {
         self.0
-    }
-}
-
-/// Standard normal draws (xorshift64* and Box–Muller; a fixed seed: the same draw every run).
-struct Normal(u64);
-impl Normal {
-    fn new(seed: u64) -> Self {
-        Normal(seed.max(1))
-    }
-    fn uniform(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        ((self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-    fn next(&mut self) -> f64 {
-        let (a, b) = (self.uniform(), self.uniform());
-        (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
     }
 }
 
@@ -149,7 +132,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // mean counts the tangent refreshes at their rate, as `crokf-verify report` does).
     let mut noisy = Estimator::new(&model)?;
     let mut reference = Estimator::new(&model)?;
-    let mut rng = Normal::new(0x5eed);
+    let mut rng = SplitMix64(0x5eed);
     let (mut noisy_times, mut noisy_iterations, mut noisy_refreshes) =
         (Vec::with_capacity(steps), 0usize, 0usize);
     for k in 0..steps {
@@ -161,7 +144,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .zip(&estimates)
             .zip(&model.kalman.measurement_variance)
         {
-            *yi = Some(*e + v.sqrt() * rng.next());
+            *yi = Some(*e + v.sqrt() * rng.normal());
         }
         let clock = Instant::now();
         noisy.step(&u, &y)?;

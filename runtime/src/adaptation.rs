@@ -16,8 +16,9 @@
 //! every step, the level goes to the lowest at once: σ above it would let the markers' noise
 //! into the force states, and a random walk of low σ sheds that only slowly. With sparser
 //! markers the model runs alone between them, and the lowest σ did not cover its error there
-//! (docs/design.md §11.10). After a change e restarts at 0. The compiler chose a_j and the thresholds; the runtime only counts. The state
-//! is allocated once and changed only after a successful update.
+//! (docs/design.md §11.10). After a change e restarts at 0. The compiler chose a_j and the
+//! thresholds; the runtime only counts. The state is allocated once and changed only after a
+//! successful update.
 
 use crokf_formats::{CorotationalTier, ForceAdaptation};
 
@@ -215,12 +216,11 @@ impl AdaptationState {
             }
         }
         self.statistic = sum / count.max(1) as f64;
-        let lowest = (level != levels.lowest).then_some(levels.lowest);
         let next = if self.statistic > levels.raise_above {
             levels.up[level]
         } else if told && !self.moved && levels.every_step {
             // Every load told from the start: the force states carry only the model's error.
-            lowest
+            (level != levels.lowest).then_some(levels.lowest)
         } else if step.saturating_sub(self.settled_since) >= levels.hold {
             // One window since the last change or check: T now summarises it.
             self.settled_since = step;

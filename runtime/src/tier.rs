@@ -247,7 +247,8 @@ impl TierState {
             self.acc[i] = w.a0 * du - w.a1 * v[i] - 2.0 * a[i];
             self.vel[i] = w.a2 * du - 2.0 * v[i] - 0.5 * w.tau * a[i];
         }
-        match model.blocks.reduced_force(
+        match model.blocks.reduced_force_on(
+            model.isa,
             &self.q_hat,
             &self.vel,
             model.beta,
@@ -285,9 +286,13 @@ impl TierState {
             self.jac[i] = c_m * model.mass[i];
         }
         let scale = 1.0 + w.a2 * model.beta;
-        model
-            .blocks
-            .add_warped_tangent(&self.rotations, scale, &mut self.jac, &mut self.scratch);
+        model.blocks.add_warped_tangent_on(
+            model.isa,
+            &self.rotations,
+            scale,
+            &mut self.jac,
+            &mut self.scratch,
+        );
         kernel::cholesky(&mut self.jac, r)
             .map_err(|pivot| TierError::NotPositiveDefinite { step, pivot })?;
         self.has_factor = true;

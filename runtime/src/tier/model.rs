@@ -14,6 +14,9 @@ pub struct TierModel {
     pub(super) r: usize,
     /// The sampled elements packed by 8 ([`kernel::Blocks`]): the force and the tangent.
     pub(super) blocks: kernel::Blocks,
+    /// The kernel path the force and the tangent run on ([`kernel::Isa::best`], detected once
+    /// at load rather than at every Newton iteration).
+    pub(super) isa: kernel::Isa,
     /// M_r (r × r, row-major, symmetrised at load).
     pub(super) mass: Vec<f64>,
     pub(super) alpha: f64,
@@ -197,6 +200,7 @@ impl TierModel {
         TierModel {
             r,
             blocks,
+            isa: kernel::Isa::best(),
             // Symmetrised once (the stored M_r is symmetric to round-off; the blocked tangent
             // is symmetric by construction and the Cholesky factor reads the lower triangle).
             mass: {
@@ -341,7 +345,7 @@ impl TierModel {
         scratch: &mut [f64],
     ) -> Result<(), usize> {
         self.blocks
-            .reduced_force(q, velocity, self.beta, out, rotations, scratch)
+            .reduced_force_on(self.isa, q, velocity, self.beta, out, rotations, scratch)
             .map_err(|(e, _)| e)
     }
 
