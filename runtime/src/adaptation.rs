@@ -12,13 +12,15 @@
 //! check, T is compared with `lower_below`, and below it σ goes one level down: below the
 //! designed σ only while every estimated load is told (a load that is given leaves the force
 //! states only the model's error; one that is withheld and slower than stated would lag a
-//! lower σ before T could show it). Told from the first update on, with every channel measured
-//! every step, the level goes to the lowest at once: σ above it would let the markers' noise
-//! into the force states, and a random walk of low σ sheds that only slowly. With sparser
+//! lower σ before T could show it). Told from the first prediction on, with every channel
+//! measured every step, the level goes to the lowest at once, before that prediction's update
+//! ([`AdaptationState::told_start`]): σ above it would let the markers' noise into the force
+//! states, and a random walk of low σ sheds that only slowly. With sparser
 //! markers the model runs alone between them, and the lowest σ did not cover its error there
 //! (docs/design.md §11.10). After a change e restarts at 0. The compiler chose a_j and the
 //! thresholds; the runtime only counts. The state is allocated once and changed only after a
-//! successful update.
+//! successful update or, for the start at the lowest level, a successful prediction (which a
+//! failed step rolls back with it).
 
 use crokf_formats::{CorotationalTier, ForceAdaptation};
 
@@ -175,12 +177,38 @@ impl AdaptationState {
         self.reset();
     }
 
+    /// At level `level`, after a successful prediction and before its update: the lowest level
+    /// when every estimated load is `told`, every channel is measured every step and the level
+    /// has not moved since the reset, so that no update at a higher σ lets the markers' noise
+    /// into the force states (module docs); else None. Changes nothing: the caller moves with
+    /// [`AdaptationState::moved_at`].
+    pub fn told_start(&self, levels: &Levels, level: usize, told: bool) -> Option<usize> {
+        (self.enabled && told && !self.moved && levels.every_step && level != levels.lowest)
+            .then_some(levels.lowest)
+    }
+
+    /// The level changed at step `step` other than by [`AdaptationState::observe`]
+    /// ([`AdaptationState::told_start`]): the statistic restarts.
+    pub fn moved_at(&mut self, step: u64) {
+        self.restart(step);
+        self.moved = true;
+    }
+
+    /// `self` becomes a copy of `other` (same channel count) without allocating.
+    pub fn copy_from(&mut self, other: &AdaptationState) {
+        self.mean.copy_from_slice(&other.mean);
+        self.decay.copy_from_slice(&other.decay);
+        self.statistic = other.statistic;
+        self.settled_since = other.settled_since;
+        self.moved = other.moved;
+        self.enabled = other.enabled;
+    }
+
     /// After a successful update at step `step` made at level `level`: the whitened
     /// innovations `z[a]` of the phase's active channels `active[a]` (NaN: no value) enter the
     /// statistic, and the level moves (module docs): up or down one level, below the designed
-    /// σ only when `told` (every estimated load was given a value this step), or, told at the
-    /// first update since the reset with every channel measured every step, to the lowest
-    /// level. Returns the level for the next step.
+    /// σ only when `told` (every estimated load was given a value this step). Returns the level
+    /// for the next step.
     pub fn observe(
         &mut self,
         levels: &Levels,
@@ -218,9 +246,6 @@ impl AdaptationState {
         self.statistic = sum / count.max(1) as f64;
         let next = if self.statistic > levels.raise_above {
             levels.up[level]
-        } else if told && !self.moved && levels.every_step {
-            // Every load told from the start: the force states carry only the model's error.
-            (level != levels.lowest).then_some(levels.lowest)
         } else if step.saturating_sub(self.settled_since) >= levels.hold {
             // One window since the last change or check: T now summarises it.
             self.settled_since = step;
@@ -340,16 +365,23 @@ mod tests {
         assert_eq!(s, before);
     }
 
-    /// Every load told from the first update, every channel measured every step: the lowest
-    /// level at once (the force states carry only the model's error); a bias still raises, and
-    /// calm checks come down one level each. With sparser markers, told loads come down one
-    /// level per `hold` calm steps from the designed σ.
+    /// Every load told from the first prediction, every channel measured every step: the
+    /// lowest level before the first update (the force states carry only the model's error);
+    /// not told, or after the level has moved, nothing; a bias still raises, and calm checks
+    /// come down one level each. With sparser markers, told loads come down one level per
+    /// `hold` calm steps from the designed σ.
     #[test]
     fn told_loads_start_at_the_lowest_level_with_markers_every_step() {
         let l = levels(20);
         let active = [0u32, 1, 2];
         let mut s = AdaptationState::new(3);
-        assert_eq!(s.observe(&l, 0, 1, &active, &[0.0; 3], true), 3);
+        assert_eq!(s.told_start(&l, 0, false), None);
+        assert_eq!(s.observe(&l, 0, 1, &active, &[0.0; 3], false), 0);
+        let mut s = AdaptationState::new(3);
+        assert_eq!(s.told_start(&l, 0, true), Some(3));
+        s.moved_at(1);
+        assert_eq!(s.told_start(&l, 3, true), None);
+        assert_eq!(s.observe(&l, 3, 1, &active, &[0.0; 3], true), 3);
         let mut level = 3;
         for k in 2..=100u64 {
             level = s.observe(&l, level, k, &active, &[0.0; 3], true);
@@ -380,13 +412,23 @@ mod tests {
             level = next;
         }
         assert_eq!(path, vec![3, 2, 0, 2, 3]);
-        // reset: the first told update goes there again.
+        // Moved since the reset: told predictions leave the level to the statistic.
+        assert_eq!(s.told_start(&l, 2, true), None);
+        // reset: the first told prediction goes there again; adaptation off: never.
         s.reset();
-        assert_eq!(s.observe(&l, 0, 1, &active, &[0.0; 3], true), 3);
+        assert_eq!(s.told_start(&l, 0, true), Some(3));
+        s.set_enabled(false);
+        assert_eq!(s.told_start(&l, 0, true), None);
+        // A copy restores everything.
+        let mut copy = AdaptationState::new(3);
+        copy.copy_from(&s);
+        assert_eq!(copy, s);
 
         // Sparser markers: one level per `hold` calm steps, from the designed σ.
         let l = levels_at(20, false);
-        let mut s = AdaptationState::new(3);
+        let s = AdaptationState::new(3);
+        assert_eq!(s.told_start(&l, 0, true), None);
+        let mut s = s;
         let mut path = vec![0];
         for k in 1..=100u64 {
             let level = s.observe(&l, *path.last().unwrap(), k, &active, &[0.0; 3], true);

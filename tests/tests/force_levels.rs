@@ -205,8 +205,8 @@ fn rms(v: &[f64]) -> f64 {
 }
 
 /// With the load given, the force states only absorb what the input does not explain: the
-/// level goes to the smallest σ at the first update that is told the load (markers every
-/// step) and the innovations, white and small, keep it there (at least 3/4 of the steps: a
+/// level goes to the smallest σ at the first prediction that is told the load, before its
+/// update (markers every step) and the innovations, white and small, keep it there (at least 3/4 of the steps: a
 /// raise comes back down one `hold` later); the tip follows the truth closer
 /// than with the designed σ alone (the markers' noise lets less in). With the load withheld,
 /// the level stays at or above the designed σ.
@@ -228,7 +228,7 @@ fn the_level_falls_while_the_load_is_given_and_not_below_the_designed_sigma_when
         let (e, f) = run(model, steps, load, true, true, seed);
         assert_eq!(f.last(), Some(&0.0625), "seed {seed}: levels {f:?}");
         // The ramp is told from step 2 on (steps count from 1; step 1 holds u = 0): the
-        // smallest level from there, kept to the end.
+        // smallest level from that step's update on, kept to the end.
         let first_low = 1 + f.iter().position(|&x| x == 0.0625).unwrap();
         eprintln!("seed {seed}, load given: smallest level from step {first_low}");
         assert_eq!(first_low, 2, "seed {seed}: levels {f:?}");
@@ -276,7 +276,7 @@ fn the_level_falls_while_the_load_is_given_and_not_below_the_designed_sigma_when
 }
 
 /// Off, the estimator is the one-level filter of the same compile bit for bit; a failing step
-/// leaves the level and its statistic as they were.
+/// leaves the level and its statistic as they were, also one whose prediction moved the level.
 #[test]
 fn off_is_the_one_level_filter_and_a_failed_step_changes_no_level() {
     let model = compiled();
@@ -317,6 +317,33 @@ fn off_is_the_one_level_filter_and_a_failed_step_changes_no_level() {
         on.state().iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
         state
     );
+    // A told prediction moves a fresh estimator to the lowest level before its update; when
+    // that update fails (here its gains, edited to 1e308, overflow), the step is rolled back
+    // with its level.
+    let mut overflowing = model.clone();
+    let lowest = overflowing
+        .tier
+        .as_mut()
+        .unwrap()
+        .force_levels
+        .last_mut()
+        .unwrap();
+    assert_eq!(lowest.factor, 0.0625);
+    for k in std::iter::once(&mut lowest.kalman).chain(lowest.scheduled.iter_mut()) {
+        for phase in &mut k.phases {
+            phase.gain.data.iter_mut().for_each(|g| *g = 1e308);
+        }
+    }
+    let mut fresh = Estimator::new(&overflowing).unwrap();
+    fresh.set_innovation_gate(None);
+    let untouched = fresh.force_level();
+    u[zi] = 5.0;
+    let e = fresh.step(&u, &vec![Some(5.0); q]).unwrap_err();
+    assert!(e.to_string().contains("update"), "{e}");
+    assert_eq!(fresh.force_level(), untouched);
+    assert!(fresh.state().iter().all(|v| v.to_bits() == 0));
+    fresh.step(&u, &vec![Some(0.0); q]).unwrap();
+    assert_eq!(fresh.force_level().unwrap().factor, 0.0625);
     // The C ABI: the level of a new estimator (the designed σ), pinned or not; a model with
     // one level reports none; a NULL handle -1.
     use crokf_runtime::capi::*;

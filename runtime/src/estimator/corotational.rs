@@ -26,6 +26,11 @@ pub(crate) struct CorotationalStep {
     whitened: Vec<f64>,
     /// Whether every estimated load had a nonzero input at the last prediction.
     told: bool,
+    /// The level and the statistic before the last prediction, when that prediction moved the
+    /// level ([`AdaptationState::told_start`]; restored by `rollback`).
+    before_prediction: Option<(usize, AdaptationState)>,
+    /// Whether the last prediction moved the level.
+    prediction_moved: bool,
 }
 
 impl CorotationalStep {
@@ -40,6 +45,10 @@ impl CorotationalStep {
                 .map(|_| AdaptationState::new(tier.channel_count())),
             whitened: vec![f64::NAN; tier.max_measured()],
             told: false,
+            before_prediction: tier
+                .levels()
+                .map(|_| (0, AdaptationState::new(tier.channel_count()))),
+            prediction_moved: false,
         }
     }
 
@@ -108,6 +117,7 @@ impl TierStep for CorotationalStep {
         if let Some(a) = self.adaptation.as_mut() {
             a.reset();
         }
+        self.prediction_moved = false;
     }
 
     fn period(&self, shared: &PreparedModel) -> u64 {
@@ -128,6 +138,20 @@ impl TierStep for CorotationalStep {
         let tm = tier(shared);
         self.status = self.state.step(tm, inputs, step)?;
         self.told = tm.loads_told(inputs);
+        self.prediction_moved = false;
+        if let (Some(levels), Some(adaptation), Some(before)) = (
+            tm.levels(),
+            self.adaptation.as_mut(),
+            self.before_prediction.as_mut(),
+        ) {
+            if let Some(level) = adaptation.told_start(levels, self.state.level, self.told) {
+                before.0 = self.state.level;
+                before.1.copy_from(adaptation);
+                adaptation.moved_at(step);
+                self.state.level = level;
+                self.prediction_moved = true;
+            }
+        }
         Ok(())
     }
 
@@ -174,6 +198,15 @@ impl TierStep for CorotationalStep {
 
     fn rollback(&mut self, _shared: &PreparedModel) {
         self.state.rollback();
+        if self.prediction_moved {
+            if let (Some(adaptation), Some((level, before))) =
+                (self.adaptation.as_mut(), self.before_prediction.as_ref())
+            {
+                adaptation.copy_from(before);
+                self.state.level = *level;
+            }
+            self.prediction_moved = false;
+        }
     }
 
     /// V_s q.
@@ -228,6 +261,7 @@ impl TierStep for CorotationalStep {
         if let Some(a) = self.adaptation.as_mut() {
             a.set_enabled(on);
             self.state.level = 0;
+            self.prediction_moved = false;
         }
     }
 }
