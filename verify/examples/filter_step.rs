@@ -1,6 +1,7 @@
 //! Per-step cost of the filter with and without the random-walk force states (issue 12,
 //! docs/design.md §11): for each scene, the model at the scene's order with its force model
-//! (`random_walk`: r + 3 states) and the same scene with `force_model = "white"` (r states),
+//! (`random_walk`, the default: r + 3 states) and the same scene with every load's `force_model
+//! = "white"` (r states),
 //! timed back to back in alternation, predict + update with every marker, median of batches.
 //!
 //! ```sh
@@ -30,9 +31,18 @@ fn step_time(model: &crokf_formats::Model, batch: usize, samples: usize) -> f64 
     }) / batch as f64
 }
 
+/// The scene with every load told (`force_model = "white"`; the estimated loads' `rise_time`
+/// and `force_rate_noise_std` dropped, which a white load refuses), next to it.
 fn white_copy(scene: &Path) -> Result<PathBuf, Box<dyn std::error::Error>> {
-    let text = std::fs::read_to_string(scene)?;
-    let white = text.replace("force_model = \"random_walk\"", "force_model = \"white\"");
+    let mut table: toml::Table = std::fs::read_to_string(scene)?.parse()?;
+    if let Some(toml::Value::Array(loads)) = table.get_mut("load") {
+        for load in loads.iter_mut().filter_map(toml::Value::as_table_mut) {
+            load.insert("force_model".into(), "white".into());
+            load.remove("rise_time");
+            load.remove("force_rate_noise_std");
+        }
+    }
+    let white = toml::to_string(&table)?;
     let dir = scene.parent().ok_or("scene without a folder")?;
     let path = dir.join(format!(".filter_step_white_{}.toml", std::process::id()));
     std::fs::write(&path, white)?;
