@@ -43,7 +43,8 @@
 //! Measuring aids (environment): `CROKF_REFERENCE_CACHE=FILE` keeps the reference run in FILE
 //! (written once, read while the step count matches: use one file per scene and scenario);
 //! `CROKF_RUNS=open,given,withheld` runs only those; `CROKF_NO_MODEL_ERROR=1` recomputes a
-//! `FILE@SCENE2` filter without the tier's model-error noise (docs/design.md §11.9); `CROKF_NOISE_SCALE=c` scales the markers'
+//! `FILE@SCENE2` filter without the tier's model-error noise (docs/design.md §11.9),
+//! `CROKF_MODEL_ERROR_SCALE=c` with that noise's measured covariance × c; `CROKF_NOISE_SCALE=c` scales the markers'
 //! noise (0: noise-free, the filter unchanged); `CROKF_NO_SCHEDULE=1` drops the tier's gain
 //! schedule (the filter designed at rest only, docs/design.md §11.5); `CROKF_TRACE=1` prints
 //! ‖q‖, ‖q̇‖, ‖q̈‖ and f before and after every update, and the schedule's filter that made
@@ -549,6 +550,16 @@ fn read_model(arg: &str) -> Result<crokf_formats::Model, Box<dyn std::error::Err
     if std::env::var_os("CROKF_NO_MODEL_ERROR").is_some() {
         if let Some(t) = model.tier.as_mut() {
             t.model_error = crokf_formats::Matrix::default();
+        }
+    }
+    if let Ok(v) = std::env::var("CROKF_MODEL_ERROR_SCALE") {
+        let c: f64 = v
+            .parse()
+            .map_err(|_| format!("CROKF_MODEL_ERROR_SCALE={v}: not a number"))?;
+        if let Some(t) = model.tier.as_mut() {
+            for x in t.model_error.data.iter_mut() {
+                *x *= c;
+            }
         }
     }
     let rho = crokf_compile::model_file::tier::refilter(&full, &mut model)?;
