@@ -15,9 +15,9 @@
 //! lower σ before T could show it). Told from the first prediction on, with every channel
 //! measured every step, the level goes to the lowest at once, before that prediction's update
 //! ([`AdaptationState::told_start`]): σ above it would let the markers' noise into the force
-//! states, and a random walk of low σ sheds that only slowly. With sparser
-//! markers the model runs alone between them, and the lowest σ did not cover its error there
-//! (docs/design.md §11.10). After a change e restarts at 0. The compiler chose a_j and the
+//! states, and a random walk of low σ sheds that only slowly. With sparser markers the model
+//! runs alone between them, and the lowest σ did not cover its error there (docs/design.md
+//! §11.10). After a change e restarts at 0. The compiler chose a_j and the
 //! thresholds; the runtime only counts. The state is allocated once and changed only after a
 //! successful update or, for the start at the lowest level, a successful prediction (which a
 //! failed step rolls back with it).
@@ -426,9 +426,8 @@ mod tests {
 
         // Sparser markers: one level per `hold` calm steps, from the designed σ.
         let l = levels_at(20, false);
-        let s = AdaptationState::new(3);
+        let mut s = AdaptationState::new(3);
         assert_eq!(s.told_start(&l, 0, true), None);
-        let mut s = s;
         let mut path = vec![0];
         for k in 1..=100u64 {
             let level = s.observe(&l, *path.last().unwrap(), k, &active, &[0.0; 3], true);

@@ -206,10 +206,10 @@ fn rms(v: &[f64]) -> f64 {
 
 /// With the load given, the force states only absorb what the input does not explain: the
 /// level goes to the smallest σ at the first prediction that is told the load, before its
-/// update (markers every step) and the innovations, white and small, keep it there (at least 3/4 of the steps: a
-/// raise comes back down one `hold` later); the tip follows the truth closer
-/// than with the designed σ alone (the markers' noise lets less in). With the load withheld,
-/// the level stays at or above the designed σ.
+/// update (markers every step), and the innovations, white and small, keep it there (at least
+/// 3/4 of the steps: a raise comes back down one `hold` later); the tip follows the truth
+/// closer than with the designed σ alone (the markers' noise lets less in). With the load
+/// withheld, the level stays at or above the designed σ.
 #[test]
 fn the_level_falls_while_the_load_is_given_and_not_below_the_designed_sigma_when_withheld() {
     let model = compiled();
