@@ -44,8 +44,8 @@
 //! (written once, read while the step count matches: use one file per scene and scenario);
 //! `CROKF_RUNS=open,given,withheld` runs only those; `CROKF_NO_MODEL_ERROR=1` recomputes a
 //! `FILE@SCENE2` filter without the tier's model-error noise (docs/design.md §11.9),
-//! `CROKF_MODEL_ERROR_SCALE=c` with that noise's measured covariance × c; `CROKF_NOISE_SCALE=c` scales the markers'
-//! noise (0: noise-free, the filter unchanged); `CROKF_NO_SCHEDULE=1` drops the tier's gain
+//! `CROKF_MODEL_ERROR_SCALE=c` with that noise's measured covariance × c;
+//! `CROKF_NOISE_SCALE=c` scales the markers' noise (0: noise-free, the filter unchanged); `CROKF_NO_SCHEDULE=1` drops the tier's gain
 //! schedule (the filter designed at rest only, docs/design.md §11.5); `CROKF_TRACE=1` prints
 //! ‖q‖, ‖q̇‖, ‖q̈‖ and f before and after every update, and the schedule's filter that made
 //! the update, on stderr; `CROKF_MARKER_PHASE=o` makes
@@ -53,8 +53,12 @@
 //! `CROKF_ERROR_TRACE=1` prints each step's error and reference norm over the displayed nodes,
 //! the phase and the tier's force states on stderr (lines starting `ERR`);
 //! `CROKF_HOLD_FORCE_SIGMA=1` holds the tier's force σ at its designed level (no levels,
-//! docs/design.md §11.10: `Estimator::set_force_adaptation(false)`).
+//! docs/design.md §11.10: `Estimator::set_force_adaptation(false)`);
+//! `CROKF_MARKER_LOST=SENSOR:FROM:STEPS` drops that sensor's values for those records (a
+//! marker lost) and, with `--seeds`, adds a table of the consistency before, during and after
+//! the loss.
 
+use std::ops::Range;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -245,8 +249,52 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             .collect();
         print!("{}", segment_table("model | run", &rows));
     }
+    if let Some((sensor, lost)) = marker_lost(ops.sensors.iter().map(|s| s.name.as_str()))? {
+        if seeds > 1 {
+            lost_marker_table(&advised, &ops.sensors[sensor].name, lost, seeds);
+        }
+    }
     print_advice(&advised, &cuts, &scenario, seeds)?;
     Ok(())
+}
+
+/// `CROKF_MARKER_LOST`: per filtered run, the N-run NIS and tip NEES fractions below / inside /
+/// above their bounds and the 2σ coverage over the records before the loss (as many as it
+/// lasts), while the marker is lost, and after it (as many again).
+fn lost_marker_table(advised: &[Advised], name: &str, lost: Range<usize>, seeds: u64) {
+    let n = lost.len();
+    let windows = [
+        ("before", lost.start.saturating_sub(n)..lost.start),
+        ("lost", lost.clone()),
+        ("after", lost.end..lost.end + n),
+    ];
+    println!(
+        "\nMarker '{name}' lost for records {} … {} ({n} steps): {seeds}-run NIS and tip NEES \
+         below / inside / above their 95 % bounds, 2σ coverage\n",
+        lost.start,
+        lost.end.saturating_sub(1)
+    );
+    println!("| model | run | window | steps | NIS % below / inside / above | tip NEES % below / inside / above | 2σ coverage |\n|---|---|---|---:|---|---|---:|");
+    let pct = |f: &crokf_verify::comparison::StepFractions| {
+        format!(
+            "{:.1} / {:.1} / {:.1}",
+            100.0 * f.below,
+            100.0 * f.inside,
+            100.0 * f.above
+        )
+    };
+    for (label, _, e, _) in advised {
+        for (what, w) in &windows {
+            let nees = e.nees_tip.fractions_in(w.clone());
+            println!(
+                "| {label} | {what} | {} | {} | {} | {:.1} % |",
+                nees.steps,
+                pct(&e.nis.fractions_in(w.clone())),
+                pct(&nees),
+                100.0 * e.coverage_in(w.clone())
+            );
+        }
+    }
 }
 
 /// A filtered run for the advice: label, tier, its ensemble over the seeds (or of its one run),
@@ -315,6 +363,31 @@ fn noise_scale() -> Result<f64, String> {
             .map_err(|_| format!("CROKF_NOISE_SCALE={v}: not a number")),
         Err(_) => Ok(1.0),
     }
+}
+
+/// `CROKF_MARKER_LOST=SENSOR:FROM:STEPS` (a measuring aid, docs/verification.md, a lost
+/// marker): the scene sensor SENSOR gives no value for records FROM … FROM + STEPS − 1; None
+/// unset.
+/// `names`: the sensors in the model's order (the scene's).
+fn marker_lost<'a>(
+    mut names: impl Iterator<Item = &'a str>,
+) -> Result<Option<(usize, Range<usize>)>, String> {
+    let Ok(v) = std::env::var("CROKF_MARKER_LOST") else {
+        return Ok(None);
+    };
+    let bad = || format!("CROKF_MARKER_LOST={v}: expected SENSOR:FROM:STEPS");
+    let mut parts = v.split(':');
+    let (Some(name), Some(from), Some(count), None) =
+        (parts.next(), parts.next(), parts.next(), parts.next())
+    else {
+        return Err(bad());
+    };
+    let sensor = names
+        .position(|s| s == name)
+        .ok_or_else(|| format!("CROKF_MARKER_LOST={v}: the scene has no sensor '{name}'"))?;
+    let from: usize = from.parse().map_err(|_| bad())?;
+    let count: usize = count.parse().map_err(|_| bad())?;
+    Ok(Some((sensor, from..from.saturating_add(count))))
 }
 
 /// `--imm P` (a measuring prototype, docs/design.md §11.5–11.6): the two MODEL files (the same
@@ -618,6 +691,8 @@ struct Drive<'a> {
     zeroed: Vec<bool>,
     /// Per measurement channel: its index in a step's sensor row (3 per sensor) and noise σ.
     channels: Vec<(usize, f64)>,
+    /// `CROKF_MARKER_LOST`: the lost sensor and the records without its values.
+    lost: Option<(usize, Range<usize>)>,
     rng: Gaussian,
 }
 
@@ -656,6 +731,7 @@ impl<'a> Drive<'a> {
                     )
                 })
                 .collect(),
+            lost: marker_lost(model.sensors.iter().map(|s| s.name.as_str()))?,
             rng: Gaussian::new(seed),
         })
     }
@@ -672,9 +748,18 @@ impl<'a> Drive<'a> {
     /// The markers of step k (every channel; the runtime uses those of its phase).
     fn markers(&mut self, k: usize) -> Vec<Option<f64>> {
         let row = &self.reference.sensors[k];
+        let lost = |at: usize| {
+            self.lost
+                .as_ref()
+                .is_some_and(|(s, when)| at / 3 == *s && when.contains(&k))
+        };
         self.channels
             .iter()
-            .map(|&(at, sigma)| Some(row[at] + sigma * self.rng.normal()))
+            .map(|&(at, sigma)| {
+                // Drawn for a lost channel too, so that the other channels' noise is the same.
+                let value = row[at] + sigma * self.rng.normal();
+                (!lost(at)).then_some(value)
+            })
             .collect()
     }
 }
