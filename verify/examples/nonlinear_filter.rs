@@ -45,8 +45,9 @@
 //! `CROKF_RUNS=open,given,withheld` runs only those; `CROKF_NO_MODEL_ERROR=1` recomputes a
 //! `FILE@SCENE2` filter without the tier's model-error noise (docs/design.md §11.9),
 //! `CROKF_MODEL_ERROR_SCALE=c` with that noise's measured covariance × c;
-//! `CROKF_NOISE_SCALE=c` scales the markers' noise (0: noise-free, the filter unchanged); `CROKF_NO_SCHEDULE=1` drops the tier's gain
-//! schedule (the filter designed at rest only, docs/design.md §11.5); `CROKF_TRACE=1` prints
+//! `CROKF_NOISE_SCALE=c` scales the markers' noise (0: noise-free, the filter unchanged);
+//! `CROKF_NO_SCHEDULE=1` drops the tier's gain schedule (the filter designed at rest only,
+//! docs/design.md §11.5); `CROKF_TRACE=1` prints
 //! ‖q‖, ‖q̇‖, ‖q̈‖ and f before and after every update, and the schedule's filter that made
 //! the update, on stderr; `CROKF_MARKER_PHASE=o` makes
 //! sparse markers arrive o steps earlier in their period (o predictions at rest first);
@@ -366,9 +367,8 @@ fn noise_scale() -> Result<f64, String> {
 }
 
 /// `CROKF_MARKER_LOST=SENSOR:FROM:STEPS` (a measuring aid, docs/verification.md, a lost
-/// marker): the scene sensor SENSOR gives no value for records FROM … FROM + STEPS − 1; None
-/// unset.
-/// `names`: the sensors in the model's order (the scene's).
+/// marker): the index of sensor SENSOR among `names` (the sensors in the model's order, which
+/// is the scene's) and the records FROM … FROM + STEPS − 1 without its values; None unset.
 fn marker_lost<'a>(
     mut names: impl Iterator<Item = &'a str>,
 ) -> Result<Option<(usize, Range<usize>)>, String> {
