@@ -37,7 +37,7 @@ const COLUMNS: usize = STIFFNESS + 144;
 
 /// An instruction set the blocked kernels run on, held only where this CPU has it: a value
 /// comes from [`Isa::best`], [`Isa::available`] or [`Isa::portable`], so passing one to
-/// [`Blocks::reduced_force_on`] or [`Blocks::add_warped_tangent_on`] is always safe. The
+/// [`Blocks::reduced_force`] or [`Blocks::add_warped_tangent`] is always safe. The
 /// plain methods use [`Isa::best`]; the `_on` forms let a benchmark or a test run each path
 /// on the same machine.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -194,24 +194,11 @@ impl Blocks {
 
     /// `out` (r) = Σₑ wₑ V_eᵀ Rₑ Kₑ (yₑ + β Rₑᵀ V_e q̇) at `q`, `velocity` (r each) over all
     /// elements (the sum of [`crate::add_reduced_force`] over them, to round-off: module
-    /// docs), `rotations[e]` = Rₑ; `scratch` of [`Blocks::scratch_len`]. On an element the
-    /// polar decomposition refuses, returns the first such element (index, cause), `out` and
-    /// `rotations` then unspecified. Runs on [`Isa::best`].
-    pub fn reduced_force(
-        &self,
-        q: &[f64],
-        velocity: &[f64],
-        beta: f64,
-        out: &mut [f64],
-        rotations: &mut [Mat3],
-        scratch: &mut [f64],
-    ) -> Result<(), (usize, PolarError)> {
-        self.reduced_force_on(Isa::best(), q, velocity, beta, out, rotations, scratch)
-    }
-
-    /// [`Blocks::reduced_force`] on the path `isa`.
+    /// docs), `rotations[e]` = Rₑ; `scratch` of [`Blocks::scratch_len`], on the path `isa`
+    /// (the fastest: [`Isa::best`]). On an element the polar decomposition refuses, returns the
+    /// first such element (index, cause), `out` and `rotations` then unspecified.
     #[allow(clippy::too_many_arguments)]
-    pub fn reduced_force_on(
+    pub fn reduced_force(
         &self,
         isa: Isa,
         q: &[f64],
@@ -255,20 +242,9 @@ impl Blocks {
     /// Adds `scale` · Σₑ wₑ V_eᵀ Rₑ Kₑ Rₑᵀ V_e to `out` (r×r row-major), both triangles with
     /// the same value (the sum of the scalar kernel's warped tangent over the elements, to
     /// round-off, symmetric by construction), with `rotations[e]` = Rₑ; `scratch` of
-    /// [`Blocks::tangent_scratch_len`]. Per block and lane: A = Rᵀ V_e, B = Kₑ A,
-    /// C = wₑ R B (12 × r), then the upper triangle of V_eᵀ C accumulated per lane.
+    /// [`Blocks::tangent_scratch_len`]; on the path `isa`. Per block and lane: A = Rᵀ V_e,
+    /// B = Kₑ A, C = wₑ R B (12 × r), then the upper triangle of V_eᵀ C accumulated per lane.
     pub fn add_warped_tangent(
-        &self,
-        rotations: &[Mat3],
-        scale: f64,
-        out: &mut [f64],
-        scratch: &mut [f64],
-    ) {
-        self.add_warped_tangent_on(Isa::best(), rotations, scale, out, scratch)
-    }
-
-    /// [`Blocks::add_warped_tangent`] on the path `isa`.
-    pub fn add_warped_tangent_on(
         &self,
         isa: Isa,
         rotations: &[Mat3],
@@ -874,7 +850,7 @@ mod tests {
                 let mut out = vec![0.0; r];
                 let mut rot = vec![[[0.0; 3]; 3]; n];
                 blocks
-                    .reduced_force_on(isa, &q, &velocity, beta, &mut out, &mut rot, &mut scratch)
+                    .reduced_force(isa, &q, &velocity, beta, &mut out, &mut rot, &mut scratch)
                     .unwrap();
                 if portable {
                     assert_eq!(rot, want_rot, "rotations");
@@ -937,7 +913,7 @@ mod tests {
             for isa in Isa::available() {
                 let path = isa.name();
                 let mut got = vec![1.0; r * r];
-                blocks.add_warped_tangent_on(isa, &rotations, scale, &mut got, &mut scratch);
+                blocks.add_warped_tangent(isa, &rotations, scale, &mut got, &mut scratch);
                 let mut worst: f64 = 0.0;
                 for i in 0..r {
                     for j in 0..r {
@@ -964,7 +940,15 @@ mod tests {
         let blocks = Blocks::new(&views);
         let mut scratch = vec![0.0; blocks.scratch_len()];
         let (mut out, mut rot) = (vec![0.0; 4], vec![[[0.0; 3]; 3]; 19]);
-        let got = blocks.reduced_force(&[0.0; 4], &[0.0; 4], 0.0, &mut out, &mut rot, &mut scratch);
+        let got = blocks.reduced_force(
+            Isa::best(),
+            &[0.0; 4],
+            &[0.0; 4],
+            0.0,
+            &mut out,
+            &mut rot,
+            &mut scratch,
+        );
         assert!(matches!(got, Err((12, PolarError::Inverted(_)))), "{got:?}");
     }
 }

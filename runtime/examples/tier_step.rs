@@ -232,7 +232,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let clock = Instant::now();
             for _ in 0..20 {
                 blocks
-                    .reduced_force_on(
+                    .reduced_force(
                         isa,
                         &s[..r],
                         &s[r..2 * r],
@@ -246,7 +246,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             force_times[i].push(clock.elapsed().as_secs_f64() / 20.0);
             let clock = Instant::now();
             for _ in 0..5 {
-                blocks.add_warped_tangent_on(
+                blocks.add_warped_tangent(
                     isa,
                     &rotations,
                     1.0,

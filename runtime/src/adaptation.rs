@@ -412,6 +412,11 @@ mod tests {
             level = next;
         }
         assert_eq!(path, vec![3, 2, 0, 2, 3]);
+        // A copy restores everything, here of a state moved and with a nonzero statistic.
+        s.observe(&l, level, k + 61, &active, &[1.0, -2.0, 0.5], true);
+        let mut copy = AdaptationState::new(3);
+        copy.copy_from(&s);
+        assert_eq!(copy, s);
         // Moved since the reset: told predictions leave the level to the statistic.
         assert_eq!(s.told_start(&l, 2, true), None);
         // reset: the first told prediction goes there again; adaptation off: never.
@@ -419,10 +424,6 @@ mod tests {
         assert_eq!(s.told_start(&l, 0, true), Some(3));
         s.set_enabled(false);
         assert_eq!(s.told_start(&l, 0, true), None);
-        // A copy restores everything.
-        let mut copy = AdaptationState::new(3);
-        copy.copy_from(&s);
-        assert_eq!(copy, s);
 
         // Sparser markers: one level per `hold` calm steps, from the designed σ.
         let l = levels_at(20, false);

@@ -247,7 +247,7 @@ impl TierState {
             self.acc[i] = w.a0 * du - w.a1 * v[i] - 2.0 * a[i];
             self.vel[i] = w.a2 * du - 2.0 * v[i] - 0.5 * w.tau * a[i];
         }
-        match model.blocks.reduced_force_on(
+        match model.blocks.reduced_force(
             model.isa,
             &self.q_hat,
             &self.vel,
@@ -286,7 +286,7 @@ impl TierState {
             self.jac[i] = c_m * model.mass[i];
         }
         let scale = 1.0 + w.a2 * model.beta;
-        model.blocks.add_warped_tangent_on(
+        model.blocks.add_warped_tangent(
             model.isa,
             &self.rotations,
             scale,

@@ -276,22 +276,14 @@ fn lost_marker_table(advised: &[Advised], name: &str, lost: Range<usize>, seeds:
         lost.end.saturating_sub(1)
     );
     println!("| model | run | window | steps | NIS % below / inside / above | tip NEES % below / inside / above | 2σ coverage |\n|---|---|---|---:|---|---|---:|");
-    let pct = |f: &crokf_verify::comparison::StepFractions| {
-        format!(
-            "{:.1} / {:.1} / {:.1}",
-            100.0 * f.below,
-            100.0 * f.inside,
-            100.0 * f.above
-        )
-    };
     for (label, _, e, _) in advised {
         for (what, w) in &windows {
             let nees = e.nees_tip.fractions_in(w.clone());
             println!(
                 "| {label} | {what} | {} | {} | {} | {:.1} % |",
                 nees.steps,
-                pct(&e.nis.fractions_in(w.clone())),
-                pct(&nees),
+                e.nis.fractions_in(w.clone()).percentages(),
+                nees.percentages(),
                 100.0 * e.coverage_in(w.clone())
             );
         }

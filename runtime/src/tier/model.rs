@@ -345,7 +345,7 @@ impl TierModel {
         scratch: &mut [f64],
     ) -> Result<(), usize> {
         self.blocks
-            .reduced_force_on(self.isa, q, velocity, self.beta, out, rotations, scratch)
+            .reduced_force(self.isa, q, velocity, self.beta, out, rotations, scratch)
             .map_err(|(e, _)| e)
     }
 
@@ -355,7 +355,7 @@ impl TierModel {
     }
 
     /// The sampled elements as the kernel holds them (to run its paths one by one:
-    /// [`kernel::Blocks::reduced_force_on`]).
+    /// [`kernel::Blocks::reduced_force`]).
     pub fn blocks(&self) -> &kernel::Blocks {
         &self.blocks
     }

@@ -111,6 +111,23 @@ pub struct StepFractions {
     pub above: f64,
 }
 
+impl StepFractions {
+    /// `below / inside / above` in percent with one decimal (`4.0 / 94.2 / 1.8`), `—` without
+    /// steps: the table cell of the per-segment tables.
+    pub fn percentages(&self) -> String {
+        if self.steps == 0 {
+            "—".to_owned()
+        } else {
+            format!(
+                "{:.1} / {:.1} / {:.1}",
+                100.0 * self.below,
+                100.0 * self.inside,
+                100.0 * self.above
+            )
+        }
+    }
+}
+
 /// Runs of unequal length given to [`Ensemble::add`].
 #[derive(Debug, thiserror::Error)]
 #[error("ensemble of runs with {expected} steps: a run with {found} steps")]

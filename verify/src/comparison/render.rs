@@ -856,18 +856,6 @@ pub fn segment_table(first: &str, rows: &[(String, Vec<SegmentFigures>)]) -> Str
         "|{}---|---:|---|---|---:|",
         "---|".repeat(first.matches('|').count() + 1)
     );
-    let fractions = |f: &super::StepFractions| {
-        if f.steps == 0 {
-            "—".to_owned()
-        } else {
-            format!(
-                "{:.1} / {:.1} / {:.1}",
-                100.0 * f.below,
-                100.0 * f.inside,
-                100.0 * f.above
-            )
-        }
-    };
     for (label, segments) in rows {
         for s in segments {
             let seg = &s.segment;
@@ -878,8 +866,8 @@ pub fn segment_table(first: &str, rows: &[(String, Vec<SegmentFigures>)]) -> Str
                 seconds(seg.end),
                 seg.change.describe(),
                 seg.steps.len(),
-                fractions(&s.nis),
-                fractions(&s.nees_tip),
+                s.nis.percentages(),
+                s.nees_tip.percentages(),
                 percent(s.coverage)
             );
         }
