@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # A marker lost for 100 steps on the held-out bodies (docs/verification.md, "A marker lost for
-# 100 steps"): each body's tip marker (the one nearest its load) gives no value for records
-# FROM … FROM + STEPS − 1 of the press and the reversal, loads given and withheld, 20 noise draws
-# (verify/examples/nonlinear_filter with CROKF_MARKER_LOST). Uses the tiers and the cached
+# 100 steps"): each body's tip marker (nonlinear_filter's, the one that moves most: the one
+# nearest the load) gives no value for records FROM … FROM + STEPS − 1 of the press and the
+# reversal, loads given and withheld, 20 noise draws (verify/examples/nonlinear_filter with
+# CROKF_MARKER_LOST=:FROM:STEPS). Uses the tiers and the cached
 # full-order references that scripts/heldout.sh wrote to OUT_DIR (run it first). Prints the
 # summary rows and the before / lost / after rows; full tables in OUT_DIR/lost-BODY-SCENARIO.txt.
 #
@@ -13,7 +14,6 @@ out=${1:?usage: scripts/lost_marker.sh OUT_DIR [FROM] [STEPS]}
 from=${2:-75}
 steps=${3:-100}
 cargo build --release -q -p crokf-verify --example nonlinear_filter
-declare -A tip=([kidney]=pole [horn]=tip [mushroom]=rim [arch]=crown [paddle]=tip [blob]=bump)
 for b in kidney horn mushroom arch paddle blob; do
   d=models/bodies/$b
   tier=$out/$b-tier.crokf
@@ -22,7 +22,7 @@ for b in kidney horn mushroom arch paddle blob; do
     s=$d/scenario_$name.toml
     key=$(cat "$d/scene_linear.toml" "$d/$b.msh" "$s" | sha256sum | cut -c1-16)
     f=$out/lost-$b-$name.txt
-    CROKF_MARKER_LOST=${tip[$b]}:$from:$steps CROKF_REFERENCE_CACHE=$out/ref-$key.bin \
+    CROKF_MARKER_LOST=:$from:$steps CROKF_REFERENCE_CACHE=$out/ref-$key.bin \
       target/release/examples/nonlinear_filter "$d/scene_linear.toml" "$s" "$tier" --seeds 20 > "$f" 2>&1
     awk -F'|' -v key="$(printf '%-9s %-8s ' "$b" "$name")" -f scripts/filter_rows.awk "$f"
     grep -h "refused:" "$f" | cut -d'|' -f4,5 | sed "s/^/$(printf '%-9s %-8s ' "$b" "$name")/" || true

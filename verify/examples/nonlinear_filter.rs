@@ -55,8 +55,8 @@
 //! the phase and the tier's force states on stderr (lines starting `ERR`);
 //! `CROKF_HOLD_FORCE_SIGMA=1` holds the tier's force σ at its designed level (no levels,
 //! docs/design.md §11.10: `Estimator::set_force_adaptation(false)`);
-//! `CROKF_MARKER_LOST=SENSOR:FROM:STEPS` drops that sensor's values for those records (a
-//! marker lost) and, with `--seeds`, adds a table of the consistency before, during and after
+//! `CROKF_MARKER_LOST=SENSOR:FROM:STEPS` drops that sensor's values (an empty SENSOR: the
+//! tip marker's) for those records (a marker lost) and, with `--seeds`, adds a table of the consistency before, during and after
 //! the loss.
 
 use std::ops::Range;
@@ -250,7 +250,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             .collect();
         print!("{}", segment_table("model | run", &rows));
     }
-    if let Some((sensor, lost)) = marker_lost(ops.sensors.iter().map(|s| s.name.as_str()))? {
+    if let Some((sensor, lost)) = marker_lost(ops.sensors.iter().map(|s| s.name.as_str()), tip)? {
         if seeds > 1 {
             lost_marker_table(&advised, &ops.sensors[sensor].name, lost, seeds);
         }
@@ -360,9 +360,11 @@ fn noise_scale() -> Result<f64, String> {
 
 /// `CROKF_MARKER_LOST=SENSOR:FROM:STEPS` (a measuring aid, docs/verification.md, a lost
 /// marker): the index of sensor SENSOR among `names` (the sensors in the model's order, which
-/// is the scene's) and the records FROM … FROM + STEPS − 1 without its values; None unset.
+/// is the scene's; an empty SENSOR: `tip`, the run's tip marker) and the records
+/// FROM … FROM + STEPS − 1 without its values; None unset.
 fn marker_lost<'a>(
     mut names: impl Iterator<Item = &'a str>,
+    tip: usize,
 ) -> Result<Option<(usize, Range<usize>)>, String> {
     let Ok(v) = std::env::var("CROKF_MARKER_LOST") else {
         return Ok(None);
@@ -374,9 +376,13 @@ fn marker_lost<'a>(
     else {
         return Err(bad());
     };
-    let sensor = names
-        .position(|s| s == name)
-        .ok_or_else(|| format!("CROKF_MARKER_LOST={v}: the scene has no sensor '{name}'"))?;
+    let sensor = if name.is_empty() {
+        tip
+    } else {
+        names
+            .position(|s| s == name)
+            .ok_or_else(|| format!("CROKF_MARKER_LOST={v}: the scene has no sensor '{name}'"))?
+    };
     let from: usize = from.parse().map_err(|_| bad())?;
     let count: usize = count.parse().map_err(|_| bad())?;
     Ok(Some((sensor, from..from.saturating_add(count))))
@@ -465,7 +471,7 @@ fn run_imm(
     let p = [[stay, 1.0 - stay], [1.0 - stay, stay]];
     let mut mu = [0.5, 0.5];
     let model = &models[0];
-    let mut drive = Drive::new(model, reference, run, seed)?;
+    let mut drive = Drive::new(model, reference, run, seed, tip)?;
     let width = shown_ref[0].len();
     let mut parts = vec![vec![0.0; width]; 2];
     let mut sensors = vec![vec![0.0; 3 * model.sensors.len()]; 2];
@@ -694,6 +700,7 @@ impl<'a> Drive<'a> {
         reference: &'a Reference,
         run: Run,
         seed: u64,
+        tip: usize,
     ) -> Result<Self, Box<dyn std::error::Error>> {
         // CROKF_NOISE_SCALE=c (a measuring aid): markers with c times the model's σ (0:
         // noise-free), the filter unchanged; separates the noise-driven part of the error.
@@ -723,7 +730,7 @@ impl<'a> Drive<'a> {
                     )
                 })
                 .collect(),
-            lost: marker_lost(model.sensors.iter().map(|s| s.name.as_str()))?,
+            lost: marker_lost(model.sensors.iter().map(|s| s.name.as_str()), tip)?,
             rng: Gaussian::new(seed),
         })
     }
@@ -782,7 +789,7 @@ fn run_model(
     for _ in 0..pre {
         est.predict(&rest_inputs)?;
     }
-    let mut drive = Drive::new(model, reference, run, seed)?;
+    let mut drive = Drive::new(model, reference, run, seed, tip)?;
     let (mut e2, mut r2, mut se2, mut sr2, mut te2, mut tr2) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     let mut shown = vec![0.0; shown_ref[0].len()];
     let mut sens = vec![0.0; 3 * model.sensors.len()];
