@@ -6,9 +6,10 @@
 //! Drives input channel INPUT (label, e.g. `tip.z`) with a ramp to PEAK (N) over RAMP steps,
 //! then held, for STEPS steps; times every `predict` (the tier's nonlinear step: Newton on q)
 //! and every `step` (predict + constant-gain update, measurements = the open-loop estimates,
-//! i.e. zero innovation) separately, and prints medians, Newton iterations per step, the
-//! slowest step and the median of the steps that refreshed the tangent, and the envelope
-//! status; then one reduced force evaluation and one warped tangent at the final state on each
+//! i.e. zero innovation) separately, the same `step` with the first sensor's values missing (the
+//! filter on its own covariance, docs/design.md §11.11) timed alternately with it, and prints
+//! medians, Newton iterations per step, the slowest step and the median of the steps that
+//! refreshed the tangent, and the envelope status; then one reduced force evaluation and one warped tangent at the final state on each
 //! kernel path this CPU has (`crokf_kernel::Isa::available`: portable, AVX2 + FMA, AVX-512),
 //! in alternating rounds so that the paths share clock and cache. Times are this thread's CPU
 //! time (the machine is shared).
@@ -108,6 +109,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut est2 = Estimator::new(&model)?;
     let mut held = Estimator::new(&model)?;
     held.set_force_adaptation(false);
+    // The first sensor lost: its channels without values, the filter on its own covariance
+    // (docs/design.md §11.11).
+    let mut lost = Estimator::new(&model)?;
+    let mut lost_times = Vec::with_capacity(steps);
+    let mut y_lost = vec![None; model.measurements.len()];
     let mut y = vec![None; model.measurements.len()];
     let mut estimates = vec![0.0; model.measurements.len()];
     let (mut times, mut held_times) = (Vec::with_capacity(steps), Vec::with_capacity(steps));
@@ -125,8 +131,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let clock = Instant::now();
         held.step(&u, &y)?;
         held_times.push(clock.elapsed().as_secs_f64());
+        for ((yl, yi), m) in y_lost.iter_mut().zip(&y).zip(&model.measurements) {
+            *yl = if m.sensor == 0 { None } else { *yi };
+        }
+        let clock = Instant::now();
+        lost.step(&u, &y_lost)?;
+        lost_times.push(clock.elapsed().as_secs_f64());
     }
     let step = median(times);
+    let lost_step = median(lost_times);
     // The report's case: markers = the open-loop estimates + Gaussian noise of the model's R
     // (a fixed draw), so that every update moves the state; median and mean per step (the
     // mean counts the tangent refreshes at their rate, as `crokf-verify report` does).
@@ -180,6 +193,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             step / held_step
         );
     }
+    println!(
+        "sensor '{}' lost (the filter's own covariance, n = {}): predict + update median {:.1} µs, \
+         ratio {:.2} to every marker present",
+        model.sensors.first().map_or("", |s| s.name.as_str()),
+        lost.state().len(),
+        lost_step * 1e6,
+        lost_step / step
+    );
     println!(
         "slowest predict {:.1} µs; steps with a tangent refresh: median {:.1} µs",
         slowest * 1e6,

@@ -196,11 +196,28 @@ impl Estimator {
         self.tier.force_level(&self.shared)
     }
 
+    /// The co-rotational tier filter's own covariance P of s (n × n, row-major, n =
+    /// `state().len()`; P⁻ after `predict`, P after `update`) while it carries one: from an
+    /// update with an active channel missing or gated until the covariance settles near the
+    /// stored filter's (docs/design.md §11.11). `None` while the stored filter's covariances
+    /// are in use (always on the warped tier); the read-out σ follow the same choice.
+    pub fn tier_covariance(&self) -> Option<&[f64]> {
+        self.tier.covariance()
+    }
+
     /// Whether the force-σ level follows the innovations (default on). Either way the level
     /// returns to the designed σ (level 0) and the statistic starts afresh; off keeps it there.
     /// No effect on a model with one level.
     pub fn set_force_adaptation(&mut self, on: bool) {
         self.tier.set_force_adaptation(on);
+    }
+
+    /// Whether the co-rotational tier's filter carries its own covariance while an active channel
+    /// is missing or gated (default on; docs/design.md §11.11). Off: the stored gains with a
+    /// zero innovation for such a channel and the stored σ (the recursion, if running, stops
+    /// now). It costs about five times a step while it runs; no effect on the warped tier.
+    pub fn set_covariance_recursion(&mut self, on: bool) {
+        self.tier.set_covariance_recursion(on);
     }
 
     /// Status of the co-rotational tier's last completed step (Newton iterations, envelope);
@@ -459,7 +476,7 @@ impl Estimator {
     /// (m), from the stored covariance of the current phase (local frame; P⁻ after `predict`,
     /// P after `update`).
     pub fn sensor_std(&self, out: &mut [f64]) -> Result<(), RuntimeError> {
-        let (std, _) = self.tier.std(&self.shared, self.cov, self.phase);
+        let std = self.tier.sensor_std(&self.shared, self.cov, self.phase);
         check_len("sensor std buffer", std.len(), out.len())?;
         out.copy_from_slice(std);
         Ok(())
@@ -535,11 +552,10 @@ impl Estimator {
     /// Standard deviation of every node displacement of set `set` (local frame, like
     /// [`Estimator::sensor_std`]), 3 per node (m).
     pub fn node_std(&self, set: usize, out: &mut [f64]) -> Result<(), RuntimeError> {
-        self.node_set(set)?;
-        let (_, nodes) = self.tier.std(&self.shared, self.cov, self.phase);
-        let std = &nodes[set];
-        check_len("node std buffer", std.len(), out.len())?;
-        out.copy_from_slice(std);
+        let ns = self.node_set(set)?;
+        check_len("node std buffer", 3 * ns.node_tags.len(), out.len())?;
+        self.tier
+            .node_std(&self.shared, self.cov, self.phase, set, out);
         Ok(())
     }
 }

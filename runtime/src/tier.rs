@@ -50,6 +50,7 @@
 //! its own result s⁺ (at most one pass per filter).
 
 mod model;
+pub(crate) mod recursion;
 
 use crate::covariance::gate_rejects;
 pub use crate::covariance::Gate;
@@ -57,6 +58,7 @@ use crokf_kernel::wilson::WilsonTheta;
 use crokf_kernel::{self as kernel, Mat3, PolarError};
 use model::dot;
 pub use model::TierModel;
+pub use recursion::{linearised_step, SETTLED};
 
 /// Iterations after which J is refreshed (within a step, and at the next step).
 pub const SLOW_ITERATIONS: usize = 4;
@@ -160,6 +162,9 @@ pub struct TierState {
     res: Vec<f64>,
     load: Vec<f64>,
     jac: Vec<f64>,
+    /// J before its factorisation (the covariance recursion's linearised step,
+    /// [`recursion`]).
+    newton: Vec<f64>,
     has_factor: bool,
     slow: bool,
     /// Error factor η of the Newton test (module docs), carried across steps.
@@ -181,6 +186,8 @@ pub struct TierState {
     pub(crate) level: usize,
     /// Innovation scratch.
     pub(crate) innovation: Vec<f64>,
+    /// Per active channel of the last update: whether its value was used (present, not gated).
+    pub(crate) present: Vec<bool>,
     /// The update's result before it is committed.
     pub(crate) s_upd: Vec<f64>,
 }
@@ -200,6 +207,7 @@ impl TierState {
             res: vec![0.0; r],
             load: vec![0.0; r],
             jac: vec![0.0; r * r],
+            newton: vec![0.0; r * r],
             has_factor: false,
             slow: true,
             eta: 1.0,
@@ -212,6 +220,7 @@ impl TierState {
             filter_upd: 0,
             level: 0,
             innovation: vec![0.0; q],
+            present: vec![false; q],
             s_upd: vec![0.0; model.n],
         }
     }
@@ -293,6 +302,7 @@ impl TierState {
             &mut self.jac,
             &mut self.scratch,
         );
+        self.newton.copy_from_slice(&self.jac);
         kernel::cholesky(&mut self.jac, r)
             .map_err(|pivot| TierError::NotPositiveDefinite { step, pivot })?;
         self.has_factor = true;
@@ -541,8 +551,27 @@ impl TierState {
         gate: &Gate<'_>,
         gated_now: &mut [bool],
     ) -> usize {
+        let variance =
+            model.innovation_variance(model.filter_index(self.level, self.filter), phase);
+        let used = self.innovations(model, phase, get, gate, gated_now, variance);
+        self.apply_stored_gain(model, phase);
+        used
+    }
+
+    /// The innovations of phase p's active channels into `innovation` (0 for a channel
+    /// missing or gated) and their use into `present`; the gate tests channel a against the
+    /// innovation variance `variance[a]` (see [`TierState::update_gated`]). Returns the number
+    /// of values used.
+    pub(crate) fn innovations(
+        &mut self,
+        model: &TierModel,
+        phase: usize,
+        get: &impl Fn(usize) -> Option<f64>,
+        gate: &Gate<'_>,
+        gated_now: &mut [bool],
+        variance: &[f64],
+    ) -> usize {
         let measured = &model.measured[phase];
-        let nm = measured.len();
         let mut used = 0;
         for (a, &j) in measured.iter().enumerate() {
             let j = j as usize;
@@ -552,19 +581,15 @@ impl TierState {
             let row = &model.sensor_rows[s][c * r..(c + 1) * r];
             let nu = get(j).map(|y| y - dot(row, &self.s[..r]));
             let rejected = match (nu, gate.sigmas) {
-                (Some(nu), Some(g)) => gate_rejects(
-                    nu,
-                    g,
-                    model.innovation_variance(model.filter_index(self.level, self.filter), phase)
-                        [a],
-                    gate.missed(j),
-                    model.variance_growth[j],
-                ),
+                (Some(nu), Some(g)) => {
+                    gate_rejects(nu, g, variance[a], gate.missed(j), model.variance_growth[j])
+                }
                 _ => false,
             };
             if let Some(flag) = gated_now.get_mut(a) {
                 *flag = rejected;
             }
+            self.present[a] = nu.is_some() && !rejected;
             self.innovation[a] = match nu {
                 Some(nu) if !rejected => {
                     used += 1;
@@ -573,6 +598,13 @@ impl TierState {
                 _ => 0.0,
             };
         }
+        used
+    }
+
+    /// `s_upd` ← s + K_p ν with the stored gains and the innovations of
+    /// [`TierState::innovations`].
+    pub(crate) fn apply_stored_gain(&mut self, model: &TierModel, phase: usize) {
+        let nm = model.measured[phase].len();
         // Iterated scheduled update (docs/design.md §11.5): the gain of the filter whose point
         // is nearest to the result, starting from the prior's; at most one pass per filter.
         // s_upd = s + K_p ν as Σ_a ν_a K_p[·, a] (contiguous columns: vector operations), each
@@ -599,7 +631,6 @@ impl TierState {
             filter = next;
         }
         self.filter_upd = filter;
-        used
     }
 }
 

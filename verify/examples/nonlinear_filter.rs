@@ -56,8 +56,11 @@
 //! `CROKF_HOLD_FORCE_SIGMA=1` holds the tier's force σ at its designed level (no levels,
 //! docs/design.md §11.10: `Estimator::set_force_adaptation(false)`);
 //! `CROKF_MARKER_LOST=SENSOR:FROM:STEPS` drops that sensor's values (an empty SENSOR: the
-//! tip marker's) for those records (a marker lost) and, with `--seeds`, adds a table of the consistency before, during and after
-//! the loss.
+//! tip marker's) for those records (a marker lost) and, with `--seeds`, adds a table of the
+//! consistency before, during and after the loss; each filtered run that carried its own
+//! covariance (a channel missing or gated, docs/design.md §11.11) prints its number of such
+//! steps on stderr; `CROKF_STORED_GAINS=1` keeps the stored gains and σ then instead
+//! (`Estimator::set_covariance_recursion(false)`).
 
 use std::ops::Range;
 use std::path::PathBuf;
@@ -775,6 +778,7 @@ fn run_model(
     let mut est = Estimator::new(model)?;
     est.set_innovation_gate(None);
     est.set_force_adaptation(std::env::var_os("CROKF_HOLD_FORCE_SIGMA").is_none());
+    est.set_covariance_recursion(std::env::var_os("CROKF_STORED_GAINS").is_none());
     // CROKF_MARKER_PHASE=o (a measuring aid): o predictions at rest before the scenario starts,
     // so that sparse markers (period L) arrive at steps k ≡ L − 1 − o (mod L) instead of
     // k ≡ L − 1: the camera's clock is not synchronised with the load's start.
@@ -807,6 +811,9 @@ fn run_model(
     let mut acc = ConsistencyAccumulator::new(&blocks, model, Some(tip));
     // Steps per force-σ level (docs/design.md §11.10), for the run's stderr line.
     let mut levels: std::collections::BTreeMap<usize, (f64, usize)> = Default::default();
+    // Steps whose update left the filter on its own covariance (a channel missing or gated,
+    // docs/design.md §11.11): count, first and last record.
+    let mut own: (usize, Option<usize>, usize) = (0, None, 0);
     for k in 0..steps {
         let y = drive.markers(k);
         let u = drive.inputs(k);
@@ -852,6 +859,9 @@ fn run_model(
         times.push(elapsed);
         if let Some(l) = est.force_level().filter(|_| filtered) {
             levels.entry(l.level).or_insert((l.factor, 0)).1 += 1;
+        }
+        if filtered && est.tier_covariance().is_some() {
+            own = (own.0 + 1, own.1.or(Some(k)), k);
         }
         displayed(&est, model, &mut shown)?;
         let (mut ke, mut kr) = (0.0, 0.0);
@@ -904,6 +914,14 @@ fn run_model(
                 .map(|(f, n)| format!("× {f}: {n}"))
                 .collect::<Vec<_>>()
                 .join(", ")
+        );
+    }
+    if let Some(first) = own.1 {
+        eprintln!(
+            "{} (seed {seed}): {} steps on the filter's own covariance (records {first} … {})",
+            run.label(),
+            own.0,
+            own.2
         );
     }
     let forces = match tier {

@@ -5,6 +5,7 @@
 use crate::adaptation::{AdaptationState, ForceLevel};
 use crate::covariance::Gate;
 use crate::prepared::PreparedModel;
+use crate::tier::recursion::Recursion;
 use crate::tier::{TierModel, TierState, TierStatus};
 use crate::warp::Vec3;
 use crate::RuntimeError;
@@ -31,6 +32,10 @@ pub(crate) struct CorotationalStep {
     before_prediction: Option<(usize, AdaptationState)>,
     /// Whether the last prediction moved the level.
     prediction_moved: bool,
+    /// The covariance recursion while channels are missing (docs/design.md §11.11), and
+    /// whether it may run.
+    recursion: Recursion,
+    recursion_on: bool,
 }
 
 impl CorotationalStep {
@@ -49,6 +54,8 @@ impl CorotationalStep {
                 .levels()
                 .map(|_| (0, AdaptationState::new(tier.channel_count()))),
             prediction_moved: false,
+            recursion: Recursion::new(tier),
+            recursion_on: true,
         }
     }
 
@@ -60,6 +67,7 @@ impl CorotationalStep {
         tm: &TierModel,
         phase: usize,
         filter: usize,
+        live: bool,
         step: u64,
         verdicts: &[Verdict],
     ) {
@@ -67,7 +75,11 @@ impl CorotationalStep {
             return;
         };
         let measured = tm.measured(phase);
-        let variance = tm.innovation_variance(filter, phase);
+        let variance = if live {
+            self.recursion.variance(measured.len())
+        } else {
+            tm.innovation_variance(filter, phase)
+        };
         for (a, z) in self.whitened[..measured.len()].iter_mut().enumerate() {
             *z = if verdicts[a] == Verdict::Accepted {
                 self.state.innovation[a] / variance[a].sqrt()
@@ -83,6 +95,14 @@ impl CorotationalStep {
             &self.whitened[..measured.len()],
             self.told,
         );
+    }
+}
+
+/// The stored covariances' index of `kind` (0 prior, 1 posterior).
+fn kind_index(kind: CovarianceKind) -> usize {
+    match kind {
+        CovarianceKind::Prior => 0,
+        CovarianceKind::Posterior => 1,
     }
 }
 
@@ -118,6 +138,7 @@ impl TierStep for CorotationalStep {
             a.reset();
         }
         self.prediction_moved = false;
+        self.recursion.reset();
     }
 
     fn period(&self, shared: &PreparedModel) -> u64 {
@@ -152,6 +173,7 @@ impl TierStep for CorotationalStep {
                 self.prediction_moved = true;
             }
         }
+        self.recursion.predict(tm, &self.state);
         Ok(())
     }
 
@@ -167,10 +189,35 @@ impl TierStep for CorotationalStep {
     ) -> Result<usize, RuntimeError> {
         let tm = tier(shared);
         let prior_filter = tm.filter_index(self.state.level, self.state.filter);
+        let nm = tm.measured(phase).len();
+        // The gate tests against the recursion's innovation variance while it runs.
+        let variance = match self.recursion.prior_variance(tm, phase) {
+            Some(v) => v,
+            None => tm.innovation_variance(prior_filter, phase),
+        };
         let used = self
             .state
-            .update_gated(tm, phase, &get, gate, &mut self.gated);
-        if let Some(index) = first_non_finite(&self.state.s_upd) {
+            .innovations(tm, phase, &get, gate, &mut self.gated, variance);
+        // A channel missing or gated: the update from the recursion's covariance (module
+        // docs of `crate::tier::recursion`), which then runs until it settles.
+        let live = self.recursion.active() || (self.recursion_on && used < nm);
+        if live {
+            self.recursion
+                .update(tm, &mut self.state, phase)
+                .map_err(|index| RuntimeError::NonFiniteState {
+                    step: gate.step,
+                    stage: "update",
+                    index,
+                })?;
+        } else {
+            self.state.apply_stored_gain(tm, phase);
+        }
+        let pending = first_non_finite(&self.state.s_upd).or_else(|| {
+            live.then(|| first_non_finite(self.recursion.pending()))
+                .flatten()
+                .map(|i| self.state.s_upd.len() + i)
+        });
+        if let Some(index) = pending {
             return Err(RuntimeError::NonFiniteState {
                 step: gate.step,
                 stage: "update",
@@ -178,6 +225,9 @@ impl TierStep for CorotationalStep {
             });
         }
         self.state.commit_update();
+        if live {
+            self.recursion.commit(tm);
+        }
         for ((&j, &rejected), verdict) in tm
             .measured(phase)
             .iter()
@@ -192,12 +242,13 @@ impl TierStep for CorotationalStep {
                 Verdict::Missing
             };
         }
-        self.adapt(tm, phase, prior_filter, gate.step, verdicts);
+        self.adapt(tm, phase, prior_filter, live, gate.step, verdicts);
         Ok(used)
     }
 
-    fn rollback(&mut self, _shared: &PreparedModel) {
+    fn rollback(&mut self, shared: &PreparedModel) {
         self.state.rollback();
+        self.recursion.rollback(tier(shared));
         if self.prediction_moved {
             if let (Some(adaptation), Some((level, before))) =
                 (self.adaptation.as_mut(), self.before_prediction.as_ref())
@@ -214,22 +265,36 @@ impl TierStep for CorotationalStep {
         self.state.sensor(tier(shared), s)
     }
 
-    fn std<'a>(
-        &self,
+    /// The recursion's σ while it runs, else the stored filter's.
+    fn sensor_std<'a>(
+        &'a self,
         shared: &'a PreparedModel,
         kind: CovarianceKind,
         phase: usize,
-    ) -> (&'a [f64], &'a [Vec<f64>]) {
-        let kind = match kind {
-            CovarianceKind::Prior => 0,
-            CovarianceKind::Posterior => 1,
-        };
+    ) -> &'a [f64] {
+        if self.recursion.active() {
+            return self.recursion.sensor_std();
+        }
         let tm = tier(shared);
-        tm.std(
-            tm.filter_index(self.state.level, self.state.filter),
-            kind,
-            phase,
-        )
+        let filter = tm.filter_index(self.state.level, self.state.filter);
+        tm.std(filter, kind_index(kind), phase).0
+    }
+
+    fn node_std(
+        &self,
+        shared: &PreparedModel,
+        kind: CovarianceKind,
+        phase: usize,
+        set: usize,
+        out: &mut [f64],
+    ) {
+        let tm = tier(shared);
+        if self.recursion.active() {
+            self.recursion.node_std(tm, set, out);
+        } else {
+            let filter = tm.filter_index(self.state.level, self.state.filter);
+            out.copy_from_slice(&tm.std(filter, kind_index(kind), phase).1[set]);
+        }
     }
 
     /// V q at the set's nodes (the tier has one read-out, in f64).
@@ -255,6 +320,17 @@ impl TierStep for CorotationalStep {
     fn force_level(&self, shared: &PreparedModel) -> Option<ForceLevel> {
         let levels = tier(shared).levels()?;
         Some(self.adaptation.as_ref()?.report(levels, self.state.level))
+    }
+
+    fn covariance(&self) -> Option<&[f64]> {
+        self.recursion.covariance()
+    }
+
+    fn set_covariance_recursion(&mut self, on: bool) {
+        self.recursion_on = on;
+        if !on {
+            self.recursion.reset();
+        }
     }
 
     fn set_force_adaptation(&mut self, on: bool) {

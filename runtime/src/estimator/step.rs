@@ -85,14 +85,24 @@ pub(crate) trait TierStep: std::fmt::Debug + Send + Sync {
     /// World-frame displacement of sensor `s` (m).
     fn sensor_world(&self, shared: &PreparedModel, s: usize) -> Vec3;
 
-    /// The precomputed read-out σ of `phase` from covariance `kind`: (3 per sensor, per node
-    /// set 3 per node).
-    fn std<'a>(
-        &self,
+    /// The read-out σ of every sensor (3 each) in `phase` from covariance `kind`.
+    fn sensor_std<'a>(
+        &'a self,
         shared: &'a PreparedModel,
         kind: CovarianceKind,
         phase: usize,
-    ) -> (&'a [f64], &'a [Vec<f64>]);
+    ) -> &'a [f64];
+
+    /// The read-out σ of node set `set` (3 per node, `out`'s length checked by the caller) in
+    /// `phase` from covariance `kind`.
+    fn node_std(
+        &self,
+        shared: &PreparedModel,
+        kind: CovarianceKind,
+        phase: usize,
+        set: usize,
+        out: &mut [f64],
+    );
 
     /// World displacement of every node of set `set` into `out` (3 per node, length checked
     /// by the caller); `exact`: from the model's f64 rows where the tier has a faster display
@@ -113,6 +123,16 @@ pub(crate) trait TierStep: std::fmt::Debug + Send + Sync {
 
     /// Whether the force-σ level follows the innovations (off: back to the designed σ).
     fn set_force_adaptation(&mut self, _on: bool) {}
+
+    /// Whether the filter may carry its own covariance while channels are missing (the
+    /// co-rotational tier; docs/design.md §11.11).
+    fn set_covariance_recursion(&mut self, _on: bool) {}
+
+    /// The filter's own covariance while it carries one (the co-rotational tier's recursion
+    /// while channels are missing, docs/design.md §11.11), else `None`.
+    fn covariance(&self) -> Option<&[f64]> {
+        None
+    }
 }
 
 /// The index of the first NaN or ±∞ in `v`, if any. One vectorisable pass first

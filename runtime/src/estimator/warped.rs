@@ -265,14 +265,24 @@ impl TierStep for WarpedStep {
         Warp::new(&rows3(&sensor.rotation_rows, 0, &self.x)).warp(&u)
     }
 
-    fn std<'a>(
-        &self,
+    fn sensor_std<'a>(
+        &'a self,
         shared: &'a PreparedModel,
         kind: CovarianceKind,
         phase: usize,
-    ) -> (&'a [f64], &'a [Vec<f64>]) {
-        let std = Self::current_std(shared, kind, phase);
-        (&std.sensors, &std.nodes)
+    ) -> &'a [f64] {
+        &Self::current_std(shared, kind, phase).sensors
+    }
+
+    fn node_std(
+        &self,
+        shared: &PreparedModel,
+        kind: CovarianceKind,
+        phase: usize,
+        set: usize,
+        out: &mut [f64],
+    ) {
+        out.copy_from_slice(&Self::current_std(shared, kind, phase).nodes[set]);
     }
 
     fn node_displacements(&self, shared: &PreparedModel, set: usize, exact: bool, out: &mut [f64]) {

@@ -61,6 +61,8 @@ pub struct TierModel {
     pub(super) points: Vec<f64>,
     /// Per measurement channel: (H Q Hᵀ)_jj, m² per step (the gate's growth g_j).
     pub(super) variance_growth: Vec<f64>,
+    /// Per measurement channel: R_jj, m².
+    pub(super) measurement_variance: Vec<f64>,
 }
 
 /// One filter of the tier's gain schedule: its gains and what the read-outs and the gate need
@@ -76,6 +78,11 @@ pub(super) struct PointFilter {
     /// Per kind (prior, posterior) and phase: sensor std (3 per sensor), node std per set.
     pub(super) sensor_std: [Vec<Vec<f64>>; 2],
     pub(super) node_std: [Vec<Vec<Vec<f64>>>; 2],
+    /// Per phase: the prior covariance P⁻ (n × n, row-major), where the covariance recursion
+    /// starts ([`super::recursion`]).
+    pub(super) prior: Vec<Vec<f64>>,
+    /// Q (n × n, row-major): the process noise per step the filter was designed with.
+    pub(super) process_noise: Vec<f64>,
 }
 
 /// Aᵀ (cols × rows, row-major) of A.
@@ -174,6 +181,12 @@ impl TierModel {
                 innovation_variance: gate_variances(k, channel.len(), h_row).0,
                 sensor_std: [s_prior, s_post],
                 node_std: [n_prior, n_post],
+                prior: k
+                    .phases
+                    .iter()
+                    .map(|p| p.prior_covariance.data.clone())
+                    .collect(),
+                process_noise: k.process_noise.data.clone(),
             }
         };
         let filters: Vec<PointFilter> = tier.filters().map(filter).collect();
@@ -237,6 +250,7 @@ impl TierModel {
             levels: Levels::new(tier),
             points,
             variance_growth,
+            measurement_variance: k.measurement_variance.clone(),
         }
     }
 

@@ -18,7 +18,9 @@
 //!   is the one of the gain schedule in use ([`Estimator::tier_filter`]): after `predict` the
 //!   one nearest to the prior q⁻ (whose P⁻ the runtime's gate reads as the innovation
 //!   variance), after `update` the one whose gain gave the posterior (whose P the runtime's σ
-//!   read-outs use).
+//!   read-outs use). While the tier filter carries its own covariance (an active channel
+//!   missing or gated, docs/design.md §11.11; `Estimator::tier_covariance`), that P⁻ and P
+//!   instead, as the runtime's gate and read-outs use them.
 //!
 //! Statistics:
 //! - NIS_k = ν_kᵀ S_k⁻¹ ν_k with ν_k = y_k − ŷ⁻_k (world frame, the present measurements of
@@ -323,8 +325,12 @@ pub struct FilterBlocks {
 /// C P (3×r) for the 3 rows of `block` in `m` (row-major 3k×r) and the leading r×r block of P
 /// (row-major, `p.cols` columns: r for the warped tier, n ≥ 3r for the co-rotational tier).
 fn block_times_p(m: &fmt::Matrix, block: usize, p: &fmt::Matrix) -> Vec<[f64; 3]> {
+    block_times(m, block, &p.data, p.cols as usize)
+}
+
+/// [`block_times_p`] for P given as its row-major values with `stride` columns.
+fn block_times(m: &fmt::Matrix, block: usize, p: &[f64], stride: usize) -> Vec<[f64; 3]> {
     let r = m.cols as usize;
-    let stride = p.cols as usize;
     let mut out = vec![[0.0; 3]; r];
     for c in 0..3 {
         let row = &m.data[(3 * block + c) * r..(3 * block + c + 1) * r];
@@ -332,7 +338,7 @@ fn block_times_p(m: &fmt::Matrix, block: usize, p: &fmt::Matrix) -> Vec<[f64; 3]
             if ci == 0.0 {
                 continue;
             }
-            let prow = &p.data[i * stride..i * stride + r];
+            let prow = &p[i * stride..i * stride + r];
             for (j, &pij) in prow.iter().enumerate() {
                 out[j][c] += ci * pij;
             }
@@ -357,6 +363,19 @@ fn close(cp: &[[f64; 3]], m: &fmt::Matrix, block: usize) -> Matrix3<f64> {
         }
     }
     out
+}
+
+/// The 3×3 block C_a P C_bᵀ of the tier filter's own covariance P (`Estimator::tier_covariance`,
+/// n × n) for rows `a` (block `ia`) and `b` (block `ib`).
+fn live_block(
+    a: &fmt::Matrix,
+    ia: usize,
+    b: &fmt::Matrix,
+    ib: usize,
+    p: &[f64],
+    n: usize,
+) -> Matrix3<f64> {
+    close(&block_times(a, ia, p, n), b, ib)
 }
 
 impl Filter {
@@ -542,6 +561,8 @@ impl<'a> ConsistencyAccumulator<'a> {
         let filter = self.filter(est);
         let phase = est.phase();
         let x = est.state();
+        let live = est.tier_covariance();
+        let n = x.len();
         let warps: Vec<Matrix3<f64>> = (0..model.sensors.len())
             .map(|s| self.sensor_warp(model, s, x))
             .collect();
@@ -555,7 +576,13 @@ impl<'a> ConsistencyAccumulator<'a> {
             for (b, &(jb, _)) in used.iter().enumerate() {
                 let ch_b = model.measurements[jb];
                 let (sb, cb) = (ch_b.sensor as usize, ch_b.component as usize);
-                let block = warps[sa] * filter.prior[phase][sa][sb] * warps[sb].transpose();
+                let prior = match (live, &model.tier) {
+                    (Some(p), Some(t)) => {
+                        live_block(&t.sensor_rows[sa], 0, &t.sensor_rows[sb], 0, p, n)
+                    }
+                    _ => filter.prior[phase][sa][sb],
+                };
+                let block = warps[sa] * prior * warps[sb].transpose();
                 s_mat[(a, b)] = block[(ca, cb)];
             }
             s_mat[(a, a)] += filter.measurement_variance[ja];
@@ -585,7 +612,19 @@ impl<'a> ConsistencyAccumulator<'a> {
     /// on the warped tier; module docs).
     pub fn sensor_covariance(&self, est: &Estimator, s: usize) -> Matrix3<f64> {
         let w = self.sensor_warp(est.model(), s, est.state());
-        w * self.filter(est).sensor_post[est.phase()][s] * w.transpose()
+        w * self.sensor_posterior(est, s) * w.transpose()
+    }
+
+    /// Sensor `s`'s posterior block in the filter's frame: from the tier filter's own
+    /// covariance while it carries one, else the stored filter's.
+    fn sensor_posterior(&self, est: &Estimator, s: usize) -> Matrix3<f64> {
+        match (est.tier_covariance(), &est.model().tier) {
+            (Some(p), Some(t)) => {
+                let rows = &t.sensor_rows[s];
+                live_block(rows, 0, rows, 0, p, est.state().len())
+            }
+            _ => self.filter(est).sensor_post[est.phase()][s],
+        }
     }
 
     /// ln N(ν; 0, S) of the innovation of the last [`ConsistencyAccumulator::innovation`]: the
@@ -617,7 +656,7 @@ impl<'a> ConsistencyAccumulator<'a> {
         if let Some(t) = self.tip {
             est.sensor_displacements(&mut self.sensors)?;
             let w = self.sensor_warp(model, t, x);
-            let sigma = w * filter.sensor_post[phase][t] * w.transpose();
+            let sigma = w * self.sensor_posterior(est, t) * w.transpose();
             let e = nalgebra::Vector3::from_fn(|c, _| self.sensors[3 * t + c] - tip_reference[c]);
             if let Some(inv) = sigma.try_inverse() {
                 let step = ChiSquare {
@@ -646,7 +685,14 @@ impl<'a> ConsistencyAccumulator<'a> {
                 let rot = &model.node_sets[set].rotation_rows;
                 warp_matrix(&Warp::new(&rows3(rot, i, x)))
             };
-            let sigma = w * filter.node_post[phase][j] * w.transpose();
+            let post = match (est.tier_covariance(), &model.tier) {
+                (Some(p), Some(t)) => {
+                    let rows = &t.node_set_rows[set];
+                    live_block(rows, i, rows, i, p, x.len())
+                }
+                _ => filter.node_post[phase][j],
+            };
+            let sigma = w * post * w.transpose();
             for c in 0..3 {
                 let e = (display[3 * j + c] - reference[3 * j + c]).abs();
                 step.inside += (e <= 2.0 * self.std[set][3 * i + c]) as usize;
