@@ -329,6 +329,7 @@ fn print_advice(
             model_error: *open_loop,
             segments: &segments,
             loads: &loads,
+            own_covariance: e.own_covariance_fraction(),
         };
         let context = Context::from(&figures);
         for a in advice::advise(&figures) {

@@ -89,6 +89,9 @@ pub struct AdviceFigures<'a> {
     pub segments: &'a [SegmentFigures],
     /// The scenario's loads (names of the scene's `[[load]]`), for the fixes' text.
     pub loads: &'a [String],
+    /// Fraction of the steps after whose update the filter carried its own covariance (an
+    /// active channel missing or gated, docs/design.md §11.11; `Estimator::tier_covariance`).
+    pub own_covariance: f64,
 }
 
 /// A row of the table.
@@ -106,6 +109,8 @@ pub enum Rule {
     Conservative,
     /// Coverage high with the NIS not below.
     ConservativeAwayFromMarkers,
+    /// Channels missing or gated: the filter ran on its own covariance for part of the run.
+    ChannelsMissing,
 }
 
 /// One line of advice: the rule and the figures that triggered it.
@@ -138,6 +143,16 @@ fn nees_above(segments: &[SegmentFigures], changing: bool) -> (f64, usize) {
 /// The advice for one filtered run: one item per problem, in the table's order (module docs).
 pub fn advise(f: &AdviceFigures) -> Vec<Advice> {
     let mut out: Vec<Advice> = Vec::new();
+    // First, as the context of the others: their figures include these steps.
+    if f.own_covariance > 0.0 {
+        out.push(Advice {
+            rule: Rule::ChannelsMissing,
+            trigger: format!(
+                "the filter carried its own covariance after {} of the updates",
+                pc(f.own_covariance)
+            ),
+        });
+    }
     let nis_steps = f.nis.steps > 0;
     let nees_steps = f.nees_tip.steps > 0;
     let nis_above = nis_steps && f.nis.above > OUTSIDE_LIMIT;
@@ -323,13 +338,14 @@ impl Context<'_> {
 
 impl Rule {
     /// Every rule, in the table's order.
-    pub const ALL: [Rule; 6] = [
+    pub const ALL: [Rule; 7] = [
         Rule::ForceSigmaTooSmallForChanges,
         Rule::ModelErrorNotInSigma,
         Rule::SigmaTooSmallThroughout,
         Rule::InnovationsLargerThanPredicted,
         Rule::Conservative,
         Rule::ConservativeAwayFromMarkers,
+        Rule::ChannelsMissing,
     ];
 
     /// When the rule fires, in words (the table's first column).
@@ -368,6 +384,9 @@ impl Rule {
                 "2σ coverage > {} with NIS below on ≤ {limit}",
                 pc(COVERAGE_HIGH)
             ),
+            Rule::ChannelsMissing => "any update with an active channel missing or gated (the \
+                 co-rotational tier)"
+                .into(),
         }
     }
 
@@ -419,6 +438,13 @@ impl Rule {
                  than this load needs"
                     .into()
             }
+            Rule::ChannelsMissing => {
+                "markers were missing or gated: from such an update until its covariance settles \
+                 the filter carries its own (docs/design.md §11.11), whose σ grow while a marker \
+                 that sees a load is away, so the other lines' figures include steps that are \
+                 conservative by design"
+                    .into()
+            }
         }
     }
 
@@ -455,6 +481,11 @@ impl Rule {
             ),
             Rule::ConservativeAwayFromMarkers => format!(
                 "state the load's real (longer) `rise_time` or (smaller) `range` on {}",
+                c.load()
+            ),
+            Rule::ChannelsMissing => format!(
+                "judge σ on a recording without losses; where one marker alone sees {}, a \
+                 second marker near it keeps the load observable when one is lost",
                 c.load()
             ),
         }
@@ -547,6 +578,7 @@ mod tests {
             model_error: Some(0.015),
             segments,
             loads,
+            own_covariance: 0.0,
         }
     }
 
@@ -871,6 +903,42 @@ mod tests {
             rules(&advise(&f)),
             vec![Rule::InnovationsLargerThanPredicted]
         );
+    }
+
+    #[test]
+    fn missing_channels_come_first_as_the_others_context() {
+        let seg = ramp_hold((100, 0.03), (200, 0.02));
+        let loads = vec!["tip".to_owned()];
+        let f = AdviceFigures {
+            own_covariance: 0.25,
+            ..figures(
+                fractions(0.10, 0.02, 300),
+                fractions(0.40, 0.0, 300),
+                0.99,
+                &seg,
+                &loads,
+            )
+        };
+        let advice = advise(&f);
+        assert_eq!(
+            rules(&advice),
+            vec![Rule::ChannelsMissing, Rule::Conservative]
+        );
+        assert_eq!(
+            advice[0].trigger,
+            "the filter carried its own covariance after 25.0 % of the updates"
+        );
+        let line = advice[0].line(&(&f).into());
+        assert!(
+            line.contains("§11.11") && line.contains("a second marker near it"),
+            "{line}"
+        );
+        // None missing: no such line.
+        let f = AdviceFigures {
+            own_covariance: 0.0,
+            ..f
+        };
+        assert_eq!(rules(&advise(&f)), vec![Rule::Conservative]);
     }
 
     #[test]

@@ -291,6 +291,9 @@ pub struct Consistency {
     pub coverage_steps: Vec<CoverageCount>,
     /// The tip trace (empty without a tip sensor).
     pub tip: Vec<TipSample>,
+    /// Updates after which the filter carried its own covariance
+    /// (`Estimator::tier_covariance`; docs/design.md §11.11).
+    pub own_covariance: usize,
 }
 
 /// The output covariance blocks of one stored filter, per phase (m²).
@@ -653,6 +656,7 @@ impl<'a> ConsistencyAccumulator<'a> {
         let phase = est.phase();
         let x = est.state();
         self.out.nees_tip_steps.push(ChiSquare::default());
+        self.out.own_covariance += usize::from(est.tier_covariance().is_some());
         if let Some(t) = self.tip {
             est.sensor_displacements(&mut self.sensors)?;
             let w = self.sensor_warp(model, t, x);
@@ -732,6 +736,8 @@ pub struct SeedEnsemble {
     pub coverage_steps: Vec<CoverageCount>,
     /// Draws whose run the runtime refused: seed and reason (the figures are over the others).
     pub refused: Vec<(u64, String)>,
+    /// Updates after which the filter carried its own covariance, over the completed runs.
+    pub own_covariance: usize,
 }
 
 /// Mean, smallest and largest value (`None` when empty).
@@ -772,7 +778,19 @@ impl SeedEnsemble {
         }
         self.errors.push(error);
         self.coverage.push(run.coverage_runtime);
+        self.own_covariance += run.own_covariance;
         Ok(())
+    }
+
+    /// Fraction of the completed runs' updates after which the filter carried its own
+    /// covariance (0 without runs).
+    pub fn own_covariance_fraction(&self) -> f64 {
+        let updates = self.nees_tip.steps() * self.nees_tip.runs();
+        if updates == 0 {
+            0.0
+        } else {
+            self.own_covariance as f64 / updates as f64
+        }
     }
 
     /// The ensemble of the one run `run` of relative error `error` (the per-step bounds of

@@ -493,6 +493,7 @@ impl Comparison {
                 model_error: Some(run.open_loop_error),
                 segments: &segments,
                 loads: &self.loads,
+                own_covariance: ensemble.own_covariance_fraction(),
             };
             let context = Context::from(&figures);
             for a in advice::advise(&figures) {
