@@ -1009,6 +1009,25 @@ impl Estimator {
         self.inner.set_force_adaptation(on);
     }
 
+    /// The co-rotational tier filter's own covariance P of the state (n × n, a copy) while it
+    /// carries one: from an update with an active channel missing or gated until it settles
+    /// near the stored filter's (docs/design.md §11.11); None while the stored covariances are
+    /// in use (always on the warped tier). `sensor_std` and `node_std` follow the same choice.
+    #[getter]
+    fn tier_covariance<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray2<f64>>> {
+        let n = self.inner.state().len();
+        self.inner
+            .tier_covariance()
+            .map(|p| Array2::from_shape_fn((n, n), |(i, j)| p[i * n + j]).into_pyarray(py))
+    }
+
+    /// Whether the co-rotational tier's filter carries its own covariance while channels are
+    /// missing or gated (True, the default) or keeps the stored gains and σ (False; it then
+    /// costs nothing extra). docs/design.md §11.11.
+    fn set_covariance_recursion(&mut self, on: bool) {
+        self.inner.set_covariance_recursion(on);
+    }
+
     /// Number of predictions since construction or `reset`.
     #[getter]
     fn step_index(&self) -> u64 {

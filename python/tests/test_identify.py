@@ -211,3 +211,27 @@ def test_the_force_level_is_reported_and_can_be_held(beam, cantilever_path):
     calm(told)
     assert est.force_level == {"level": 0, "factor": 1.0, "statistic": 0.0, "adapting": False}
     assert crokf.Estimator(crokf.Model.load(cantilever_path)).force_level is None
+
+
+def test_a_missing_marker_gives_the_filters_own_covariance(beam):
+    """The beam's tier: with every marker present the stored covariances are in use (None); from
+    an update with the markers missing the filter carries its own covariance, symmetric, and the
+    tip sigma `sensor_std` reads grows while they are away; switched off, the stored covariances
+    again."""
+    model = crokf.Model.load(beam / "model.crokf")
+    est = crokf.Estimator(model)
+    u = np.zeros(len(model.inputs))
+    est.predict(u)
+    est.update(est.measurement_estimates())
+    assert est.tier_covariance is None
+    sigma = []
+    for _ in range(10):
+        est.predict(u)
+        est.update()
+        p = est.tier_covariance
+        n = len(est.state)
+        assert p.shape == (n, n) and np.allclose(p, p.T)
+        sigma.append(np.linalg.norm(est.sensor_std()[0]))
+    assert all(b > a for a, b in zip(sigma, sigma[1:])), sigma
+    est.set_covariance_recursion(False)
+    assert est.tier_covariance is None

@@ -78,6 +78,13 @@ int crokf_force_level(const CrokfEstimator *est, size_t *level, double *factor,
                       double *statistic);
 /* on != 0: the level follows the innovations (default); 0: it stays at the designed σ. */
 int crokf_set_force_adaptation(CrokfEstimator *est, int on);
+/* Co-rotational tier: from an update with an active channel missing or gated until its
+ * covariance settles, the filter carries its own covariance P (docs/design.md §11.11).
+ * on != 0: so (default); 0: the stored gains and σ. */
+int crokf_set_covariance_recursion(CrokfEstimator *est, int on);
+/* P (n*n doubles row-major, n = crokf_model_state_dim) while the filter carries it: 1 written,
+ * 0 the stored covariances in use (nothing written), -1 wrong length or NULL. */
+int crokf_tier_covariance(const CrokfEstimator *est, double *out, size_t len);
 
 /* Read-outs into caller buffers; len must be exact. A read-out never succeeds with a
  * non-finite value. */

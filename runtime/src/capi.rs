@@ -488,6 +488,56 @@ pub unsafe extern "C" fn crokf_set_force_adaptation(e: *mut CrokfEstimator, on: 
     })
 }
 
+/// Whether the co-rotational tier's filter carries its own covariance while an active channel
+/// is missing or gated (`on` ≠ 0, the default; docs/design.md §11.11) or keeps the stored
+/// gains and σ (`on` = 0). Returns 0, or -1 on a NULL handle.
+///
+/// # Safety
+/// `e` live estimator.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_set_covariance_recursion(
+    e: *mut CrokfEstimator,
+    on: c_int,
+) -> c_int {
+    guard(-1, || {
+        est_mut(e)?.est.set_covariance_recursion(on != 0);
+        Ok(0)
+    })
+}
+
+/// Copies the co-rotational tier filter's own covariance P (n × n row-major, n =
+/// `crokf_model_state_dim`; `len` = n²) while it carries one (docs/design.md §11.11). Returns
+/// 1 when written, 0 when the stored filter's covariances are in use (nothing written), -1
+/// (wrong length, NULL).
+///
+/// # Safety
+/// `e` live estimator; `out` points to `len` writable doubles.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_tier_covariance(
+    e: *const CrokfEstimator,
+    out: *mut f64,
+    len: usize,
+) -> c_int {
+    guard(-1, || {
+        let est = &est_ref(e)?.est;
+        let out = slice_mut(out, len, "out")?;
+        let n = est.state().len();
+        if out.len() != n * n {
+            return Err(format!(
+                "tier covariance: expected length {}, got {len}",
+                n * n
+            ));
+        }
+        match est.tier_covariance() {
+            Some(p) => {
+                out.copy_from_slice(p);
+                Ok(1)
+            }
+            None => Ok(0),
+        }
+    })
+}
+
 macro_rules! readout {
     ($(#[$doc:meta])* $name:ident, $method:ident) => {
         $(#[$doc])*

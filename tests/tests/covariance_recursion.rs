@@ -307,6 +307,36 @@ fn recursion_steps_allocate_nothing_and_a_failed_step_restores_them() {
     assert!(stored_gains.tier_covariance().is_none());
     est.set_covariance_recursion(false);
     assert!(est.tier_covariance().is_none());
+    // The C ABI: P while the filter carries it (1), nothing otherwise (0), -1 on a wrong length
+    // or NULL; the switch.
+    use crokf_runtime::capi::*;
+    let bytes = crokf_formats::encode(model);
+    let n = model.tier.as_ref().unwrap().state_dim();
+    unsafe {
+        let handle = crokf_model_from_bytes(bytes.as_ptr(), bytes.len());
+        assert!(!handle.is_null());
+        let e = crokf_estimator_new(handle);
+        let present: Vec<u8> = y.iter().map(|v| u8::from(v.is_some())).collect();
+        let values: Vec<f64> = y.iter().map(|v| v.unwrap_or(0.0)).collect();
+        let mut p = vec![f64::NAN; n * n];
+        assert_eq!(crokf_tier_covariance(e, p.as_mut_ptr(), p.len()), 0);
+        assert!(p.iter().all(|v| v.is_nan()));
+        assert_eq!(crokf_set_innovation_gate(e, 0.0), 0);
+        let step = |e| crokf_step(e, u.as_ptr(), u.len(), values.as_ptr(), present.as_ptr(), q);
+        assert_eq!(step(e), (q - 1) as i32);
+        assert_eq!(crokf_tier_covariance(e, p.as_mut_ptr(), p.len()), 1);
+        assert!(p.iter().all(|v| v.is_finite()));
+        assert_eq!(crokf_tier_covariance(e, p.as_mut_ptr(), p.len() - 1), -1);
+        assert_eq!(
+            crokf_tier_covariance(std::ptr::null(), p.as_mut_ptr(), p.len()),
+            -1
+        );
+        assert_eq!(crokf_set_covariance_recursion(e, 0), 0);
+        assert_eq!(crokf_tier_covariance(e, p.as_mut_ptr(), p.len()), 0);
+        assert_eq!(crokf_set_covariance_recursion(std::ptr::null_mut(), 1), -1);
+        crokf_estimator_free(e);
+        crokf_model_free(handle);
+    }
 
     let mut broken = model.clone();
     let t = broken.tier.as_mut().unwrap();
