@@ -93,6 +93,23 @@ impl Isa {
             .unwrap_or_else(Isa::portable)
     }
 
+    /// Runs `f` inside a function compiled for this path's instructions, so that LLVM may
+    /// vectorise `f`'s loops (once inlined there) for them; the arithmetic of `f` is unchanged
+    /// except as vectorisation orders it. For plain loops outside the kernel (the runtime's
+    /// covariance recursion); the blocked kernels choose their lanes themselves.
+    #[inline(always)]
+    pub fn dispatch<R>(self, f: impl FnOnce() -> R) -> R {
+        match self.0 {
+            Path::Portable => f(),
+            // SAFETY: an `Isa` holds AVX2 only where the CPU has AVX2 and FMA.
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx2 => unsafe { with_avx2(f) },
+            // SAFETY: an `Isa` holds AVX-512 only where the CPU has AVX-512F.
+            #[cfg(target_arch = "x86_64")]
+            Path::Avx512 => unsafe { with_avx512(f) },
+        }
+    }
+
     /// "portable", "avx2" or "avx512".
     pub fn name(self) -> &'static str {
         match self.0 {
@@ -270,6 +287,20 @@ impl Blocks {
             Path::Avx512 => unsafe { tangent_avx512(self, rotations, scale, out, scratch) },
         }
     }
+}
+
+/// `f()` compiled with AVX2 and FMA ([`Isa::dispatch`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn with_avx2<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}
+
+/// `f()` compiled with AVX-512F ([`Isa::dispatch`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+fn with_avx512<R>(f: impl FnOnce() -> R) -> R {
+    f()
 }
 
 #[cfg(target_arch = "x86_64")]

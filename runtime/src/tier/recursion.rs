@@ -123,9 +123,14 @@ impl Recursion {
             return;
         }
         std::mem::swap(&mut self.p, &mut self.p_prev);
-        self.transition(tier, state);
-        self.propagate(tier, state);
-        self.update_sensor_std(tier);
+        tier.isa.dispatch(
+            #[inline(always)]
+            || {
+                self.transition(tier, state);
+                self.propagate(tier, state);
+                self.update_sensor_std(tier);
+            },
+        );
     }
 
     /// Restores P, its read-out σ and whether the recursion runs to their values before the
@@ -141,6 +146,7 @@ impl Recursion {
     /// G = J⁻¹ [a₀M + a₂C, (6/τ)M + 2C, 2M + (τ/2)C, VᵀB_f, 0] (r × n, module docs) at the
     /// state's Newton matrix: the right-hand sides formed row by row, then one forward and one
     /// back substitution with the step's Cholesky factor on all n columns at once.
+    #[inline(always)]
     fn transition(&mut self, tier: &TierModel, state: &TierState) {
         let (r, n) = (tier.r, self.n);
         let w = wilson(tier);
@@ -198,6 +204,7 @@ impl Recursion {
 
     /// P ← F P_prev Fᵀ + Q (module docs), symmetrised; every product as contiguous row
     /// operations.
+    #[inline(always)]
     fn propagate(&mut self, tier: &TierModel, state: &TierState) {
         let (r, n) = (tier.r, self.n);
         let p = &self.p_prev;
@@ -275,6 +282,7 @@ impl Recursion {
         Some(&self.variance[..tier.measured[phase].len()])
     }
 
+    #[inline(always)]
     fn fill_variance(&mut self, tier: &TierModel, phase: usize) {
         let (r, n) = (tier.r, self.n);
         for (a, &j) in tier.measured[phase].iter().enumerate() {
@@ -289,6 +297,20 @@ impl Recursion {
     /// Starts the recursion from the stored filter's prior when it is not running. Nothing is
     /// committed. Err when S is not positive definite (its pivot).
     pub(crate) fn update(
+        &mut self,
+        tier: &TierModel,
+        state: &mut TierState,
+        phase: usize,
+    ) -> Result<(), usize> {
+        tier.isa.dispatch(
+            #[inline(always)]
+            || self.update_on_this_path(tier, state, phase),
+        )
+    }
+
+    /// [`Recursion::update`]'s body, inlined into the kernel path's function.
+    #[inline(always)]
+    fn update_on_this_path(
         &mut self,
         tier: &TierModel,
         state: &mut TierState,
@@ -402,6 +424,7 @@ impl Recursion {
         &self.variance[..count]
     }
 
+    #[inline(always)]
     fn update_sensor_std(&mut self, tier: &TierModel) {
         let (r, n) = (tier.r, self.n);
         for (o, row) in self.sensor_std.iter_mut().zip(
@@ -491,6 +514,7 @@ impl Shape {
     }
 
     /// Calls `each(c, D[i, c])` for the nonzero entries of row i of D.
+    #[inline(always)]
     fn for_row(&self, i: usize, mut each: impl FnMut(usize, f64)) {
         let (r, nf) = (self.r, self.nf);
         if i < 3 * r {
@@ -509,6 +533,7 @@ impl Shape {
     }
 
     /// out = x Dᵀ (x, out of length n): out[j] = Σ_c D[j, c] x[c], block by block.
+    #[inline(always)]
     fn times_dt(&self, x: &[f64], out: &mut [f64]) {
         let (r, nf) = (self.r, self.nf);
         for blk in 0..3 {
@@ -530,12 +555,14 @@ impl Shape {
 }
 
 /// H's row of measurement channel j (r, over q).
+#[inline(always)]
 fn channel_row(tier: &TierModel, j: usize) -> &[f64] {
     let (s, c) = tier.channel[j];
     &tier.sensor_rows[s][c * tier.r..(c + 1) * tier.r]
 }
 
 /// h P_qq hᵀ for a row h of length r and the leading r × r block of the n × n P.
+#[inline(always)]
 fn quadratic(h: &[f64], p: &[f64], n: usize, r: usize) -> f64 {
     h.iter()
         .zip(p.chunks_exact(n))
@@ -545,6 +572,7 @@ fn quadratic(h: &[f64], p: &[f64], n: usize, r: usize) -> f64 {
 
 /// a · b with eight independent partial sums (a vector register's worth: the sum is not
 /// latency-bound on one accumulator as the sequential one is).
+#[inline(always)]
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     let mut acc = [0.0; 8];
     let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
@@ -563,6 +591,7 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// A ← (A + Aᵀ)/2 (n × n, row-major).
+#[inline(always)]
 fn symmetrise(a: &mut [f64], n: usize) {
     for i in 0..n {
         for j in i + 1..n {
