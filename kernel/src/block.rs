@@ -982,4 +982,31 @@ mod tests {
         );
         assert!(matches!(got, Err((12, PolarError::Inverted(_)))), "{got:?}");
     }
+
+    /// `Isa::dispatch` runs the closure once on every path this CPU has and returns its result;
+    /// plain (non-reassociated, unfused) arithmetic in it gives the same bits on every path.
+    #[test]
+    fn dispatch_runs_the_closure_with_the_same_arithmetic_on_every_path() {
+        let mut rng = Rng(3);
+        let a: Vec<f64> = (0..1000).map(|_| rng.next()).collect();
+        let b: Vec<f64> = (0..1000).map(|_| rng.next()).collect();
+        let axpy = |out: &mut Vec<f64>| {
+            for ((o, x), y) in out.iter_mut().zip(&a).zip(&b) {
+                *o += x * y - 0.5 * x;
+            }
+            out.len()
+        };
+        let mut want = vec![1.0; 1000];
+        axpy(&mut want);
+        for isa in Isa::available() {
+            let mut got = vec![1.0; 1000];
+            let mut calls = 0;
+            let len = isa.dispatch(|| {
+                calls += 1;
+                axpy(&mut got)
+            });
+            assert_eq!((len, calls), (1000, 1), "{}", isa.name());
+            assert_eq!(got, want, "{}", isa.name());
+        }
+    }
 }
