@@ -58,7 +58,7 @@ use crokf_kernel::wilson::WilsonTheta;
 use crokf_kernel::{self as kernel, Mat3, PolarError};
 use model::dot;
 pub use model::TierModel;
-pub use recursion::{linearised_step, SETTLED};
+pub use recursion::{linearised_step, SETTLED, SETTLING_RATE};
 
 /// Iterations after which J is refreshed (within a step, and at the next step).
 pub const SLOW_ITERATIONS: usize = 4;

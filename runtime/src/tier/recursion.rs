@@ -25,10 +25,12 @@
 //!
 //! The gate and the force-σ statistic see the innovation variance of this P⁻ while the
 //! recursion runs, and the read-out σ come from it. The stored filter takes over again after
-//! an update with every active channel used whose prior was within [`SETTLED`] of the stored
-//! one: every active channel's innovation variance and every force state's variance at most
-//! (1 + [`SETTLED`]) times the stored filter's. Nothing allocates per step; a step rolled back
-//! restores P and whether the recursion runs.
+//! an update with every active channel used whose prior had every active channel's innovation
+//! variance at most (1 + [`SETTLED`]) times the stored filter's and whose force states'
+//! variances (the largest ratio to the stored filter's) were either within the same bound or
+//! no longer falling by [`SETTLING_RATE`] per update (the recursion's own steady state at the
+//! current linearisation can lie above the stored filter's, designed at its schedule point).
+//! Nothing allocates per step; a step rolled back restores P and whether the recursion runs.
 
 use super::{wilson, TierModel, TierState};
 use crokf_kernel as kernel;
@@ -36,6 +38,12 @@ use crokf_kernel as kernel;
 /// Relative excess of variance over the stored filter's at which the recursion stops: the
 /// stored σ are then at most √1.1 − 1 ≈ 5 % smaller than the recursion's.
 pub const SETTLED: f64 = 0.1;
+
+/// Relative fall per update of the force states' excess variance below which the recursion
+/// stops although that excess is above [`SETTLED`]: its own steady state at this
+/// linearisation lies above the stored filter's, and what is left of a loss then shrinks over
+/// ≥ 1/`SETTLING_RATE` steps.
+pub const SETTLING_RATE: f64 = 1e-3;
 
 /// The covariance recursion's state and scratch (allocated once, at the estimator's size).
 #[derive(Clone, Debug)]
@@ -51,6 +59,10 @@ pub(crate) struct Recursion {
     /// The pending update's P and whether it settles (committed by [`Recursion::commit`]).
     p_upd: Vec<f64>,
     settles: bool,
+    /// The largest ratio of a force state's prior variance to the stored filter's at the last
+    /// committed update with every channel used (+∞ before one), and the pending update's.
+    excess: f64,
+    excess_upd: f64,
     /// The structure of F = D + E G (module docs).
     shape: Shape,
     /// G (r × n), G P (r × n), (G P Dᵀ)ᵀ (n × r), G P Gᵀ (r × r), P Dᵀ (n × n).
@@ -87,6 +99,8 @@ impl Recursion {
             active_prev: false,
             p_upd: vec![0.0; n * n],
             settles: false,
+            excess: f64::INFINITY,
+            excess_upd: f64::INFINITY,
             shape: Shape::new(tier),
             g: vec![0.0; r * n],
             gp: vec![0.0; r * n],
@@ -112,6 +126,7 @@ impl Recursion {
     pub(crate) fn reset(&mut self) {
         self.active = false;
         self.active_prev = false;
+        self.excess = f64::INFINITY;
     }
 
     /// After the tier's step `state.step` (whose Newton matrix is factored in `state`): keeps
@@ -389,17 +404,25 @@ impl Recursion {
             }
         }
         symmetrise(&mut self.p_upd, n);
-        // Back to the stored filter when every channel was used and the prior is within
-        // SETTLED of the stored one (module docs).
+        // Back to the stored filter when every channel was used and the prior is near the
+        // stored one or no longer approaching it (module docs).
         let stored_filter = &tier.filters[stored];
         let stored_variance = &stored_filter.innovation_variance[phase];
         let stored_prior = &stored_filter.prior[phase];
+        self.excess_upd = if mu == nm {
+            (3 * r..n)
+                .map(|i| self.p[i * n + i] / stored_prior[i * n + i])
+                .fold(0.0, f64::max)
+        } else {
+            f64::INFINITY
+        };
         self.settles = mu == nm
             && self.variance[..nm]
                 .iter()
                 .zip(stored_variance)
                 .all(|(&v, &s)| v <= (1.0 + SETTLED) * s)
-            && (3 * r..n).all(|i| self.p[i * n + i] <= (1.0 + SETTLED) * stored_prior[i * n + i]);
+            && (self.excess_upd <= 1.0 + SETTLED
+                || self.excess_upd >= (1.0 - SETTLING_RATE) * self.excess);
         Ok(())
     }
 
@@ -413,6 +436,11 @@ impl Recursion {
     pub(crate) fn commit(&mut self, tier: &TierModel) {
         std::mem::swap(&mut self.p, &mut self.p_upd);
         self.active = !self.settles;
+        self.excess = if self.active {
+            self.excess_upd
+        } else {
+            f64::INFINITY
+        };
         if self.active {
             self.update_sensor_std(tier);
         }
