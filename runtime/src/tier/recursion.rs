@@ -416,13 +416,11 @@ impl Recursion {
         } else {
             f64::INFINITY
         };
-        self.settles = mu == nm
-            && self.variance[..nm]
-                .iter()
-                .zip(stored_variance)
-                .all(|(&v, &s)| v <= (1.0 + SETTLED) * s)
-            && (self.excess_upd <= 1.0 + SETTLED
-                || self.excess_upd >= (1.0 - SETTLING_RATE) * self.excess);
+        let channels_near = self.variance[..nm]
+            .iter()
+            .zip(stored_variance)
+            .all(|(&v, &s)| v <= (1.0 + SETTLED) * s);
+        self.settles = settles(mu == nm, channels_near, self.excess_upd, self.excess);
         Ok(())
     }
 
@@ -582,6 +580,17 @@ impl Shape {
     }
 }
 
+/// Whether the recursion hands back to the stored filter after an update (module docs): every
+/// channel used, every channel's innovation variance near the stored one (`channels_near`), and
+/// the force states' largest variance ratio to the stored filter's, `excess`, within
+/// [`SETTLED`] or no longer falling by [`SETTLING_RATE`] from the last such update's
+/// (`previous`, +∞ for none).
+fn settles(all_used: bool, channels_near: bool, excess: f64, previous: f64) -> bool {
+    all_used
+        && channels_near
+        && (excess <= 1.0 + SETTLED || excess >= (1.0 - SETTLING_RATE) * previous)
+}
+
 /// H's row of measurement channel j (r, over q).
 #[inline(always)]
 fn channel_row(tier: &TierModel, j: usize) -> &[f64] {
@@ -627,5 +636,25 @@ fn symmetrise(a: &mut [f64], n: usize) {
             a[i * n + j] = v;
             a[j * n + i] = v;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settles_near_the_stored_filter_or_when_the_excess_stops_falling() {
+        // Near the stored filter.
+        assert!(settles(true, true, 1.05, f64::INFINITY));
+        // Above it and still falling by more than SETTLING_RATE: not yet.
+        assert!(!settles(true, true, 1.5, f64::INFINITY));
+        assert!(!settles(true, true, 1.5, 1.6));
+        // Above it and no longer falling (its own steady state): hand back.
+        assert!(settles(true, true, 1.5, 1.5 * (1.0 + 0.5 * SETTLING_RATE)));
+        assert!(settles(true, true, 1.5, 1.4));
+        // A channel missing, or a channel's variance above the stored one: never.
+        assert!(!settles(false, true, 1.0, 1.0));
+        assert!(!settles(true, false, 1.0, 1.0));
     }
 }
