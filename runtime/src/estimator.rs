@@ -474,12 +474,15 @@ impl Estimator {
 
     /// Standard deviation of every sensor's displacement, sqrt(diag(C_s P C_sᵀ)), 3 per sensor
     /// (m), from the stored covariance of the current phase (local frame; P⁻ after `predict`,
-    /// P after `update`).
+    /// P after `update`), or from the co-rotational tier filter's own covariance while it
+    /// carries one ([`Estimator::tier_covariance`]). Refused rather than non-finite.
     pub fn sensor_std(&self, out: &mut [f64]) -> Result<(), RuntimeError> {
         let std = self.tier.sensor_std(&self.shared, self.cov, self.phase);
         check_len("sensor std buffer", std.len(), out.len())?;
         out.copy_from_slice(std);
-        Ok(())
+        // The stored σ are finite (validated at load); the tier filter's own covariance
+        // (docs/design.md §11.11) is checked here, as every read-out is.
+        check_finite_readout("sensor std", out)
     }
 
     /// Estimated world value of every measurement channel (length q, m).
@@ -556,7 +559,7 @@ impl Estimator {
         check_len("node std buffer", 3 * ns.node_tags.len(), out.len())?;
         self.tier
             .node_std(&self.shared, self.cov, self.phase, set, out);
-        Ok(())
+        check_finite_readout("node std", out)
     }
 }
 

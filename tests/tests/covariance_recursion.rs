@@ -272,6 +272,18 @@ fn a_lost_marker_updates_from_the_recursions_covariance() {
     assert!(force.iter().all(|&x| x <= 1.0 + SETTLED), "{force:?}");
 }
 
+/// Every stored filter of `model`'s tier, to edit.
+fn broken_filters(model: &mut Model) -> impl Iterator<Item = &mut crokf_formats::KalmanGains> {
+    let t = model.tier.as_mut().unwrap();
+    std::iter::once(&mut t.kalman)
+        .chain(t.scheduled.iter_mut().map(|s| &mut s.kalman))
+        .chain(
+            t.force_levels
+                .iter_mut()
+                .flat_map(|l| std::iter::once(&mut l.kalman).chain(&mut l.scheduled)),
+        )
+}
+
 /// Steps with a marker missing allocate nothing (read-outs included), switched off the
 /// recursion does not run, and a step whose update
 /// fails while the recursion runs (here its process noise, edited negative, makes S
@@ -339,15 +351,7 @@ fn recursion_steps_allocate_nothing_and_a_failed_step_restores_them() {
     }
 
     let mut broken = model.clone();
-    let t = broken.tier.as_mut().unwrap();
-    let filters = std::iter::once(&mut t.kalman)
-        .chain(t.scheduled.iter_mut().map(|s| &mut s.kalman))
-        .chain(
-            t.force_levels
-                .iter_mut()
-                .flat_map(|l| std::iter::once(&mut l.kalman).chain(&mut l.scheduled)),
-        );
-    for k in filters {
+    for k in broken_filters(&mut broken) {
         let n = k.process_noise.rows as usize;
         for i in 0..n {
             k.process_noise.data[i * n + i] = -1e3;
@@ -375,4 +379,27 @@ fn recursion_steps_allocate_nothing_and_a_failed_step_restores_them() {
     assert_eq!(bits(&est), before);
     est.sensor_std(&mut std).unwrap();
     assert_eq!(std, std_before);
+
+    // A process noise near the f64 range: the recursion's prior overflows; its σ read-outs
+    // are refused rather than returned as ±∞, and the update that follows fails and changes
+    // nothing.
+    for k in broken_filters(&mut broken) {
+        let n = k.process_noise.rows as usize;
+        for i in 0..n {
+            k.process_noise.data[i * n + i] = 1e308;
+        }
+    }
+    let mut est = Estimator::new(&broken).unwrap();
+    est.set_innovation_gate(None);
+    est.step(&u, &y).unwrap();
+    est.predict(&u).unwrap();
+    let e = est.sensor_std(&mut std).unwrap_err();
+    assert!(e.to_string().contains("sensor std"), "{e}");
+    assert!(est.node_std(0, &mut nodes).is_err());
+    let state: Vec<u64> = est.state().iter().map(|v| v.to_bits()).collect();
+    assert!(est.update(&y).is_err());
+    assert_eq!(
+        est.state().iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+        state
+    );
 }
