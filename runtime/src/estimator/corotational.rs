@@ -106,6 +106,15 @@ fn kind_index(kind: CovarianceKind) -> usize {
     }
 }
 
+/// The model file's tier section (present whenever this step is).
+fn section(shared: &PreparedModel) -> &crokf_formats::CorotationalTier {
+    shared
+        .model
+        .tier
+        .as_ref()
+        .expect("a co-rotational step exists only for a model with a tier")
+}
+
 /// The prepared model's tier (present whenever this step is).
 fn tier(shared: &PreparedModel) -> &TierModel {
     shared
@@ -173,7 +182,7 @@ impl TierStep for CorotationalStep {
                 self.prediction_moved = true;
             }
         }
-        self.recursion.predict(tm, &self.state);
+        self.recursion.predict(tm, section(shared), &self.state);
         Ok(())
     }
 
@@ -203,7 +212,7 @@ impl TierStep for CorotationalStep {
         let live = self.recursion.active() || (self.recursion_on && used < nm);
         if live {
             self.recursion
-                .update(tm, &mut self.state, phase)
+                .update(tm, section(shared), &mut self.state, phase)
                 .map_err(|index| RuntimeError::NonFiniteState {
                     step: gate.step,
                     stage: "update",

@@ -78,11 +78,6 @@ pub(super) struct PointFilter {
     /// Per kind (prior, posterior) and phase: sensor std (3 per sensor), node std per set.
     pub(super) sensor_std: [Vec<Vec<f64>>; 2],
     pub(super) node_std: [Vec<Vec<Vec<f64>>>; 2],
-    /// Per phase: the prior covariance P⁻ (n × n, row-major), where the covariance recursion
-    /// starts ([`super::recursion`]).
-    pub(super) prior: Vec<Vec<f64>>,
-    /// Q (n × n, row-major): the process noise per step the filter was designed with.
-    pub(super) process_noise: Vec<f64>,
 }
 
 /// Aᵀ (cols × rows, row-major) of A.
@@ -181,12 +176,6 @@ impl TierModel {
                 innovation_variance: gate_variances(k, channel.len(), h_row).0,
                 sensor_std: [s_prior, s_post],
                 node_std: [n_prior, n_post],
-                prior: k
-                    .phases
-                    .iter()
-                    .map(|p| p.prior_covariance.data.clone())
-                    .collect(),
-                process_noise: k.process_noise.data.clone(),
             }
         };
         let filters: Vec<PointFilter> = tier.filters().map(filter).collect();

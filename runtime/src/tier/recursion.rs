@@ -33,6 +33,7 @@
 //! Nothing allocates per step; a step rolled back restores P and whether the recursion runs.
 
 use super::{wilson, TierModel, TierState};
+use crokf_formats::{CorotationalTier, KalmanGains};
 use crokf_kernel as kernel;
 
 /// Relative excess of variance over the stored filter's at which the recursion stops: the
@@ -132,7 +133,12 @@ impl Recursion {
     /// After the tier's step `state.step` (whose Newton matrix is factored in `state`): keeps
     /// P for a rollback and, when running, P⁻ = F P Fᵀ + Q with the Q of the stored filter in
     /// use.
-    pub(crate) fn predict(&mut self, tier: &TierModel, state: &TierState) {
+    pub(crate) fn predict(
+        &mut self,
+        tier: &TierModel,
+        section: &CorotationalTier,
+        state: &TierState,
+    ) {
         self.active_prev = self.active;
         if !self.active {
             return;
@@ -142,7 +148,7 @@ impl Recursion {
             #[inline(always)]
             || {
                 self.transition(tier, state);
-                self.propagate(tier, state);
+                self.propagate(tier, section, state);
                 self.update_sensor_std(tier);
             },
         );
@@ -220,7 +226,7 @@ impl Recursion {
     /// P ← F P_prev Fᵀ + Q (module docs), symmetrised; every product as contiguous row
     /// operations.
     #[inline(always)]
-    fn propagate(&mut self, tier: &TierModel, state: &TierState) {
+    fn propagate(&mut self, tier: &TierModel, section: &CorotationalTier, state: &TierState) {
         let (r, n) = (tier.r, self.n);
         let p = &self.p_prev;
         let shape = &self.shape;
@@ -249,7 +255,9 @@ impl Recursion {
         for i in 0..n {
             shape.times_dt(&p[i * n..(i + 1) * n], &mut self.pd[i * n..(i + 1) * n]);
         }
-        let q = &tier.filters[tier.filter_index(state.level, state.filter)].process_noise;
+        let q = &stored(section, tier.filter_index(state.level, state.filter))
+            .process_noise
+            .data;
         for i in 0..n {
             let out = &mut self.p[i * n..(i + 1) * n];
             // (D P Dᵀ)[i, ·] = Σ_c D[i, c] (P Dᵀ)[c, ·], plus Q.
@@ -314,12 +322,13 @@ impl Recursion {
     pub(crate) fn update(
         &mut self,
         tier: &TierModel,
+        section: &CorotationalTier,
         state: &mut TierState,
         phase: usize,
     ) -> Result<(), usize> {
         tier.isa.dispatch(
             #[inline(always)]
-            || self.update_on_this_path(tier, state, phase),
+            || self.update_on_this_path(tier, section, state, phase),
         )
     }
 
@@ -328,13 +337,15 @@ impl Recursion {
     fn update_on_this_path(
         &mut self,
         tier: &TierModel,
+        section: &CorotationalTier,
         state: &mut TierState,
         phase: usize,
     ) -> Result<(), usize> {
         let (r, n) = (tier.r, self.n);
-        let stored = tier.filter_index(state.level, state.filter);
+        let filter = tier.filter_index(state.level, state.filter);
         if !self.active {
-            self.p.copy_from_slice(&tier.filters[stored].prior[phase]);
+            self.p
+                .copy_from_slice(&stored(section, filter).phases[phase].prior_covariance.data);
             self.fill_variance(tier, phase);
         }
         let measured = &tier.measured[phase];
@@ -406,9 +417,8 @@ impl Recursion {
         symmetrise(&mut self.p_upd, n);
         // Back to the stored filter when every channel was used and the prior is near the
         // stored one or no longer approaching it (module docs).
-        let stored_filter = &tier.filters[stored];
-        let stored_variance = &stored_filter.innovation_variance[phase];
-        let stored_prior = &stored_filter.prior[phase];
+        let stored_variance = tier.innovation_variance(filter, phase);
+        let stored_prior = &stored(section, filter).phases[phase].prior_covariance.data;
         self.excess_upd = if mu == nm {
             (3 * r..n)
                 .map(|i| self.p[i * n + i] / stored_prior[i * n + i])
@@ -578,6 +588,16 @@ impl Shape {
         }
         out[3 * r + nf..].copy_from_slice(&x[3 * r + nf..]);
     }
+}
+
+/// Stored filter `filter` ([`TierModel::filter_index`]) of the model file's tier section, whose
+/// covariances the recursion reads in place (not copied into the prepared tier: a multi-rate
+/// tier stores a prior per phase and filter).
+fn stored(section: &CorotationalTier, filter: usize) -> &KalmanGains {
+    section
+        .filters()
+        .nth(filter)
+        .expect("the prepared tier's filters are the section's")
 }
 
 /// Whether the recursion hands back to the stored filter after an update (module docs): every
