@@ -23,8 +23,9 @@ impl FilterRun {
 
 /// Runs `model`'s filter from rest over `inputs` (one row per step, model input order) and
 /// `measurements` (one row per step, model measurement order; `None`: missing), the innovation
-/// gate off and the force σ held at its designed level (the identification reads the gains of
-/// the designed filter), and records what [`FilterRun`] holds. Both have one row per step, as
+/// gate off, the force σ held at its designed level and the stored gains kept where a value is
+/// missing (the identification reads the gains of the designed filter), and records what
+/// [`FilterRun`] holds. Both have one row per step, as
 /// many rows.
 pub fn filter_run(
     model: &Model,
@@ -34,6 +35,9 @@ pub fn filter_run(
     let mut est = Estimator::new(model)?;
     est.set_innovation_gate(None);
     est.set_force_adaptation(false);
+    // The stored gains also where the recording misses a value: the identification models
+    // the innovations through the stored filters (docs/design.md §11.11 would change them).
+    est.set_covariance_recursion(false);
     let m = model.measurements.len();
     let mut predicted = vec![0.0; m];
     let mut run = FilterRun {
