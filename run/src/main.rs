@@ -164,6 +164,9 @@ fn run(args: &Args) -> Result<(), RunError> {
     // Co-rotational tier (docs/design.md §10): steps outside the training envelope, the
     // largest load and state ratios, Newton iterations.
     let (mut outside, mut worst_load, mut worst_state, mut newton) = (0u64, 0.0f64, 0.0f64, 0u64);
+    // Steps after which the tier's filter carried its own covariance (a value missing or
+    // gated, docs/design.md §11.11), and the first and last of them.
+    let (mut own, mut own_span) = (0u64, None::<(u64, u64)>);
     let inputs_name = inputs_path.display().to_string();
     for (row, &line) in inputs.rows.iter().zip(&inputs.lines) {
         let k = est.step_index() + 1;
@@ -194,6 +197,10 @@ fn run(args: &Args) -> Result<(), RunError> {
         worst_load = worst_load.max(status.envelope.load_ratio);
         worst_state = worst_state.max(status.envelope.state_ratio);
         newton += status.iterations as u64;
+        if est.tier_covariance().is_some() {
+            own += 1;
+            own_span = Some(own_span.map_or((k, k), |(first, _)| (first, k)));
+        }
         est.sensor_displacements(&mut u).map_err(step_err)?;
         est.sensor_std(&mut sd).map_err(step_err)?;
         let mut text = format!("{},{}", k, est.time());
@@ -222,6 +229,12 @@ fn run(args: &Args) -> Result<(), RunError> {
             inputs.rows.len(),
             newton as f64 / steps as f64
         );
+        if let Some((first, last)) = own_span {
+            eprintln!(
+                "co-rotational tier: the filter carried its own covariance after {own} of {}                  steps (steps {first} … {last}: marker values missing or gated; its σ in the                  estimates grow where those markers looked)",
+                inputs.rows.len()
+            );
+        }
     }
     if let Some(&last) = measurements.keys().next_back() {
         if last > inputs.rows.len() as u64 {

@@ -1,0 +1,87 @@
+//! `crokf-run` on a co-rotational tier with a marker missing for a stretch of a recording: the
+//! run completes, the tip marker's σ in `estimates.csv` grows while its values are missing and
+//! the summary names the steps on the filter's own covariance (docs/design.md §11.11).
+
+use std::process::Command;
+
+use crokf_compile::mesh::procedural::BeamScene;
+use crokf_compile::{compile, CompileOptions};
+
+#[path = "../../tests/tests/support/beam_tier.rs"]
+mod beam_tier;
+use beam_tier::{tip_beam, write_tier_scene};
+
+#[test]
+fn a_marker_missing_for_a_while_shows_in_the_sigma_and_the_summary() {
+    let dir = std::env::temp_dir().join(format!("crokf-run-tier-{}", std::process::id()));
+    let mut scene = BeamScene {
+        force_noise_std: None,
+        force_model: None,
+        ..tip_beam()
+    };
+    scene.sensors.push(("mid".into(), [0.5, 0.05, 0.1]));
+    let path = write_tier_scene(&dir, "scene.toml", &scene);
+    let options = CompileOptions {
+        order: Some(8),
+        skip_measured_error: true,
+        ..CompileOptions::default()
+    };
+    let model = compile(&path, &options).unwrap().model;
+    let mp = dir.join("model.crokf");
+    std::fs::write(&mp, crokf_formats::encode(&model)).unwrap();
+    // 60 steps at rest; every marker at 0, the tip's cells empty on steps 20 … 30.
+    let steps = 60;
+    let inputs = model.input_labels();
+    let mut csv = format!("step,{}\n", inputs.join(","));
+    for k in 1..=steps {
+        csv += &format!("{k}{}\n", ",0".repeat(inputs.len()));
+    }
+    let ip = dir.join("inputs.csv");
+    std::fs::write(&ip, csv).unwrap();
+    let labels = model.measurement_labels();
+    let mut csv = format!("step,{}\n", labels.join(","));
+    for k in 1..=steps {
+        csv += &k.to_string();
+        for l in &labels {
+            let lost = l.starts_with("tip.") && (20..=30).contains(&k);
+            csv += if lost { "," } else { ",0" };
+        }
+        csv += "\n";
+    }
+    let yp = dir.join("measurements.csv");
+    std::fs::write(&yp, csv).unwrap();
+    let op = dir.join("estimates.csv");
+    let out = Command::new(env!("CARGO_BIN_EXE_crokf-run"))
+        .arg(&mp)
+        .arg("--inputs")
+        .arg(&ip)
+        .arg("--measurements")
+        .arg(&yp)
+        .arg("--out")
+        .arg(&op)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("the filter carried its own covariance after")
+            && stderr.contains("(steps 20 … "),
+        "{stderr}"
+    );
+    // The tip's σ (its first σ column) at steps 19 … 31.
+    let text = std::fs::read_to_string(&op).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let column = header.iter().position(|&h| h == "tip.z_std").unwrap();
+    let sigma: Vec<f64> = lines
+        .map(|l| l.split(',').nth(column).unwrap().parse().unwrap())
+        .collect();
+    let lost = &sigma[19..30];
+    assert!(
+        lost.windows(2).all(|w| w[1] > w[0]) && lost[0] > sigma[17],
+        "tip σ around the loss: {:?}",
+        &sigma[16..32]
+    );
+    assert!(sigma[40] < sigma[29], "{:?}", &sigma[28..42]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
