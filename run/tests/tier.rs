@@ -4,29 +4,14 @@
 
 use std::process::Command;
 
-use crokf_compile::mesh::procedural::BeamScene;
-use crokf_compile::{compile, CompileOptions};
-
 #[path = "../../tests/tests/support/beam_tier.rs"]
 mod beam_tier;
-use beam_tier::{tip_beam, write_tier_scene};
+use beam_tier::{compile_beam, estimated_load_beam};
 
 #[test]
 fn a_marker_missing_for_a_while_shows_in_the_sigma_and_the_summary() {
     let dir = std::env::temp_dir().join(format!("crokf-run-tier-{}", std::process::id()));
-    let mut scene = BeamScene {
-        force_noise_std: None,
-        force_model: None,
-        ..tip_beam()
-    };
-    scene.sensors.push(("mid".into(), [0.5, 0.05, 0.1]));
-    let path = write_tier_scene(&dir, "scene.toml", &scene);
-    let options = CompileOptions {
-        order: Some(8),
-        skip_measured_error: true,
-        ..CompileOptions::default()
-    };
-    let model = compile(&path, &options).unwrap().model;
+    let (_, model) = compile_beam(&dir, &estimated_load_beam(true));
     let mp = dir.join("model.crokf");
     std::fs::write(&mp, crokf_formats::encode(&model)).unwrap();
     // 60 steps at rest; every marker at 0, the tip's cells empty on steps 20 … 30.

@@ -477,9 +477,13 @@ impl Estimator {
     /// P after `update`), or from the co-rotational tier filter's own covariance while it
     /// carries one ([`Estimator::tier_covariance`]). Refused rather than non-finite.
     pub fn sensor_std(&self, out: &mut [f64]) -> Result<(), RuntimeError> {
-        let std = self.tier.sensor_std(&self.shared, self.cov, self.phase);
-        check_len("sensor std buffer", std.len(), out.len())?;
-        out.copy_from_slice(std);
+        check_len(
+            "sensor std buffer",
+            3 * self.shared.model.sensors.len(),
+            out.len(),
+        )?;
+        self.tier
+            .sensor_std(&self.shared, self.cov, self.phase, out);
         // The stored σ are finite (validated at load); the tier filter's own covariance
         // (docs/design.md §11.11) is checked here, as every read-out is.
         check_finite_readout("sensor std", out)

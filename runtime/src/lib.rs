@@ -117,6 +117,17 @@ pub enum RuntimeError {
         /// State index.
         index: usize,
     },
+    /// The update from the co-rotational tier filter's own covariance (docs/design.md §11.11)
+    /// would leave that covariance non-finite or its innovation covariance not positive
+    /// definite (estimator untouched).
+    #[error(
+        "step {step}: the update would make the tier filter's own covariance non-finite or \
+         indefinite; step refused"
+    )]
+    NonFiniteCovariance {
+        /// The step k being computed.
+        step: u64,
+    },
     /// A read-out would hold a non-finite value.
     #[error("{what}: value {index} is not finite")]
     NonFiniteReadout {

@@ -11,10 +11,9 @@
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
-use crokf_compile::mesh::procedural::BeamScene;
 use crokf_compile::model_file::tier as section;
 use crokf_compile::report::StageTimer;
-use crokf_compile::{compile, CompileOptions, FullOrder};
+use crokf_compile::FullOrder;
 use crokf_formats::synthetic::SplitMix64;
 use crokf_formats::Model;
 use crokf_runtime::tier::{linearised_step, TierModel, TierState, SETTLED};
@@ -27,27 +26,14 @@ use counting_alloc::count;
 
 #[path = "support/beam_tier.rs"]
 mod beam_tier;
-use beam_tier::{tip_beam, write_tier_scene};
+use beam_tier::{compile_beam, estimated_load_beam};
 
 /// The scene's path and its compiled model, once per process.
 fn compiled() -> &'static (PathBuf, Model) {
     static C: OnceLock<(PathBuf, Model)> = OnceLock::new();
     C.get_or_init(|| {
         let dir = std::env::temp_dir().join(format!("crokf-recursion-{}", std::process::id()));
-        let mut scene = BeamScene {
-            force_noise_std: None,
-            force_model: None,
-            ..tip_beam()
-        };
-        scene.sensors.push(("mid".into(), [0.5, 0.05, 0.1]));
-        let path = write_tier_scene(&dir, "scene.toml", &scene);
-        let options = CompileOptions {
-            order: Some(8),
-            skip_measured_error: true,
-            ..CompileOptions::default()
-        };
-        let model = compile(&path, &options).unwrap().model;
-        (path, model)
+        compile_beam(&dir, &estimated_load_beam(true))
     })
 }
 

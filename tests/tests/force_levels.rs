@@ -7,8 +7,6 @@
 
 use std::sync::OnceLock;
 
-use crokf_compile::mesh::procedural::BeamScene;
-use crokf_compile::{compile, CompileOptions};
 use crokf_formats::synthetic::SplitMix64;
 use crokf_formats::Model;
 use crokf_runtime::Estimator;
@@ -19,7 +17,7 @@ use counting_alloc::count;
 
 #[path = "support/beam_tier.rs"]
 mod beam_tier;
-use beam_tier::{tip_beam, write_tier_scene, DT};
+use beam_tier::{compile_beam, estimated_load_beam, DT};
 
 fn compiled() -> &'static Model {
     static C: OnceLock<Model> = OnceLock::new();
@@ -27,18 +25,7 @@ fn compiled() -> &'static Model {
         // The tip load states no σ: its force σ is derived from the tier's range (30 N) and
         // the default rise time (0.2 s).
         let dir = std::env::temp_dir().join(format!("crokf-levels-{}", std::process::id()));
-        let scene = BeamScene {
-            force_noise_std: None,
-            force_model: None,
-            ..tip_beam()
-        };
-        let path = write_tier_scene(&dir, "scene.toml", &scene);
-        let options = CompileOptions {
-            order: Some(8),
-            skip_measured_error: true,
-            ..CompileOptions::default()
-        };
-        let model = compile(&path, &options).unwrap().model;
+        let (_, model) = compile_beam(&dir, &estimated_load_beam(false));
         let _ = std::fs::remove_dir_all(&dir);
         model
     })

@@ -211,22 +211,16 @@ impl TierStep for CorotationalStep {
         // docs of `crate::tier::recursion`), which then runs until it settles.
         let live = self.recursion.active() || (self.recursion_on && used < nm);
         if live {
-            self.recursion
-                .update(tm, section(shared), &mut self.state, phase)
-                .map_err(|index| RuntimeError::NonFiniteState {
-                    step: gate.step,
-                    stage: "update",
-                    index,
-                })?;
+            let updated = self
+                .recursion
+                .update(tm, section(shared), &mut self.state, phase);
+            if updated.is_err() || first_non_finite(self.recursion.pending()).is_some() {
+                return Err(RuntimeError::NonFiniteCovariance { step: gate.step });
+            }
         } else {
             self.state.apply_stored_gain(tm, phase);
         }
-        let pending = first_non_finite(&self.state.s_upd).or_else(|| {
-            live.then(|| first_non_finite(self.recursion.pending()))
-                .flatten()
-                .map(|i| self.state.s_upd.len() + i)
-        });
-        if let Some(index) = pending {
+        if let Some(index) = first_non_finite(&self.state.s_upd) {
             return Err(RuntimeError::NonFiniteState {
                 step: gate.step,
                 stage: "update",
@@ -235,17 +229,17 @@ impl TierStep for CorotationalStep {
         }
         self.state.commit_update();
         if live {
-            self.recursion.commit(tm);
+            self.recursion.commit();
         }
-        for ((&j, &rejected), verdict) in tm
-            .measured(phase)
+        // What `innovations` found per channel: gated, used, or without a value.
+        for ((&rejected, &present), verdict) in self.gated[..nm]
             .iter()
-            .zip(&self.gated)
+            .zip(&self.state.present[..nm])
             .zip(verdicts.iter_mut())
         {
             *verdict = if rejected {
                 Verdict::Gated
-            } else if get(j as usize).is_some() {
+            } else if present {
                 Verdict::Accepted
             } else {
                 Verdict::Missing
@@ -255,9 +249,9 @@ impl TierStep for CorotationalStep {
         Ok(used)
     }
 
-    fn rollback(&mut self, shared: &PreparedModel) {
+    fn rollback(&mut self, _shared: &PreparedModel) {
         self.state.rollback();
-        self.recursion.rollback(tier(shared));
+        self.recursion.rollback();
         if self.prediction_moved {
             if let (Some(adaptation), Some((level, before))) =
                 (self.adaptation.as_mut(), self.before_prediction.as_ref())
@@ -274,19 +268,23 @@ impl TierStep for CorotationalStep {
         self.state.sensor(tier(shared), s)
     }
 
-    /// The recursion's σ while it runs, else the stored filter's.
-    fn sensor_std<'a>(
-        &'a self,
-        shared: &'a PreparedModel,
+    /// The recursion's σ while it runs (computed now), else the stored filter's.
+    fn sensor_std(
+        &self,
+        shared: &PreparedModel,
         kind: CovarianceKind,
         phase: usize,
-    ) -> &'a [f64] {
-        if self.recursion.active() {
-            return self.recursion.sensor_std();
-        }
+        out: &mut [f64],
+    ) {
         let tm = tier(shared);
-        let filter = tm.filter_index(self.state.level, self.state.filter);
-        tm.std(filter, kind_index(kind), phase).0
+        if self.recursion.active() {
+            for (rows, o) in tm.sensor_rows.iter().zip(out.chunks_exact_mut(3)) {
+                self.recursion.std_of_rows(tm, rows, o);
+            }
+        } else {
+            let filter = tm.filter_index(self.state.level, self.state.filter);
+            out.copy_from_slice(tm.std(filter, kind_index(kind), phase).0);
+        }
     }
 
     fn node_std(
@@ -299,7 +297,7 @@ impl TierStep for CorotationalStep {
     ) {
         let tm = tier(shared);
         if self.recursion.active() {
-            self.recursion.node_std(tm, set, out);
+            self.recursion.std_of_rows(tm, &tm.node_rows[set], out);
         } else {
             let filter = tm.filter_index(self.state.level, self.state.filter);
             out.copy_from_slice(&tm.std(filter, kind_index(kind), phase).1[set]);

@@ -85,13 +85,15 @@ pub(crate) trait TierStep: std::fmt::Debug + Send + Sync {
     /// World-frame displacement of sensor `s` (m).
     fn sensor_world(&self, shared: &PreparedModel, s: usize) -> Vec3;
 
-    /// The read-out σ of every sensor (3 each) in `phase` from covariance `kind`.
-    fn sensor_std<'a>(
-        &'a self,
-        shared: &'a PreparedModel,
+    /// The read-out σ of every sensor (3 each, `out`'s length checked by the caller) in
+    /// `phase` from covariance `kind`.
+    fn sensor_std(
+        &self,
+        shared: &PreparedModel,
         kind: CovarianceKind,
         phase: usize,
-    ) -> &'a [f64];
+        out: &mut [f64],
+    );
 
     /// The read-out σ of node set `set` (3 per node, `out`'s length checked by the caller) in
     /// `phase` from covariance `kind`.

@@ -265,13 +265,14 @@ impl TierStep for WarpedStep {
         Warp::new(&rows3(&sensor.rotation_rows, 0, &self.x)).warp(&u)
     }
 
-    fn sensor_std<'a>(
-        &'a self,
-        shared: &'a PreparedModel,
+    fn sensor_std(
+        &self,
+        shared: &PreparedModel,
         kind: CovarianceKind,
         phase: usize,
-    ) -> &'a [f64] {
-        &Self::current_std(shared, kind, phase).sensors
+        out: &mut [f64],
+    ) {
+        out.copy_from_slice(&Self::current_std(shared, kind, phase).sensors);
     }
 
     fn node_std(

@@ -30,7 +30,8 @@
 //! variances (the largest ratio to the stored filter's) were either within the same bound or
 //! no longer falling by [`SETTLING_RATE`] per update (the recursion's own steady state at the
 //! current linearisation can lie above the stored filter's, designed at its schedule point).
-//! Nothing allocates per step; a step rolled back restores P and whether the recursion runs.
+//! The read-out σ are computed from P when read. Nothing allocates per step; a step rolled back
+//! restores P and whether the recursion runs.
 
 use super::{wilson, TierModel, TierState};
 use crokf_formats::{CorotationalTier, KalmanGains};
@@ -83,8 +84,6 @@ pub(crate) struct Recursion {
     pht: Vec<f64>,
     innovation_covariance: Vec<f64>,
     weights: Vec<f64>,
-    /// Read-out σ of every sensor component from P (3 per sensor), m.
-    sensor_std: Vec<f64>,
 }
 
 impl Recursion {
@@ -114,7 +113,6 @@ impl Recursion {
             pht: vec![0.0; mm * n],
             innovation_covariance: vec![0.0; mm * mm],
             weights: vec![0.0; mm],
-            sensor_std: vec![0.0; tier.sensor_rows.len() * 3],
         }
     }
 
@@ -149,17 +147,14 @@ impl Recursion {
             || {
                 self.transition(tier, state);
                 self.propagate(tier, section, state);
-                self.update_sensor_std(tier);
             },
         );
     }
 
-    /// Restores P, its read-out σ and whether the recursion runs to their values before the
-    /// last prediction.
-    pub(crate) fn rollback(&mut self, tier: &TierModel) {
+    /// Restores P and whether the recursion runs to their values before the last prediction.
+    pub(crate) fn rollback(&mut self) {
         if self.active_prev {
             std::mem::swap(&mut self.p, &mut self.p_prev);
-            self.update_sensor_std(tier);
         }
         self.active = self.active_prev;
     }
@@ -318,7 +313,7 @@ impl Recursion {
     /// The update of `phase` from P⁻ over the channels `state.present` marks, with the
     /// innovations in `state.innovation` (module docs): `state.s_upd` and the pending P.
     /// Starts the recursion from the stored filter's prior when it is not running. Nothing is
-    /// committed. Err when S is not positive definite (its pivot).
+    /// committed. Err when S is not positive definite (its failing pivot).
     pub(crate) fn update(
         &mut self,
         tier: &TierModel,
@@ -441,7 +436,7 @@ impl Recursion {
 
     /// Commits the last [`Recursion::update`]: P ← the pending P; the recursion stops when it
     /// settled.
-    pub(crate) fn commit(&mut self, tier: &TierModel) {
+    pub(crate) fn commit(&mut self) {
         std::mem::swap(&mut self.p, &mut self.p_upd);
         self.active = !self.settles;
         self.excess = if self.active {
@@ -449,9 +444,6 @@ impl Recursion {
         } else {
             f64::INFINITY
         };
-        if self.active {
-            self.update_sensor_std(tier);
-        }
     }
 
     /// The prior innovation variances of the last update's active channels (valid after
@@ -460,32 +452,16 @@ impl Recursion {
         &self.variance[..count]
     }
 
-    #[inline(always)]
-    fn update_sensor_std(&mut self, tier: &TierModel) {
-        let (r, n) = (tier.r, self.n);
-        for (o, row) in self.sensor_std.iter_mut().zip(
-            tier.sensor_rows
-                .iter()
-                .flat_map(|rows| rows.chunks_exact(r)),
-        ) {
-            *o = quadratic(row, &self.p, n, r).max(0.0).sqrt();
-        }
-    }
-
     /// P (n × n, row-major) while running: P⁻ after a prediction, P after an update.
     pub(crate) fn covariance(&self) -> Option<&[f64]> {
         self.active.then_some(&self.p[..])
     }
 
-    /// Read-out σ of every sensor component from P (3 per sensor; valid while running).
-    pub(crate) fn sensor_std(&self) -> &[f64] {
-        &self.sensor_std
-    }
-
-    /// Read-out σ of node set `set` from P into `out` (3 per node; valid while running).
-    pub(crate) fn node_std(&self, tier: &TierModel, set: usize, out: &mut [f64]) {
+    /// Read-out σ sqrt(diag(C P_qq Cᵀ)) from P into `out`, one per row C of `rows` (r each:
+    /// a sensor's or a node set's rows; valid while running). Computed when read, not per step.
+    pub(crate) fn std_of_rows(&self, tier: &TierModel, rows: &[f64], out: &mut [f64]) {
         let r = tier.r;
-        for (o, row) in out.iter_mut().zip(tier.node_rows[set].chunks_exact(r)) {
+        for (o, row) in out.iter_mut().zip(rows.chunks_exact(r)) {
             *o = quadratic(row, &self.p, self.n, r).max(0.0).sqrt();
         }
     }

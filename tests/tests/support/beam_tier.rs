@@ -1,11 +1,13 @@
-//! The small co-rotational beam that `tier.rs` and `force_levels.rs` compile (included by
-//! `#[path]`): a 12×2×2-cell box of 1 m × 0.1 m × 0.1 m (288 tetrahedra) clamped at x = 0, the
+//! The small co-rotational beam that `tier.rs`, `force_levels.rs`, `covariance_recursion.rs`
+//! and crokf-run's `tests/tier.rs` compile (included by `#[path]`): a 12×2×2-cell box of 1 m × 0.1 m × 0.1 m (288 tetrahedra) clamped at x = 0, the
 //! tip load on x = 1 m, a `tip` marker, the end face displayed, Δt = 5 ms, and the tier section
 //! [`TIER`].
 
 use std::path::{Path, PathBuf};
 
 use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
+use crokf_compile::{compile, CompileOptions};
+use crokf_formats::Model;
 
 /// Δt of the beam scenes, s.
 pub const DT: f64 = 0.005;
@@ -39,4 +41,34 @@ pub fn write_tier_scene(dir: &Path, name: &str, scene: &BeamScene) -> PathBuf {
     let path = dir.join(name);
     std::fs::write(&path, scene.toml() + TIER).unwrap();
     path
+}
+
+/// [`tip_beam`] with its tip load estimated and no σ stated (the force σ derived from the
+/// tier's range, 30 N, and the default rise time), with a second marker `mid` halfway along
+/// when `mid_marker`.
+#[allow(dead_code)] // tier.rs compiles its beams with its own settings.
+pub fn estimated_load_beam(mid_marker: bool) -> BeamScene {
+    let mut scene = BeamScene {
+        force_noise_std: None,
+        force_model: None,
+        ..tip_beam()
+    };
+    if mid_marker {
+        scene.sensors.push(("mid".into(), [0.5, 0.05, 0.1]));
+    }
+    scene
+}
+
+/// `scene` written to `dir/scene.toml` ([`write_tier_scene`]) and compiled at order 8 without
+/// the measured error (the quick compile of these tests); the scene's path and the model.
+#[allow(dead_code)] // tier.rs compiles its beams with its own settings.
+pub fn compile_beam(dir: &Path, scene: &BeamScene) -> (PathBuf, Model) {
+    let path = write_tier_scene(dir, "scene.toml", scene);
+    let options = CompileOptions {
+        order: Some(8),
+        skip_measured_error: true,
+        ..CompileOptions::default()
+    };
+    let model = compile(&path, &options).unwrap().model;
+    (path, model)
 }
