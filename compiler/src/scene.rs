@@ -679,9 +679,9 @@ pub struct CorotationalSpec {
     pub ecsw_max_elements: Option<usize>,
 }
 
-/// `[reduction.corotational] directions`: the world directions of the training loads.
-#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
+/// `[reduction.corotational] directions`: the world directions of the training loads, a name
+/// (`"axes"`, `"axes_and_diagonals"`) or a list of vectors (`[[0, 1, 0], [0, -1, 0]]`).
+#[derive(Clone, Debug, Default, PartialEq)]
 pub enum TrainingDirections {
     /// ±x, ±y, ±z: 6 directions (the cheapest; loads off these axes are followed less well,
     /// docs/corotational-tier.md §11).
@@ -692,6 +692,40 @@ pub enum TrainingDirections {
     /// never seen; these four diagonals carry the three couplings with independent signs.
     #[default]
     AxesAndDiagonals,
+    /// The scene's own world directions, as written (normalised when the plan is built;
+    /// checked: finite, non-zero, no two the same): for loads known to act along a few
+    /// directions only, e.g. a couple made of two groups pushed along ±y.
+    List(Vec<[f64; 3]>),
+}
+
+impl<'de> Deserialize<'de> for TrainingDirections {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = TrainingDirections;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("\"axes\", \"axes_and_diagonals\" or a list of [x, y, z] directions")
+            }
+            fn visit_str<E: serde::de::Error>(self, name: &str) -> Result<Self::Value, E> {
+                match name {
+                    "axes" => Ok(TrainingDirections::Axes),
+                    "axes_and_diagonals" => Ok(TrainingDirections::AxesAndDiagonals),
+                    _ => Err(E::invalid_value(serde::de::Unexpected::Str(name), &self)),
+                }
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> Result<Self::Value, A::Error> {
+                let mut list = Vec::new();
+                while let Some(d) = seq.next_element::<[f64; 3]>()? {
+                    list.push(d);
+                }
+                Ok(TrainingDirections::List(list))
+            }
+        }
+        deserializer.deserialize_any(Visitor)
+    }
 }
 
 /// Most ECSW-sampled elements unless a scene says otherwise (also `EcswOptions::default`'s).

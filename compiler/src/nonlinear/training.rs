@@ -144,13 +144,24 @@ pub fn tetrahedral_diagonals() -> Vec<[f64; 3]> {
     vec![[s, s, s], [s, -s, -s], [-s, s, -s], [-s, -s, s]]
 }
 
-/// The unit directions of a scene's `directions` setting, axes first.
-pub fn directions_of(choice: TrainingDirections) -> Vec<[f64; 3]> {
-    let mut directions = axis_directions();
-    if choice == TrainingDirections::AxesAndDiagonals {
-        directions.extend(tetrahedral_diagonals());
+/// The unit directions of a scene's `directions` setting: the named sets axes first, a
+/// list normalised in its order (checked non-zero by the scene).
+pub fn directions_of(choice: &TrainingDirections) -> Vec<[f64; 3]> {
+    match choice {
+        TrainingDirections::Axes => axis_directions(),
+        TrainingDirections::AxesAndDiagonals => {
+            let mut directions = axis_directions();
+            directions.extend(tetrahedral_diagonals());
+            directions
+        }
+        TrainingDirections::List(list) => list
+            .iter()
+            .map(|d| {
+                let norm = d.iter().map(|x| x * x).sum::<f64>().sqrt();
+                d.map(|x| x / norm)
+            })
+            .collect(),
     }
-    directions
 }
 
 impl TrainingPlan {
@@ -198,7 +209,7 @@ impl TrainingPlan {
         }
         TrainingPlan {
             ranges,
-            directions: directions_of(spec.directions),
+            directions: directions_of(&spec.directions),
             histories,
             duration: spec.duration,
             every: spec.every,
@@ -224,7 +235,18 @@ impl TrainingPlan {
 
     /// Every run, in run order (module doc).
     pub fn runs(&self) -> Vec<TrainingRun> {
-        let direction = |d: &[f64; 3]| format!("({:+.0}, {:+.0}, {:+.0})", d[0], d[1], d[2]);
+        // The built-in directions by their signs, e.g. "(+1, -1, -1)"; any other to 2 decimals.
+        let named: Vec<[f64; 3]> = axis_directions()
+            .into_iter()
+            .chain(tetrahedral_diagonals())
+            .collect();
+        let direction = |d: &[f64; 3]| {
+            if named.contains(d) {
+                format!("({:+.0}, {:+.0}, {:+.0})", d[0], d[1], d[2])
+            } else {
+                format!("({:+.2}, {:+.2}, {:+.2})", d[0], d[1], d[2])
+            }
+        };
         let mut out = Vec::new();
         for (g, (name, _)) in self.ranges.iter().enumerate() {
             for d in &self.directions {
@@ -646,5 +668,50 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(bad.contains("axes_and_diagonals"), "{bad}");
+    }
+
+    /// A listed set of directions is trained as written, normalised, with labels that tell
+    /// the directions apart; a zero, a non-finite or a repeated direction is refused by the
+    /// scene check naming the entry.
+    #[test]
+    fn listed_directions_are_normalised_and_checked() {
+        let spec: CorotationalSpec =
+            toml::from_str("duration = 0.1\ndirections = [[0, 2, 0], [0, -1, 0], [1, 1, 0]]")
+                .unwrap();
+        let s = 0.5f64.sqrt();
+        let plan = TrainingPlan::from_scene(&spec, &[]);
+        let expected = [[0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [s, s, 0.0]];
+        assert_eq!(plan.directions.len(), 3);
+        for (d, e) in plan.directions.iter().zip(&expected) {
+            assert!(d.iter().zip(e).all(|(a, b)| (a - b).abs() < 1e-15), "{d:?}");
+        }
+        let mut ranges = std::collections::BTreeMap::new();
+        ranges.insert("push".to_string(), 1.0);
+        let spec = CorotationalSpec { ranges, ..spec };
+        let runs = TrainingPlan::from_scene(&spec, &["push".to_string()]).runs();
+        assert_eq!(runs.len(), 6);
+        assert_eq!(runs[0].label, "push (+0, +1, +0) ramp 1.25×");
+        assert_eq!(runs[4].label, "push (+0.71, +0.71, +0.00) ramp 1.25×");
+        for (list, entry) in [
+            ("[[0, 0, 0]]", "directions[0]"),
+            ("[[0, 1, 0], [1, 0, 0], [0, 3, 0]]", "directions[2]"),
+            ("[]", "directions: list between 1"),
+            ("[[1, 0, nan]]", "directions[0]"),
+        ] {
+            let text = format!(
+                "[mesh]\nfile = \"m.msh\"\n[[material]]\ngroup = \"body\"\nyoung_modulus = 1e6\n\
+                 poisson_ratio = 0.3\ndensity = 1000.0\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\n\
+                 name = \"push\"\ngroup = \"xmax\"\n[time]\ndt = 1e-3\n[reduction]\n\
+                 model = \"corotational\"\n[reduction.corotational]\nranges = {{ push = 1.0 }}\n\
+                 duration = 0.1\ndirections = {list}\n"
+            );
+            let err = crate::scene::Scene::parse(&text, std::path::Path::new("s.toml"))
+                .expect_err(list)
+                .to_string();
+            assert!(
+                err.contains(&format!("reduction.corotational.{entry}")),
+                "{list}: {err}"
+            );
+        }
     }
 }

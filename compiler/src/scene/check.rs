@@ -138,6 +138,43 @@ fn check_target(
     Ok(())
 }
 
+/// Most directions a scene may list (each adds runs per load group and per pair).
+const MAX_DIRECTIONS: usize = 26;
+
+/// A listed training direction is finite and non-zero, and no two point the same way.
+fn check_directions(field: &str, list: &[[f64; 3]]) -> Result<(), String> {
+    if list.is_empty() || list.len() > MAX_DIRECTIONS {
+        return Err(format!(
+            "{field}: list between 1 and {MAX_DIRECTIONS} directions [x, y, z], got {}",
+            list.len()
+        ));
+    }
+    let unit = |d: &[f64; 3]| {
+        let norm = d.iter().map(|x| x * x).sum::<f64>().sqrt();
+        d.map(|x| x / norm)
+    };
+    for (i, d) in list.iter().enumerate() {
+        let norm = d.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if !norm.is_finite() || norm == 0.0 {
+            return Err(format!(
+                "{field}[{i}] = {d:?}: a direction must be finite and non-zero"
+            ));
+        }
+        let u = unit(d);
+        if let Some(j) = list[..i]
+            .iter()
+            .position(|e| unit(e).iter().zip(&u).map(|(a, b)| a * b).sum::<f64>() > 1.0 - 1e-9)
+        {
+            return Err(format!(
+                "{field}[{i}] = {d:?} points the same way as {field}[{j}] = {:?}: list each \
+                 direction once",
+                list[j]
+            ));
+        }
+    }
+    Ok(())
+}
+
 impl CorotationalSpec {
     /// Range checks; `loads` are the scene's load names. Messages name the field.
     fn check(&self, loads: &[&str]) -> Result<(), String> {
@@ -177,6 +214,9 @@ impl CorotationalSpec {
         }
         if let Some(t) = self.ramp_time {
             in_range(&f("ramp_time"), t, (0.0, self.duration), "s")?;
+        }
+        if let TrainingDirections::List(list) = &self.directions {
+            check_directions(&f("directions"), list)?;
         }
         if let Some(order) = self.order.filter(|r| !(1..=200).contains(r)) {
             return Err(format!(
