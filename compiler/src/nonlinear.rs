@@ -10,6 +10,8 @@
 //! - [`basis`]: candidate bases (modes + static correction, static modal derivatives, POD of
 //!   co-rotational snapshots), M-orthonormalisation, projection errors and the tier's choice
 //!   ([`basis::BasisChoice`]: pooled POD, per-run enrichment in the energy norm);
+//! - [`manifold`]: a quadratic manifold u = Vq + W k(q) fitted to snapshots (measured on the
+//!   twist, not in the product);
 //! - [`ecsw`]: element sampling and non-negative weights (ECSW, Lawson–Hanson NNLS);
 //! - [`cubature`]: the sampled elements and their weights as one object (trained by ECSW,
 //!   evaluated by the reduced model, stored by the model file);
@@ -40,6 +42,7 @@ pub mod fidelity;
 pub mod filter;
 pub mod identify;
 pub mod levels;
+pub mod manifold;
 pub mod reduced;
 pub mod self_check;
 pub mod tier;

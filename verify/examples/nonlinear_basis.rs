@@ -14,7 +14,7 @@
 //! ```sh
 //! cargo run --release -p crokf-verify --example nonlinear_basis -- SCENE SCENARIO[,SCENARIO…] \
 //!     [--cache FILE] [--pooled R] [--tolerances 1e-1,1e-2] [--max-order N] [--end-to-end] [--exact] [--ecsw-max N] [--ecsw-snapshots N] \
-//!     [--energy | --energy-enrich]
+//!     [--energy | --energy-enrich] [--quadratic 1e-6,1e-3]
 //! ```
 //!
 //! `--exact`: exact integration over every element instead of ECSW (implies `--end-to-end`).
@@ -26,6 +26,12 @@
 //! tangent in the reduced Newton matrix; `NO_PREDICTOR=1` no Taylor predictor; `STATIC=1` a
 //! static check at each reference's last load (linear and co-rotational, full order against
 //! Galerkin on V); `TRACE=1` the sensor's reduced and full-order values every 10 steps.
+//!
+//! `--quadratic γ[,γ…]`: for each candidate basis also the quadratic manifold fitted to the
+//! training snapshots with regulariser γ ([`crokf_compile::nonlinear::manifold`]): its floors
+//! (the same three, u(VᵀMu) against u) and its open-loop Galerkin run on every element
+//! ([`crokf_verify::nonlinear::manifold::galerkin_run`]); first the same driver with W = 0 (the
+//! linear basis: equals `--exact` to the Newton tolerance, the driver's check).
 //!
 //! Candidates: `pod r` (the first r POD vectors of the pooled snapshots, today's basis,
 //! r = `--pooled`, default the scene's `order`), and for each ε of `--tolerances` the
@@ -41,12 +47,14 @@ use nalgebra::DVector;
 
 use crokf_compile::nonlinear::basis::{self, Basis};
 use crokf_compile::nonlinear::ecsw::{self, EcswOptions};
+use crokf_compile::nonlinear::manifold::QuadraticManifold;
 use crokf_compile::nonlinear::reduced::{ReducedModel, ReducedNewton, ReducedStepper, Refresh};
 use crokf_compile::nonlinear::training::{train, Training, TrainingPlan};
 use crokf_compile::report::StageTimer;
 use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, Simulator};
 use crokf_compile::FullOrder;
 use crokf_verify::nonlinear::floors::displayed_dofs;
+use crokf_verify::nonlinear::manifold::{galerkin_run, galerkin_static};
 use crokf_verify::scenario::{Horizon, Scenario};
 
 type Failure = Box<dyn std::error::Error>;
@@ -206,6 +214,9 @@ fn reference(full: &FullOrder, path: &Path, cache: Option<&Path>) -> Result<Refe
 /// A read-out row: (free DOF, weight) pairs.
 type Row = [(usize, f64)];
 
+/// A named set of read-out rows (the displayed DOFs, a sensor's three components).
+type ReadOut<'a> = (&'a str, &'a [Vec<(usize, f64)>]);
+
 /// Relative L2 over the given DOF rows of `fit(k)` against the reference, whole trajectory.
 fn relative_l2(
     states: &[Vec<f64>],
@@ -258,6 +269,10 @@ fn run() -> Result<(), Failure> {
         .map_or(Ok(EcswOptions::default().max_snapshots), |s| s.parse())?;
     let ecsw_max =
         flag(&args, "--ecsw-max").map_or(Ok(EcswOptions::default().max_elements), |s| s.parse())?;
+    let quadratic: Vec<f64> = flag(&args, "--quadratic")
+        .map(|list| list.split(',').map(str::parse).collect::<Result<_, _>>())
+        .transpose()?
+        .unwrap_or_default();
     let training = training(&full, &plan, cache.as_deref())?;
     let runs = training.runs.len();
     let references: Vec<Reference> = scenarios
@@ -574,6 +589,157 @@ fn run() -> Result<(), Failure> {
                         s.unconverged
                     );
                 }
+            }
+            println!();
+        }
+        if !quadratic.is_empty() {
+            quadratic_rows(
+                &full,
+                b,
+                &training,
+                &references,
+                &quadratic,
+                &[("displayed", &displayed), ("sensor", &sensor)],
+                spec.newton_tolerance,
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// The `--quadratic` rows of one candidate basis (module doc): W = 0 first (the driver's
+/// check), then the manifold fitted with each regulariser γ: worst training run (M-norm), per
+/// reference the floors and the open-loop Galerkin error over each set of read-out rows.
+fn quadratic_rows(
+    full: &FullOrder,
+    b: &Basis,
+    training: &Training,
+    references: &[Reference],
+    regularisers: &[f64],
+    read_outs: &[ReadOut],
+    tolerance: f64,
+) -> Result<(), Failure> {
+    let mass = &full.fem.mass;
+    let m_error = |u: &[f64], fit: &DVector<f64>| -> (f64, f64) {
+        let e: Vec<f64> = u.iter().zip(fit.iter()).map(|(a, b)| a - b).collect();
+        let me = crokf_compile::fem::sparse_mul(mass, &e);
+        let mu = crokf_compile::fem::sparse_mul(mass, u);
+        let dot = |a: &[f64], b: &[f64]| -> f64 { a.iter().zip(b).map(|(x, y)| x * y).sum() };
+        (dot(&e, &me), dot(u, &mu))
+    };
+    let mut manifolds = Vec::new();
+    if let Some(linear) = QuadraticManifold::fit(b, &training.snapshots, 1.0) {
+        let zero = nalgebra::DMatrix::zeros(linear.quadratic.nrows(), linear.quadratic.ncols());
+        manifolds.push((
+            "W = 0 (linear, the driver's check)".to_string(),
+            QuadraticManifold {
+                quadratic: zero,
+                ..linear
+            },
+        ));
+    }
+    for &gamma in regularisers {
+        let started = std::time::Instant::now();
+        match QuadraticManifold::fit(b, &training.snapshots, gamma) {
+            Some(m) => {
+                eprintln!(
+                    "quadratic manifold γ = {gamma:e}: {} products, fitted in {:.1} s",
+                    m.quadratic.ncols(),
+                    started.elapsed().as_secs_f64()
+                );
+                manifolds.push((format!("quadratic γ = {gamma:e}"), m));
+            }
+            None => println!("  quadratic γ = {gamma:e}: no fit (degenerate snapshots)"),
+        }
+    }
+    for (name, m) in &manifolds {
+        // Worst training run on the manifold, M-norm.
+        let runs = training.runs.len();
+        let (mut left, mut total) = (vec![0.0; runs], vec![0.0; runs]);
+        for (u, &k) in training.snapshots.iter().zip(&training.run_of) {
+            let (e, n) = m_error(u, &m.lift(m.project(u).as_slice()));
+            left[k] += e;
+            total[k] += n;
+        }
+        let worst = left
+            .iter()
+            .zip(&total)
+            .map(|(l, t)| if *t > 0.0 { (l / t).sqrt() } else { 0.0 })
+            .fold(0.0f64, f64::max);
+        println!("  {name}: worst training run {worst:.2e}");
+        for reference in references {
+            let lifted: Vec<DVector<f64>> = reference
+                .states
+                .iter()
+                .map(|u| m.lift(m.project(u).as_slice()))
+                .collect();
+            let (mut e2, mut n2) = (0.0, 0.0);
+            for (u, fit) in reference.states.iter().zip(&lifted) {
+                let (e, n) = m_error(u, fit);
+                e2 += e;
+                n2 += n;
+            }
+            print!(
+                "    {}: floor M {:.2e}",
+                reference.name,
+                (e2 / n2.max(f64::MIN_POSITIVE)).sqrt()
+            );
+            for (label, rows) in read_outs {
+                let fit = |k: usize, row: &Row| -> f64 {
+                    row.iter().map(|&(d, w)| w * lifted[k][d]).sum()
+                };
+                print!(
+                    ", {label} {:.2e}",
+                    relative_l2(&reference.states, rows, &fit)
+                );
+            }
+            if std::env::var_os("STATIC").is_some() {
+                // The co-rotational static equilibrium at the last load: full order against the
+                // manifold's.
+                if let Some(f) = reference.loads.last() {
+                    let mut sim = CorotationalSimulator::new(
+                        &full.fem,
+                        full.wilson,
+                        NewtonOptions::default(),
+                    )?;
+                    let exact = sim.static_solve(f, 1e-9)?;
+                    match galerkin_static(full, m, f, 20, 1e-10) {
+                        Ok(u) => {
+                            for (label, rows) in read_outs {
+                                let fit = |_: usize, row: &Row| -> f64 {
+                                    row.iter().map(|&(d, w)| w * u[d]).sum()
+                                };
+                                print!(
+                                    "; static {label} {:.2e}",
+                                    relative_l2(std::slice::from_ref(&exact), rows, &fit)
+                                );
+                            }
+                        }
+                        Err(e) => print!("; static failed: {e}"),
+                    }
+                }
+            }
+            let started = std::time::Instant::now();
+            match galerkin_run(full, m, &reference.loads, tolerance, 30) {
+                Ok(run) => {
+                    print!("; Galerkin open loop");
+                    for (label, rows) in read_outs {
+                        let fit = |k: usize, row: &Row| -> f64 {
+                            row.iter().map(|&(d, w)| w * run.states[k][d]).sum()
+                        };
+                        print!(
+                            " {label} {:.2e}",
+                            relative_l2(&reference.states, rows, &fit)
+                        );
+                    }
+                    print!(
+                        " ({:.2} iterations/step, {} unconverged, {:.1} s)",
+                        run.iterations as f64 / run.states.len().max(1) as f64,
+                        run.unconverged,
+                        started.elapsed().as_secs_f64()
+                    );
+                }
+                Err(e) => print!("; Galerkin run failed: {e}"),
             }
             println!();
         }

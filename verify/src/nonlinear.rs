@@ -8,6 +8,7 @@
 
 pub mod floors;
 pub mod identify;
+pub mod manifold;
 pub mod reference;
 pub mod sampling;
 pub mod tier;

@@ -371,6 +371,49 @@ impl CorotationalSimulator {
         Ok(self.internal.clone())
     }
 
+    /// The Newton residual of one Wilson-θ step from the current state under the load f (n, N)
+    /// at the trial Û (n, m), into `out` (n):
+    /// r(Û) = f − f_int(Û) − M (Ü_θ + α U̇_θ) − β K_t(Û) U̇_θ, zero at the step's solution.
+    /// For a solver that searches Û elsewhere than in the whole space (a reduced manifold); the
+    /// state is unchanged until [`CorotationalSimulator::accept_step`].
+    pub fn step_residual(
+        &mut self,
+        u_hat: &[f64],
+        f: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), SteppingError> {
+        let n = self.pattern.n;
+        check_len("trial displacement", n, u_hat.len())?;
+        check_len("load vector f", n, f.len())?;
+        check_len("residual", n, out.len())?;
+        self.assemble(u_hat);
+        let mut vel = vec![0.0; n];
+        let mut y = vec![0.0; n];
+        let mut my = vec![0.0; n];
+        self.theta_rates(u_hat, &mut vel, &mut y);
+        self.pattern.mul(&self.mass, &y, &mut my);
+        for i in 0..n {
+            out[i] = f[i] - self.internal[i] - my[i];
+        }
+        if self.beta != 0.0 {
+            self.pattern.mul(&self.warped, &vel, &mut my);
+            out.iter_mut()
+                .zip(&my)
+                .for_each(|(r, v)| *r -= self.beta * v);
+        }
+        Ok(())
+    }
+
+    /// Accepts Û (n, m) as the solution of the current step (found by the caller, e.g. on
+    /// [`CorotationalSimulator::step_residual`]): advances U, U̇, Ü by Wilson-θ and the time.
+    pub fn accept_step(&mut self, u_hat: &[f64]) -> Result<(), SteppingError> {
+        check_len("accepted displacement", self.pattern.n, u_hat.len())?;
+        advance_all(&self.wilson, &mut self.u, &mut self.v, &mut self.a, u_hat);
+        self.time += self.wilson.dt;
+        self.stats.steps += 1;
+        Ok(())
+    }
+
     /// Factors J = c_k K_N + c_w K_t + c_m M, K_N the consistent tangent (if enabled, else K_t),
     /// falling back to K_N = K_t when that matrix is not positive definite.
     fn factor_newton(
