@@ -13,7 +13,7 @@
 //!
 //! ```sh
 //! cargo run --release -p crokf-verify --example nonlinear_basis -- SCENE SCENARIO[,SCENARIO…] \
-//!     [--cache FILE] [--pooled R] [--tolerances 1e-1,1e-2] [--max-order N] [--end-to-end] [--exact] [--ecsw-max N] [--ecsw-snapshots N] \
+//!     [--cache FILE] [--pooled R] [--tolerances 1e-1,1e-2|none] [--max-order N] [--end-to-end] [--exact] [--ecsw-max N] [--ecsw-snapshots N] \
 //!     [--energy | --energy-enrich] [--quadratic 1e-6,1e-3]
 //! ```
 //!
@@ -258,11 +258,15 @@ fn run() -> Result<(), Failure> {
     let cache = flag(&args, "--cache").map(PathBuf::from);
     let pooled = flag(&args, "--pooled").map_or(Ok(spec.order()), |s| s.parse())?;
     let max_order = flag(&args, "--max-order").map_or(Ok(60), |s| s.parse())?;
-    let tolerances: Vec<f64> = flag(&args, "--tolerances")
-        .unwrap_or_else(|| "1e-1,3e-2,1e-2".into())
-        .split(',')
-        .map(str::parse)
-        .collect::<Result<_, _>>()?;
+    // `--tolerances none`: the pooled POD alone.
+    let tolerances: Vec<f64> = match flag(&args, "--tolerances").as_deref() {
+        Some("none") => Vec::new(),
+        list => list
+            .unwrap_or("1e-1,3e-2,1e-2")
+            .split(',')
+            .map(str::parse)
+            .collect::<Result<_, _>>()?,
+    };
     let exact = args.iter().any(|a| a == "--exact");
     let end_to_end = exact || args.iter().any(|a| a == "--end-to-end");
     let ecsw_snapshots = flag(&args, "--ecsw-snapshots")
