@@ -662,12 +662,17 @@ pub struct CorotationalSpec {
     /// Also train on every pair of load groups loaded together, in the same and opposite
     /// directions (scenes with two or more groups; e.g. an end torque made of two groups).
     /// Adds 2 × directions × histories runs per pair (docs/corotational-tier.md §6).
-    #[serde(default = "default_combinations")]
-    pub combinations: bool,
-    /// The world directions each load group is trained along (default: the six axes and the
-    /// four diagonals of a regular tetrahedron, [`TrainingDirections`]).
-    #[serde(default)]
-    pub directions: TrainingDirections,
+    /// None: true ([`CorotationalSpec::combinations`]). Not with `case`.
+    pub combinations: Option<bool>,
+    /// The world directions each load group is trained along (None: the six axes and the four
+    /// diagonals of a regular tetrahedron, [`TrainingDirections`]). Not with `case`.
+    pub directions: Option<TrainingDirections>,
+    /// `[[reduction.corotational.case]]`: the training load cases, when the scene states them
+    /// (each trained with both signs × the histories), instead of the runs generated from
+    /// `directions` and `combinations`: for loads known to act together, e.g. a couple made
+    /// of two groups pushed in opposite directions.
+    #[serde(default, rename = "case")]
+    pub cases: Vec<TrainingCase>,
     /// Per-run basis tolerance ε (optional): after the `order` pooled POD vectors, the basis is
     /// enriched until every training run's relative projection error in the energy norm
     /// (K-norm) is ≤ ε, at most `max_order` vectors (docs/corotational-tier.md §8). Without
@@ -677,6 +682,18 @@ pub struct CorotationalSpec {
     pub max_order: Option<usize>,
     /// Most ECSW-sampled elements; None: as `order`.
     pub ecsw_max_elements: Option<usize>,
+}
+
+/// `[[reduction.corotational.case]]`: one training load case, the groups it loads together.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TrainingCase {
+    /// Name in the training runs' labels (default `case K`, K from 1).
+    pub name: Option<String>,
+    /// Load group → its force as a multiple of the group's range per world axis, [x, y, z]
+    /// (length in (0, 1]): `{ upper = [0, 1, 0], lower = [0, -1, 0] }` is a couple at the
+    /// groups' full ranges.
+    pub loads: std::collections::BTreeMap<String, [f64; 3]>,
 }
 
 /// `[reduction.corotational] directions`: the world directions of the training loads, a name
@@ -731,10 +748,6 @@ impl<'de> Deserialize<'de> for TrainingDirections {
 /// Most ECSW-sampled elements unless a scene says otherwise (also `EcswOptions::default`'s).
 pub const DEFAULT_ECSW_MAX_ELEMENTS: usize = 200;
 
-fn default_combinations() -> bool {
-    true
-}
-
 fn default_training_every() -> usize {
     5
 }
@@ -786,6 +799,16 @@ impl CorotationalSpec {
     /// The bound on r: `max_order`, or max(order, 60).
     pub fn largest_order(&self) -> usize {
         self.max_order.unwrap_or(self.order().max(60))
+    }
+
+    /// Pair runs: as stated, else true.
+    pub fn combinations(&self) -> bool {
+        self.combinations.unwrap_or(true)
+    }
+
+    /// The training directions: as stated, else the axes and the four diagonals.
+    pub fn directions(&self) -> TrainingDirections {
+        self.directions.clone().unwrap_or_default()
     }
 }
 

@@ -14,8 +14,11 @@
 //! ```sh
 //! cargo run --release -p crokf-verify --example nonlinear_basis -- SCENE SCENARIO[,SCENARIO…] \
 //!     [--cache FILE] [--pooled R] [--tolerances 1e-1,1e-2|none] [--max-order N] [--end-to-end] [--exact] [--ecsw-max N] [--ecsw-snapshots N] \
-//!     [--energy | --energy-enrich] [--quadratic 1e-6,1e-3]
+//!     [--energy | --energy-enrich] [--quadratic 1e-6,1e-3] [--runs 'TEXT|TEXT']
 //! ```
+//!
+//! `--runs`: the basis from the snapshots of the training runs whose label contains one of the
+//! `|`-separated texts only (the per-run errors then count those runs alone).
 //!
 //! `--exact`: exact integration over every element instead of ECSW (implies `--end-to-end`).
 //! `--energy`: POD and per-run errors in the energy (K) inner product instead of M;
@@ -54,7 +57,7 @@ use crokf_compile::report::StageTimer;
 use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, Simulator};
 use crokf_compile::FullOrder;
 use crokf_verify::nonlinear::floors::displayed_dofs;
-use crokf_verify::nonlinear::manifold::{galerkin_run, galerkin_static};
+use crokf_verify::nonlinear::manifold::{galerkin_run, galerkin_static, History};
 use crokf_verify::scenario::{Horizon, Scenario};
 
 type Failure = Box<dyn std::error::Error>;
@@ -277,7 +280,31 @@ fn run() -> Result<(), Failure> {
         .map(|list| list.split(',').map(str::parse).collect::<Result<_, _>>())
         .transpose()?
         .unwrap_or_default();
-    let training = training(&full, &plan, cache.as_deref())?;
+    let mut training = training(&full, &plan, cache.as_deref())?;
+    // `--runs A|B|…`: keep only the snapshots of training runs whose label contains one of the
+    // `|`-separated texts (which runs a basis needs; the plan itself is unchanged).
+    if let Some(keep) = flag(&args, "--runs") {
+        let texts: Vec<&str> = keep.split('|').collect();
+        let kept: Vec<bool> = training
+            .runs
+            .iter()
+            .map(|(label, _)| texts.iter().any(|t| label.contains(t)))
+            .collect();
+        let (snapshots, run_of): (Vec<Vec<f64>>, Vec<usize>) = training
+            .snapshots
+            .drain(..)
+            .zip(training.run_of.drain(..))
+            .filter(|(_, k)| kept[*k])
+            .unzip();
+        training.snapshots = snapshots;
+        training.run_of = run_of;
+        eprintln!(
+            "--runs: {} of {} runs kept, {} snapshots",
+            kept.iter().filter(|k| **k).count(),
+            kept.len(),
+            training.snapshots.len()
+        );
+    }
     let runs = training.runs.len();
     let references: Vec<Reference> = scenarios
         .split(',')
@@ -723,27 +750,61 @@ fn quadratic_rows(
                     }
                 }
             }
-            let started = std::time::Instant::now();
-            match galerkin_run(full, m, &reference.loads, tolerance, 30) {
-                Ok(run) => {
-                    print!("; Galerkin open loop");
-                    for (label, rows) in read_outs {
-                        let fit = |k: usize, row: &Row| -> f64 {
-                            row.iter().map(|&(d, w)| w * run.states[k][d]).sum()
+            for (history, what) in [
+                (History::FullOrder, "full-order history"),
+                (History::Coordinates, "history in q"),
+            ] {
+                let started = std::time::Instant::now();
+                match galerkin_run(full, m, &reference.loads, tolerance, 30, history) {
+                    Ok(run) => {
+                        print!("; Galerkin open loop ({what})");
+                        for (label, rows) in read_outs {
+                            let fit = |k: usize, row: &Row| -> f64 {
+                                row.iter().map(|&(d, w)| w * run.states[k][d]).sum()
+                            };
+                            print!(
+                                " {label} {:.2e}",
+                                relative_l2(&reference.states, rows, &fit)
+                            );
+                        }
+                        if std::env::var_os("TRACE").is_some() {
+                            // The sensor's y, z (the last read-out's rows 1, 2), reference against run.
+                            if let Some((_, rows)) = read_outs.last() {
+                                let at = |u: &[f64], c: usize| -> f64 {
+                                    rows[c].iter().map(|&(d, w)| w * u[d]).sum()
+                                };
+                                for k in (4..reference.states.len()).step_by(5) {
+                                    println!(
+                                        "    trace step {:4}: reference {:+.4} {:+.4}  run {:+.4} {:+.4}",
+                                        k + 1,
+                                        at(&reference.states[k], 1),
+                                        at(&reference.states[k], 2),
+                                        at(&run.states[k], 1),
+                                        at(&run.states[k], 2)
+                                    );
+                                }
+                            }
+                        }
+                        // The last step alone (after the transient: near the static state).
+                        let last = reference.states.len() - 1;
+                        let end = |_: usize, row: &Row| -> f64 {
+                            row.iter().map(|&(d, w)| w * run.states[last][d]).sum()
                         };
+                        if let Some((label, rows)) = read_outs.last() {
+                            print!(
+                                ", last step {label} {:.2e}",
+                                relative_l2(&reference.states[last..], rows, &end)
+                            );
+                        }
                         print!(
-                            " {label} {:.2e}",
-                            relative_l2(&reference.states, rows, &fit)
+                            " ({:.2} iterations/step, {} unconverged, {:.1} s)",
+                            run.iterations as f64 / run.states.len().max(1) as f64,
+                            run.unconverged,
+                            started.elapsed().as_secs_f64()
                         );
                     }
-                    print!(
-                        " ({:.2} iterations/step, {} unconverged, {:.1} s)",
-                        run.iterations as f64 / run.states.len().max(1) as f64,
-                        run.unconverged,
-                        started.elapsed().as_secs_f64()
-                    );
+                    Err(e) => print!("; Galerkin run ({what}) failed: {e}"),
                 }
-                Err(e) => print!("; Galerkin run failed: {e}"),
             }
             println!();
         }

@@ -15,16 +15,20 @@
 //! 5.0 / 7.0 / 13.5 %, r = 30 at 1e-3 to 1.6 %). Every rung above the first therefore
 //! tightens the tolerance with the order.
 //!
-//! The rule needs the out-of-sample check, hence at least five training runs; with fewer
-//! (or a held-out run that failed in training) the first rung is used, as before the rule.
-//! The training is run once; each rung costs one ECSW and four to ten reduced runs.
+//! The rule measures out of sample with at least five training runs. With fewer (a scene that
+//! lists one or two load cases: 4 or 8 runs) no run can be held out, and each rung is measured
+//! in-sample instead: a tier built as the rung says from all the runs, re-run on every run
+//! ([`self_check::self_check`] at the same threshold). In-sample is optimistic, so a rung that
+//! fails it fails out of sample too. With a training run that failed, the first rung is used
+//! unmeasured. The training is run once; each rung costs one ECSW and four to ten reduced runs.
 
 use crate::full_order::FullOrder;
 
 use super::basis::BasisChoice;
 use super::ecsw::EcswOptions;
 use super::reduced::ReducedNewton;
-use super::self_check::{self, percent, OutOfSample, OUT_OF_SAMPLE_THRESHOLD};
+use super::self_check::{self, percent, OutOfSample, SelfCheck, OUT_OF_SAMPLE_THRESHOLD};
+use super::tier as tier_build;
 use super::training::{Training, TrainingPlan};
 use super::NonlinearError;
 
@@ -40,8 +44,11 @@ pub struct Rung {
 }
 
 /// The rungs, cheapest first: the defaults (r = 20, ECSW 5e-3, ≤ 200 elements), then r × 1.5
-/// and × 2 with the tolerance × 1/5 and 20 elements per basis vector at most.
-pub const LADDER: [Rung; 3] = [
+/// and × 2 with the tolerance × 1/5 and 20 elements per basis vector at most, then r × 1.5 with
+/// the tolerance × 1/50: where the cubature, not the basis, is what misses (the twist of
+/// `models/twist/`, a couple pressed into six nodes per half face: r = 30 is 6.7 % off at
+/// ECSW 1e-3 and 0.55 % at 1e-4, docs/corotational-tier.md §8).
+pub const LADDER: [Rung; 4] = [
     Rung {
         order: crate::scene::DEFAULT_TIER_ORDER,
         ecsw_tolerance: crate::scene::DEFAULT_ECSW_TOLERANCE,
@@ -56,6 +63,11 @@ pub const LADDER: [Rung; 3] = [
         order: 40,
         ecsw_tolerance: 1e-3,
         ecsw_max_elements: 800,
+    },
+    Rung {
+        order: 30,
+        ecsw_tolerance: 1e-4,
+        ecsw_max_elements: 600,
     },
 ];
 
@@ -89,8 +101,11 @@ pub struct Fidelity {
     /// The chosen rung.
     pub rung: Rung,
     /// Its out-of-sample check (None: fewer than five training runs, or a held-out run failed
-    /// in training; the first rung is then used unmeasured).
+    /// in training).
     pub out_of_sample: Option<OutOfSample>,
+    /// With fewer than five training runs: its in-sample check (module doc). When both are
+    /// None the first rung is used unmeasured.
+    pub in_sample: Option<SelfCheck>,
     /// Every rung measured, in ladder order, with its worst held-out error (+∞ for a failed
     /// reduced run).
     pub tried: Vec<(Rung, f64)>,
@@ -101,7 +116,9 @@ impl Fidelity {
     pub fn met(&self) -> bool {
         self.out_of_sample
             .as_ref()
-            .is_some_and(|o| o.check.flagged().is_empty())
+            .map(|o| &o.check)
+            .or(self.in_sample.as_ref())
+            .is_some_and(|c| c.flagged().is_empty())
     }
 
     /// The report note (deterministic).
@@ -109,13 +126,41 @@ impl Fidelity {
         let tried = self
             .tried
             .iter()
-            .map(|(rung, worst)| format!("{}: worst held-out {}", rung.label(), percent(*worst)))
+            .map(|(rung, worst)| {
+                let how = if self.in_sample.is_some() {
+                    "in-sample"
+                } else {
+                    "held-out"
+                };
+                format!("{}: worst {how} {}", rung.label(), percent(*worst))
+            })
             .collect::<Vec<_>>()
             .join("; ");
+        if self.in_sample.is_some() {
+            return if self.met() {
+                format!(
+                    "co-rotational tier fidelity rule (docs/design.md §10): {} chosen, the first \
+                     size whose training runs are all within {} measured in-sample (fewer than \
+                     five training runs: none can be held out; {tried})",
+                    self.rung.label(),
+                    percent(OUT_OF_SAMPLE_THRESHOLD)
+                )
+            } else {
+                format!(
+                    "WARNING: co-rotational tier fidelity rule (docs/design.md §10): no size \
+                     reproduces its own training runs within {} ({tried}; in-sample: fewer than \
+                     five training runs); {} is used, the most accurate. Set `basis_tolerance` \
+                     (with `max_order`), or `order` with a tighter `ecsw_tolerance`, in \
+                     [reduction.corotational]",
+                    percent(OUT_OF_SAMPLE_THRESHOLD),
+                    self.rung.label()
+                )
+            };
+        }
         match (&self.out_of_sample, self.met()) {
             (None, _) => format!(
                 "co-rotational tier fidelity rule (docs/design.md §10): {} used unmeasured, the \
-                 out-of-sample check needs five completed training runs",
+                 training has a failed run",
                 self.rung.label()
             ),
             (Some(_), true) => format!(
@@ -157,41 +202,70 @@ pub fn choose_from(
     let first = *ladder
         .first()
         .ok_or_else(|| NonlinearError::Invalid("the fidelity rule has no size to try".into()))?;
+    let unmeasured = |tried| Fidelity {
+        rung: first,
+        out_of_sample: None,
+        in_sample: None,
+        tried,
+    };
+    if training.runs.iter().any(|(_, failed)| failed.is_some()) {
+        return Ok(unmeasured(Vec::new()));
+    }
+    let in_sample = self_check::held_out_runs(training.runs.len()).is_empty();
     let mut tried = Vec::new();
-    let mut best: Option<(Rung, OutOfSample, f64)> = None;
+    let mut best: Option<(Fidelity, f64)> = None;
     for &rung in ladder {
-        let Some(held) =
-            self_check::out_of_sample(full, plan, training, &rung.basis(), &rung.ecsw(), newton)?
-        else {
-            return Ok(Fidelity {
-                rung: first,
+        let measured = if in_sample {
+            let tier = tier_build::from_training_with(
+                full,
+                training.clone(),
+                &rung.basis(),
+                &rung.ecsw(),
+            )?;
+            let check = self_check::self_check(full, plan, &tier, newton, OUT_OF_SAMPLE_THRESHOLD)?;
+            Fidelity {
+                rung,
                 out_of_sample: None,
-                tried,
-            });
-        };
-        let worst = held.check.worst().map_or(f64::INFINITY, |w| w.error);
-        tried.push((rung, worst));
-        if held.check.flagged().is_empty() {
-            return Ok(Fidelity {
+                in_sample: Some(check),
+                tried: Vec::new(),
+            }
+        } else {
+            let Some(held) = self_check::out_of_sample(
+                full,
+                plan,
+                training,
+                &rung.basis(),
+                &rung.ecsw(),
+                newton,
+            )?
+            else {
+                return Ok(unmeasured(tried));
+            };
+            Fidelity {
                 rung,
                 out_of_sample: Some(held),
-                tried,
-            });
+                in_sample: None,
+                tried: Vec::new(),
+            }
+        };
+        let check = measured
+            .out_of_sample
+            .as_ref()
+            .map(|o| &o.check)
+            .or(measured.in_sample.as_ref());
+        let worst = check
+            .and_then(|c| c.worst())
+            .map_or(f64::INFINITY, |w| w.error);
+        tried.push((rung, worst));
+        if measured.met() {
+            return Ok(Fidelity { tried, ..measured });
         }
-        if best.as_ref().is_none_or(|(_, _, w)| worst < *w) {
-            best = Some((rung, held, worst));
+        if best.as_ref().is_none_or(|(_, w)| worst < *w) {
+            best = Some((measured, worst));
         }
     }
     Ok(match best {
-        Some((rung, held, _)) => Fidelity {
-            rung,
-            out_of_sample: Some(held),
-            tried,
-        },
-        None => Fidelity {
-            rung: first,
-            out_of_sample: None,
-            tried,
-        },
+        Some((measured, _)) => Fidelity { tried, ..measured },
+        None => unmeasured(tried),
     })
 }

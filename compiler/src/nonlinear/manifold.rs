@@ -100,10 +100,15 @@ impl QuadraticManifold {
 
     /// u(q) (n).
     pub fn lift(&self, q: &[f64]) -> DVector<f64> {
+        &self.vectors * DVector::from_column_slice(q) + self.quadratic_part(q)
+    }
+
+    /// W k(q) (n): the manifold's quadratic part alone (with [`QuadraticManifold::tangent`],
+    /// the acceleration of a motion on it: ü = P(q) q̈ + 2 W k(q̇)).
+    pub fn quadratic_part(&self, q: &[f64]) -> DVector<f64> {
         let mut k = vec![0.0; product_count(q.len())];
         products(q, &self.scales, &mut k);
-        &self.vectors * DVector::from_column_slice(q)
-            + &self.quadratic * DVector::from_column_slice(&k)
+        &self.quadratic * DVector::from_column_slice(&k)
     }
 
     /// The tangent ∂u/∂q = V + W ∂k/∂q at q (n × r).

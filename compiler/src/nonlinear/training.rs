@@ -11,7 +11,10 @@
 //! t_r then held, or a step to a·F_g at t = 0 (a the history's multiple of the range). Then,
 //! with `combinations` and at least two groups, for each pair of groups g < g′, each d and each
 //! sign s = +1, −1 and each h: one run with both loaded, f(t) = h(t)(F_g d b_g + s F_g′ d b_g′)
-//! (same and opposite directions: e.g. an end torque made of two opposite forces). Step k
+//! (same and opposite directions: e.g. an end torque made of two opposite forces). A scene that
+//! lists its own load cases (`[[reduction.corotational.case]]`) gets those instead: for each
+//! case, each sign s = +1, −1 and each h, one run with f(t) = s h(t) Σ_g F_g v_g b_g (v_g the
+//! case's force on group g as a multiple of its range). Step k
 //! (k = 0 … N−1, N = round(duration/Δt)) holds f(kΔt); a snapshot is kept after every
 //! `every`-th step and after the last.
 //!
@@ -101,8 +104,21 @@ pub struct TrainingPlan {
     pub modified: Option<ModifiedNewton>,
     /// Pair runs: every pair of groups loaded together, same and opposite directions.
     pub combinations: bool,
+    /// The scene's own training load cases. When not empty they are the runs, each with both
+    /// signs × `histories`, instead of those of `directions` and `combinations`.
+    pub cases: Vec<LoadCase>,
     /// Runs computed at a time (≥ 1; results do not depend on it).
     pub threads: usize,
+}
+
+/// A training load case of the plan: groups loaded together.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoadCase {
+    /// Name in the run labels.
+    pub name: String,
+    /// Per loaded group: its index into the plan's `ranges` and its force as a multiple of the
+    /// range per world axis (length ≤ 1), in group order.
+    pub loads: Vec<(usize, [f64; 3])>,
 }
 
 /// One training run: the loaded groups (index into [`TrainingPlan::ranges`]) with their unit
@@ -183,15 +199,16 @@ impl TrainingPlan {
             newton: NewtonOptions::default(),
             modified: Some(ModifiedNewton::default()),
             combinations: true,
+            cases: Vec::new(),
             threads: default_threads(),
         }
     }
 
     /// The plan of a scene's `[corotational]` table: its `ranges` (in the scene's load order),
-    /// its `directions` ([`directions_of`]), a ramp to `ramp_multiple` × range over `ramp_time` (default
+    /// its `case` list or else its `directions` ([`directions_of`]), a ramp to `ramp_multiple` × range over `ramp_time` (default
     /// duration/3) and a step to `step_multiple` × range.
     pub fn from_scene(spec: &CorotationalSpec, load_names: &[String]) -> Self {
-        let ranges = load_names
+        let ranges: Vec<(String, f64)> = load_names
             .iter()
             .filter_map(|n| spec.ranges.get(n).map(|&r| (n.clone(), r)))
             .collect();
@@ -207,15 +224,54 @@ impl TrainingPlan {
                 multiple: spec.step_multiple,
             });
         }
+        let cases: Vec<LoadCase> = spec
+            .cases
+            .iter()
+            .enumerate()
+            .map(|(i, case)| {
+                let mut loads: Vec<(usize, [f64; 3])> = case
+                    .loads
+                    .iter()
+                    .filter_map(|(name, v)| {
+                        ranges.iter().position(|(n, _)| n == name).map(|g| (g, *v))
+                    })
+                    .collect();
+                loads.sort_by_key(|&(g, _)| g);
+                let name = case
+                    .name
+                    .clone()
+                    .unwrap_or_else(|| format!("case {}", i + 1));
+                LoadCase { name, loads }
+            })
+            .collect();
+        // With cases, the envelope's directions are those the cases load along (both signs).
+        let directions = if cases.is_empty() {
+            directions_of(&spec.directions())
+        } else {
+            let mut unit: Vec<[f64; 3]> = Vec::new();
+            for case in &cases {
+                for (_, v) in &case.loads {
+                    let length = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+                    for sign in [1.0, -1.0] {
+                        let d = v.map(|x| sign * x / length + 0.0);
+                        if !unit.contains(&d) {
+                            unit.push(d);
+                        }
+                    }
+                }
+            }
+            unit
+        };
         TrainingPlan {
             ranges,
-            directions: directions_of(&spec.directions),
+            directions,
             histories,
             duration: spec.duration,
             every: spec.every,
             newton: NewtonOptions::default(),
             modified: Some(ModifiedNewton::default()),
-            combinations: spec.combinations,
+            combinations: spec.combinations(),
+            cases,
             threads: default_threads(),
         }
     }
@@ -248,6 +304,24 @@ impl TrainingPlan {
             }
         };
         let mut out = Vec::new();
+        if !self.cases.is_empty() {
+            for case in &self.cases {
+                for (sign, mark) in [(1.0, "+"), (-1.0, "−")] {
+                    for h in &self.histories {
+                        out.push(TrainingRun {
+                            label: format!("{} {mark} {}", case.name, h.label()),
+                            loads: case
+                                .loads
+                                .iter()
+                                .map(|&(g, v)| (g, v.map(|x| sign * x + 0.0)))
+                                .collect(),
+                            history: *h,
+                        });
+                    }
+                }
+            }
+            return out;
+        }
         for (g, (name, _)) in self.ranges.iter().enumerate() {
             for d in &self.directions {
                 for h in &self.histories {
@@ -632,7 +706,7 @@ mod tests {
     #[test]
     fn default_directions_are_the_axes_and_four_diagonals() {
         let spec: CorotationalSpec = toml::from_str("duration = 0.1").unwrap();
-        assert_eq!(spec.directions, TrainingDirections::AxesAndDiagonals);
+        assert_eq!(spec.directions(), TrainingDirections::AxesAndDiagonals);
         let plan = TrainingPlan::from_scene(&spec, &[]);
         assert_eq!(plan.directions.len(), 10);
         assert_eq!(plan.directions[..6], axis_directions()[..]);
@@ -668,6 +742,109 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(bad.contains("axes_and_diagonals"), "{bad}");
+    }
+
+    /// Listed load cases are the runs (each sign × each history), in the scene's group order,
+    /// labelled by the case's name; their directions (both signs, unit) are the envelope's.
+    #[test]
+    fn listed_cases_replace_the_generated_runs() {
+        let spec: CorotationalSpec = toml::from_str(
+            "duration = 0.1\nranges = { lower = 2.0, upper = 3.0 }\n\
+             [[case]]\nname = \"twist\"\nloads = { upper = [0, 1, 0], lower = [0, -1, 0] }\n\
+             [[case]]\nloads = { lower = [0, 0, 0.5] }\n",
+        )
+        .unwrap();
+        let names = ["upper".to_string(), "lower".to_string()];
+        let plan = TrainingPlan::from_scene(&spec, &names);
+        let runs = plan.runs();
+        let labels: Vec<&str> = runs.iter().map(|r| r.label.as_str()).collect();
+        assert_eq!(
+            labels,
+            [
+                "twist + ramp 1.25×",
+                "twist + step 0.6×",
+                "twist − ramp 1.25×",
+                "twist − step 0.6×",
+                "case 2 + ramp 1.25×",
+                "case 2 + step 0.6×",
+                "case 2 − ramp 1.25×",
+                "case 2 − step 0.6×",
+            ]
+        );
+        // upper is group 0 (the scene's order), lower group 1.
+        assert_eq!(
+            runs[0].loads,
+            vec![(0, [0.0, 1.0, 0.0]), (1, [0.0, -1.0, 0.0])]
+        );
+        assert_eq!(
+            runs[2].loads,
+            vec![(0, [0.0, -1.0, 0.0]), (1, [0.0, 1.0, 0.0])]
+        );
+        assert_eq!(runs[6].loads, vec![(1, [0.0, 0.0, -0.5])]);
+        assert_eq!(
+            plan.directions,
+            vec![
+                [0.0, 1.0, 0.0],
+                [0.0, -1.0, 0.0],
+                [0.0, 0.0, 1.0],
+                [0.0, 0.0, -1.0]
+            ]
+        );
+    }
+
+    /// A case naming a group without a range, a zero or too long force, a repeated name, no
+    /// load, or cases together with `directions` / `combinations` are refused naming the entry.
+    #[test]
+    fn case_errors_name_the_entry() {
+        for (table, entry) in [
+            (
+                "[[reduction.corotational.case]]\nloads = { nope = [0, 1, 0] }",
+                "case[0].loads.nope",
+            ),
+            (
+                "[[reduction.corotational.case]]\nloads = { push = [0, 0, 0] }",
+                "case[0].loads.push",
+            ),
+            (
+                "[[reduction.corotational.case]]\nloads = { push = [0, 1, 1] }",
+                "case[0].loads.push",
+            ),
+            (
+                "[[reduction.corotational.case]]\nloads = {}",
+                "case[0].loads",
+            ),
+            (
+                "[[reduction.corotational.case]]\nname = \"a\"\nloads = { push = [0, 1, 0] }\n\
+                 [[reduction.corotational.case]]\nname = \"a\"\nloads = { push = [1, 0, 0] }",
+                "case[1].name",
+            ),
+            (
+                "[[reduction.corotational.case]]\nloads = { push = [0, 1, 0] }",
+                "reduction.corotational.directions",
+            ),
+        ] {
+            let directions = if entry.ends_with("directions") {
+                "directions = \"axes\"\n"
+            } else {
+                ""
+            };
+            let text = format!(
+                "[mesh]\nfile = \"m.msh\"\n[[material]]\ngroup = \"body\"\nyoung_modulus = 1e6\n\
+                 poisson_ratio = 0.3\ndensity = 1000.0\n[[fixed]]\ngroup = \"xmin\"\n[[load]]\n\
+                 name = \"push\"\ngroup = \"xmax\"\n[[load]]\nname = \"nope\"\ngroup = \"xmax\"\nforce_model = \"white\"\n\
+                 [time]\ndt = 1e-3\n[reduction]\nmodel = \"corotational\"\n\
+                 [reduction.corotational]\nranges = {{ push = 1.0 }}\nduration = 0.1\n{directions}{table}\n"
+            );
+            let err = crate::scene::Scene::parse(&text, std::path::Path::new("s.toml"))
+                .expect_err(table)
+                .to_string();
+            let entry = if entry.starts_with("reduction") {
+                entry.to_string()
+            } else {
+                format!("reduction.corotational.{entry}")
+            };
+            assert!(err.contains(&entry), "{table}: {err}");
+        }
     }
 
     /// A listed set of directions is trained as written, normalised, with labels that tell

@@ -175,7 +175,73 @@ fn check_directions(field: &str, list: &[[f64; 3]]) -> Result<(), String> {
     Ok(())
 }
 
+/// Most training load cases a scene may state.
+const MAX_CASES: usize = 64;
+
 impl CorotationalSpec {
+    /// `case` entries: each names trained groups (in `ranges`) with finite forces of length in
+    /// (0, 1] of the range; names are unique; not together with `directions` or
+    /// `combinations` (which generate the runs the cases replace).
+    fn check_cases(&self) -> Result<(), String> {
+        if self.cases.is_empty() {
+            return Ok(());
+        }
+        let f = |name: &str| format!("reduction.corotational.{name}");
+        for (field, stated) in [
+            ("directions", self.directions.is_some()),
+            ("combinations", self.combinations.is_some()),
+        ] {
+            if stated {
+                return Err(format!(
+                    "{}: the scene lists its training cases ([[reduction.corotational.case]]), \
+                     which replace the runs `{field}` generates; remove `{field}` or the cases",
+                    f(field)
+                ));
+            }
+        }
+        if self.cases.len() > MAX_CASES {
+            return Err(format!(
+                "{}: at most {MAX_CASES} training cases, got {}",
+                f("case"),
+                self.cases.len()
+            ));
+        }
+        let mut names: Vec<String> = Vec::new();
+        for (i, case) in self.cases.iter().enumerate() {
+            let here = f(&format!("case[{i}]"));
+            if case.loads.is_empty() {
+                return Err(format!(
+                    "{here}.loads: name at least one load group and its force, e.g. \
+                     loads = {{ push = [0, 1, 0] }}"
+                ));
+            }
+            for (group, v) in &case.loads {
+                if !self.ranges.contains_key(group) {
+                    return Err(format!(
+                        "{here}.loads.{group}: not a trained load group (groups with a range: {})",
+                        self.ranges.keys().cloned().collect::<Vec<_>>().join(", ")
+                    ));
+                }
+                let length = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+                if !length.is_finite() || length == 0.0 || length > 1.0 + 1e-12 {
+                    return Err(format!(
+                        "{here}.loads.{group} = {v:?}: the force is a multiple of the group's \
+                         range per axis, of length in (0, 1]; got length {length}"
+                    ));
+                }
+            }
+            let name = case
+                .name
+                .clone()
+                .unwrap_or_else(|| format!("case {}", i + 1));
+            if names.contains(&name) {
+                return Err(format!("{here}.name: '{name}' is used by another case"));
+            }
+            names.push(name);
+        }
+        Ok(())
+    }
+
     /// Range checks; `loads` are the scene's load names. Messages name the field.
     fn check(&self, loads: &[&str]) -> Result<(), String> {
         let f = |name: &str| format!("reduction.corotational.{name}");
@@ -215,9 +281,10 @@ impl CorotationalSpec {
         if let Some(t) = self.ramp_time {
             in_range(&f("ramp_time"), t, (0.0, self.duration), "s")?;
         }
-        if let TrainingDirections::List(list) = &self.directions {
+        if let Some(TrainingDirections::List(list)) = &self.directions {
             check_directions(&f("directions"), list)?;
         }
+        self.check_cases()?;
         if let Some(order) = self.order.filter(|r| !(1..=200).contains(r)) {
             return Err(format!(
                 "{} = {order} is out of range: it must be within [1, 200]",

@@ -372,10 +372,10 @@ impl CorotationalSimulator {
     }
 
     /// The Newton residual of one Wilson-θ step from the current state under the load f (n, N)
-    /// at the trial Û (n, m), into `out` (n):
-    /// r(Û) = f − f_int(Û) − M (Ü_θ + α U̇_θ) − β K_t(Û) U̇_θ, zero at the step's solution.
-    /// For a solver that searches Û elsewhere than in the whole space (a reduced manifold); the
-    /// state is unchanged until [`CorotationalSimulator::accept_step`].
+    /// at the trial Û (n, m), into `out` (n): [`CorotationalSimulator::dynamic_residual`] at Û
+    /// with the Wilson-θ rates U̇_θ, Ü_θ of Û, zero at the step's solution. For a solver that
+    /// searches Û elsewhere than in the whole space (a reduced manifold); the state is
+    /// unchanged until [`CorotationalSimulator::accept_step`].
     pub fn step_residual(
         &mut self,
         u_hat: &[f64],
@@ -384,19 +384,48 @@ impl CorotationalSimulator {
     ) -> Result<(), SteppingError> {
         let n = self.pattern.n;
         check_len("trial displacement", n, u_hat.len())?;
-        check_len("load vector f", n, f.len())?;
-        check_len("residual", n, out.len())?;
-        self.assemble(u_hat);
         let mut vel = vec![0.0; n];
         let mut y = vec![0.0; n];
-        let mut my = vec![0.0; n];
         self.theta_rates(u_hat, &mut vel, &mut y);
+        // y = Ü_θ + α U̇_θ: the acceleration is y − α U̇_θ.
+        let acc: Vec<f64> = y
+            .iter()
+            .zip(&vel)
+            .map(|(y, v)| y - self.alpha * v)
+            .collect();
+        self.dynamic_residual(u_hat, &vel, &acc, f, out)
+    }
+
+    /// The equation of motion's residual at a displacement u, velocity u̇ and acceleration ü
+    /// (n each) under the load f (n, N), into `out` (n):
+    /// r = f − f_int(u) − M (ü + α u̇) − β K_t(u) u̇. The state is unchanged.
+    pub fn dynamic_residual(
+        &mut self,
+        u: &[f64],
+        velocity: &[f64],
+        acceleration: &[f64],
+        f: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), SteppingError> {
+        let n = self.pattern.n;
+        check_len("displacement", n, u.len())?;
+        check_len("velocity", n, velocity.len())?;
+        check_len("acceleration", n, acceleration.len())?;
+        check_len("load vector f", n, f.len())?;
+        check_len("residual", n, out.len())?;
+        self.assemble(u);
+        let y: Vec<f64> = acceleration
+            .iter()
+            .zip(velocity)
+            .map(|(a, v)| a + self.alpha * v)
+            .collect();
+        let mut my = vec![0.0; n];
         self.pattern.mul(&self.mass, &y, &mut my);
         for i in 0..n {
             out[i] = f[i] - self.internal[i] - my[i];
         }
         if self.beta != 0.0 {
-            self.pattern.mul(&self.warped, &vel, &mut my);
+            self.pattern.mul(&self.warped, velocity, &mut my);
             out.iter_mut()
                 .zip(&my)
                 .for_each(|(r, v)| *r -= self.beta * v);

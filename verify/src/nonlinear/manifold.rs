@@ -4,13 +4,18 @@
 //! docs/corotational-tier.md §8), before anything is built on it.
 //!
 //! Each step searches the Wilson-θ iterate on the manifold, Û = u(q̂), and solves the full-order
-//! step residual projected on the manifold's tangent, P(q̂)ᵀ r(u(q̂)) = 0
-//! ([`CorotationalSimulator::step_residual`]), by Newton with a forward-difference Jacobian
-//! (r residuals per iteration; fine for the test-sized meshes this measures). The accepted Û
-//! advances the full-order Wilson-θ state ([`CorotationalSimulator::accept_step`]), so the
-//! history U, U̇, Ü is the full-order one. With W = 0 the search stays in span V, the history
-//! too, and the run equals the linear Galerkin stepper (`ReducedStepper` with every element at
-//! weight 1) to the Newton tolerance: the check of this driver.
+//! equation of motion projected on the manifold's tangent, P(q̂)ᵀ r = 0, by Newton with a
+//! forward-difference Jacobian (r residuals per iteration; fine for the test-sized meshes this
+//! measures). Two ways to keep the Wilson-θ history ([`History`]):
+//!
+//! - full order: r is the full-order step residual at Û
+//!   ([`CorotationalSimulator::step_residual`]) and the accepted Û advances U, U̇, Ü
+//!   ([`CorotationalSimulator::accept_step`]);
+//! - in the coordinates: Wilson-θ on q, the rates lifted by the manifold
+//!   ([`CorotationalSimulator::dynamic_residual`] at u(q̂), P q̇_θ, P q̈_θ + 2 W k(q̇_θ)).
+//!
+//! With W = 0 both stay in span V and equal the linear Galerkin stepper (`ReducedStepper` with
+//! every element at weight 1) to the Newton tolerance: the check of this driver.
 
 use nalgebra::{DMatrix, DVector};
 
@@ -31,75 +36,159 @@ pub struct ManifoldRun {
     pub unconverged: usize,
 }
 
+/// Where the run keeps its Wilson-θ history (module doc).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum History {
+    /// U, U̇, Ü at full order, advanced from the accepted Û = u(q̂): the history leaves the
+    /// manifold between steps (its Wilson-θ interpolation is linear in Û).
+    FullOrder,
+    /// q, q̇, q̈ (r each), advanced by Wilson-θ in q; the full-order motion is u(q),
+    /// u̇ = P(q) q̇, ü = P(q) q̈ + 2 W k(q̇) (the manifold's own acceleration: for a quadratic k,
+    /// d²k/dt² = k'(q) q̈ + 2 k(q̇)). What a reduced runtime would carry.
+    Coordinates,
+}
+
+/// g(q): the projected residual (r) at the coordinates q (r).
+type ReducedResidual<'a> = dyn FnMut(&DVector<f64>) -> Result<DVector<f64>, TierError> + 'a;
+
+/// Newton on g(q) = 0 from `q` with a forward-difference Jacobian (steps 1e-7 × the larger of
+/// the coordinate's scale and its value); true when ‖δ‖ ≤ `tolerance` ‖q‖ within
+/// `max_iterations`. Counts iterations into `iterations`.
+fn newton(
+    q: &mut DVector<f64>,
+    scales: &[f64],
+    tolerance: f64,
+    max_iterations: usize,
+    iterations: &mut usize,
+    g: &mut ReducedResidual<'_>,
+) -> Result<bool, TierError> {
+    let r = q.len();
+    for _ in 0..max_iterations {
+        let g0 = g(q)?;
+        let mut jacobian = DMatrix::zeros(r, r);
+        for l in 0..r {
+            let h = 1e-7 * scales[l].max(q[l].abs());
+            let mut shifted = q.clone();
+            shifted[l] += h;
+            jacobian.set_column(l, &((g(&shifted)? - &g0) / h));
+        }
+        let delta = jacobian
+            .lu()
+            .solve(&(-g0))
+            .ok_or_else(|| TierError::Invalid("singular reduced Jacobian".into()))?;
+        *q += &delta;
+        *iterations += 1;
+        if !q.iter().all(|x| x.is_finite()) {
+            return Err(TierError::Invalid("non-finite reduced coordinates".into()));
+        }
+        if delta.norm() <= tolerance * q.norm() {
+            return Ok(true);
+        }
+    }
+    Ok(false)
+}
+
 /// Runs the load history `loads` (n each, held over each step) open loop on `manifold`
-/// (module doc); Newton converged when ‖δq‖ ≤ `tolerance` ‖q̂‖, at most `max_iterations`.
+/// (module doc) with its history kept as `history`; Newton converged when
+/// ‖δq‖ ≤ `tolerance` ‖q̂‖, at most `max_iterations`.
 pub fn galerkin_run(
     full: &FullOrder,
     manifold: &QuadraticManifold,
     loads: &[Vec<f64>],
     tolerance: f64,
     max_iterations: usize,
+    history: History,
 ) -> Result<ManifoldRun, TierError> {
     let n = full.fem.dof_count();
     let r = manifold.order();
-    let mut sim = CorotationalSimulator::new(&full.fem, full.wilson, NewtonOptions::default())?;
-    let tau = full.wilson.tau();
+    let wilson = full.wilson;
+    let mut sim = CorotationalSimulator::new(&full.fem, wilson, NewtonOptions::default())?;
+    let tau = wilson.tau();
+    let (a0, a1, a2) = (
+        wilson.mass_coefficient(),
+        wilson.velocity_coefficient(),
+        wilson.damping_coefficient(),
+    );
     let mut residual = vec![0.0; n];
     let mut run = ManifoldRun::default();
-    // g(q) = P(q)ᵀ r(u(q)).
-    let mut projected = |sim: &mut CorotationalSimulator,
-                         q: &DVector<f64>,
-                         f: &[f64]|
-     -> Result<DVector<f64>, TierError> {
-        let u = manifold.lift(q.as_slice());
-        sim.step_residual(u.as_slice(), f, &mut residual)?;
-        Ok(manifold
-            .tangent(q.as_slice())
-            .tr_mul(&DVector::from_column_slice(&residual)))
-    };
+    // Reduced history (History::Coordinates).
+    let (mut q, mut qd, mut qdd) = (
+        DVector::<f64>::zeros(r),
+        DVector::<f64>::zeros(r),
+        DVector::<f64>::zeros(r),
+    );
     for f in loads {
-        // Start from the projection of the Taylor predictor U + τU̇ + τ²/2 Ü.
-        let predicted: Vec<f64> = (0..n)
-            .map(|i| {
-                sim.displacement()[i]
-                    + tau * sim.velocity()[i]
-                    + 0.5 * tau * tau * sim.acceleration()[i]
-            })
-            .collect();
-        let mut q = manifold.project(&predicted);
-        let mut converged = false;
-        for _ in 0..max_iterations {
-            let g = projected(&mut sim, &q, f)?;
-            let mut jacobian = DMatrix::zeros(r, r);
-            for l in 0..r {
-                let h = 1e-7 * manifold.scales[l].max(q[l].abs());
-                let mut shifted = q.clone();
-                shifted[l] += h;
-                let gl = projected(&mut sim, &shifted, f)?;
-                jacobian.set_column(l, &((gl - &g) / h));
+        let mut q_hat = match history {
+            // The projection of the full-order Taylor predictor U + τU̇ + τ²/2 Ü.
+            History::FullOrder => {
+                let predicted: Vec<f64> = (0..n)
+                    .map(|i| {
+                        sim.displacement()[i]
+                            + tau * sim.velocity()[i]
+                            + 0.5 * tau * tau * sim.acceleration()[i]
+                    })
+                    .collect();
+                manifold.project(&predicted)
             }
-            let delta = jacobian
-                .lu()
-                .solve(&(-g))
-                .ok_or_else(|| TierError::Invalid("singular reduced Jacobian".into()))?;
-            q += &delta;
-            run.iterations += 1;
-            if !q.iter().all(|x| x.is_finite()) {
-                return Err(TierError::Invalid(format!(
-                    "non-finite coordinates at step {}",
-                    run.states.len() + 1
-                )));
-            }
-            if delta.norm() <= tolerance * q.norm() {
-                converged = true;
-                break;
-            }
-        }
+            History::Coordinates => &q + tau * &qd + 0.5 * tau * tau * &qdd,
+        };
+        let converged = match history {
+            History::FullOrder => newton(
+                &mut q_hat,
+                &manifold.scales,
+                tolerance,
+                max_iterations,
+                &mut run.iterations,
+                &mut |x| {
+                    let u = manifold.lift(x.as_slice());
+                    sim.step_residual(u.as_slice(), f, &mut residual)?;
+                    Ok(manifold
+                        .tangent(x.as_slice())
+                        .tr_mul(&DVector::from_column_slice(&residual)))
+                },
+            )?,
+            History::Coordinates => newton(
+                &mut q_hat,
+                &manifold.scales,
+                tolerance,
+                max_iterations,
+                &mut run.iterations,
+                &mut |x| {
+                    // Wilson-θ rates at t + τ in q, lifted with the manifold's tangent.
+                    let dq = x - &q;
+                    let acc = a0 * &dq - a1 * &qd - 2.0 * &qdd;
+                    let vel = a2 * &dq - 2.0 * &qd - 0.5 * tau * &qdd;
+                    let p = manifold.tangent(x.as_slice());
+                    let u = manifold.lift(x.as_slice());
+                    let u_vel = &p * &vel;
+                    let u_acc = &p * &acc + 2.0 * manifold.quadratic_part(vel.as_slice());
+                    sim.dynamic_residual(
+                        u.as_slice(),
+                        u_vel.as_slice(),
+                        u_acc.as_slice(),
+                        f,
+                        &mut residual,
+                    )?;
+                    Ok(p.tr_mul(&DVector::from_column_slice(&residual)))
+                },
+            )?,
+        };
         if !converged {
             run.unconverged += 1;
         }
-        sim.accept_step(manifold.lift(q.as_slice()).as_slice())?;
-        run.states.push(sim.displacement().to_vec());
+        match history {
+            History::FullOrder => {
+                sim.accept_step(manifold.lift(q_hat.as_slice()).as_slice())?;
+                run.states.push(sim.displacement().to_vec());
+            }
+            History::Coordinates => {
+                for i in 0..r {
+                    (q[i], qd[i], qdd[i]) = wilson.advance(q[i], qd[i], qdd[i], q_hat[i]);
+                }
+                run.states
+                    .push(manifold.lift(q.as_slice()).iter().copied().collect());
+            }
+        }
     }
     Ok(run)
 }
@@ -117,42 +206,27 @@ pub fn galerkin_static(
 ) -> Result<Vec<f64>, TierError> {
     let r = manifold.order();
     let mut sim = CorotationalSimulator::new(&full.fem, full.wilson, NewtonOptions::default())?;
-    let mut projected = |q: &DVector<f64>, scale: f64| -> Result<DVector<f64>, TierError> {
-        let u = manifold.lift(q.as_slice());
-        let internal = sim.internal_force(u.as_slice())?;
-        let r: Vec<f64> = f
-            .iter()
-            .zip(&internal)
-            .map(|(a, b)| scale * a - b)
-            .collect();
-        Ok(manifold.tangent(q.as_slice()).tr_mul(&DVector::from_vec(r)))
-    };
     let mut q = DVector::zeros(r);
+    let mut iterations = 0;
     for k in 1..=increments.max(1) {
         let scale = k as f64 / increments.max(1) as f64;
-        let mut converged = false;
-        for _ in 0..50 {
-            let g = projected(&q, scale)?;
-            let mut jacobian = DMatrix::zeros(r, r);
-            for l in 0..r {
-                let h = 1e-7 * manifold.scales[l].max(q[l].abs());
-                let mut shifted = q.clone();
-                shifted[l] += h;
-                jacobian.set_column(l, &((projected(&shifted, scale)? - &g) / h));
-            }
-            let delta = jacobian
-                .lu()
-                .solve(&(-g))
-                .ok_or_else(|| TierError::Invalid("singular reduced Jacobian".into()))?;
-            q += &delta;
-            if !q.iter().all(|x| x.is_finite()) {
-                return Err(TierError::Invalid("non-finite static coordinates".into()));
-            }
-            if delta.norm() <= tolerance * q.norm() {
-                converged = true;
-                break;
-            }
-        }
+        let converged = newton(
+            &mut q,
+            &manifold.scales,
+            tolerance,
+            50,
+            &mut iterations,
+            &mut |x| {
+                let u = manifold.lift(x.as_slice());
+                let internal = sim.internal_force(u.as_slice())?;
+                let r: Vec<f64> = f
+                    .iter()
+                    .zip(&internal)
+                    .map(|(a, b)| scale * a - b)
+                    .collect();
+                Ok(manifold.tangent(x.as_slice()).tr_mul(&DVector::from_vec(r)))
+            },
+        )?;
         if !converged {
             return Err(TierError::Invalid(format!(
                 "static Galerkin did not converge at load factor {scale}"
