@@ -43,6 +43,14 @@ pub enum CompileError {
         /// What went wrong.
         source: KalmanError,
     },
+    /// The markers cannot tell the estimated loads apart ([`crate::observability`]).
+    #[error("{path}: {what}")]
+    Unobservable {
+        /// Scene path.
+        path: PathBuf,
+        /// The unseen force combination and what to change.
+        what: String,
+    },
     /// Full-order simulation (measured error).
     #[error("{path}: full-order simulation: {source}")]
     Stepping {

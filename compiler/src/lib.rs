@@ -29,6 +29,7 @@ pub mod reduced;
 
 pub mod kalman;
 pub mod noise;
+pub mod observability;
 
 pub mod model_file;
 

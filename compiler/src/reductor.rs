@@ -16,8 +16,9 @@ use crokf_kernel::wilson;
 use crate::accuracy::{self, ReferenceResponses};
 use crate::error::CompileError;
 use crate::full_order::FullOrder;
-use crate::kalman::{self, PeriodicSchedule};
+use crate::kalman::{self, KalmanError, PeriodicSchedule};
 use crate::noise::NoiseModel;
+use crate::observability;
 use crate::outputs::{columns, stack_rows, Measurements, OutputRows};
 use crate::reduce::{self, ModalBasis, ModalSystem, Order};
 use crate::reduced::ReducedModel;
@@ -319,10 +320,39 @@ impl<'a> Reductor<'a> {
             &self.measurements.variance,
             &self.measurements.every,
         )
-        .map_err(|source| CompileError::Kalman {
-            path: self.full.scene_path().to_owned(),
-            source,
+        .map_err(|source| {
+            let path = self.full.scene_path().to_owned();
+            match &source {
+                KalmanError::Undetectable { .. } => match self.unseen_loads() {
+                    Some(what) => CompileError::Unobservable { path, what },
+                    None => CompileError::Kalman { path, source },
+                },
+                _ => CompileError::Kalman { path, source },
+            }
         })
+    }
+
+    /// When the markers cannot tell the estimated loads apart in the full-order model
+    /// ([`crate::observability`]): what is unseen and what to change.
+    fn unseen_loads(&self) -> Option<String> {
+        let noise = self.full.noise_model().ok()?;
+        let channels = noise.force_channels();
+        let g =
+            observability::static_marker_response(self.full, &self.measurements, &channels).ok()?;
+        let labels: Vec<String> = channels
+            .iter()
+            .map(|&ch| self.full.operators.inputs[ch].label.clone())
+            .collect();
+        let (combination, _) = observability::unseen_combination(&g, &labels)?;
+        Some(format!(
+            "the markers cannot tell the estimated loads apart: the force {combination} moves \
+             no marker in the static response ({} estimated force channels, {} marker \
+             channels), so no filter can estimate it. Add a marker where that force moves the body, or state \
+             force_model = \"white\" on a load the runtime is always told (then it is not \
+             estimated)",
+            channels.len(),
+            self.measurements.len()
+        ))
     }
 
     /// Relative L2 errors of a reduced model against the full-order linear reference on a unit

@@ -364,6 +364,45 @@ fn the_self_check_flags_the_default_twist_tier() {
     assert!(warning.contains(&worst.label), "{warning}");
 }
 
+/// A couple whose two loads the filter is to estimate (the default random walk, σ derived
+/// from the ranges) with one marker at the loaded corner: in the linear static response the
+/// corner moves the same for either half's y force, so the markers cannot tell the couple from
+/// nothing, and no filter exists. The compile says which force is unseen and what to change,
+/// instead of the Riccati solver's eigenvalue.
+#[test]
+fn a_couple_the_markers_cannot_see_is_named() {
+    let scene = twist_scene_with(
+        "twist-unseen",
+        &format!(
+            "ranges = {{ upper = {TWIST_RANGE:e}, lower = {TWIST_RANGE:e} }}\nduration = 0.2\n\
+             every = 5\norder = 8\n[[reduction.corotational.case]]\n\
+             loads = {{ upper = [0, 1, 0], lower = [0, -1, 0] }}\n"
+        ),
+    );
+    let text = std::fs::read_to_string(&scene).expect("scene");
+    std::fs::write(
+        &scene,
+        text.replace("force_model = \"white\"\nforce_noise_std = 0.01\n", ""),
+    )
+    .expect("scene");
+    let options = CompileOptions {
+        order: Some(8),
+        skip_measured_error: true,
+        ..CompileOptions::default()
+    };
+    let err = match compile(&scene, &options) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("a filter that cannot see the couple compiled"),
+    };
+    eprintln!("{err}");
+    assert!(
+        err.contains("0.71·upper.y − 0.71·lower.y moves no marker in the static response")
+            && err.contains("force_model = \"white\"")
+            && err.contains("Add a marker"),
+        "{err}"
+    );
+}
+
 /// The twist through the product (issue 30's target: the end turned by ≥ 45°, within 2 % of
 /// the full-order co-rotational FEM at the corner marker with r ≤ 30 and ≤ 500 sampled
 /// elements, the default sizes). The scene declares the couple as its one training load case

@@ -126,13 +126,30 @@ pub fn ramp_lag(
 /// The smallest σ in [lo, hi] whose filter has `lag(σ)` ≤ 1 (bisection in log σ to a
 /// relative 1 %; λ falls as σ grows). `lag` designs the filter of σ and returns its λ
 /// ([`ramp_lag`]); an error of the design counts as "not yet" (λ = ∞) below the answer.
-/// Returns `hi` with λ(hi) when even `hi` lags beyond 1.
+/// When the filter of `hi` itself cannot be designed (a σ 10³ × another group's makes Q too
+/// ill-scaled for the Riccati solver's checks), the upper end steps down by 10 until one can,
+/// and the first error is returned when none above `lo` can. Returns the upper end with its λ
+/// when even that lags beyond 1.
 pub fn smallest_honest_sigma<E>(
     lo: f64,
     hi: f64,
     mut lag: impl FnMut(f64) -> Result<f64, E>,
 ) -> Result<(f64, f64), E> {
-    let at_hi = lag(hi)?;
+    let mut hi = hi;
+    let mut first_error = None;
+    let at_hi = loop {
+        match lag(hi) {
+            Ok(l) => break l,
+            Err(e) => {
+                let error = first_error.take().unwrap_or(e);
+                if hi / 10.0 <= lo {
+                    return Err(error);
+                }
+                first_error = Some(error);
+                hi /= 10.0;
+            }
+        }
+    };
     if at_hi > 1.0 {
         return Ok((hi, at_hi));
     }
@@ -207,6 +224,30 @@ mod tests {
         );
         // Just below the answer the lag is beyond one σ.
         assert!(scalar_case(sigma / 1.02, sv, d).0 > 1.0);
+    }
+
+    /// A design that fails at the top of the range (as an ill-scaled Q does) moves the top down
+    /// by decades: the answer is the same as with a range that starts below the failure; a
+    /// design that fails everywhere returns the first error.
+    #[test]
+    fn a_failing_design_at_the_top_steps_down() {
+        let (sv, d) = (10.0, 0.01);
+        let design = |s: f64| {
+            if s > 0.5 {
+                Err("no filter")
+            } else {
+                Ok(scalar_case(s, sv, d).0)
+            }
+        };
+        let (sigma, lag) = smallest_honest_sigma(1e-6, 10.0, design).expect("steps down");
+        let (reference, _) = smallest_honest_sigma(1e-6, 0.1, design).expect("in range");
+        assert!(lag <= 1.0);
+        assert!(
+            (sigma / reference - 1.0).abs() < 0.02,
+            "{sigma} vs {reference}"
+        );
+        let none = smallest_honest_sigma(1e-6, 10.0, |_| Err::<f64, _>("no filter"));
+        assert_eq!(none, Err("no filter"));
     }
 
     #[test]
