@@ -132,47 +132,44 @@ pub fn galerkin_run(
             }
             History::Coordinates => &q + tau * &qd + 0.5 * tau * tau * &qdd,
         };
-        let converged = match history {
-            History::FullOrder => newton(
-                &mut q_hat,
-                &manifold.scales,
-                tolerance,
-                max_iterations,
-                &mut run.iterations,
-                &mut |x| {
-                    let u = manifold.lift(x.as_slice());
-                    sim.step_residual(u.as_slice(), f, &mut residual)?;
-                    Ok(manifold
-                        .tangent(x.as_slice())
-                        .tr_mul(&DVector::from_column_slice(&residual)))
-                },
-            )?,
-            History::Coordinates => newton(
-                &mut q_hat,
-                &manifold.scales,
-                tolerance,
-                max_iterations,
-                &mut run.iterations,
-                &mut |x| {
-                    // Wilson-θ rates at t + τ in q, lifted with the manifold's tangent.
-                    let dq = x - &q;
-                    let acc = a0 * &dq - a1 * &qd - 2.0 * &qdd;
-                    let vel = a2 * &dq - 2.0 * &qd - 0.5 * tau * &qdd;
-                    let p = manifold.tangent(x.as_slice());
-                    let u = manifold.lift(x.as_slice());
-                    let u_vel = &p * &vel;
-                    let u_acc = &p * &acc + 2.0 * manifold.quadratic_part(vel.as_slice());
-                    sim.dynamic_residual(
-                        u.as_slice(),
-                        u_vel.as_slice(),
-                        u_acc.as_slice(),
-                        f,
-                        &mut residual,
-                    )?;
-                    Ok(p.tr_mul(&DVector::from_column_slice(&residual)))
-                },
-            )?,
+        let (q0, qd0, qdd0) = (&q, &qd, &qdd);
+        let (sim_ref, residual_ref) = (&mut sim, &mut residual);
+        let mut g: Box<ReducedResidual<'_>> = match history {
+            History::FullOrder => Box::new(move |x: &DVector<f64>| {
+                let u = manifold.lift(x.as_slice());
+                sim_ref.step_residual(u.as_slice(), f, residual_ref)?;
+                Ok(manifold
+                    .tangent(x.as_slice())
+                    .tr_mul(&DVector::from_column_slice(residual_ref)))
+            }),
+            History::Coordinates => Box::new(move |x: &DVector<f64>| {
+                // Wilson-θ rates at t + τ in q, lifted with the manifold's tangent.
+                let dq = x - q0;
+                let acc = a0 * &dq - a1 * qd0 - 2.0 * qdd0;
+                let vel = a2 * &dq - 2.0 * qd0 - 0.5 * tau * qdd0;
+                let p = manifold.tangent(x.as_slice());
+                let u = manifold.lift(x.as_slice());
+                let u_vel = &p * &vel;
+                let u_acc = &p * &acc + 2.0 * manifold.quadratic_part(vel.as_slice());
+                sim_ref.dynamic_residual(
+                    u.as_slice(),
+                    u_vel.as_slice(),
+                    u_acc.as_slice(),
+                    f,
+                    residual_ref,
+                )?;
+                Ok(p.tr_mul(&DVector::from_column_slice(residual_ref)))
+            }),
         };
+        let converged = newton(
+            &mut q_hat,
+            &manifold.scales,
+            tolerance,
+            max_iterations,
+            &mut run.iterations,
+            &mut *g,
+        )?;
+        drop(g);
         if !converged {
             run.unconverged += 1;
         }
