@@ -124,10 +124,11 @@ pub fn tier_section(
             loads: plan
                 .ranges
                 .iter()
-                .map(|(name, range)| fmt::EnvelopeLoad {
+                .enumerate()
+                .map(|(g, (name, range))| fmt::EnvelopeLoad {
                     name: name.clone(),
                     range: *range,
-                    max_force: range * plan.max_multiple(),
+                    max_force: plan.max_force(g),
                 })
                 .collect(),
             directions: plan.directions.clone(),

@@ -208,8 +208,14 @@ impl TrainingPlan {
     /// its `case` list or else its `directions` ([`directions_of`]), a ramp to `ramp_multiple` × range over `ramp_time` (default
     /// duration/3) and a step to `step_multiple` × range.
     pub fn from_scene(spec: &CorotationalSpec, load_names: &[String]) -> Self {
+        // With cases, a group no case loads is not trained: it leaves the plan (and the
+        // envelope, so the runtime reports it outside when it is loaded).
+        let in_a_case = |n: &String| {
+            spec.cases.is_empty() || spec.cases.iter().any(|c| c.loads.contains_key(n))
+        };
         let ranges: Vec<(String, f64)> = load_names
             .iter()
+            .filter(|n| in_a_case(n))
             .filter_map(|n| spec.ranges.get(n).map(|&r| (n.clone(), r)))
             .collect();
         let mut histories = Vec::new();
@@ -358,6 +364,22 @@ impl TrainingPlan {
             }
         }
         out
+    }
+
+    /// The largest force the training puts on group `g` (index into `ranges`), N: its range ×
+    /// [`TrainingPlan::max_multiple`], × the longest force a case gives it when the plan has
+    /// cases.
+    pub fn max_force(&self, g: usize) -> f64 {
+        let share = if self.cases.is_empty() {
+            1.0
+        } else {
+            self.cases
+                .iter()
+                .flat_map(|c| c.loads.iter().filter(|(h, _)| *h == g))
+                .map(|(_, v)| v.iter().map(|x| x * x).sum::<f64>().sqrt())
+                .fold(0.0, f64::max)
+        };
+        self.ranges[g].1 * share * self.max_multiple()
     }
 
     /// Largest multiple of a range any history reaches.
@@ -587,7 +609,8 @@ pub(crate) fn gather(
     out.envelope.max_force = plan
         .ranges
         .iter()
-        .map(|(n, r)| (n.clone(), r * top))
+        .enumerate()
+        .map(|(g, (n, _))| (n.clone(), plan.max_force(g)))
         .collect();
     out.envelope.runs = (
         out.runs.iter().filter(|r| r.1.is_none()).count(),
@@ -745,7 +768,9 @@ mod tests {
     }
 
     /// Listed load cases are the runs (each sign × each history), in the scene's group order,
-    /// labelled by the case's name; their directions (both signs, unit) are the envelope's.
+    /// labelled by the case's name; their directions (both signs, unit) are the envelope's, the
+    /// trained force per group is the longest a case gives it, and a group with a range that no
+    /// case loads leaves the plan.
     #[test]
     fn listed_cases_replace_the_generated_runs() {
         let spec: CorotationalSpec = toml::from_str(
@@ -781,6 +806,10 @@ mod tests {
             vec![(0, [0.0, -1.0, 0.0]), (1, [0.0, 1.0, 0.0])]
         );
         assert_eq!(runs[6].loads, vec![(1, [0.0, 0.0, -0.5])]);
+        // The trained force per group: upper at its full range, lower at its full range (the
+        // couple) × the ramp's 1.25.
+        assert_eq!(plan.max_force(0), 3.0 * 1.25);
+        assert_eq!(plan.max_force(1), 2.0 * 1.25);
         assert_eq!(
             plan.directions,
             vec![
@@ -790,6 +819,15 @@ mod tests {
                 [0.0, 0.0, -1.0]
             ]
         );
+        // A group no case loads is not in the plan.
+        let spec = CorotationalSpec {
+            cases: spec.cases[1..].to_vec(),
+            ..spec
+        };
+        let plan = TrainingPlan::from_scene(&spec, &names);
+        assert_eq!(plan.ranges, vec![("lower".to_string(), 2.0)]);
+        assert_eq!(plan.runs()[0].loads, vec![(0, [0.0, 0.0, 0.5])]);
+        assert_eq!(plan.max_force(0), 2.0 * 0.5 * 1.25);
     }
 
     /// A case naming a group without a range, a zero or too long force, a repeated name, no

@@ -126,6 +126,15 @@ impl<'a> TierReductor<'a> {
             );
         }
         let mut notes = Vec::new();
+        for name in spec.ranges.keys() {
+            if !plan.ranges.iter().any(|(n, _)| n == name) {
+                notes.push(format!(
+                    "co-rotational tier: load '{name}' has a range but no training case loads \
+                     it: the tier is not trained on it, and the runtime reports it outside the \
+                     envelope when it is loaded (add it to a [[reduction.corotational.case]])"
+                ));
+            }
+        }
         for (label, failed) in &training.runs {
             if let Some(why) = failed {
                 notes.push(format!(
@@ -252,7 +261,8 @@ impl<'a> TierReductor<'a> {
             ecsw.tolerance,
             plan.ranges
                 .iter()
-                .map(|(n, f)| format!("{n} ≤ {:.4} N", f * plan.max_multiple()))
+                .enumerate()
+                .map(|(g, (n, _))| format!("{n} ≤ {:.4} N", plan.max_force(g)))
                 .collect::<Vec<_>>()
                 .join(", ")
         ));
