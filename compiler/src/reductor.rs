@@ -347,9 +347,9 @@ impl<'a> Reductor<'a> {
         Some(format!(
             "the markers cannot tell the estimated loads apart: the force {combination} moves \
              no marker in the static response ({} estimated force channels, {} marker \
-             channels), so no filter can estimate it. Add a marker where that force moves the body, or state \
-             force_model = \"white\" on a load the runtime is always told (then it is not \
-             estimated)",
+             channels), so no filter can estimate it. Add a marker where that force moves the \
+             body, or state force_model = \"white\" on a load the runtime is always told (then \
+             it is not estimated)",
             channels.len(),
             self.measurements.len()
         ))

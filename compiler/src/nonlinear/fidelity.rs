@@ -19,8 +19,8 @@
 //! lists one or two load cases: 4 or 8 runs) no run can be held out, and each rung is measured
 //! in-sample instead: a tier built as the rung says from all the runs, re-run on every run
 //! ([`self_check::self_check`] at the same threshold). In-sample is optimistic, so a rung that
-//! fails it fails out of sample too. With a training run that failed, the first rung is used
-//! unmeasured. The training is run once; each rung costs one ECSW and four to ten reduced runs.
+//! fails it fails out of sample too. With a training run that failed (a held-out one, or any
+//! when measuring in-sample), the first rung is used unmeasured. The training is run once; each rung costs one ECSW and four to ten reduced runs.
 
 use crate::full_order::FullOrder;
 
@@ -208,10 +208,10 @@ pub fn choose_from(
         in_sample: None,
         tried,
     };
-    if training.runs.iter().any(|(_, failed)| failed.is_some()) {
+    let in_sample = self_check::held_out_runs(training.runs.len()).is_empty();
+    if in_sample && training.runs.iter().any(|(_, failed)| failed.is_some()) {
         return Ok(unmeasured(Vec::new()));
     }
-    let in_sample = self_check::held_out_runs(training.runs.len()).is_empty();
     let mut tried = Vec::new();
     let mut best: Option<(Fidelity, f64)> = None;
     for &rung in ladder {
