@@ -324,8 +324,9 @@ impl Context<'_> {
     /// The fix of a model error not in σ, for the tier.
     fn model_fix(&self) -> String {
         let corotational = "raise the tier's `order` or set its `basis_tolerance` \
-             (`[reduction.corotational]`), or train it on the directions this load takes \
-             (`[reduction.corotational]`)";
+             (`[reduction.corotational]`), or train it on the loads the body meets \
+             (`[reduction.corotational] directions`, or `[[reduction.corotational.case]]` for \
+             loads that act together)";
         let warped = "use the co-rotational tier (`[reduction] model = \"corotational\"`: the \
              warped model's error grows with the rotation) or raise `[reduction] order`";
         match self.tier {
