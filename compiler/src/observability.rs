@@ -37,15 +37,18 @@ pub fn static_marker_response(
     Ok(DMatrix::from_fn(
         measurements.len(),
         channels.len(),
-        |row, j| {
-            let (s, c) = measurements.channels[row];
-            full.operators.sensors[s]
-                .weights
-                .iter()
-                .filter_map(|&(node, w)| fem.dofs.index[node][c].map(|d| w * u[(d, j)]))
-                .sum()
-        },
+        |row, j| measured_value(full, measurements.channels[row], |d| u[(d, j)]),
     ))
+}
+
+/// The full-order value of measurement channel (sensor, component) `channel` for the
+/// displacement `u` (by DOF index): the sensor's barycentric interpolation.
+pub fn measured_value(full: &FullOrder, (s, c): (usize, usize), u: impl Fn(usize) -> f64) -> f64 {
+    full.operators.sensors[s]
+        .weights
+        .iter()
+        .filter_map(|&(node, w)| full.fem.dofs.index[node][c].map(|d| w * u(d)))
+        .sum()
 }
 
 /// The force combination the markers do not see (module doc), as text naming the channels by

@@ -696,6 +696,12 @@ pub struct TrainingCase {
     pub loads: std::collections::BTreeMap<String, [f64; 3]>,
 }
 
+/// The length of a training direction or a case's force, [x, y, z] (the scene's check and
+/// the training plan normalise by it).
+pub fn length3(v: &[f64; 3]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
 /// `[reduction.corotational] directions`: the world directions of the training loads, a name
 /// (`"axes"`, `"axes_and_diagonals"`) or a list of vectors (`[[0, 1, 0], [0, -1, 0]]`).
 #[derive(Clone, Debug, Default, PartialEq)]

@@ -683,6 +683,19 @@ fn quadratic_rows(
             None => println!("  quadratic γ = {gamma:e}: no fit (degenerate snapshots)"),
         }
     }
+    // `STATIC=1`: each reference's full-order co-rotational static equilibrium at its last load,
+    // solved once for all the manifolds.
+    let statics: Vec<Option<Vec<f64>>> = references
+        .iter()
+        .map(|reference| match reference.loads.last() {
+            Some(f) if std::env::var_os("STATIC").is_some() => {
+                let mut sim =
+                    CorotationalSimulator::new(&full.fem, full.wilson, NewtonOptions::default())?;
+                Ok(Some(sim.static_solve(f, 1e-9)?))
+            }
+            _ => Ok(None),
+        })
+        .collect::<Result<_, Failure>>()?;
     for (name, m) in &manifolds {
         // Worst training run on the manifold, M-norm.
         let runs = training.runs.len();
@@ -698,7 +711,7 @@ fn quadratic_rows(
             .map(|(l, t)| if *t > 0.0 { (l / t).sqrt() } else { 0.0 })
             .fold(0.0f64, f64::max);
         println!("  {name}: worst training run {worst:.2e}");
-        for reference in references {
+        for (r, reference) in references.iter().enumerate() {
             let lifted: Vec<DVector<f64>> = reference
                 .states
                 .iter()
@@ -724,30 +737,22 @@ fn quadratic_rows(
                     relative_l2(&reference.states, rows, &fit)
                 );
             }
-            if std::env::var_os("STATIC").is_some() {
+            if let (Some(exact), Some(f)) = (&statics[r], reference.loads.last()) {
                 // The co-rotational static equilibrium at the last load: full order against the
                 // manifold's.
-                if let Some(f) = reference.loads.last() {
-                    let mut sim = CorotationalSimulator::new(
-                        &full.fem,
-                        full.wilson,
-                        NewtonOptions::default(),
-                    )?;
-                    let exact = sim.static_solve(f, 1e-9)?;
-                    match galerkin_static(full, m, f, 20, 1e-10) {
-                        Ok(u) => {
-                            for (label, rows) in read_outs {
-                                let fit = |_: usize, row: &Row| -> f64 {
-                                    row.iter().map(|&(d, w)| w * u[d]).sum()
-                                };
-                                print!(
-                                    "; static {label} {:.2e}",
-                                    relative_l2(std::slice::from_ref(&exact), rows, &fit)
-                                );
-                            }
+                match galerkin_static(full, m, f, 20, 1e-10) {
+                    Ok(u) => {
+                        for (label, rows) in read_outs {
+                            let fit = |_: usize, row: &Row| -> f64 {
+                                row.iter().map(|&(d, w)| w * u[d]).sum()
+                            };
+                            print!(
+                                "; static {label} {:.2e}",
+                                relative_l2(std::slice::from_ref(exact), rows, &fit)
+                            );
                         }
-                        Err(e) => print!("; static failed: {e}"),
                     }
+                    Err(e) => print!("; static failed: {e}"),
                 }
             }
             for (history, what) in [

@@ -5,12 +5,12 @@
 //! ([`schedule_points`]) and the checks measured on every compile (static residual of the force
 //! channels, the basis's model error at the markers): [`linearised_filter`].
 
-use faer::linalg::solvers::Solve as _;
 use faer::Mat;
 use nalgebra::{DMatrix, DVector};
 
 use crate::full_order::FullOrder;
 use crate::kalman::{self, PeriodicSchedule};
+use crate::observability::{measured_value, static_marker_response};
 use crate::outputs::Measurements;
 
 use super::levels::{design_levels, FilterLevel};
@@ -361,16 +361,6 @@ pub fn marker_model_error(
         .collect()
 }
 
-/// The full-order value of measurement channel (sensor, component) `channel` for the
-/// displacement `u` (by DOF index): the sensor's barycentric interpolation.
-fn measured_value(full: &FullOrder, (s, c): (usize, usize), u: impl Fn(usize) -> f64) -> f64 {
-    full.operators.sensors[s]
-        .weights
-        .iter()
-        .filter_map(|&(node, w)| full.fem.dofs.index[node][c].map(|d| w * u(d)))
-        .sum()
-}
-
 /// Operating points of the tier's gain schedule besides rest (docs/design.md §11.5).
 pub const SCHEDULE_POINTS: usize = 8;
 
@@ -691,16 +681,9 @@ fn static_residual(
     if channels.is_empty() {
         return Ok(0.0);
     }
-    let fem = &full.fem;
-    let n = fem.dof_count();
-    let llt = fem.stiffness.sp_cholesky(faer::Side::Lower).map_err(|e| {
-        NonlinearError::Invalid(format!(
-            "tier filter: the stiffness K is not positive definite ({e:?})"
-        ))
-    })?;
+    let exact = static_marker_response(full, measurements, channels)
+        .map_err(|e| NonlinearError::Invalid(format!("tier filter: {e}")))?;
     let inputs = &full.operators.inputs;
-    let mut u = Mat::from_fn(n, channels.len(), |i, j| inputs[channels[j]].column[i]);
-    llt.solve_in_place(u.as_mut());
     let reduced_tangent = k_r.clone().cholesky().ok_or_else(|| {
         NonlinearError::Invalid(
             "tier filter: the reduced tangent at rest is not positive definite".into(),
@@ -710,12 +693,8 @@ fn static_residual(
     for (j, &ch) in channels.iter().enumerate() {
         let load = v.tr_mul(&DVector::from_column_slice(&inputs[ch].column));
         let reduced = h_red * reduced_tangent.solve(&load);
-        let (mut diff, mut size) = (0.0, 0.0);
-        for (row, &channel) in measurements.channels.iter().enumerate() {
-            let exact = measured_value(full, channel, |d| u[(d, j)]);
-            diff += (exact - reduced[row]).powi(2);
-            size += exact * exact;
-        }
+        let diff = (exact.column(j) - reduced).norm_squared();
+        let size = exact.column(j).norm_squared();
         if size > 0.0 {
             worst = worst.max((diff / size).sqrt());
         }

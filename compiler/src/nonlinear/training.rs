@@ -28,7 +28,7 @@
 use crate::fem::operators::InputKind;
 use crate::fem::FemModel;
 use crate::full_order::FullOrder;
-use crate::scene::{CorotationalSpec, TrainingDirections};
+use crate::scene::{length3, CorotationalSpec, TrainingDirections};
 use crate::stepping::{
     CorotationalSimulator, ModifiedNewton, NewtonOptions, NewtonStats, Simulator, SteppingError,
 };
@@ -170,13 +170,7 @@ pub fn directions_of(choice: &TrainingDirections) -> Vec<[f64; 3]> {
             directions.extend(tetrahedral_diagonals());
             directions
         }
-        TrainingDirections::List(list) => list
-            .iter()
-            .map(|d| {
-                let norm = d.iter().map(|x| x * x).sum::<f64>().sqrt();
-                d.map(|x| x / norm)
-            })
-            .collect(),
+        TrainingDirections::List(list) => list.iter().map(|d| d.map(|x| x / length3(d))).collect(),
     }
 }
 
@@ -257,7 +251,7 @@ impl TrainingPlan {
             let mut unit: Vec<[f64; 3]> = Vec::new();
             for case in &cases {
                 for (_, v) in &case.loads {
-                    let length = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+                    let length = length3(v);
                     for sign in [1.0, -1.0] {
                         let d = v.map(|x| sign * x / length + 0.0);
                         if !unit.contains(&d) {
@@ -376,7 +370,7 @@ impl TrainingPlan {
             self.cases
                 .iter()
                 .flat_map(|c| c.loads.iter().filter(|(h, _)| *h == g))
-                .map(|(_, v)| v.iter().map(|x| x * x).sum::<f64>().sqrt())
+                .map(|(_, v)| length3(v))
                 .fold(0.0, f64::max)
         };
         self.ranges[g].1 * share * self.max_multiple()

@@ -149,12 +149,9 @@ fn check_directions(field: &str, list: &[[f64; 3]]) -> Result<(), String> {
             list.len()
         ));
     }
-    let unit = |d: &[f64; 3]| {
-        let norm = d.iter().map(|x| x * x).sum::<f64>().sqrt();
-        d.map(|x| x / norm)
-    };
+    let unit = |d: &[f64; 3]| d.map(|x| x / length3(d));
     for (i, d) in list.iter().enumerate() {
-        let norm = d.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let norm = length3(d);
         if !norm.is_finite() || norm == 0.0 {
             return Err(format!(
                 "{field}[{i}] = {d:?}: a direction must be finite and non-zero"
@@ -222,7 +219,7 @@ impl CorotationalSpec {
                         self.ranges.keys().cloned().collect::<Vec<_>>().join(", ")
                     ));
                 }
-                let length = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+                let length = length3(v);
                 if !length.is_finite() || length == 0.0 || length > 1.0 + 1e-12 {
                     return Err(format!(
                         "{here}.loads.{group} = {v:?}: the force is a multiple of the group's \
