@@ -19,77 +19,66 @@ mod paths {
     /// root: `ROUNDS`).
     pub const ROUNDS: usize = 1 << 20;
 
-    #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn fma_avx2(seed: f64) -> f64 {
-        let a = _mm256_set1_pd(0.999_999_9);
-        let b = _mm256_set1_pd(1e-9);
-        let mut acc = [_mm256_set1_pd(seed); 8];
-        for _ in 0..ROUNDS {
-            for x in &mut acc {
-                *x = _mm256_fmadd_pd(*x, a, b);
+    /// `fn $name(seed) -> f64`: 8 chains of `$set(seed)`, each replaced by `$op(x)` `$rounds`
+    /// times, summed by `$reduce` (so that the loop is not removed).
+    macro_rules! chains {
+        ($name:ident, $feature:literal, $set:ident, $reduce:ident, $rounds:expr, |$x:ident| $op:expr) => {
+            #[target_feature(enable = $feature)]
+            pub unsafe fn $name(seed: f64) -> f64 {
+                let mut acc = [$set(seed); 8];
+                for _ in 0..$rounds {
+                    for $x in &mut acc {
+                        *$x = $op;
+                    }
+                }
+                $reduce(acc)
             }
-        }
-        reduce4(acc)
+        };
     }
 
-    #[target_feature(enable = "avx512f")]
-    pub unsafe fn fma_avx512(seed: f64) -> f64 {
-        let a = _mm512_set1_pd(0.999_999_9);
-        let b = _mm512_set1_pd(1e-9);
-        let mut acc = [_mm512_set1_pd(seed); 8];
-        for _ in 0..ROUNDS {
-            for x in &mut acc {
-                *x = _mm512_fmadd_pd(*x, a, b);
-            }
-        }
-        reduce8(acc)
-    }
-
-    #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn div_avx2(seed: f64) -> f64 {
-        let a = _mm256_set1_pd(1.000_000_1);
-        let mut acc = [_mm256_set1_pd(seed); 8];
-        for _ in 0..ROUNDS / 8 {
-            for x in &mut acc {
-                *x = _mm256_div_pd(*x, a);
-            }
-        }
-        reduce4(acc)
-    }
-
-    #[target_feature(enable = "avx512f")]
-    pub unsafe fn div_avx512(seed: f64) -> f64 {
-        let a = _mm512_set1_pd(1.000_000_1);
-        let mut acc = [_mm512_set1_pd(seed); 8];
-        for _ in 0..ROUNDS / 8 {
-            for x in &mut acc {
-                *x = _mm512_div_pd(*x, a);
-            }
-        }
-        reduce8(acc)
-    }
-
-    #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn sqrt_avx2(seed: f64) -> f64 {
-        let mut acc = [_mm256_set1_pd(seed); 8];
-        for _ in 0..ROUNDS / 8 {
-            for x in &mut acc {
-                *x = _mm256_sqrt_pd(*x);
-            }
-        }
-        reduce4(acc)
-    }
-
-    #[target_feature(enable = "avx512f")]
-    pub unsafe fn sqrt_avx512(seed: f64) -> f64 {
-        let mut acc = [_mm512_set1_pd(seed); 8];
-        for _ in 0..ROUNDS / 8 {
-            for x in &mut acc {
-                *x = _mm512_sqrt_pd(*x);
-            }
-        }
-        reduce8(acc)
-    }
+    chains!(fma_avx2, "avx2,fma", _mm256_set1_pd, reduce4, ROUNDS, |x| {
+        _mm256_fmadd_pd(*x, _mm256_set1_pd(0.999_999_9), _mm256_set1_pd(1e-9))
+    });
+    chains!(
+        fma_avx512,
+        "avx512f",
+        _mm512_set1_pd,
+        reduce8,
+        ROUNDS,
+        |x| _mm512_fmadd_pd(*x, _mm512_set1_pd(0.999_999_9), _mm512_set1_pd(1e-9))
+    );
+    chains!(
+        div_avx2,
+        "avx2,fma",
+        _mm256_set1_pd,
+        reduce4,
+        ROUNDS / 8,
+        |x| _mm256_div_pd(*x, _mm256_set1_pd(1.000_000_1))
+    );
+    chains!(
+        div_avx512,
+        "avx512f",
+        _mm512_set1_pd,
+        reduce8,
+        ROUNDS / 8,
+        |x| _mm512_div_pd(*x, _mm512_set1_pd(1.000_000_1))
+    );
+    chains!(
+        sqrt_avx2,
+        "avx2,fma",
+        _mm256_set1_pd,
+        reduce4,
+        ROUNDS / 8,
+        |x| _mm256_sqrt_pd(*x)
+    );
+    chains!(
+        sqrt_avx512,
+        "avx512f",
+        _mm512_set1_pd,
+        reduce8,
+        ROUNDS / 8,
+        |x| _mm512_sqrt_pd(*x)
+    );
 
     #[target_feature(enable = "avx2")]
     unsafe fn reduce4(acc: [__m256d; 8]) -> f64 {
