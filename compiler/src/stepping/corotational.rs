@@ -384,16 +384,15 @@ impl CorotationalSimulator {
     ) -> Result<(), SteppingError> {
         let n = self.pattern.n;
         check_len("trial displacement", n, u_hat.len())?;
+        check_len("load vector f", n, f.len())?;
+        check_len("residual", n, out.len())?;
         let mut vel = vec![0.0; n];
         let mut y = vec![0.0; n];
         self.theta_rates(u_hat, &mut vel, &mut y);
-        // y = Ü_θ + α U̇_θ: the acceleration is y − α U̇_θ.
-        let acc: Vec<f64> = y
-            .iter()
-            .zip(&vel)
-            .map(|(y, v)| y - self.alpha * v)
-            .collect();
-        self.dynamic_residual(u_hat, &vel, &acc, f, out)
+        self.assemble(u_hat);
+        let mut scratch = vec![0.0; n];
+        self.assembled_residual(&vel, &y, f, out, &mut scratch);
+        Ok(())
     }
 
     /// The equation of motion's residual at a displacement u, velocity u̇ and acceleration ü
@@ -419,18 +418,33 @@ impl CorotationalSimulator {
             .zip(velocity)
             .map(|(a, v)| a + self.alpha * v)
             .collect();
-        let mut my = vec![0.0; n];
-        self.pattern.mul(&self.mass, &y, &mut my);
-        for i in 0..n {
-            out[i] = f[i] - self.internal[i] - my[i];
+        let mut scratch = vec![0.0; n];
+        self.assembled_residual(velocity, &y, f, out, &mut scratch);
+        Ok(())
+    }
+
+    /// r = f − f_int − M y − β K_t u̇ at the last assembly (f_int and K_t of its displacement),
+    /// y = ü + α u̇, into `out` (n each; `scratch` n): the equation of motion's residual, the
+    /// full Newton's and [`CorotationalSimulator::dynamic_residual`]'s.
+    fn assembled_residual(
+        &self,
+        velocity: &[f64],
+        y: &[f64],
+        f: &[f64],
+        out: &mut [f64],
+        scratch: &mut [f64],
+    ) {
+        for ((r, fi), int) in out.iter_mut().zip(f).zip(&self.internal) {
+            *r = fi - int;
         }
+        self.pattern.mul(&self.mass, y, scratch);
+        out.iter_mut().zip(&*scratch).for_each(|(r, v)| *r -= v);
         if self.beta != 0.0 {
-            self.pattern.mul(&self.warped, velocity, &mut my);
+            self.pattern.mul(&self.warped, velocity, scratch);
             out.iter_mut()
-                .zip(&my)
+                .zip(&*scratch)
                 .for_each(|(r, v)| *r -= self.beta * v);
         }
-        Ok(())
     }
 
     /// Accepts Û (n, m) as the solution of the current step (found by the caller, e.g. on
@@ -690,16 +704,8 @@ impl Simulator for CorotationalSimulator {
         while iterations < self.options.max_newton {
             self.assemble(&u_hat);
             self.theta_rates(&u_hat, &mut vel, &mut y);
-            for i in 0..n {
-                r[i] = f[i] - self.internal[i];
-            }
             // r = f − f_int − M (Ü_θ + α U̇_θ) − β K_t U̇_θ
-            self.pattern.mul(&self.mass, &y, &mut my);
-            r.iter_mut().zip(&my).for_each(|(r, v)| *r -= v);
-            if beta != 0.0 {
-                self.pattern.mul(&self.warped, &vel, &mut my);
-                r.iter_mut().zip(&my).for_each(|(r, v)| *r -= beta * v);
-            }
+            self.assembled_residual(&vel, &y, f, &mut r, &mut my);
             let factor = self.factor_newton(
                 1.0,
                 a2 * beta,
