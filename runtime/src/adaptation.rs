@@ -12,15 +12,18 @@
 //! check, T is compared with `lower_below`, and below it σ goes one level down: below the
 //! designed σ only while every estimated load is told (a load that is given leaves the force
 //! states only the model's error; one that is withheld and slower than stated would lag a
-//! lower σ before T could show it). Told from the first prediction on, with every channel
-//! measured every step, the level goes to the lowest at once, before that prediction's update
-//! ([`AdaptationState::told_start`]): σ above it would let the markers' noise into the force
-//! states, and a random walk of low σ sheds that only slowly. With sparser markers the model
-//! runs alone between them, and the lowest σ did not cover its error there (docs/design.md
-//! §11.10). After a change e restarts at 0. The compiler chose a_j and the
-//! thresholds; the runtime only counts. The state is allocated once and changed only after a
-//! successful update or, for the start at the lowest level, a successful prediction (which a
-//! failed step rolls back with it).
+//! lower σ before T could show it). The start of a run, with every channel measured every step
+//! ([`AdaptationState::at_prediction`]): the first update after a reset is made at the lowest
+//! level (at rest a zero input may be a told zero or a withheld load, and an update at a larger
+//! σ would let the markers' noise into the force states, which a random walk of low σ sheds
+//! only slowly); at the next prediction the level stays there when every estimated load is
+//! told and goes to the designed σ when not; a later first told prediction goes to the lowest
+//! level at once, before its update, while the level has not moved since. With sparser markers
+//! the model runs alone between them, and the lowest σ did not cover its error there
+//! (docs/design.md §11.10): such a tier starts at the designed σ. After a change e restarts at
+//! 0. The compiler chose a_j and the thresholds; the runtime only counts. The state is
+//! allocated once and changed only after a successful update or, at the start, a successful
+//! prediction (which a failed step rolls back with it).
 
 use crokf_formats::{CorotationalTier, ForceAdaptation};
 
@@ -118,6 +121,17 @@ pub struct ForceLevel {
     pub adapting: bool,
 }
 
+/// Where a run is in its start ([`AdaptationState::at_prediction`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Start {
+    /// Reset; no prediction yet.
+    Fresh,
+    /// The first update is made at the lowest level.
+    Quiet,
+    /// Past the first update.
+    Open,
+}
+
 /// The adaptation's statistic (the level it moves is the tier state's, `TierState::level`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct AdaptationState {
@@ -128,8 +142,10 @@ pub struct AdaptationState {
     statistic: f64,
     /// The step of the last change or of the last check against `lower_below`.
     settled_since: u64,
-    /// Whether the level has moved since the last reset.
+    /// Whether the level has moved since the last reset other than by the start.
     moved: bool,
+    /// Where the run is in its start (module docs).
+    start: Start,
     /// Whether the level follows the statistic (else it stays where it is).
     enabled: bool,
 }
@@ -143,14 +159,17 @@ impl AdaptationState {
             statistic: 0.0,
             settled_since: 0,
             moved: false,
+            start: Start::Fresh,
             enabled: true,
         }
     }
 
-    /// The statistic cleared (keeps `enabled`); the level goes back to 0 with it.
+    /// The statistic cleared (keeps `enabled`); the level goes back to 0 with it, and the next
+    /// prediction starts a run.
     pub fn reset(&mut self) {
         self.restart(0);
         self.moved = false;
+        self.start = Start::Fresh;
     }
 
     fn restart(&mut self, step: u64) {
@@ -172,26 +191,64 @@ impl AdaptationState {
 
     /// Turns the adaptation on or off: either way the statistic starts afresh and the level
     /// goes back to 0 (the designed σ); off, [`AdaptationState::observe`] keeps it there.
+    /// After a prediction since the last reset the run is not started again: a told load goes
+    /// to the lowest level at its next prediction, a withheld one stays at the designed σ.
     pub fn set_enabled(&mut self, on: bool) {
+        let fresh = self.start == Start::Fresh;
         self.enabled = on;
         self.reset();
+        if !fresh {
+            self.start = Start::Open;
+        }
     }
 
-    /// At level `level`, after a successful prediction and before its update: the lowest level
-    /// when every estimated load is `told`, every channel is measured every step and the level
-    /// has not moved since the reset, so that no update at a higher σ lets the markers' noise
-    /// into the force states (module docs); else None. Changes nothing: the caller moves with
-    /// [`AdaptationState::moved_at`].
-    pub fn told_start(&self, levels: &Levels, level: usize, told: bool) -> Option<usize> {
-        (self.enabled && told && !self.moved && levels.every_step && level != levels.lowest)
-            .then_some(levels.lowest)
+    /// Whether a prediction has been made since the last reset (and kept: a failed step rolls
+    /// it back).
+    pub fn started(&self) -> bool {
+        self.start != Start::Fresh
     }
 
-    /// The level changed at step `step` other than by [`AdaptationState::observe`]
-    /// ([`AdaptationState::told_start`]): the statistic restarts.
-    pub fn moved_at(&mut self, step: u64) {
-        self.restart(step);
-        self.moved = true;
+    /// At level `level`, after a successful prediction and before its update, with every
+    /// estimated load `told` a nonzero input or not: the level this prediction moves to (module
+    /// docs), `Some` also when only the start advanced (the caller keeps the state before the
+    /// call for a rollback); None when nothing changed. Only with every channel measured every
+    /// step: the first prediction after a reset goes to the lowest level; the next stays there
+    /// when told and goes to the designed σ when not (from a level below it); later, the first
+    /// told prediction goes to the lowest level while the level has not moved since the reset.
+    pub fn at_prediction(
+        &mut self,
+        levels: &Levels,
+        level: usize,
+        told: bool,
+        step: u64,
+    ) -> Option<usize> {
+        if !self.enabled || !levels.every_step {
+            return None;
+        }
+        match self.start {
+            Start::Fresh => {
+                self.start = Start::Quiet;
+                self.restart(step);
+                Some(levels.lowest)
+            }
+            Start::Quiet => {
+                self.start = Start::Open;
+                if told {
+                    self.moved = true;
+                    Some(level)
+                } else if levels.factors[level] < 1.0 {
+                    self.restart(step);
+                    Some(0)
+                } else {
+                    Some(level)
+                }
+            }
+            Start::Open => (told && !self.moved && level != levels.lowest).then(|| {
+                self.restart(step);
+                self.moved = true;
+                levels.lowest
+            }),
+        }
     }
 
     /// `self` becomes a copy of `other` (same channel count) without allocating.
@@ -201,6 +258,7 @@ impl AdaptationState {
         self.statistic = other.statistic;
         self.settled_since = other.settled_since;
         self.moved = other.moved;
+        self.start = other.start;
         self.enabled = other.enabled;
     }
 
@@ -365,23 +423,32 @@ mod tests {
         assert_eq!(s, before);
     }
 
-    /// Every load told from the first prediction, every channel measured every step: the
-    /// lowest level before the first update (the force states carry only the model's error);
-    /// not told, or after the level has moved, nothing; a bias still raises, and calm checks
-    /// come down one level each. With sparser markers, told loads come down one level per
-    /// `hold` calm steps from the designed σ.
+    /// Every channel measured every step: the first update after a reset at the lowest level;
+    /// at the next prediction told loads stay there and withheld ones go to the designed σ,
+    /// where a later first told prediction goes to the lowest level at once; after the level
+    /// has moved, nothing; a bias still raises, and calm checks come down one level each. With
+    /// sparser markers, the designed σ from the start and told loads come down one level per
+    /// `hold` calm steps.
     #[test]
-    fn told_loads_start_at_the_lowest_level_with_markers_every_step() {
+    fn runs_start_at_the_lowest_level_with_markers_every_step() {
         let l = levels(20);
         let active = [0u32, 1, 2];
+        // Not told: the lowest level for the first update, then the designed σ.
         let mut s = AdaptationState::new(3);
-        assert_eq!(s.told_start(&l, 0, false), None);
-        assert_eq!(s.observe(&l, 0, 1, &active, &[0.0; 3], false), 0);
+        assert_eq!(s.at_prediction(&l, 0, false, 1), Some(3));
+        assert_eq!(s.observe(&l, 3, 1, &active, &[0.0; 3], false), 3);
+        assert_eq!(s.at_prediction(&l, 3, false, 2), Some(0));
+        assert_eq!(s.observe(&l, 0, 2, &active, &[0.0; 3], false), 0);
+        assert_eq!(s.at_prediction(&l, 0, false, 3), None);
+        // Told later: the lowest level at once, once.
+        assert_eq!(s.at_prediction(&l, 0, true, 4), Some(3));
+        assert_eq!(s.at_prediction(&l, 3, true, 5), None);
+        // Told from the start: the lowest level throughout the start.
         let mut s = AdaptationState::new(3);
-        assert_eq!(s.told_start(&l, 0, true), Some(3));
-        s.moved_at(1);
-        assert_eq!(s.told_start(&l, 3, true), None);
+        assert_eq!(s.at_prediction(&l, 0, true, 1), Some(3));
         assert_eq!(s.observe(&l, 3, 1, &active, &[0.0; 3], true), 3);
+        assert_eq!(s.at_prediction(&l, 3, true, 2), Some(3));
+        assert_eq!(s.at_prediction(&l, 3, true, 3), None);
         let mut level = 3;
         for k in 2..=100u64 {
             level = s.observe(&l, level, k, &active, &[0.0; 3], true);
@@ -418,17 +485,22 @@ mod tests {
         copy.copy_from(&s);
         assert_eq!(copy, s);
         // Moved since the reset: told predictions leave the level to the statistic.
-        assert_eq!(s.told_start(&l, 2, true), None);
-        // reset: the first told prediction goes there again; adaptation off: never.
-        s.reset();
-        assert_eq!(s.told_start(&l, 0, true), Some(3));
+        assert_eq!(s.at_prediction(&l, 2, true, k + 62), None);
+        // Switched off and on mid-run: no new start, a told load goes to the lowest level.
         s.set_enabled(false);
-        assert_eq!(s.told_start(&l, 0, true), None);
+        assert_eq!(s.at_prediction(&l, 0, true, k + 63), None);
+        s.set_enabled(true);
+        assert_eq!(s.at_prediction(&l, 0, true, k + 64), Some(3));
+        // reset: a new start; adaptation off: never.
+        s.reset();
+        assert_eq!(s.at_prediction(&l, 0, false, 1), Some(3));
+        s.set_enabled(false);
+        assert_eq!(s.at_prediction(&l, 0, true, 1), None);
 
         // Sparser markers: one level per `hold` calm steps, from the designed σ.
         let l = levels_at(20, false);
         let mut s = AdaptationState::new(3);
-        assert_eq!(s.told_start(&l, 0, true), None);
+        assert_eq!(s.at_prediction(&l, 0, true, 1), None);
         let mut path = vec![0];
         for k in 1..=100u64 {
             let level = s.observe(&l, *path.last().unwrap(), k, &active, &[0.0; 3], true);

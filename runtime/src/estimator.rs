@@ -199,15 +199,17 @@ impl Estimator {
     /// The co-rotational tier filter's own covariance P of s (n × n, row-major, n =
     /// `state().len()`; P⁻ after `predict`, P after `update`) while it carries one: from an
     /// update with an active channel missing or gated until the covariance settles near the
-    /// stored filter's (docs/design.md §11.11). `None` while the stored filter's covariances
-    /// are in use (always on the warped tier); the read-out σ follow the same choice.
+    /// stored filter's (docs/design.md §11.11), and from a lowering of the force-σ level at a
+    /// check (§11.10). `None` while the stored filter's covariances are in use (always on the
+    /// warped tier); the read-out σ follow the same choice.
     pub fn tier_covariance(&self) -> Option<&[f64]> {
         self.tier.covariance()
     }
 
     /// Whether the force-σ level follows the innovations (default on). Either way the level
     /// returns to the designed σ (level 0) and the statistic starts afresh; off keeps it there.
-    /// No effect on a model with one level.
+    /// Switched on before the first step after `new` or `reset`, the run's first update is made
+    /// at the lowest level (§11.10); later, it is not. No effect on a model with one level.
     pub fn set_force_adaptation(&mut self, on: bool) {
         self.tier.set_force_adaptation(on);
     }

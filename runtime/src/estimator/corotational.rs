@@ -28,10 +28,13 @@ pub(crate) struct CorotationalStep {
     /// Whether every estimated load had a nonzero input at the last prediction.
     told: bool,
     /// The level and the statistic before the last prediction, when that prediction moved the
-    /// level ([`AdaptationState::told_start`]; restored by `rollback`).
+    /// level or the run's start ([`AdaptationState::at_prediction`]; restored by `rollback`).
     before_prediction: Option<(usize, AdaptationState)>,
     /// Whether the last prediction moved the level.
     prediction_moved: bool,
+    /// The stored filter of the level before a lowering at a prediction after an update: the
+    /// next update starts the covariance recursion from its prior (docs/design.md §11.10).
+    transition: Option<usize>,
     /// The covariance recursion while channels are missing (docs/design.md §11.11), and
     /// whether it may run.
     recursion: Recursion,
@@ -54,6 +57,7 @@ impl CorotationalStep {
                 .levels()
                 .map(|_| (0, AdaptationState::new(tier.channel_count()))),
             prediction_moved: false,
+            transition: None,
             recursion: Recursion::new(tier),
             recursion_on: true,
         }
@@ -62,9 +66,11 @@ impl CorotationalStep {
     /// After a committed update of `phase` at `step` (whose prior used stored filter
     /// `filter`): the accepted channels' whitened innovations ν_a / √s_a enter the statistic,
     /// which sets the level of the next step.
+    #[allow(clippy::too_many_arguments)]
     fn adapt(
         &mut self,
         tm: &TierModel,
+        section: &crokf_formats::CorotationalTier,
         phase: usize,
         filter: usize,
         live: bool,
@@ -87,6 +93,7 @@ impl CorotationalStep {
                 f64::NAN
             };
         }
+        let before = self.state.level;
         self.state.level = adaptation.observe(
             levels,
             self.state.level,
@@ -95,6 +102,14 @@ impl CorotationalStep {
             &self.whitened[..measured.len()],
             self.told,
         );
+        // Lowered: the covariance of the transition (`crate::tier::recursion`).
+        if self.recursion_on && levels.factor(self.state.level) < levels.factor(before) {
+            self.recursion.start_at_posterior(
+                section,
+                tm.filter_index(before, self.state.filter_upd),
+                phase,
+            );
+        }
     }
 }
 
@@ -147,6 +162,7 @@ impl TierStep for CorotationalStep {
             a.reset();
         }
         self.prediction_moved = false;
+        self.transition = None;
         self.recursion.reset();
     }
 
@@ -174,10 +190,16 @@ impl TierStep for CorotationalStep {
             self.adaptation.as_mut(),
             self.before_prediction.as_mut(),
         ) {
-            if let Some(level) = adaptation.told_start(levels, self.state.level, self.told) {
-                before.0 = self.state.level;
-                before.1.copy_from(adaptation);
-                adaptation.moved_at(step);
+            before.0 = self.state.level;
+            before.1.copy_from(adaptation);
+            let updated = adaptation.started();
+            if let Some(level) = adaptation.at_prediction(levels, self.state.level, self.told, step)
+            {
+                // Lowered after an update (a told start): the next update starts the recursion
+                // from the prior of the level before, unless switched off.
+                if self.recursion_on && updated && levels.factor(level) < levels.factor(before.0) {
+                    self.transition = Some(tm.filter_index(before.0, self.state.filter));
+                }
                 self.state.level = level;
                 self.prediction_moved = true;
             }
@@ -200,20 +222,22 @@ impl TierStep for CorotationalStep {
         let prior_filter = tm.filter_index(self.state.level, self.state.filter);
         let nm = tm.measured(phase).len();
         // The gate tests against the recursion's innovation variance while it runs.
+        let transition = self.transition.take();
         let variance = match self.recursion.prior_variance(tm, phase) {
             Some(v) => v,
-            None => tm.innovation_variance(prior_filter, phase),
+            None => tm.innovation_variance(transition.unwrap_or(prior_filter), phase),
         };
         let used = self
             .state
             .innovations(tm, phase, &get, gate, &mut self.gated, variance);
         // A channel missing or gated: the update from the recursion's covariance (module
         // docs of `crate::tier::recursion`), which then runs until it settles.
-        let live = self.recursion.active() || (self.recursion_on && used < nm);
+        let live =
+            self.recursion.active() || (self.recursion_on && (used < nm || transition.is_some()));
         if live {
-            let updated = self
-                .recursion
-                .update(tm, section(shared), &mut self.state, phase);
+            let updated =
+                self.recursion
+                    .update(tm, section(shared), &mut self.state, phase, transition);
             if updated.is_err() || first_non_finite(self.recursion.pending()).is_some() {
                 return Err(RuntimeError::NonFiniteCovariance { step: gate.step });
             }
@@ -245,13 +269,22 @@ impl TierStep for CorotationalStep {
                 Verdict::Missing
             };
         }
-        self.adapt(tm, phase, prior_filter, live, gate.step, verdicts);
+        self.adapt(
+            tm,
+            section(shared),
+            phase,
+            prior_filter,
+            live,
+            gate.step,
+            verdicts,
+        );
         Ok(used)
     }
 
     fn rollback(&mut self, _shared: &PreparedModel) {
         self.state.rollback();
         self.recursion.rollback();
+        self.transition = None;
         if self.prediction_moved {
             if let (Some(adaptation), Some((level, before))) =
                 (self.adaptation.as_mut(), self.before_prediction.as_ref())

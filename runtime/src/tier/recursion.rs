@@ -23,6 +23,13 @@
 //! per row), E the coefficient of q̂, G = J⁻¹[…] (r × n); F P Fᵀ is formed as
 //! D P Dᵀ + E G P Dᵀ + (E G P Dᵀ)ᵀ + E (G P Gᵀ) Eᵀ in O(r n²) rather than O(n³).
 //!
+//! The same recursion carries the filter across a lowering of the force-σ level
+//! (docs/design.md §11.10): the stored filter of the lower level states the covariance of its
+//! own steady state, but the estimate was made with the larger σ and its error is the larger
+//! level's. From the posterior the last update left (the stored one of the level before, or the
+//! recursion's P when running), P then propagates with the lower level's Q until it settles as
+//! above. A raise still moves to the higher level's stored filter at once.
+//!
 //! The gate and the force-σ statistic see the innovation variance of this P⁻ while the
 //! recursion runs, and the read-out σ come from it. The stored filter takes over again after
 //! an update with every active channel used whose prior had every active channel's innovation
@@ -149,6 +156,27 @@ impl Recursion {
                 self.propagate(tier, section, state);
             },
         );
+    }
+
+    /// Runs from the posterior of stored filter `filter` at `phase` when not running: the
+    /// covariance an update of that filter left, from which the lowered force-σ level's Q now
+    /// propagates (module docs). Running, P already is that covariance.
+    pub(crate) fn start_at_posterior(
+        &mut self,
+        section: &CorotationalTier,
+        filter: usize,
+        phase: usize,
+    ) {
+        if self.active {
+            return;
+        }
+        self.p.copy_from_slice(
+            &stored(section, filter).phases[phase]
+                .posterior_covariance
+                .data,
+        );
+        self.active = true;
+        self.excess = f64::INFINITY;
     }
 
     /// Restores P and whether the recursion runs to their values before the last prediction.
@@ -312,18 +340,21 @@ impl Recursion {
 
     /// The update of `phase` from P⁻ over the channels `state.present` marks, with the
     /// innovations in `state.innovation` (module docs): `state.s_upd` and the pending P.
-    /// Starts the recursion from the stored filter's prior when it is not running. Nothing is
-    /// committed. Err when S is not positive definite (its failing pivot).
+    /// Starts the recursion from the prior of the stored filter in use when it is not running,
+    /// or of stored filter `prior_from` (the level before a lowering at this step's
+    /// prediction). Nothing is committed. Err when S is not positive definite (its failing
+    /// pivot).
     pub(crate) fn update(
         &mut self,
         tier: &TierModel,
         section: &CorotationalTier,
         state: &mut TierState,
         phase: usize,
+        prior_from: Option<usize>,
     ) -> Result<(), usize> {
         tier.isa.dispatch(
             #[inline(always)]
-            || self.update_on_this_path(tier, section, state, phase),
+            || self.update_on_this_path(tier, section, state, phase, prior_from),
         )
     }
 
@@ -335,12 +366,14 @@ impl Recursion {
         section: &CorotationalTier,
         state: &mut TierState,
         phase: usize,
+        prior_from: Option<usize>,
     ) -> Result<(), usize> {
         let (r, n) = (tier.r, self.n);
         let filter = tier.filter_index(state.level, state.filter);
         if !self.active {
+            let from = prior_from.unwrap_or(filter);
             self.p
-                .copy_from_slice(&stored(section, filter).phases[phase].prior_covariance.data);
+                .copy_from_slice(&stored(section, from).phases[phase].prior_covariance.data);
             self.fill_variance(tier, phase);
         }
         let measured = &tier.measured[phase];

@@ -292,7 +292,9 @@ pub struct Consistency {
     /// The tip trace (empty without a tip sensor).
     pub tip: Vec<TipSample>,
     /// Updates after which the filter carried its own covariance
-    /// (`Estimator::tier_covariance`; docs/design.md §11.11).
+    /// (`Estimator::tier_covariance`; docs/design.md §11.11), from the run's first update with
+    /// an active channel missing or gated on (a lowering of the force σ alone also starts it,
+    /// §11.10: not counted, no channel was lost).
     pub own_covariance: usize,
 }
 
@@ -499,6 +501,8 @@ pub struct ConsistencyAccumulator<'a> {
     total: usize,
     /// ln N(ν; 0, S) of the last innovation (see [`ConsistencyAccumulator::log_likelihood`]).
     log_likelihood: Option<f64>,
+    /// Whether an update of this run had an active channel missing or gated.
+    channels_lost: bool,
     /// Scratch: ŷ⁻ per measurement channel, sensor displacements, σ per node set.
     predicted: Vec<f64>,
     sensors: Vec<f64>,
@@ -517,6 +521,7 @@ impl<'a> ConsistencyAccumulator<'a> {
             inside_world: 0,
             total: 0,
             log_likelihood: None,
+            channels_lost: false,
             predicted: vec![0.0; model.measurements.len()],
             sensors: vec![0.0; 3 * model.sensors.len()],
             std: model
@@ -557,6 +562,7 @@ impl<'a> ConsistencyAccumulator<'a> {
             .collect();
         self.out.nis_steps.push(ChiSquare::default());
         self.log_likelihood = None;
+        self.channels_lost |= used.len() < est.active_measurements().len();
         if used.is_empty() {
             return Ok(());
         }
@@ -656,7 +662,9 @@ impl<'a> ConsistencyAccumulator<'a> {
         let phase = est.phase();
         let x = est.state();
         self.out.nees_tip_steps.push(ChiSquare::default());
-        self.out.own_covariance += usize::from(est.tier_covariance().is_some());
+        self.channels_lost |= est.gated_last_update() > 0;
+        self.out.own_covariance +=
+            usize::from(self.channels_lost && est.tier_covariance().is_some());
         if let Some(t) = self.tip {
             est.sensor_displacements(&mut self.sensors)?;
             let w = self.sensor_warp(model, t, x);
