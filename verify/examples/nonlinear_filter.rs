@@ -714,6 +714,16 @@ impl<'a> Drive<'a> {
             .as_ref()
             .map_or(&model.kalman, |t| &t.kalman)
             .measurement_variance;
+        let reference_channels = reference.sensors.first().map_or(0, Vec::len);
+        if 3 * model.sensors.len() > reference_channels {
+            return Err(format!(
+                "the model has {} sensors, the reference scene {}: SCENE must place the model's \
+                 sensors (the same [[sensor]] tables)",
+                model.sensors.len(),
+                reference_channels / 3
+            )
+            .into());
+        }
         Ok(Drive {
             reference,
             zeroed: model
@@ -812,9 +822,9 @@ fn run_model(
     let mut acc = ConsistencyAccumulator::new(&blocks, model, Some(tip));
     // Steps per force-σ level (docs/design.md §11.10), for the run's stderr line.
     let mut levels: std::collections::BTreeMap<usize, (f64, usize)> = Default::default();
-    // Steps whose update left the filter on its own covariance (a channel missing or gated,
-    // docs/design.md §11.11): count, first and last record.
-    let mut own: (usize, Option<usize>, usize) = (0, None, 0);
+    // Steps whose update left the filter on its own covariance (a channel missing or gated, or
+    // a lowering of the force-σ level: docs/design.md §11.10–11.11): the stretches of records.
+    let mut own: Vec<(usize, usize)> = Vec::new();
     for k in 0..steps {
         let y = drive.markers(k);
         let u = drive.inputs(k);
@@ -862,7 +872,10 @@ fn run_model(
             levels.entry(l.level).or_insert((l.factor, 0)).1 += 1;
         }
         if filtered && est.tier_covariance().is_some() {
-            own = (own.0 + 1, own.1.or(Some(k)), k);
+            match own.last_mut() {
+                Some(last) if last.1 + 1 == k => last.1 = k,
+                _ => own.push((k, k)),
+            }
         }
         displayed(&est, model, &mut shown)?;
         let (mut ke, mut kr) = (0.0, 0.0);
@@ -917,12 +930,15 @@ fn run_model(
                 .join(", ")
         );
     }
-    if let Some(first) = own.1 {
+    if !own.is_empty() {
         eprintln!(
-            "{} (seed {seed}): {} steps on the filter's own covariance (records {first} … {})",
+            "{} (seed {seed}): {} steps on the filter's own covariance (records {})",
             run.label(),
-            own.0,
-            own.2
+            own.iter().map(|(a, b)| b + 1 - a).sum::<usize>(),
+            own.iter()
+                .map(|(a, b)| format!("{a} … {b}"))
+                .collect::<Vec<_>>()
+                .join(", ")
         );
     }
     let forces = match tier {
