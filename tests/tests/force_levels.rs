@@ -39,6 +39,45 @@ fn one_level(model: &Model) -> Model {
     m
 }
 
+/// The tip load's z input channel.
+fn tip_z(model: &Model) -> usize {
+    model
+        .inputs
+        .iter()
+        .position(|c| c.label == "tip.z")
+        .unwrap()
+}
+
+/// The markers of `truth` after its prediction with inputs `u`, plus the tier's stated noise
+/// (σ per channel `sigma`).
+fn noisy_markers(
+    truth: &mut Estimator,
+    u: &[f64],
+    sigma: &[f64],
+    rng: &mut SplitMix64,
+) -> Vec<Option<f64>> {
+    let mut y = vec![0.0; sigma.len()];
+    truth.predict(u).unwrap();
+    truth.measurement_estimates(&mut y).unwrap();
+    y.iter()
+        .zip(sigma)
+        .map(|(&v, s)| Some(v + s * rng.normal()))
+        .collect()
+}
+
+/// The markers' σ the tier's filter states, per measurement channel.
+fn marker_sigma(model: &Model) -> Vec<f64> {
+    model
+        .tier
+        .as_ref()
+        .unwrap()
+        .kalman
+        .measurement_variance
+        .iter()
+        .map(|v| v.sqrt())
+        .collect()
+}
+
 /// Largest |a − b| / max|b| over two matrices' entries.
 fn relative_difference(a: &[f64], b: &[f64]) -> f64 {
     let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
@@ -140,20 +179,8 @@ fn run(
     adapt: bool,
     seed: u64,
 ) -> (Vec<f64>, Vec<f64>) {
-    let zi = model
-        .inputs
-        .iter()
-        .position(|c| c.label == "tip.z")
-        .unwrap();
-    let sigma: Vec<f64> = model
-        .tier
-        .as_ref()
-        .unwrap()
-        .kalman
-        .measurement_variance
-        .iter()
-        .map(|v| v.sqrt())
-        .collect();
+    let zi = tip_z(model);
+    let sigma = marker_sigma(model);
     let mut truth = Estimator::new(model).unwrap();
     let mut est = Estimator::new(model).unwrap();
     est.set_innovation_gate(None);
@@ -161,18 +188,11 @@ fn run(
     let mut rng = SplitMix64(seed);
     let mut u = vec![0.0; model.inputs.len()];
     let zero = vec![0.0; model.inputs.len()];
-    let mut y = vec![0.0; model.measurements.len()];
     let (mut tip, mut tip_ref) = ([0.0; 3], [0.0; 3]);
     let (mut errors, mut factors) = (Vec::new(), Vec::new());
     for k in 0..steps {
         u[zi] = load(k);
-        truth.predict(&u).unwrap();
-        truth.measurement_estimates(&mut y).unwrap();
-        let measured: Vec<Option<f64>> = y
-            .iter()
-            .zip(&sigma)
-            .map(|(&v, s)| Some(v + s * rng.normal()))
-            .collect();
+        let measured = noisy_markers(&mut truth, &u, &sigma, &mut rng);
         est.step(if given { &u } else { &zero }, &measured).unwrap();
         truth.sensor_displacements(&mut tip_ref).unwrap();
         est.sensor_displacements(&mut tip).unwrap();
@@ -275,11 +295,7 @@ fn off_is_the_one_level_filter_and_a_failed_step_changes_no_level() {
     let mut single = Estimator::new(&plain).unwrap();
     assert_eq!(single.force_level(), None);
     let mut on = Estimator::new(model).unwrap();
-    let zi = model
-        .inputs
-        .iter()
-        .position(|c| c.label == "tip.z")
-        .unwrap();
+    let zi = tip_z(model);
     let mut rng = SplitMix64(5);
     let mut u = vec![0.0; model.inputs.len()];
     let q = model.measurements.len();
@@ -372,11 +388,7 @@ fn steps_that_change_the_level_do_not_allocate() {
     let model = compiled();
     let mut est = Estimator::new(model).unwrap();
     est.set_innovation_gate(None);
-    let zi = model
-        .inputs
-        .iter()
-        .position(|c| c.label == "tip.z")
-        .unwrap();
+    let zi = tip_z(model);
     let mut u = vec![0.0; model.inputs.len()];
     let q = model.measurements.len();
     let mut sigma = vec![0.0; 3 * model.sensors.len()];
@@ -418,36 +430,14 @@ fn steps_that_change_the_level_do_not_allocate() {
 #[test]
 fn a_lowering_carries_the_covariance_of_its_transition() {
     let model = compiled();
-    let zi = model
-        .inputs
-        .iter()
-        .position(|c| c.label == "tip.z")
-        .unwrap();
+    let zi = tip_z(model);
     let tip = model.sensors.iter().position(|s| s.name == "tip").unwrap();
-    let q = model.measurements.len();
     let tip_sigma = |e: &Estimator| {
         let mut s = vec![0.0; 3 * model.sensors.len()];
         e.sensor_std(&mut s).unwrap();
         s[3 * tip + 2]
     };
-    let sigma: Vec<f64> = model
-        .tier
-        .as_ref()
-        .unwrap()
-        .kalman
-        .measurement_variance
-        .iter()
-        .map(|v| v.sqrt())
-        .collect();
-    let markers = |truth: &mut Estimator, u: &[f64], rng: &mut SplitMix64| {
-        let mut y = vec![0.0; q];
-        truth.predict(u).unwrap();
-        truth.measurement_estimates(&mut y).unwrap();
-        y.iter()
-            .zip(&sigma)
-            .map(|(&v, s)| Some(v + s * rng.normal()))
-            .collect::<Vec<Option<f64>>>()
-    };
+    let sigma = marker_sigma(model);
 
     // Told from step 2: the run's first update is at the lowest level and the told load keeps
     // it there, nothing runs. Told from step 5 only: the designed σ from step 2, and the told
@@ -465,7 +455,7 @@ fn a_lowering_carries_the_covariance_of_its_transition() {
         let mut u = vec![0.0; model.inputs.len()];
         for k in 0..8 {
             u[zi] = ramp(k, from, 20.0);
-            let y = markers(&mut truth, &u, &mut rng);
+            let y = noisy_markers(&mut truth, &u, &sigma, &mut rng);
             told.step(&u, &y).unwrap();
             stored.step(&u, &y).unwrap();
             let factor = told.force_level().unwrap().factor;
@@ -501,7 +491,7 @@ fn a_lowering_carries_the_covariance_of_its_transition() {
     for k in 0..400 {
         given[zi] = ramp(k, 0, 10.0);
         u[zi] = given[zi] - if k >= 100 { 15.0 } else { 0.0 };
-        let y = markers(&mut truth, &u, &mut rng);
+        let y = noisy_markers(&mut truth, &u, &sigma, &mut rng);
         let before = carried.force_level().unwrap().factor;
         carried.step(&given, &y).unwrap();
         stored.step(&given, &y).unwrap();
