@@ -199,8 +199,8 @@ impl Estimator {
     /// The co-rotational tier filter's own covariance P of s (n × n, row-major, n =
     /// `state().len()`; P⁻ after `predict`, P after `update`) while it carries one: from an
     /// update with an active channel missing or gated until the covariance settles near the
-    /// stored filter's (docs/design.md §11.11), and from a lowering of the force-σ level at a
-    /// check (§11.10). `None` while the stored filter's covariances are in use (always on the
+    /// stored filter's (docs/design.md §11.11), and from a lowering of the force-σ level after
+    /// an update (§11.10). `None` while the stored filter's covariances are in use (always on the
     /// warped tier); the read-out σ follow the same choice.
     pub fn tier_covariance(&self) -> Option<&[f64]> {
         self.tier.covariance()

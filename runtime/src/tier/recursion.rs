@@ -27,8 +27,9 @@
 //! (docs/design.md §11.10): the stored filter of the lower level states the covariance of its
 //! own steady state, but the estimate was made with the larger σ and its error is the larger
 //! level's. From the posterior the last update left (the stored one of the level before, or the
-//! recursion's P when running), P then propagates with the lower level's Q until it settles as
-//! above. A raise still moves to the higher level's stored filter at once.
+//! recursion's P when running; after a lowering at a prediction, a told start, from the level
+//! before's prior at the next update), P then propagates with the lower level's Q until it
+//! settles as above. A raise still moves to the higher level's stored filter at once.
 //!
 //! The gate and the force-σ statistic see the innovation variance of this P⁻ while the
 //! recursion runs, and the read-out σ come from it. The stored filter takes over again after
