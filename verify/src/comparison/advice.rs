@@ -422,6 +422,12 @@ impl Rule {
                  than the scene's `noise_std` says, or the force σ is too small"
                     .into()
             }
+            Rule::Conservative | Rule::ConservativeAwayFromMarkers if c.loads_given => {
+                "conservative: the force states still carry what the given input might not \
+                 explain (on the co-rotational tier at its lowest force σ, docs/design.md \
+                 §11.10), and the inputs given here are exact"
+                    .into()
+            }
             Rule::Conservative if c.markers_from_noise_std => {
                 "conservative; the markers here are drawn with the scene's `noise_std`, so the \
                  force σ is larger than this load needs (`rise_time` shorter or `range` larger \
@@ -469,6 +475,12 @@ impl Rule {
             Rule::InnovationsLargerThanPredicted => format!(
                 "measure the markers' noise and state it as `noise_std` on each `[[sensor]]`, or \
                  identify σ from a recording: `{IDENTIFY}`"
+            ),
+            Rule::Conservative | Rule::ConservativeAwayFromMarkers if c.loads_given => format!(
+                "where the runtime is always told {} exactly (a measured force), declare it \
+                 `force_model = \"white\"`: no force states; else nothing: a `rise_time` or \
+                 `range` changed for this also changes the σ of the load withheld",
+                c.load()
             ),
             Rule::Conservative if c.markers_from_noise_std => format!(
                 "state the load's real (longer) `rise_time` or (smaller) `range` on {}",
@@ -869,6 +881,28 @@ mod tests {
             advice[0].trigger,
             "2σ coverage 99.5 % (> 98.0 %) with NIS below its bound on only 2.0 %"
         );
+        // The same with the loads given: not the load's statement (that would also move the σ
+        // of the load withheld) but, for a load always told exactly, no force states.
+        let loads = ["push".to_string()];
+        let given = AdviceFigures {
+            loads_given: true,
+            markers_from_noise_std: true,
+            loads: &loads,
+            ..high
+        };
+        let advice = advise(&given);
+        assert_eq!(rules(&advice), vec![Rule::ConservativeAwayFromMarkers]);
+        let line = advice[0].line(&(&given).into());
+        assert!(
+            line.contains("what the given input might not explain"),
+            "{line}"
+        );
+        assert!(
+            line.contains("always told `[[load]]` 'push' exactly")
+                && line.contains("`force_model = \"white\"`"),
+            "{line}"
+        );
+        assert!(!line.contains("(longer) `rise_time`"), "{line}");
     }
 
     #[test]
