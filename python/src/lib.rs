@@ -1004,14 +1004,17 @@ impl Estimator {
 
     /// Whether the force-σ level follows the innovations (True, the default) or stays at the
     /// designed σ (False). Either way the level returns to the designed σ and its statistic
-    /// starts afresh. No effect on a model with one level.
+    /// starts afresh; on before the first step after construction or `reset`, the run's first
+    /// update is made at the lowest level (markers every step, docs/design.md §11.10). No
+    /// effect on a model with one level.
     fn set_force_adaptation(&mut self, on: bool) {
         self.inner.set_force_adaptation(on);
     }
 
     /// The co-rotational tier filter's own covariance P of the state (n × n, a copy) while it
-    /// carries one: from an update with an active channel missing or gated until it settles
-    /// near the stored filter's (docs/design.md §11.11); None while the stored covariances are
+    /// carries one: from an update with an active channel missing or gated, or from a lowering
+    /// of the force-σ level after an update, until it settles near the stored filter's
+    /// (docs/design.md §11.10–11.11); None while the stored covariances are
     /// in use (always on the warped tier). `sensor_std` and `node_std` follow the same choice.
     #[getter]
     fn tier_covariance<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray2<f64>>> {

@@ -76,10 +76,13 @@ int crokf_tier_status(const CrokfEstimator *est, size_t *iterations, double *loa
  * 0: it has one (nothing written), -1: NULL handle. */
 int crokf_force_level(const CrokfEstimator *est, size_t *level, double *factor,
                       double *statistic);
-/* on != 0: the level follows the innovations (default); 0: it stays at the designed σ. */
+/* on != 0: the level follows the innovations (default); 0: it stays at the designed σ. On
+ * before the first step after creation or reset, the run's first update is made at the lowest
+ * level (markers every step, docs/design.md §11.10). */
 int crokf_set_force_adaptation(CrokfEstimator *est, int on);
-/* Co-rotational tier: from an update with an active channel missing or gated until its
- * covariance settles, the filter carries its own covariance P (docs/design.md §11.11).
+/* Co-rotational tier: from an update with an active channel missing or gated, or from a
+ * lowering of the force-σ level after an update, until its covariance settles, the filter
+ * carries its own covariance P (docs/design.md §11.10–11.11).
  * on != 0: so (default); 0: the stored gains and σ. */
 int crokf_set_covariance_recursion(CrokfEstimator *est, int on);
 /* P (n*n doubles row-major, n = crokf_model_state_dim) while the filter carries it: 1 written,

@@ -476,7 +476,9 @@ pub unsafe extern "C" fn crokf_force_level(
 }
 
 /// Whether the force-σ level follows the innovations (`on` ≠ 0, the default) or stays at the
-/// designed σ (`on` = 0). Returns 0, or -1 on a NULL handle.
+/// designed σ (`on` = 0); on before the first step after creation or reset, the run's first
+/// update is made at the lowest level (docs/design.md §11.10). Returns 0, or -1 on a NULL
+/// handle.
 ///
 /// # Safety
 /// `e` live estimator.
@@ -489,8 +491,9 @@ pub unsafe extern "C" fn crokf_set_force_adaptation(e: *mut CrokfEstimator, on: 
 }
 
 /// Whether the co-rotational tier's filter carries its own covariance while an active channel
-/// is missing or gated (`on` ≠ 0, the default; docs/design.md §11.11) or keeps the stored
-/// gains and σ (`on` = 0). Returns 0, or -1 on a NULL handle.
+/// is missing or gated and after a lowering of the force-σ level (`on` ≠ 0, the default;
+/// docs/design.md §11.10–11.11) or keeps the stored gains and σ (`on` = 0). Returns 0, or -1
+/// on a NULL handle.
 ///
 /// # Safety
 /// `e` live estimator.

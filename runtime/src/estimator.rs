@@ -215,9 +215,10 @@ impl Estimator {
     }
 
     /// Whether the co-rotational tier's filter carries its own covariance while an active channel
-    /// is missing or gated (default on; docs/design.md §11.11). Off: the stored gains with a
-    /// zero innovation for such a channel and the stored σ (the recursion, if running, stops
-    /// now). It costs about five times a step while it runs; no effect on the warped tier.
+    /// is missing or gated and after a lowering of the force-σ level (default on;
+    /// docs/design.md §11.10–11.11). Off: the stored gains with a zero innovation for such a
+    /// channel, the lower level's stored σ at once, and the stored σ (the recursion, if
+    /// running, stops now). It costs about five times a step while it runs; no effect on the warped tier.
     pub fn set_covariance_recursion(&mut self, on: bool) {
         self.tier.set_covariance_recursion(on);
     }
