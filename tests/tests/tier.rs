@@ -1388,6 +1388,35 @@ fn a_sufficient_tier_passes_the_self_check() {
         .any(|n| n.contains("WARNING")));
 }
 
+/// A Newton bound the tier cannot step with (one iteration to the tightest tolerance: the
+/// runtime would refuse every step): the self-check's reduced steps end unconverged, and what
+/// the compile says of the tier (its warning, or its error when no stabilising filter is left)
+/// names `newton_iterations` first. With the scene's own bound the remedy does not name it.
+#[test]
+fn a_newton_bound_the_tier_cannot_step_with_is_named() {
+    let dir = scene().parent().unwrap().to_path_buf();
+    let base = std::fs::read_to_string(scene()).unwrap();
+    let loose = base
+        .replace("newton_tolerance = 1e-12", "newton_tolerance = 1e-14")
+        .replace("newton_iterations = 60", "newton_iterations = 1");
+    assert_ne!(loose, base);
+    let path = dir.join("newton1.toml");
+    std::fs::write(&path, loose).unwrap();
+    let said = match compile(&path, &options()) {
+        Ok(c) => c
+            .self_check
+            .as_ref()
+            .and_then(|check| check.warning())
+            .expect("a tier this far off its training is flagged"),
+        Err(e) => e.to_string(),
+    };
+    eprintln!("newton_iterations = 1: {said}");
+    assert!(said.contains("raise `newton_iterations` first"), "{said}");
+    let crippled = compiled_with_order(2);
+    let w = crippled.self_check.as_ref().unwrap().warning().unwrap();
+    assert!(!w.contains("newton_iterations"), "{w}");
+}
+
 /// A crippled tier (r = 2 instead of 10) cannot follow its training: the self-check flags it,
 /// naming the worst run, in the report's notes and the JSON report; the model still compiles
 /// (a warning, not an error).

@@ -199,7 +199,12 @@ impl<'a> TierReductor<'a> {
                 linearised_filter(full, &built, &noise, measurements, model_error)
                     .map(|f| (derived, f))
             })
-            .map_err(|e| fail(&e))?;
+            .map_err(|e| match check.warning() {
+                // The self-check's error is the filter's model-error noise (design.md §11.9):
+                // a tier far off its training can leave no stabilising filter. Its cause first.
+                Some(w) => fail(&format!("{e} (the tier's self-check, run before: {w})")),
+                None => fail(&e),
+            })?;
         let mut reductor = TierReductor {
             full,
             spec,
