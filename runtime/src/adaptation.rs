@@ -13,7 +13,7 @@
 //! designed σ only while every estimated load is told (a load that is given leaves the force
 //! states only the model's error; one that is withheld and slower than stated would lag a
 //! lower σ before T could show it). The start of a run, with every channel measured every step
-//! ([`AdaptationState::at_prediction`]): the first update after a reset is made at the lowest
+//! ([`AdaptationState::start_move`]): the first update after a reset is made at the lowest
 //! level (at rest a zero input may be a told zero or a withheld load, and an update at a larger
 //! σ would let the markers' noise into the force states, which a random walk of low σ sheds
 //! only slowly); at the next prediction the level stays there when every estimated load is
@@ -121,7 +121,7 @@ pub struct ForceLevel {
     pub adapting: bool,
 }
 
-/// Where a run is in its start ([`AdaptationState::at_prediction`]).
+/// Where a run is in its start ([`AdaptationState::start_move`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Start {
     /// Reset; no prediction yet.
@@ -130,6 +130,17 @@ enum Start {
     Quiet,
     /// Past the first update.
     Open,
+}
+
+/// A move of the start ([`AdaptationState::start_move`]): the level, the start's next phase,
+/// whether the statistic restarts and whether it counts as the level having moved.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StartMove {
+    /// The level after the move.
+    pub level: usize,
+    next: Start,
+    restart: bool,
+    moved: bool,
 }
 
 /// The adaptation's statistic (the level it moves is the tier state's, `TierState::level`).
@@ -210,11 +221,9 @@ impl AdaptationState {
 
     /// At level `level`, after a successful prediction and before its update, with every
     /// estimated load `told` a nonzero input or not: the level this prediction moves to (module
-    /// docs), `Some` also when only the start advanced (the caller keeps the state before the
-    /// call for a rollback); None when nothing changed. Only with every channel measured every
-    /// step: the first prediction after a reset goes to the lowest level; the next stays there
-    /// when told and goes to the designed σ when not (from a level below it); later, the first
-    /// told prediction goes to the lowest level while the level has not moved since the reset.
+    /// docs), `Some` also when only the start advanced; None when nothing changed
+    /// ([`AdaptationState::start_move`], then [`AdaptationState::take`]; the tests' shorthand).
+    #[cfg(test)]
     pub fn at_prediction(
         &mut self,
         levels: &Levels,
@@ -222,33 +231,44 @@ impl AdaptationState {
         told: bool,
         step: u64,
     ) -> Option<usize> {
+        let m = self.start_move(levels, level, told)?;
+        Some(self.take(m, step))
+    }
+
+    /// What the start does at this prediction, changing nothing (None: nothing changes, so
+    /// that a caller keeps the state for a rollback only when something will). Only with every
+    /// channel measured every step: the first prediction after a reset goes to the lowest
+    /// level; the next stays there when told and goes to the designed σ when not (from a level
+    /// below it); later, the first told prediction goes to the lowest level while the level has
+    /// not moved since the reset.
+    pub fn start_move(&self, levels: &Levels, level: usize, told: bool) -> Option<StartMove> {
         if !self.enabled || !levels.every_step {
             return None;
         }
+        let to = |level, next, restart, moved| StartMove {
+            level,
+            next,
+            restart,
+            moved,
+        };
         match self.start {
-            Start::Fresh => {
-                self.start = Start::Quiet;
-                self.restart(step);
-                Some(levels.lowest)
-            }
-            Start::Quiet => {
-                self.start = Start::Open;
-                if told {
-                    self.moved = true;
-                    Some(level)
-                } else if levels.factors[level] < 1.0 {
-                    self.restart(step);
-                    Some(0)
-                } else {
-                    Some(level)
-                }
-            }
-            Start::Open => (told && !self.moved && level != levels.lowest).then(|| {
-                self.restart(step);
-                self.moved = true;
-                levels.lowest
-            }),
+            Start::Fresh => Some(to(levels.lowest, Start::Quiet, true, false)),
+            Start::Quiet if told => Some(to(level, Start::Open, false, true)),
+            Start::Quiet if levels.factors[level] < 1.0 => Some(to(0, Start::Open, true, false)),
+            Start::Quiet => Some(to(level, Start::Open, false, false)),
+            Start::Open => (told && !self.moved && level != levels.lowest)
+                .then(|| to(levels.lowest, Start::Open, true, true)),
         }
+    }
+
+    /// Carries out `m` ([`AdaptationState::start_move`]) at step `step`; returns its level.
+    pub fn take(&mut self, m: StartMove, step: u64) -> usize {
+        self.start = m.next;
+        self.moved |= m.moved;
+        if m.restart {
+            self.restart(step);
+        }
+        m.level
     }
 
     /// `self` becomes a copy of `other` (same channel count) without allocating.

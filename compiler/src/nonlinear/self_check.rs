@@ -220,15 +220,15 @@ impl SelfCheck {
         };
         // Most steps left unconverged at the runtime's iteration bound: its Newton settings
         // first (a few are usual: this stepper's test has no floor near rest).
-        let remedy = "raise `order`, set `basis_tolerance` (per-run energy-norm basis, with \
-                      `max_order`) or tighten `ecsw_tolerance` in [reduction.corotational]";
+        let basis = "`order`, set `basis_tolerance` (per-run energy-norm basis, with \
+                     `max_order`) or tighten `ecsw_tolerance` in [reduction.corotational]";
         let steps: usize = self.runs.iter().map(|r| r.steps).sum();
         let remedy = match self.unconverged() {
-            n if 2 * n <= steps => format!("R{}", &remedy[1..]),
+            n if 2 * n <= steps => format!("Raise {basis}"),
             n => format!(
                 "{n} of its {steps} reduced steps ended at `newton_iterations` without meeting \
                  `newton_tolerance`: raise `newton_iterations` first (with `newton_tolerance` \
-                 near its default 1e-6); then {remedy}"
+                 near its default 1e-6); then raise {basis}"
             ),
         };
         Some(format!(

@@ -28,7 +28,7 @@ pub(crate) struct CorotationalStep {
     /// Whether every estimated load had a nonzero input at the last prediction.
     told: bool,
     /// The level and the statistic before the last prediction, when that prediction moved the
-    /// level or the run's start ([`AdaptationState::at_prediction`]; restored by `rollback`).
+    /// level or the run's start ([`AdaptationState::start_move`]; restored by `rollback`).
     before_prediction: Option<(usize, AdaptationState)>,
     /// Whether the last prediction moved the level.
     prediction_moved: bool,
@@ -190,11 +190,12 @@ impl TierStep for CorotationalStep {
             self.adaptation.as_mut(),
             self.before_prediction.as_mut(),
         ) {
-            before.0 = self.state.level;
-            before.1.copy_from(adaptation);
-            let updated = adaptation.started();
-            if let Some(level) = adaptation.at_prediction(levels, self.state.level, self.told, step)
-            {
+            if let Some(m) = adaptation.start_move(levels, self.state.level, self.told) {
+                // Kept for a rollback only when the start changes something.
+                before.0 = self.state.level;
+                before.1.copy_from(adaptation);
+                let updated = adaptation.started();
+                let level = adaptation.take(m, step);
                 // Lowered after an update (a told start): the next update starts the recursion
                 // from the prior of the level before, unless switched off.
                 if self.recursion_on && updated && levels.factor(level) < levels.factor(before.0) {
