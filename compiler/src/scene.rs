@@ -682,6 +682,12 @@ pub struct CorotationalSpec {
     pub max_order: Option<usize>,
     /// Most ECSW-sampled elements; None: as `order`.
     pub ecsw_max_elements: Option<usize>,
+    /// Factor on the tier's measured model error taken as process noise (docs/design.md
+    /// §11.9): the filter's model-error covariance is the self-check's S × this factor. None:
+    /// 1 (S as measured over the training runs); a value identified from a recording
+    /// (`crokf-verify identify`, docs/identify.md) states how large the error is on the loads
+    /// that recording saw; 0 turns the term off.
+    pub model_error_scale: Option<f64>,
 }
 
 /// `[[reduction.corotational.case]]`: one training load case, the groups it loads together.
@@ -785,6 +791,11 @@ impl CorotationalSpec {
     /// The ECSW tolerance: as stated, else [`DEFAULT_ECSW_TOLERANCE`].
     pub fn ecsw_tolerance(&self) -> f64 {
         self.ecsw_tolerance.unwrap_or(DEFAULT_ECSW_TOLERANCE)
+    }
+
+    /// The factor on the measured model error: as stated, else 1.
+    pub fn model_error_scale(&self) -> f64 {
+        self.model_error_scale.unwrap_or(1.0)
     }
 
     /// The ECSW element cap: as stated, else [`DEFAULT_ECSW_MAX_ELEMENTS`].

@@ -36,13 +36,15 @@ def identify(scene, model, measurements, inputs=None, out=None, **options):
     ``scene``: the scene file the co-rotational model was compiled from; ``model``: its
     ``.crokf`` file; ``measurements`` and ``inputs``: ``crokf-run``'s CSV files (without
     ``inputs`` every input is 0: the loads withheld); ``out``: write a copy of the scene with
-    each identified load's ``force_noise_std`` (in the scene's folder). ``options``: ``lags``
+    each identified load's ``force_noise_std`` and, where the recording disagrees with the
+    scene's, the tier's ``model_error_scale`` (in the scene's folder). ``options``: ``lags``
     (30), ``skip`` (50), ``fixed_point`` (False). Each value comes with an uncertainty: the
     standard error over 4 disjoint blocks of the recording after ``skip``.
 
     Returns a dict: ``loads`` (per estimated load: ``name``, ``scene_sigma``, ``stated``,
     ``filter_sigma``, ``value``, ``uncertainty``, ``blocks``, ``excited``, ``rate``),
-    ``markers_factor`` (``value``, ``uncertainty``, ``blocks``: the check, within
+    ``model_error_factor`` (``value``, ``uncertainty``, ``blocks``, ``scene_factor``,
+    ``changed``; None when the tier has no model-error term), ``markers_factor`` (``value``, ``uncertainty``, ``blocks``: the check, within
     [0.8, 1.25]), ``steps``, ``samples``, ``lags``, ``skip``, ``blocks``, ``block_bounds``,
     ``relative_residual``, ``switches``, ``report`` (the command's text) and ``written``.
     Raises ``IdentifyError`` (a ``CrokfError``) on a refusal; nothing is written then.

@@ -616,9 +616,11 @@ fn estimate_dict<'py>(
 ///
 /// `scene`: the scene the model was compiled from; `model`: the `.crokf` file; `measurements`
 /// and `inputs`: `crokf-run`'s CSV files (no inputs: the loads withheld); `out`: a copy of the
-/// scene with each identified load's `force_noise_std` (in the scene's folder). Options:
+/// scene with each identified load's `force_noise_std` and, where the recording disagrees with
+/// the scene's, the tier's `model_error_scale` (in the scene's folder). Options:
 /// `lags` (30), `skip` (50), `fixed_point` (False). Uncertainties are standard errors over 4
-/// disjoint blocks of the recording after `skip`. Returns a dict (`loads`, `markers_factor`,
+/// disjoint blocks of the recording after `skip`. Returns a dict (`loads`,
+/// `model_error_factor`, `markers_factor`,
 /// …, `report`: the command's text, `written`). Raises `IdentifyError` on a refusal (nothing
 /// written); the GIL is released while it runs.
 #[pyfunction]
@@ -680,6 +682,15 @@ fn identify<'py>(
     match &found.white {
         Some(w) => d.set_item("white_factor", estimate_dict(py, w)?)?,
         None => d.set_item("white_factor", py.None())?,
+    }
+    match &found.model_error {
+        Some((scene, m)) => {
+            let e = estimate_dict(py, m)?;
+            e.set_item("scene_factor", *scene)?;
+            e.set_item("changed", found.model_error_changed().is_some())?;
+            d.set_item("model_error_factor", e)?;
+        }
+        None => d.set_item("model_error_factor", py.None())?,
     }
     d.set_item("steps", found.steps)?;
     d.set_item("samples", found.samples)?;

@@ -27,7 +27,9 @@
 //! instead of the scene's (ALS needs stable filters, not optimal ones); `--no-schedule` the
 //! filter at rest only; `--fixed-point` repeats the identification with the filters of the σ
 //! just identified until they agree to 1 % (at most 10 runs, the same recording): the σ that,
-//! used in the filter, its own innovations confirm; `--lags L` (30), `--skip S` (50 steps).
+//! used in the filter, its own innovations confirm; `--lags L` (30), `--skip S` (50 steps);
+//! `-o IDENTIFIED.toml` writes the scene with what was identified, as `crokf-verify identify
+//! -o` does (in the scene's folder; nothing when the verdict refuses).
 //!
 //! ```sh
 //! cargo run --release -p crokf-verify --example identify_noise -- SCENE SCENARIO MODEL \
@@ -45,7 +47,7 @@ use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
 use crokf_runtime::load_model;
 use crokf_verify::comparison::Gaussian;
-use crokf_verify::identify::{identify, IdentifyOptions, Recording};
+use crokf_verify::identify::{identified_scene, identify, write_scene, IdentifyOptions, Recording};
 use crokf_verify::nonlinear::reference::Reference;
 use crokf_verify::scenario::{Horizon, Scenario};
 
@@ -57,7 +59,7 @@ const USAGE: &str =
     "usage: identify_noise SCENE SCENARIO MODEL [--given] [--seed N] [--write-recording FILE] | \
      SCENE MODEL --recording \
      MEASUREMENTS.csv [--inputs INPUTS.csv]; and [--no-schedule] [--fixed-point] [--lags L] \
-     [--skip S] [--force-sigma S]";
+     [--skip S] [--force-sigma S] [-o IDENTIFIED.toml]";
 
 fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut positional = Vec::new();
@@ -66,6 +68,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut force_sigma: Option<f64> = None;
     let (mut recording, mut inputs_file): (Option<PathBuf>, Option<PathBuf>) = (None, None);
     let (mut seed, mut write_recording): (u64, Option<PathBuf>) = (7, None);
+    let mut out: Option<PathBuf> = None;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         if a == "--force-sigma" {
@@ -81,12 +84,13 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             force_sigma = Some(sigma);
             continue;
         }
-        if a == "--recording" || a == "--inputs" || a == "--write-recording" {
+        if a == "--recording" || a == "--inputs" || a == "--write-recording" || a == "-o" {
             let v = args.next().ok_or(format!("{a} needs a file; {USAGE}"))?;
             let path = Some(PathBuf::from(v));
             match a.as_str() {
                 "--recording" => recording = path,
                 "--inputs" => inputs_file = path,
+                "-o" => out = path,
                 _ => write_recording = path,
             }
             continue;
@@ -161,6 +165,13 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     };
     let found = identify(&mut full, &base, &recording, &options)?;
     print!("{}", found.report());
+    if let Some(out) = &out {
+        found.check()?;
+        let scene_path = PathBuf::from(scene);
+        let text = identified_scene(&full.scene, &found)?;
+        write_scene(&scene_path, out, &[("scene", &scene_path)], &text)?;
+        eprintln!("identified scene written to {}", out.display());
+    }
     Ok(())
 }
 

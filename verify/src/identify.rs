@@ -6,8 +6,9 @@
 //! noise, runs from rest over a recording (inputs and markers in `crokf-run`'s CSV formats);
 //! its innovations after the first `skip` steps give the sample autocovariances and
 //! `crokf_compile::nonlinear::identify::identify_noise` the σ that explain them: each
-//! estimated load's force σ_f (and rate σ_ḟ with rate states) and the markers' σ as a factor
-//! on the scene's.
+//! estimated load's force σ_f (and rate σ_ḟ with rate states), the tier's model error as a
+//! factor on its measured covariance (the scene's `model_error_scale`, written into the copy
+//! when the recording disagrees with it) and the markers' σ as a factor on the scene's.
 //!
 //! Uncertainty: the recording after `skip` is cut into [`BLOCKS`] disjoint blocks of equal
 //! length; each block is identified alone (the filter still runs over the whole recording from
@@ -237,6 +238,9 @@ pub struct Identification {
     pub loads: Vec<LoadSigma>,
     /// The factor on the σ of the white process-noise channels (None without any).
     pub white: Option<Estimate>,
+    /// The tier's model error (docs/design.md §11.9): the scene's factor on the measured S
+    /// and the factor identified (None when the filter has no such term).
+    pub model_error: Option<(f64, Estimate)>,
     /// The factor on the markers' σ: the check.
     pub markers: Estimate,
     /// The recording's name.
@@ -388,12 +392,31 @@ pub fn identify(
         .iter()
         .map(|l| (l.force_noise_std, l.force_rate_noise_std))
         .collect();
+    let saved_scale = spec_scale(full);
     let result = identify_with(full, model, recording, options);
     for (l, (f, r)) in full.scene.scene.loads.iter_mut().zip(saved) {
         l.force_noise_std = f;
         l.force_rate_noise_std = r;
     }
+    set_spec_scale(full, saved_scale);
     result
+}
+
+/// The scene's stated `model_error_scale` (None: not stated, or no tier section).
+fn spec_scale(full: &FullOrder) -> Option<f64> {
+    full.scene
+        .scene
+        .reduction
+        .corotational
+        .as_ref()
+        .and_then(|c| c.model_error_scale)
+}
+
+/// Sets the scene's `model_error_scale` (the filters of the next run use it).
+fn set_spec_scale(full: &mut FullOrder, scale: Option<f64>) {
+    if let Some(c) = full.scene.scene.reduction.corotational.as_mut() {
+        c.model_error_scale = scale;
+    }
 }
 
 fn identify_with(
@@ -457,6 +480,16 @@ fn identify_with(
                     next.push((l.load, is_rate, new));
                 }
             }
+            if let Some((old, new)) = whole.model_error_scale {
+                if new <= 0.0 {
+                    course.stopped = Some(
+                        "the model error's factor identified as 0: the filters keep the last \
+                         factor; the values are those of the last filter"
+                            .into(),
+                    );
+                }
+                change = change.max((new / old - 1.0).abs());
+            }
             course.last_change = change;
             if course.stopped.is_some() {
                 break;
@@ -472,6 +505,9 @@ fn identify_with(
                 } else {
                     load.force_noise_std = new;
                 }
+            }
+            if let Some((_, new)) = whole.model_error_scale {
+                set_spec_scale(full, Some(new));
             }
             run = filter_over(full, model, recording, options.schedule)?;
             whole = run.identify(full, skip, steps, lags)?;
@@ -532,6 +568,18 @@ fn identify_with(
                 .collect(),
         )
     });
+    let model_error = whole.model_error_scale.map(|(scene, value)| {
+        (
+            scene,
+            Estimate::new(
+                value,
+                blocks
+                    .iter()
+                    .map(|b| b.model_error_scale.map_or(0.0, |m| m.1))
+                    .collect(),
+            ),
+        )
+    });
     let markers = Estimate::new(
         whole.measurement_scale,
         blocks.iter().map(|b| b.measurement_scale).collect(),
@@ -539,6 +587,7 @@ fn identify_with(
     Ok(Identification {
         loads,
         white,
+        model_error,
         markers,
         recording: recording.name.clone(),
         steps,
@@ -562,6 +611,16 @@ impl Identification {
     /// The loads whose σ_f the recording excites (written by [`identified_scene`]).
     pub fn excited_loads(&self) -> impl Iterator<Item = &LoadSigma> {
         self.loads.iter().filter(|l| l.force.excited())
+    }
+
+    /// The model error's identified factor when it differs from the scene's by more than
+    /// [`EXCITED_UNCERTAINTIES`] uncertainties (written by [`identified_scene`]); None when the
+    /// recording agrees with the scene's factor or the filter has no such term.
+    pub fn model_error_changed(&self) -> Option<&Estimate> {
+        self.model_error
+            .as_ref()
+            .filter(|(scene, m)| (m.value - scene).abs() > EXCITED_UNCERTAINTIES * m.uncertainty)
+            .map(|(_, m)| m)
     }
 
     /// The verdict: `Ok` when the markers' factor is within [`MARKER_FACTOR_RANGE`] and at
@@ -592,9 +651,20 @@ impl Identification {
                     )
                 })
                 .collect();
+            let model_error = self
+                .model_error
+                .as_ref()
+                .map(|(scene, m)| {
+                    format!(
+                        "; the model error's factor {:.3} ± {:.3} (scene {scene:.3}) is not \
+                         written from a recording that excites no force",
+                        m.value, m.uncertainty
+                    )
+                })
+                .unwrap_or_default();
             return Err(IdentifyError::NotExcited(format!(
                 "every force σ is within {EXCITED_UNCERTAINTIES} uncertainties of 0 ({}): the \
-                 markers' noise alone explains the innovations",
+                 markers' noise alone explains the innovations{model_error}",
                 list.join(", ")
             )));
         }
@@ -687,6 +757,15 @@ impl Identification {
                 blocks(w)
             ));
         }
+        if let Some((scene, m)) = &self.model_error {
+            s.push_str(&format!(
+                "| the tier's model error (factor on its measured S) | {scene:.4} | {scene:.4} | \
+                 {:.4} | {:.2e} | {} |\n",
+                m.value,
+                m.uncertainty,
+                blocks(m)
+            ));
+        }
         s.push_str(&format!(
             "| markers (factor on the scene's σ; the check) | 1 | 1 | {:.4} | {:.2e} | {} |\n",
             self.markers.value,
@@ -719,6 +798,20 @@ impl Identification {
                         "σ_f of '{}' not excited ({:.1e} ± {:.1e}; the scene's kept)",
                         l.name, l.force.value, l.force.uncertainty
                     ));
+                }
+                if let Some((scene, m)) = &self.model_error {
+                    parts.push(if self.model_error_changed().is_some() {
+                        format!(
+                            "the model error's factor = {:.3} ± {:.3} (scene {scene:.3})",
+                            m.value, m.uncertainty
+                        )
+                    } else {
+                        format!(
+                            "the model error's factor {:.3} ± {:.3} agrees with the scene's \
+                             {scene:.3} (kept)",
+                            m.value, m.uncertainty
+                        )
+                    });
                 }
                 format!(
                     "verdict: IDENTIFIED: {}; markers' factor {:.3} ± {:.3} within [{lo}, {hi}]",
@@ -766,8 +859,27 @@ pub fn identified_scene(
             (l.load, value, comment)
         })
         .collect();
-    let text = set_force_sigmas(&scene.text, &values)
+    let mut text = set_force_sigmas(&scene.text, &values)
         .map_err(|e| IdentifyError::Failed(format!("{}: {e}", scene.path.display())))?;
+    let scale = found.model_error_changed().map(|m| {
+        let value: f64 = format!("{:.3e}", m.value).parse().unwrap_or(m.value);
+        let comment = format!(
+            "identified by crokf-verify identify from {} ({} steps, lags {}, skip {}): {:.3} ± \
+             {:.1e} (standard error over {BLOCKS} blocks); the scene's was {}",
+            found.recording,
+            found.steps,
+            found.lags,
+            found.skip,
+            m.value,
+            m.uncertainty,
+            found.model_error.as_ref().map_or(1.0, |(s, _)| *s)
+        );
+        (value, comment)
+    });
+    if let Some((value, comment)) = &scale {
+        text = set_model_error_scale(&text, *value, comment)
+            .map_err(|e| IdentifyError::Failed(format!("{}: {e}", scene.path.display())))?;
+    }
     // Only the stated fields changed: the parsed copy equals the scene with them set.
     let written = Scene::parse(&text, &scene.path)
         .map_err(|e| IdentifyError::Failed(format!("the edited scene does not parse: {e}")))?;
@@ -777,10 +889,14 @@ pub fn identified_scene(
         expected.loads[g].force_noise_std = value;
         expected.loads[g].force_model_stated = Some(ForceModel::RandomWalk);
     }
+    if let (Some((value, _)), Some(spec)) = (&scale, expected.reduction.corotational.as_mut()) {
+        spec.model_error_scale = Some(*value);
+    }
     if written != expected {
         return Err(IdentifyError::Failed(format!(
-            "{}: editing the [[load]] tables changed more than their force σ; write the \
-             loads as [[load]] tables with one key per line",
+            "{}: editing the scene changed more than its force σ and model-error factor; \
+             write the loads as [[load]] tables and [reduction.corotational] as a table, with \
+             one key per line",
             scene.path.display()
         )));
     }
@@ -871,6 +987,62 @@ fn set_force_sigmas(text: &str, values: &[(usize, f64, String)]) -> Result<Strin
         out.replace_range(range, &new);
     }
     Ok(format!("{}{out}", &text[..bom]))
+}
+
+/// `text` with `[reduction.corotational] model_error_scale = value`, the comment on a line of
+/// its own above it: the key's value replaced where the table states it, else the key added
+/// as the table's first line. The table must be written as a `[reduction.corotational]`
+/// header with one key per line.
+fn set_model_error_scale(text: &str, value: f64, comment: &str) -> Result<String, String> {
+    let newline = if text.contains("\r\n") { "\r\n" } else { "\n" };
+    let header = |line: &str| {
+        let l = line
+            .split('#')
+            .next()
+            .unwrap_or("")
+            .replace([' ', '\t', '\r', '\n'], "");
+        l.starts_with('[').then_some(l)
+    };
+    let mut lines: Vec<&str> = text.split_inclusive('\n').collect();
+    let start = lines
+        .iter()
+        .position(|l| header(l).as_deref() == Some("[reduction.corotational]"))
+        .ok_or("no [reduction.corotational] table header to write model_error_scale under")?;
+    let end = lines[start + 1..]
+        .iter()
+        .position(|l| header(l).is_some())
+        .map_or(lines.len(), |i| start + 1 + i);
+    let key = |l: &str| {
+        let t = l.trim_start();
+        t.strip_prefix("model_error_scale")
+            .is_some_and(|rest| rest.trim_start().starts_with('='))
+    };
+    let indent_of =
+        |l: &str| -> String { l.chars().take_while(|c| *c == ' ' || *c == '\t').collect() };
+    let new_lines = |indent: &str| {
+        format!("{indent}# {comment}{newline}{indent}model_error_scale = {value:e}{newline}")
+    };
+    let at = lines[start + 1..end]
+        .iter()
+        .position(|l| key(l))
+        .map(|i| start + 1 + i);
+    let replacement;
+    match at {
+        Some(i) => {
+            replacement = new_lines(&indent_of(lines[i]));
+            lines[i] = &replacement;
+        }
+        None => {
+            let lead = if lines[start].ends_with('\n') {
+                ""
+            } else {
+                newline
+            };
+            replacement = format!("{lead}{}", new_lines(""));
+            lines.insert(start + 1, &replacement);
+        }
+    }
+    Ok(lines.concat())
 }
 
 /// Writes `text` (from [`identified_scene`]) to `out`, atomically. Refused: `out` equal to
@@ -1034,6 +1206,40 @@ mod tests {
         let text = "load = [{ name = \"tip\", range = 1.0 }]\n";
         let e = set_force_sigmas(text, &[(0, 0.25, "c".into())]).unwrap_err();
         assert!(e.contains("'tip'") && e.contains("[[load]]"), "{e}");
+    }
+
+    /// The tier's `model_error_scale`: replaced in place where `[reduction.corotational]`
+    /// states it (its indent kept), else added as the table's first key; CRLF kept; a scene
+    /// without that table header is refused.
+    #[test]
+    fn the_model_error_scale_is_set_in_its_table() {
+        let text = "[reduction]\nmodel = \"corotational\"\n\n[reduction.corotational]\n\
+            duration = 1.0\n  model_error_scale = 1.0 # was\n\n[time]\ndt = 0.001\n";
+        let out = set_model_error_scale(text, 0.25, "c").unwrap();
+        assert_eq!(
+            out,
+            "[reduction]\nmodel = \"corotational\"\n\n[reduction.corotational]\n\
+            duration = 1.0\n  # c\n  model_error_scale = 2.5e-1\n\n[time]\ndt = 0.001\n"
+        );
+        let without = text.replace("  model_error_scale = 1.0 # was\n", "");
+        let out = set_model_error_scale(&without, 0.25, "c").unwrap();
+        assert!(
+            out.contains("[reduction.corotational]\n# c\nmodel_error_scale = 2.5e-1\nduration"),
+            "{out}"
+        );
+        // The key of another table is not taken for it.
+        let other = without.replace("dt = 0.001", "dt = 0.001\nmodel_error_scale = 3.0");
+        let out = set_model_error_scale(&other, 0.25, "c").unwrap();
+        assert!(out.contains("model_error_scale = 3.0") && out.contains("= 2.5e-1\nduration"));
+        let crlf = text.replace('\n', "\r\n");
+        let out = set_model_error_scale(&crlf, 0.25, "c").unwrap();
+        assert!(
+            out.contains("  # c\r\n  model_error_scale = 2.5e-1\r\n"),
+            "{out}"
+        );
+        assert_eq!(out.matches('\n').count(), out.matches("\r\n").count());
+        let e = set_model_error_scale("[time]\ndt = 0.001\n", 0.25, "c").unwrap_err();
+        assert!(e.contains("[reduction.corotational]"), "{e}");
     }
 
     /// The uncertainty is s/√K of the block values.

@@ -285,6 +285,7 @@ pub fn linearised_of_file_with(
         noise_columns,
         measured_rows: measured_rows(&measurements, |s| file_matrix(&t.sensor_rows[s])),
         model_error: (t.model_error.rows > 0).then(|| file_matrix(&t.model_error)),
+        model_error_scale: crate::nonlinear::filter::stated_model_error_scale(full),
     };
     Ok((lin, measurements))
 }

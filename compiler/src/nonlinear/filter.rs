@@ -50,6 +50,20 @@ pub struct LinearisedTier {
     /// [`super::self_check::SelfCheck::model_error_covariance`]), taken as process noise
     /// ([`model_error_noise`], docs/design.md §11.9); None: no such noise.
     pub model_error: Option<DMatrix<f64>>,
+    /// The scene's factor on `model_error` ([`stated_model_error_scale`]): the filter's
+    /// model-error covariance is S × this factor.
+    pub model_error_scale: f64,
+}
+
+/// The scene's `[reduction.corotational] model_error_scale` (1 when not stated or without a
+/// tier section): the factor on the measured model error S in the tier's filter.
+pub fn stated_model_error_scale(full: &FullOrder) -> f64 {
+    full.scene
+        .scene
+        .reduction
+        .corotational
+        .as_ref()
+        .map_or(1.0, |c| c.model_error_scale())
 }
 
 impl LinearisedTier {
@@ -296,6 +310,7 @@ pub fn linearise_at_rest(
             point_rows(full, v, &ops.sensors[s].weights)
         }),
         model_error: None,
+        model_error_scale: stated_model_error_scale(full),
     }
 }
 
@@ -436,8 +451,9 @@ pub(crate) struct ScaledSystem {
     pub(crate) f: Mat<f64>,
     /// H (channels × n).
     pub(crate) h: Mat<f64>,
-    /// G (n × (white + force + rate)): columns of the white channels, then of the force
-    /// states, then of their rates, σ included.
+    /// G (n × (white + force + rate + model error)): columns of the white channels, then of
+    /// the force states, then of their rates, then one per mode of the model error (§11.9;
+    /// none without it or with the scene's factor 0), σ included.
     pub(crate) noise: Mat<f64>,
     /// T (n × n) = diag(Φ, Φ, Φ, I) D.
     pub(crate) t: Mat<f64>,
@@ -509,8 +525,13 @@ pub(crate) fn scaled_system(
     }
     let nw = lin.noise_columns.len();
     let model_sigma = match &lin.model_error {
-        Some(s) => model_error_noise(&phi, &lin.mass, s, &lambda, w, (lin.alpha, lin.beta)),
-        None => Vec::new(),
+        Some(s) if lin.model_error_scale > 0.0 => {
+            model_error_noise(&phi, &lin.mass, s, &lambda, w, (lin.alpha, lin.beta))
+                .into_iter()
+                .map(|sigma| sigma * lin.model_error_scale.sqrt())
+                .collect()
+        }
+        _ => Vec::new(),
     };
     let nm = model_sigma.len();
     let mut gw = Mat::<f64>::zeros(n, nw + nf + nr + nm);
@@ -772,5 +793,57 @@ mod tests {
             );
         }
         assert!(sigma[0] > 0.0 && sigma[1] < 1e-12 * sigma[0], "{sigma:?}");
+    }
+
+    /// The scene's `model_error_scale` c multiplies the model error's covariance: its columns
+    /// of G (after the force columns) are √c × those of c = 1, the other columns unchanged;
+    /// with c = 0 the system has no model-error columns, as without a measured S.
+    #[test]
+    fn the_model_error_scale_multiplies_its_covariance() {
+        let mass = DMatrix::from_row_slice(2, 2, &[2.0, 0.0, 0.0, 0.5]);
+        let lin = |scale: f64, error: bool| LinearisedTier {
+            mass: mass.clone(),
+            stiffness: DMatrix::from_row_slice(2, 2, &[800.0, -100.0, -100.0, 300.0]),
+            alpha: 1.0,
+            beta: 1e-3,
+            wilson: WilsonTheta {
+                dt: 1e-3,
+                theta: 1.4,
+            },
+            force_columns: vec![DVector::from_vec(vec![1.0, 0.5])],
+            force_sigma: vec![0.1],
+            rate_sigma: Vec::new(),
+            noise_columns: Vec::new(),
+            measured_rows: DMatrix::from_row_slice(1, 2, &[1.0, 0.2]),
+            model_error: error.then(|| DMatrix::from_row_slice(2, 2, &[4e-6, 1e-6, 1e-6, 2e-6])),
+            model_error_scale: scale,
+        };
+        let measurements = Measurements {
+            channels: vec![(0, 0)],
+            variance: vec![1e-6],
+            every: vec![1],
+        };
+        let g = |l: &LinearisedTier| scaled_system(l, &measurements).unwrap().noise;
+        let (one, four) = (g(&lin(1.0, true)), g(&lin(4.0, true)));
+        assert_eq!(one.ncols(), 1 + 2, "one force column, one per mode");
+        assert_eq!(four.ncols(), one.ncols());
+        for i in 0..one.nrows() {
+            assert_eq!(four[(i, 0)], one[(i, 0)], "the force column is the scene's");
+            for j in 1..one.ncols() {
+                assert!(
+                    (four[(i, j)] - 2.0 * one[(i, j)]).abs() <= 1e-12 * one[(i, j)].abs(),
+                    "G[{i}, {j}]: {} against 2 × {}",
+                    four[(i, j)],
+                    one[(i, j)]
+                );
+            }
+        }
+        assert!((1..3).any(|j| (0..one.nrows()).any(|i| one[(i, j)] != 0.0)));
+        let (off, none) = (g(&lin(0.0, true)), g(&lin(1.0, false)));
+        assert_eq!(off.ncols(), 1);
+        assert_eq!(none.ncols(), 1);
+        for i in 0..off.nrows() {
+            assert_eq!(off[(i, 0)], none[(i, 0)]);
+        }
     }
 }

@@ -34,6 +34,10 @@ pub struct IdentifiedNoise {
     pub loads: Vec<IdentifiedLoad>,
     /// The factor on the σ of the white process-noise channels (None without any).
     pub white_scale: Option<f64>,
+    /// The tier's model error (docs/design.md §11.9): (the scene's factor on the measured S,
+    /// the factor identified); None when the tier has no measured model error or the scene
+    /// turns it off (factor 0).
+    pub model_error_scale: Option<(f64, f64)>,
     /// The factor on the markers' σ.
     pub measurement_scale: f64,
     /// The least-squares fit (θ per parameter: white, then per load force and rate, then R).
@@ -50,7 +54,8 @@ pub struct IdentifiedNoise {
 /// the model file's (those the run used); the transitions are the tier linearised at rest and
 /// at each scheduled point, all mapped into the rest filter's scaled coordinates. Parameters:
 /// a factor on the variance of the white channels, of each random-walk load group's force
-/// increments and rate increments, and of the markers' variance; each is σ² × θ, θ ≥ 0, σ those
+/// increments and rate increments, of the tier's model error (when the filter has that term,
+/// docs/design.md §11.9) and of the markers' variance; each is σ² × θ, θ ≥ 0, σ those
 /// of the scene `full` (the noise model's shape: same loads and markers as the model's).
 /// Approximation: a white channel's process noise enters through the modal load of the rest
 /// linearisation at every point (the force, rate and marker parameters are exact; the example
@@ -173,6 +178,15 @@ pub fn identify_noise(
             ));
         }
     }
+    // The model error's columns follow the white, force and rate columns (`scaled_system`);
+    // their σ already carry the scene's factor, so θ multiplies it.
+    let nm = sys.noise.ncols() - (nw + nf + nr);
+    if nm > 0 {
+        parameters.push(part(
+            "the tier's model error".into(),
+            nw + nf + nr..nw + nf + nr + nm,
+        ));
+    }
     parameters.push(kalman::als::NoiseParameter {
         name: "markers".into(),
         process: Mat::zeros(n, n),
@@ -209,8 +223,13 @@ pub fn identify_noise(
             rate_sigma,
         });
     }
+    let model_error_scale = (nm > 0).then(|| {
+        at += 1;
+        (lin.model_error_scale, lin.model_error_scale * theta[at - 1])
+    });
     Ok(IdentifiedNoise {
         loads: identified,
+        model_error_scale,
         white_scale: (nw > 0).then(|| theta[0].sqrt()),
         measurement_scale: theta[at].sqrt(),
         estimate,

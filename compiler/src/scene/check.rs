@@ -316,6 +316,9 @@ impl CorotationalSpec {
                 return Err(format!("{} must be > 0", f("ecsw_tolerance")));
             }
         }
+        if let Some(c) = self.model_error_scale {
+            in_range(&f("model_error_scale"), c, (0.0, 1e6), "")?;
+        }
         in_range(
             &f("newton_tolerance"),
             self.newton_tolerance,

@@ -109,12 +109,14 @@ fn identify(args: &IdentifyArgs) -> Result<(), IdentifyError> {
         Ok(found) => {
             print!("{}", found.report());
             if let Some(out) = &args.out {
-                let names: Vec<&str> = found.excited_loads().map(|l| l.name.as_str()).collect();
-                println!(
-                    "wrote {} (force_noise_std of {})",
-                    out.display(),
-                    names.join(", ")
-                );
+                let mut written: Vec<String> = found
+                    .excited_loads()
+                    .map(|l| format!("force_noise_std of {}", l.name))
+                    .collect();
+                if found.model_error_changed().is_some() {
+                    written.push("[reduction.corotational] model_error_scale".into());
+                }
+                println!("wrote {} ({})", out.display(), written.join(", "));
             }
             Ok(())
         }
