@@ -44,8 +44,9 @@ def identify(scene, model, measurements, inputs=None, out=None, **options):
     Returns a dict: ``loads`` (per estimated load: ``name``, ``scene_sigma``, ``stated``,
     ``filter_sigma``, ``value``, ``uncertainty``, ``blocks``, ``excited``, ``rate``),
     ``model_error_factor`` (``value``, ``uncertainty``, ``blocks``, ``scene_factor``,
-    ``changed``; None when the tier has no model-error term), ``markers_factor`` (``value``, ``uncertainty``, ``blocks``: the check, within
-    [0.8, 1.25]), ``steps``, ``samples``, ``lags``, ``skip``, ``blocks``, ``block_bounds``,
+    ``filter_factor``, ``changed``; None without a measured model error),
+    ``markers_factor`` (``value``, ``uncertainty``, ``blocks``: the check, within [0.8, 1.25]),
+    ``steps``, ``samples``, ``lags``, ``skip``, ``blocks``, ``block_bounds``,
     ``relative_residual``, ``switches``, ``report`` (the command's text) and ``written``.
     Raises ``IdentifyError`` (a ``CrokfError``) on a refusal; nothing is written then.
     """

@@ -684,9 +684,10 @@ fn identify<'py>(
         None => d.set_item("white_factor", py.None())?,
     }
     match &found.model_error {
-        Some((scene, m)) => {
-            let e = estimate_dict(py, m)?;
-            e.set_item("scene_factor", *scene)?;
+        Some(m) => {
+            let e = estimate_dict(py, &m.factor)?;
+            e.set_item("scene_factor", m.scene)?;
+            e.set_item("filter_factor", m.filter)?;
             e.set_item("changed", found.model_error_changed().is_some())?;
             d.set_item("model_error_factor", e)?;
         }

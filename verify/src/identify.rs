@@ -218,6 +218,17 @@ pub struct LoadSigma {
     pub rate: Option<(f64, Estimate)>,
 }
 
+/// The tier's model-error factor: the scene's, the filters', the identified.
+#[derive(Clone, Debug)]
+pub struct ModelErrorFactor {
+    /// The scene's `model_error_scale` (1 unless stated).
+    pub scene: f64,
+    /// The factor of the filters that ran (the scene's unless `fixed_point`).
+    pub filter: f64,
+    /// Identified.
+    pub factor: Estimate,
+}
+
 /// What `fixed_point` did.
 #[derive(Clone, Debug)]
 pub struct FixedPoint {
@@ -238,9 +249,9 @@ pub struct Identification {
     pub loads: Vec<LoadSigma>,
     /// The factor on the σ of the white process-noise channels (None without any).
     pub white: Option<Estimate>,
-    /// The tier's model error (docs/design.md §11.9): the scene's factor on the measured S
-    /// and the factor identified (None when the filter has no such term).
-    pub model_error: Option<(f64, Estimate)>,
+    /// The tier's model error (docs/design.md §11.9) as a factor on its measured S (None when
+    /// the tier has no measured S).
+    pub model_error: Option<ModelErrorFactor>,
     /// The factor on the markers' σ: the check.
     pub markers: Estimate,
     /// The recording's name.
@@ -448,6 +459,7 @@ fn identify_with(
             full.scene.scene.loads[g].force_noise_std = sigma;
         }
     }
+    let scene_factor = crokf_compile::nonlinear::filter::stated_model_error_scale(full);
     let (steps, skip, lags) = (recording.steps(), options.skip, options.lags);
     let mut run = filter_over(full, model, recording, options.schedule)?;
     let mut whole = run.identify(full, skip, steps, lags)?;
@@ -481,14 +493,10 @@ fn identify_with(
                 }
             }
             if let Some((old, new)) = whole.model_error_scale {
-                if new <= 0.0 {
-                    course.stopped = Some(
-                        "the model error's factor identified as 0: the filters keep the last \
-                         factor; the values are those of the last filter"
-                            .into(),
-                    );
+                // A factor may be 0 (the filters then run without the term).
+                if old != new {
+                    change = change.max((new - old).abs() / old.max(new));
                 }
-                change = change.max((new / old - 1.0).abs());
             }
             course.last_change = change;
             if course.stopped.is_some() {
@@ -568,18 +576,19 @@ fn identify_with(
                 .collect(),
         )
     });
-    let model_error = whole.model_error_scale.map(|(scene, value)| {
-        (
-            scene,
-            Estimate::new(
+    let model_error = whole
+        .model_error_scale
+        .map(|(filter, value)| ModelErrorFactor {
+            scene: scene_factor,
+            filter,
+            factor: Estimate::new(
                 value,
                 blocks
                     .iter()
                     .map(|b| b.model_error_scale.map_or(0.0, |m| m.1))
                     .collect(),
             ),
-        )
-    });
+        });
     let markers = Estimate::new(
         whole.measurement_scale,
         blocks.iter().map(|b| b.measurement_scale).collect(),
@@ -619,8 +628,10 @@ impl Identification {
     pub fn model_error_changed(&self) -> Option<&Estimate> {
         self.model_error
             .as_ref()
-            .filter(|(scene, m)| (m.value - scene).abs() > EXCITED_UNCERTAINTIES * m.uncertainty)
-            .map(|(_, m)| m)
+            .filter(|m| {
+                (m.factor.value - m.scene).abs() > EXCITED_UNCERTAINTIES * m.factor.uncertainty
+            })
+            .map(|m| &m.factor)
     }
 
     /// The verdict: `Ok` when the markers' factor is within [`MARKER_FACTOR_RANGE`] and at
@@ -654,11 +665,11 @@ impl Identification {
             let model_error = self
                 .model_error
                 .as_ref()
-                .map(|(scene, m)| {
+                .map(|m| {
                     format!(
-                        "; the model error's factor {:.3} ± {:.3} (scene {scene:.3}) is not \
+                        "; the model error's factor {:.3} ± {:.3} (scene {:.3}) is not \
                          written from a recording that excites no force",
-                        m.value, m.uncertainty
+                        m.factor.value, m.factor.uncertainty, m.scene
                     )
                 })
                 .unwrap_or_default();
@@ -757,13 +768,15 @@ impl Identification {
                 blocks(w)
             ));
         }
-        if let Some((scene, m)) = &self.model_error {
+        if let Some(m) = &self.model_error {
             s.push_str(&format!(
-                "| the tier's model error (factor on its measured S) | {scene:.4} | {scene:.4} | \
-                 {:.4} | {:.2e} | {} |\n",
-                m.value,
-                m.uncertainty,
-                blocks(m)
+                "| the tier's model error (factor on its measured S) | {:.4} | {:.4} | {:.4} | \
+                 {:.2e} | {} |\n",
+                m.scene,
+                m.filter,
+                m.factor.value,
+                m.factor.uncertainty,
+                blocks(&m.factor)
             ));
         }
         s.push_str(&format!(
@@ -799,17 +812,14 @@ impl Identification {
                         l.name, l.force.value, l.force.uncertainty
                     ));
                 }
-                if let Some((scene, m)) = &self.model_error {
+                if let Some(m) = &self.model_error {
+                    let (value, u, scene) = (m.factor.value, m.factor.uncertainty, m.scene);
                     parts.push(if self.model_error_changed().is_some() {
-                        format!(
-                            "the model error's factor = {:.3} ± {:.3} (scene {scene:.3})",
-                            m.value, m.uncertainty
-                        )
+                        format!("the model error's factor = {value:.3} ± {u:.3} (scene {scene:.3})")
                     } else {
                         format!(
-                            "the model error's factor {:.3} ± {:.3} agrees with the scene's \
-                             {scene:.3} (kept)",
-                            m.value, m.uncertainty
+                            "the model error's factor {value:.3} ± {u:.3} agrees with the \
+                             scene's {scene:.3} (kept)"
                         )
                     });
                 }
@@ -872,7 +882,7 @@ pub fn identified_scene(
             found.skip,
             m.value,
             m.uncertainty,
-            found.model_error.as_ref().map_or(1.0, |(s, _)| *s)
+            found.model_error.as_ref().map_or(1.0, |m| m.scene)
         );
         (value, comment)
     });

@@ -457,6 +457,10 @@ pub(crate) struct ScaledSystem {
     pub(crate) noise: Mat<f64>,
     /// T (n × n) = diag(Φ, Φ, Φ, I) D.
     pub(crate) t: Mat<f64>,
+    /// The model error's columns at factor 1 (n × modes; σ of the measured S, whatever the
+    /// scene's factor; empty without a measured S): the noise identification fits the factor
+    /// on these.
+    pub(crate) model_error_unit: Mat<f64>,
 }
 
 /// The [`ScaledSystem`] of `lin` for `measurements`.
@@ -524,14 +528,15 @@ pub(crate) fn scaled_system(
         f[(n3 + nf + j, n3 + nf + j)] = 1.0;
     }
     let nw = lin.noise_columns.len();
-    let model_sigma = match &lin.model_error {
-        Some(s) if lin.model_error_scale > 0.0 => {
-            model_error_noise(&phi, &lin.mass, s, &lambda, w, (lin.alpha, lin.beta))
-                .into_iter()
-                .map(|sigma| sigma * lin.model_error_scale.sqrt())
-                .collect()
-        }
-        _ => Vec::new(),
+    let unit_sigma = match &lin.model_error {
+        Some(s) => model_error_noise(&phi, &lin.mass, s, &lambda, w, (lin.alpha, lin.beta)),
+        None => Vec::new(),
+    };
+    let model_sigma: Vec<f64> = if lin.model_error_scale > 0.0 {
+        let c = lin.model_error_scale.sqrt();
+        unit_sigma.iter().map(|sigma| sigma * c).collect()
+    } else {
+        Vec::new()
     };
     let nm = model_sigma.len();
     let mut gw = Mat::<f64>::zeros(n, nw + nf + nr + nm);
@@ -570,6 +575,12 @@ pub(crate) fn scaled_system(
     for j in 0..nr {
         d[n3 + nf + j] = d[n3 + j] / w.dt;
     }
+    let mut unit = Mat::<f64>::zeros(n, unit_sigma.len());
+    for (i, &sigma) in unit_sigma.iter().enumerate() {
+        for k1 in 0..3 {
+            unit[(k1 * r + i, i)] = gamma[i][k1] * sigma / d[k1 * r + i];
+        }
+    }
     let f = Mat::<f64>::from_fn(n, n, |i, j| f[(i, j)] * d[j] / d[i]);
     let gw = Mat::<f64>::from_fn(n, gw.ncols(), |i, j| gw[(i, j)] / d[i]);
     let modal_rows = &lin.measured_rows * &phi;
@@ -592,7 +603,13 @@ pub(crate) fn scaled_system(
     for j in n3..n {
         t[(j, j)] = d[j];
     }
-    Ok(ScaledSystem { f, h, noise: gw, t })
+    Ok(ScaledSystem {
+        f,
+        h,
+        noise: gw,
+        t,
+        model_error_unit: unit,
+    })
 }
 
 /// The model error as process noise (docs/design.md §11.9): per mass-normalised mode i of
@@ -654,7 +671,7 @@ pub fn filter_of(
     lin: &LinearisedTier,
     measurements: &Measurements,
 ) -> Result<TierFilter, NonlinearError> {
-    let ScaledSystem { f, h, noise, t } = scaled_system(lin, measurements)?;
+    let ScaledSystem { f, h, noise, t, .. } = scaled_system(lin, measurements)?;
     let nr = lin.rate_sigma.len();
     let q = &noise * noise.transpose();
     let schedule = kalman::periodic_gains(
@@ -839,6 +856,22 @@ mod tests {
             }
         }
         assert!((1..3).any(|j| (0..one.nrows()).any(|i| one[(i, j)] != 0.0)));
+        // The identification's columns at factor 1, whatever the scene's factor.
+        for c in [0.0, 4.0] {
+            let unit = scaled_system(&lin(c, true), &measurements)
+                .unwrap()
+                .model_error_unit;
+            assert_eq!(unit.ncols(), 2);
+            for i in 0..unit.nrows() {
+                for j in 0..2 {
+                    let want = one[(i, 1 + j)];
+                    assert!(
+                        (unit[(i, j)] - want).abs() <= 1e-15 * want.abs(),
+                        "[{i}, {j}]"
+                    );
+                }
+            }
+        }
         let (off, none) = (g(&lin(0.0, true)), g(&lin(1.0, false)));
         assert_eq!(off.ncols(), 1);
         assert_eq!(none.ncols(), 1);

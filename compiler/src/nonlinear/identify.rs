@@ -34,9 +34,9 @@ pub struct IdentifiedNoise {
     pub loads: Vec<IdentifiedLoad>,
     /// The factor on the σ of the white process-noise channels (None without any).
     pub white_scale: Option<f64>,
-    /// The tier's model error (docs/design.md §11.9): (the scene's factor on the measured S,
-    /// the factor identified); None when the tier has no measured model error or the scene
-    /// turns it off (factor 0).
+    /// The tier's model error (docs/design.md §11.9): (the filters' factor on the measured S,
+    /// the factor identified, also on the measured S); None when the tier has no measured
+    /// model error.
     pub model_error_scale: Option<(f64, f64)>,
     /// The factor on the markers' σ.
     pub measurement_scale: f64,
@@ -178,14 +178,16 @@ pub fn identify_noise(
             ));
         }
     }
-    // The model error's columns follow the white, force and rate columns (`scaled_system`);
-    // their σ already carry the scene's factor, so θ multiplies it.
-    let nm = sys.noise.ncols() - (nw + nf + nr);
+    // The model error at factor 1 on the measured S: θ is the factor itself (also where the
+    // filters ran with another factor, or without the term).
+    let nm = sys.model_error_unit.ncols();
     if nm > 0 {
-        parameters.push(part(
-            "the tier's model error".into(),
-            nw + nf + nr..nw + nf + nr + nm,
-        ));
+        let g = &sys.model_error_unit;
+        parameters.push(kalman::als::NoiseParameter {
+            name: "the tier's model error".into(),
+            process: g * g.transpose(),
+            measurement: vec![0.0; m],
+        });
     }
     parameters.push(kalman::als::NoiseParameter {
         name: "markers".into(),
@@ -225,7 +227,7 @@ pub fn identify_noise(
     }
     let model_error_scale = (nm > 0).then(|| {
         at += 1;
-        (lin.model_error_scale, lin.model_error_scale * theta[at - 1])
+        (lin.model_error_scale, theta[at - 1])
     });
     Ok(IdentifiedNoise {
         loads: identified,
