@@ -40,7 +40,8 @@ pub struct IdentifiedNoise {
     pub model_error_scale: Option<(f64, f64)>,
     /// The factor on the markers' σ.
     pub measurement_scale: f64,
-    /// The least-squares fit (θ per parameter: white, then per load force and rate, then R).
+    /// The least-squares fit (θ per parameter: white, then per load force and rate, then the
+    /// model error, then R).
     pub estimate: kalman::als::AlsEstimate,
 }
 
