@@ -354,6 +354,59 @@ fn scene_fields_are_range_checked_naming_the_field() {
     assert!(compile(&path, &options()).is_err());
 }
 
+/// `model_error_scale` scales the filter's model-error noise, not what the file stores: the
+/// same measured S as the default scene's, the process noise's model-error part × the factor
+/// (the rest of Q unchanged), and the compile's note names the factor.
+#[test]
+fn the_scenes_model_error_scale_reaches_the_filter_not_the_stored_error() {
+    let dir = scene().parent().unwrap().to_path_buf();
+    let base = std::fs::read_to_string(scene()).unwrap();
+    let path = dir.join("model_error_scale.toml");
+    std::fs::write(
+        &path,
+        base.replace("every = 2", "every = 2\nmodel_error_scale = 0.25"),
+    )
+    .unwrap();
+    let scaled = compile(&path, &options()).unwrap().model;
+    let one = &compiled().1;
+    let (a, b) = (one.tier.as_ref().unwrap(), scaled.tier.as_ref().unwrap());
+    assert!(!a.model_error.data.is_empty());
+    assert_eq!(
+        a.model_error, b.model_error,
+        "the file keeps the measured S"
+    );
+    assert!(
+        scaled
+            .report
+            .notes
+            .iter()
+            .any(|n| n.contains("× the scene's model_error_scale = 0.25")),
+        "{:?}",
+        scaled.report.notes
+    );
+    // Q(c) = Q(0) + c (Q(1) − Q(0)): only the model error's part scales, and it is not 0.
+    let zero_path = dir.join("model_error_scale_0.toml");
+    std::fs::write(
+        &zero_path,
+        base.replace("every = 2", "every = 2\nmodel_error_scale = 0"),
+    )
+    .unwrap();
+    let zero = compile(&zero_path, &options()).unwrap().model;
+    let q = |m: &crokf_formats::Model| m.tier.as_ref().unwrap().kalman.process_noise.data.clone();
+    let (q1, q25, q0) = (q(one), q(&scaled), q(&zero));
+    let mut largest = 0.0f64;
+    for ((x1, x25), x0) in q1.iter().zip(&q25).zip(&q0) {
+        let model = x1 - x0;
+        largest = largest.max(model.abs());
+        assert!(
+            (x25 - (x0 + 0.25 * model)).abs() <= 1e-9 * (x1.abs() + x0.abs()) + 1e-300,
+            "Q(0.25) = {x25:e}, Q(0) + 0.25 (Q(1) − Q(0)) = {:e}",
+            x0 + 0.25 * model
+        );
+    }
+    assert!(largest > 0.0, "the model error is part of Q");
+}
+
 /// An order the training snapshots cannot give is a warning naming the order, the r given and
 /// the remedy, not a silent cut (and the default order gives no such warning).
 #[test]

@@ -345,7 +345,7 @@ impl<'a> TierReductor<'a> {
                 "co-rotational tier model error as process noise (docs/design.md §11.9): the \
                  reduced model's error inside its basis over the training runs, RMS ‖q − VᵀMu‖ \
                  {:.3e} kg^½·m{}, per mode as a white modal force whose open-loop variance \
-                 equals the measured one",
+                 equals the measured one{}",
                 s.trace().max(0.0).sqrt(),
                 if largest > 0.0 {
                     format!(
@@ -354,6 +354,16 @@ impl<'a> TierReductor<'a> {
                     )
                 } else {
                     String::new()
+                },
+                {
+                    let c = crate::nonlinear::filter::stated_model_error_scale(self.full);
+                    if c == 0.0 {
+                        "; the scene's model_error_scale = 0 leaves it out of the filter".into()
+                    } else if c != 1.0 {
+                        format!(", × the scene's model_error_scale = {c}")
+                    } else {
+                        String::new()
+                    }
                 }
             ));
         }
