@@ -10,7 +10,7 @@
 #   scripts/identified.sh OUT_DIR RECORDING [BODY ...]    # RECORDING: press, step, …
 #
 # The identified copy is written in the body's folder (its mesh path is relative), saved to
-# OUT_DIR/BODY-from-RECORDING.toml and removed. References cached as in heldout.sh.
+# OUT_DIR/BODY-from-RECORDING.toml and removed after the runs. References cached as in heldout.sh.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:?usage: scripts/identified.sh OUT_DIR RECORDING [BODY ...]}
@@ -37,8 +37,7 @@ for b in "${bodies[@]}"; do
     "$d/scenario_$rec.toml" "$tier" --given --lags 10 -o "$copy" > "$out/$b-identify-$rec.txt" 2>&1 || true
   printf '%-9s %s\n' "$b" "$(grep '^verdict' "$out/$b-identify-$rec.txt" || tail -n 1 "$out/$b-identify-$rec.txt")"
   [ -f "$copy" ] || continue
-  mv "$copy" "$out/$b-from-$rec.toml"
-  cp "$out/$b-from-$rec.toml" "$copy"
+  cp "$copy" "$out/$b-from-$rec.toml"
   for s in "$d"/scenario_*.toml; do
     name=$(basename "$s" .toml); name=${name#scenario_}
     CROKF_REFERENCE_CACHE=$(ref "$b" "$name") "$bin/examples/nonlinear_filter" \

@@ -359,15 +359,13 @@ fn scene_fields_are_range_checked_naming_the_field() {
 /// (the rest of Q unchanged), and the compile's note names the factor.
 #[test]
 fn the_scenes_model_error_scale_reaches_the_filter_not_the_stored_error() {
-    let dir = scene().parent().unwrap().to_path_buf();
-    let base = std::fs::read_to_string(scene()).unwrap();
-    let path = dir.join("model_error_scale.toml");
-    std::fs::write(
-        &path,
-        base.replace("every = 2", "every = 2\nmodel_error_scale = 0.25"),
-    )
-    .unwrap();
-    let scaled = compile(&path, &options()).unwrap().model;
+    let with_factor = |c: &str| {
+        compiled_variant(&format!("model_error_scale_{c}.toml"), |base| {
+            base.replace("every = 2", &format!("every = 2\nmodel_error_scale = {c}"))
+        })
+        .model
+    };
+    let scaled = with_factor("0.25");
     let one = &compiled().1;
     let (a, b) = (one.tier.as_ref().unwrap(), scaled.tier.as_ref().unwrap());
     assert!(!a.model_error.data.is_empty());
@@ -385,13 +383,7 @@ fn the_scenes_model_error_scale_reaches_the_filter_not_the_stored_error() {
         scaled.report.notes
     );
     // Q(c) = Q(0) + c (Q(1) − Q(0)): only the model error's part scales, and it is not 0.
-    let zero_path = dir.join("model_error_scale_0.toml");
-    std::fs::write(
-        &zero_path,
-        base.replace("every = 2", "every = 2\nmodel_error_scale = 0"),
-    )
-    .unwrap();
-    let zero = compile(&zero_path, &options()).unwrap().model;
+    let zero = with_factor("0");
     let q = |m: &crokf_formats::Model| m.tier.as_ref().unwrap().kalman.process_noise.data.clone();
     let (q1, q25, q0) = (q(one), q(&scaled), q(&zero));
     let mut largest = 0.0f64;
@@ -411,15 +403,12 @@ fn the_scenes_model_error_scale_reaches_the_filter_not_the_stored_error() {
 /// the remedy, not a silent cut (and the default order gives no such warning).
 #[test]
 fn an_order_the_snapshots_cannot_give_is_a_warning() {
-    let dir = scene().parent().unwrap().to_path_buf();
-    let base = std::fs::read_to_string(scene()).unwrap();
-    let path = dir.join("sparse.toml");
-    std::fs::write(
-        &path,
-        base.replace("every = 2\norder = 10", "every = 1000\norder = 40"),
-    )
-    .unwrap();
-    let notes = compile(&path, &options()).unwrap().model.report.notes;
+    let notes = compiled_variant("sparse.toml", |base| {
+        base.replace("every = 2\norder = 10", "every = 1000\norder = 40")
+    })
+    .model
+    .report
+    .notes;
     let warning = notes
         .iter()
         .find(|n| n.starts_with("WARNING: co-rotational tier order 40 asked"))
@@ -436,18 +425,15 @@ fn an_order_the_snapshots_cannot_give_is_a_warning() {
 /// A cubature stopped at its element cap above its tolerance is a warning naming both fields.
 #[test]
 fn a_cubature_above_its_tolerance_is_a_warning() {
-    let dir = scene().parent().unwrap().to_path_buf();
-    let base = std::fs::read_to_string(scene()).unwrap();
-    let path = dir.join("capped.toml");
-    std::fs::write(
-        &path,
+    let notes = compiled_variant("capped.toml", |base| {
         base.replace(
             "ecsw_tolerance = 1e-2",
             "ecsw_tolerance = 1e-6\necsw_max_elements = 4",
-        ),
-    )
-    .unwrap();
-    let notes = compile(&path, &options()).unwrap().model.report.notes;
+        )
+    })
+    .model
+    .report
+    .notes;
     let warning = notes
         .iter()
         .find(|n| n.starts_with("WARNING: the tier's cubature (ECSW) stopped at"))
@@ -1390,16 +1376,13 @@ fn the_fidelity_rule_takes_the_first_size_within_the_held_out_threshold() {
     let chosen = fidelity::choose(&full, &plan, &built.training, newton).unwrap();
     check(&chosen, &LADDER);
 
-    let dir = scene().parent().unwrap().to_path_buf();
-    let base = std::fs::read_to_string(scene()).unwrap();
-    let path = dir.join("unsized.toml");
-    std::fs::write(
-        &path,
+    let unsized_notes = compiled_variant("unsized.toml", |base| {
         base.replace("order = 10\n", "")
-            .replace("ecsw_tolerance = 1e-2\n", ""),
-    )
-    .unwrap();
-    let unsized_notes = compile(&path, &options()).unwrap().model.report.notes;
+            .replace("ecsw_tolerance = 1e-2\n", "")
+    })
+    .model
+    .report
+    .notes;
     assert!(
         unsized_notes
             .iter()
@@ -1420,10 +1403,17 @@ fn the_fidelity_rule_takes_the_first_size_within_the_held_out_threshold() {
 
 /// The beam scene with `order = r`, compiled.
 fn compiled_with_order(r: usize) -> crokf_compile::Compiled {
-    let dir = scene().parent().unwrap().to_path_buf();
+    compiled_variant(&format!("order{r}.toml"), |base| {
+        base.replace("order = 10", &format!("order = {r}"))
+    })
+}
+
+/// The beam scene edited by `edit`, written as `name` next to it and compiled with
+/// [`options`].
+fn compiled_variant(name: &str, edit: impl Fn(&str) -> String) -> crokf_compile::Compiled {
     let base = std::fs::read_to_string(scene()).unwrap();
-    let path = dir.join(format!("order{r}.toml"));
-    std::fs::write(&path, base.replace("order = 10", &format!("order = {r}"))).unwrap();
+    let path = scene().parent().unwrap().join(name);
+    std::fs::write(&path, edit(&base)).unwrap();
     compile(&path, &options()).unwrap()
 }
 

@@ -913,11 +913,32 @@ pub fn identified_scene(
     Ok(text)
 }
 
-/// One `[[load]]` table's values as the TOML parser sees them (byte spans into the text).
+/// A table's values as the TOML parser sees them (byte spans into the text).
+type SpannedTable = std::collections::BTreeMap<String, toml::Spanned<toml::Value>>;
+
+/// The `[[load]]` tables and `[reduction.corotational]` as the TOML parser sees them.
 #[derive(serde::Deserialize)]
 struct SpannedScene {
     #[serde(default)]
-    load: Vec<std::collections::BTreeMap<String, toml::Spanned<toml::Value>>>,
+    load: Vec<SpannedTable>,
+    reduction: Option<SpannedReduction>,
+}
+
+/// `[reduction]`'s `corotational` table.
+#[derive(serde::Deserialize)]
+struct SpannedReduction {
+    corotational: Option<SpannedTable>,
+}
+
+/// The last table header before byte `at` of `body`, without spaces and comment
+/// (`[[load]]`, `[reduction.corotational]`).
+fn header_before(body: &str, at: usize) -> Option<String> {
+    body[..at]
+        .lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| l.starts_with('['))
+        .map(|h| h.split('#').next().unwrap_or("").replace([' ', '\t'], ""))
 }
 
 /// `text` with load `g`'s `force_noise_std` = value (and `force_model = "random_walk"`) for
@@ -942,16 +963,7 @@ fn set_force_sigmas(text: &str, values: &[(usize, f64, String)]) -> Result<Strin
         let start = line_start(name.span().start);
         // The table must be a `[[load]]` table: its header is the last table header before
         // its name.
-        let header = body[..start]
-            .lines()
-            .rev()
-            .map(str::trim)
-            .find(|l| l.starts_with('['));
-        let is_load = header.is_some_and(|h| {
-            let h = h.split('#').next().unwrap_or("").replace([' ', '\t'], "");
-            h == "[[load]]"
-        });
-        if !is_load {
+        if header_before(body, start).as_deref() != Some("[[load]]") {
             return Err(format!(
                 "load '{}' is not a [[load]] table with one key per line: write it so to \
                  have its force σ written",
@@ -1000,59 +1012,49 @@ fn set_force_sigmas(text: &str, values: &[(usize, f64, String)]) -> Result<Strin
 }
 
 /// `text` with `[reduction.corotational] model_error_scale = value`, the comment on a line of
-/// its own above it: the key's value replaced where the table states it, else the key added
-/// as the table's first line. The table must be written as a `[reduction.corotational]`
+/// its own above it: the key's line replaced where the table states it, else the key added
+/// above the table's first key. The table must be written as a `[reduction.corotational]`
 /// header with one key per line.
 fn set_model_error_scale(text: &str, value: f64, comment: &str) -> Result<String, String> {
-    let newline = if text.contains("\r\n") { "\r\n" } else { "\n" };
-    let header = |line: &str| {
-        let l = line
-            .split('#')
-            .next()
-            .unwrap_or("")
-            .replace([' ', '\t', '\r', '\n'], "");
-        l.starts_with('[').then_some(l)
-    };
-    let mut lines: Vec<&str> = text.split_inclusive('\n').collect();
-    let start = lines
-        .iter()
-        .position(|l| header(l).as_deref() == Some("[reduction.corotational]"))
-        .ok_or("no [reduction.corotational] table header to write model_error_scale under")?;
-    let end = lines[start + 1..]
-        .iter()
-        .position(|l| header(l).is_some())
-        .map_or(lines.len(), |i| start + 1 + i);
-    let key = |l: &str| {
-        let t = l.trim_start();
-        t.strip_prefix("model_error_scale")
-            .is_some_and(|rest| rest.trim_start().starts_with('='))
-    };
-    let indent_of =
-        |l: &str| -> String { l.chars().take_while(|c| *c == ' ' || *c == '\t').collect() };
-    let new_lines = |indent: &str| {
-        format!("{indent}# {comment}{newline}{indent}model_error_scale = {value:e}{newline}")
-    };
-    let at = lines[start + 1..end]
-        .iter()
-        .position(|l| key(l))
-        .map(|i| start + 1 + i);
-    let replacement;
-    match at {
-        Some(i) => {
-            replacement = new_lines(&indent_of(lines[i]));
-            lines[i] = &replacement;
-        }
-        None => {
-            let lead = if lines[start].ends_with('\n') {
-                ""
-            } else {
-                newline
-            };
-            replacement = format!("{lead}{}", new_lines(""));
-            lines.insert(start + 1, &replacement);
-        }
+    let bom = if text.starts_with('\u{feff}') { 3 } else { 0 };
+    let body = &text[bom..];
+    let parsed: SpannedScene = toml::from_str(body).map_err(|e| e.to_string())?;
+    let newline = if body.contains("\r\n") { "\r\n" } else { "\n" };
+    let line_start = |at: usize| body[..at].rfind('\n').map_or(0, |i| i + 1);
+    let line_end = |at: usize| body[at..].find('\n').map_or(body.len(), |i| at + i + 1);
+    let table = parsed
+        .reduction
+        .and_then(|r| r.corotational)
+        .ok_or("no [reduction.corotational] table to write model_error_scale in")?;
+    let first = table
+        .values()
+        .map(|v| line_start(v.span().start))
+        .min()
+        .ok_or("[reduction.corotational] has no keys")?;
+    if header_before(body, first).as_deref() != Some("[reduction.corotational]") {
+        return Err(
+            "[reduction.corotational] is not written as a table with one key per line: \
+                    write it so to have model_error_scale written"
+                .into(),
+        );
     }
-    Ok(lines.concat())
+    let (range, indent) = match table.get("model_error_scale") {
+        Some(old) => {
+            let at = line_start(old.span().start);
+            let indent: String = body[at..]
+                .chars()
+                .take_while(|c| *c == ' ' || *c == '\t')
+                .collect();
+            (at..line_end(old.span().end), indent)
+        }
+        None => (first..first, String::new()),
+    };
+    let mut out = body.to_owned();
+    out.replace_range(
+        range,
+        &format!("{indent}# {comment}{newline}{indent}model_error_scale = {value:e}{newline}"),
+    );
+    Ok(format!("{}{out}", &text[..bom]))
 }
 
 /// Writes `text` (from [`identified_scene`]) to `out`, atomically. Refused: `out` equal to

@@ -528,24 +528,30 @@ pub(crate) fn scaled_system(
         f[(n3 + nf + j, n3 + nf + j)] = 1.0;
     }
     let nw = lin.noise_columns.len();
+    // The model error's columns at factor 1 (one per mode); G takes them × √c.
     let unit_sigma = match &lin.model_error {
         Some(s) => model_error_noise(&phi, &lin.mass, s, &lambda, w, (lin.alpha, lin.beta)),
         None => Vec::new(),
     };
-    let model_sigma: Vec<f64> = if lin.model_error_scale > 0.0 {
-        let c = lin.model_error_scale.sqrt();
-        unit_sigma.iter().map(|sigma| sigma * c).collect()
+    let mut unit = Mat::<f64>::zeros(n, unit_sigma.len());
+    for (i, &sigma) in unit_sigma.iter().enumerate() {
+        for k1 in 0..3 {
+            unit[(k1 * r + i, i)] = gamma[i][k1] * sigma;
+        }
+    }
+    let nm = if lin.model_error_scale > 0.0 {
+        unit.ncols()
     } else {
-        Vec::new()
+        0
     };
-    let nm = model_sigma.len();
     let mut gw = Mat::<f64>::zeros(n, nw + nf + nr + nm);
     for (c, column) in lin.noise_columns.iter().enumerate() {
         modal_load(column, &mut gw, c);
     }
-    for (i, &sigma) in model_sigma.iter().enumerate() {
-        for k1 in 0..3 {
-            gw[(k1 * r + i, nw + nf + nr + i)] = gamma[i][k1] * sigma;
+    let c = lin.model_error_scale.sqrt();
+    for j in 0..nm {
+        for i in 0..n {
+            gw[(i, nw + nf + nr + j)] = c * unit[(i, j)];
         }
     }
     for (j, &sigma) in lin.force_sigma.iter().enumerate() {
@@ -575,14 +581,9 @@ pub(crate) fn scaled_system(
     for j in 0..nr {
         d[n3 + nf + j] = d[n3 + j] / w.dt;
     }
-    let mut unit = Mat::<f64>::zeros(n, unit_sigma.len());
-    for (i, &sigma) in unit_sigma.iter().enumerate() {
-        for k1 in 0..3 {
-            unit[(k1 * r + i, i)] = gamma[i][k1] * sigma / d[k1 * r + i];
-        }
-    }
     let f = Mat::<f64>::from_fn(n, n, |i, j| f[(i, j)] * d[j] / d[i]);
     let gw = Mat::<f64>::from_fn(n, gw.ncols(), |i, j| gw[(i, j)] / d[i]);
+    let unit = Mat::<f64>::from_fn(n, unit.ncols(), |i, j| unit[(i, j)] / d[i]);
     let modal_rows = &lin.measured_rows * &phi;
     let h = Mat::<f64>::from_fn(measurements.channels.len(), n, |i, j| {
         if j < r {
