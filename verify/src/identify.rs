@@ -941,26 +941,78 @@ fn header_before(body: &str, at: usize) -> Option<String> {
         .map(|h| h.split('#').next().unwrap_or("").replace([' ', '\t'], ""))
 }
 
+/// A scene's text parsed with byte spans, for edits that keep every other byte (a byte-order
+/// mark and CRLF line ends included).
+struct SceneText<'a> {
+    text: &'a str,
+    /// Bytes of a leading byte-order mark (0 or 3).
+    bom: usize,
+    parsed: SpannedScene,
+    newline: &'static str,
+}
+
+impl<'a> SceneText<'a> {
+    fn parse(text: &'a str) -> Result<Self, String> {
+        let bom = if text.starts_with('\u{feff}') { 3 } else { 0 };
+        let parsed = toml::from_str(&text[bom..]).map_err(|e| e.to_string())?;
+        let newline = if text.contains("\r\n") { "\r\n" } else { "\n" };
+        Ok(SceneText {
+            text,
+            bom,
+            parsed,
+            newline,
+        })
+    }
+
+    /// The text after the byte-order mark (the spans' reference).
+    fn body(&self) -> &'a str {
+        &self.text[self.bom..]
+    }
+
+    fn line_start(&self, at: usize) -> usize {
+        self.body()[..at].rfind('\n').map_or(0, |i| i + 1)
+    }
+
+    fn line_end(&self, at: usize) -> usize {
+        let body = self.body();
+        body[at..].find('\n').map_or(body.len(), |i| at + i + 1)
+    }
+
+    /// The spaces and tabs that start the line at `line_start`.
+    fn indent(&self, line_start: usize) -> String {
+        self.body()[line_start..]
+            .chars()
+            .take_while(|c| *c == ' ' || *c == '\t')
+            .collect()
+    }
+
+    /// The text with `edits` (byte ranges of the body, new text) applied from the end.
+    fn edited(&self, mut edits: Vec<(std::ops::Range<usize>, String)>) -> String {
+        edits.sort_by(|a, b| b.0.start.cmp(&a.0.start).then(b.0.end.cmp(&a.0.end)));
+        let mut out = self.body().to_owned();
+        for (range, new) in edits {
+            out.replace_range(range, &new);
+        }
+        format!("{}{out}", &self.text[..self.bom])
+    }
+}
+
 /// `text` with load `g`'s `force_noise_std` = value (and `force_model = "random_walk"`) for
 /// each `(g, value, comment)`, the comment on a line of its own above the value.
 fn set_force_sigmas(text: &str, values: &[(usize, f64, String)]) -> Result<String, String> {
-    let bom = if text.starts_with('\u{feff}') { 3 } else { 0 };
-    let body = &text[bom..];
-    let parsed: SpannedScene = toml::from_str(body).map_err(|e| e.to_string())?;
-    let newline = if body.contains("\r\n") { "\r\n" } else { "\n" };
-    let line_start = |at: usize| body[..at].rfind('\n').map_or(0, |i| i + 1);
-    let line_end = |at: usize| body[at..].find('\n').map_or(body.len(), |i| at + i + 1);
-    // Edits as (byte range replaced, new text), applied from the end.
+    let scene = SceneText::parse(text)?;
+    let (body, newline) = (scene.body(), scene.newline);
     let mut edits: Vec<(std::ops::Range<usize>, String)> = Vec::new();
     for (g, value, comment) in values {
-        let table = parsed
+        let table = scene
+            .parsed
             .load
             .get(*g)
             .ok_or_else(|| format!("load {g} is not in the file"))?;
         let name = table
             .get("name")
             .ok_or_else(|| format!("load {g} has no name"))?;
-        let start = line_start(name.span().start);
+        let start = scene.line_start(name.span().start);
         // The table must be a `[[load]]` table: its header is the last table header before
         // its name.
         if header_before(body, start).as_deref() != Some("[[load]]") {
@@ -970,10 +1022,7 @@ fn set_force_sigmas(text: &str, values: &[(usize, f64, String)]) -> Result<Strin
                 name.get_ref().as_str().unwrap_or("?")
             ));
         }
-        let indent: String = body[start..]
-            .chars()
-            .take_while(|c| *c == ' ' || *c == '\t')
-            .collect();
+        let indent = scene.indent(start);
         let comment_line = format!("{indent}# {comment}{newline}");
         let model_line = match table.get("force_model") {
             Some(_) => String::new(),
@@ -982,13 +1031,13 @@ fn set_force_sigmas(text: &str, values: &[(usize, f64, String)]) -> Result<Strin
         let number = format!("{value:e}");
         match table.get("force_noise_std") {
             Some(old) => {
-                let at = line_start(old.span().start);
+                let at = scene.line_start(old.span().start);
                 edits.push((old.span(), number));
                 edits.push((at..at, format!("{model_line}{comment_line}")));
             }
             None => {
                 let last = table.values().map(|v| v.span().end).max().unwrap_or(0);
-                let at = line_end(last);
+                let at = scene.line_end(last);
                 let lead = if at == body.len() && !body.ends_with('\n') {
                     newline
                 } else {
@@ -1003,12 +1052,7 @@ fn set_force_sigmas(text: &str, values: &[(usize, f64, String)]) -> Result<Strin
             }
         }
     }
-    edits.sort_by(|a, b| b.0.start.cmp(&a.0.start).then(b.0.end.cmp(&a.0.end)));
-    let mut out = body.to_owned();
-    for (range, new) in edits {
-        out.replace_range(range, &new);
-    }
-    Ok(format!("{}{out}", &text[..bom]))
+    Ok(scene.edited(edits))
 }
 
 /// `text` with `[reduction.corotational] model_error_scale = value`, the comment on a line of
@@ -1016,45 +1060,36 @@ fn set_force_sigmas(text: &str, values: &[(usize, f64, String)]) -> Result<Strin
 /// above the table's first key. The table must be written as a `[reduction.corotational]`
 /// header with one key per line.
 fn set_model_error_scale(text: &str, value: f64, comment: &str) -> Result<String, String> {
-    let bom = if text.starts_with('\u{feff}') { 3 } else { 0 };
-    let body = &text[bom..];
-    let parsed: SpannedScene = toml::from_str(body).map_err(|e| e.to_string())?;
-    let newline = if body.contains("\r\n") { "\r\n" } else { "\n" };
-    let line_start = |at: usize| body[..at].rfind('\n').map_or(0, |i| i + 1);
-    let line_end = |at: usize| body[at..].find('\n').map_or(body.len(), |i| at + i + 1);
-    let table = parsed
+    let scene = SceneText::parse(text)?;
+    let table = scene
+        .parsed
         .reduction
-        .and_then(|r| r.corotational)
+        .as_ref()
+        .and_then(|r| r.corotational.as_ref())
         .ok_or("no [reduction.corotational] table to write model_error_scale in")?;
     let first = table
         .values()
-        .map(|v| line_start(v.span().start))
+        .map(|v| scene.line_start(v.span().start))
         .min()
         .ok_or("[reduction.corotational] has no keys")?;
-    if header_before(body, first).as_deref() != Some("[reduction.corotational]") {
+    if header_before(scene.body(), first).as_deref() != Some("[reduction.corotational]") {
         return Err(
-            "[reduction.corotational] is not written as a table with one key per line: \
-                    write it so to have model_error_scale written"
+            "[reduction.corotational] is not written as a table with one key per \
+                    line: write it so to have model_error_scale written"
                 .into(),
         );
     }
     let (range, indent) = match table.get("model_error_scale") {
         Some(old) => {
-            let at = line_start(old.span().start);
-            let indent: String = body[at..]
-                .chars()
-                .take_while(|c| *c == ' ' || *c == '\t')
-                .collect();
-            (at..line_end(old.span().end), indent)
+            let at = scene.line_start(old.span().start);
+            (at..scene.line_end(old.span().end), scene.indent(at))
         }
         None => (first..first, String::new()),
     };
-    let mut out = body.to_owned();
-    out.replace_range(
-        range,
-        &format!("{indent}# {comment}{newline}{indent}model_error_scale = {value:e}{newline}"),
-    );
-    Ok(format!("{}{out}", &text[..bom]))
+    let newline = scene.newline;
+    let line =
+        format!("{indent}# {comment}{newline}{indent}model_error_scale = {value:e}{newline}");
+    Ok(scene.edited(vec![(range, line)]))
 }
 
 /// Writes `text` (from [`identified_scene`]) to `out`, atomically. Refused: `out` equal to
