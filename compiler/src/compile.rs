@@ -134,6 +134,7 @@ pub fn compile_reduced(
             &reduced,
             &schedule,
             &reductor.measurements,
+            reductor.contact.as_ref(),
             report,
         )
     });

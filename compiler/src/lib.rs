@@ -27,6 +27,8 @@ pub mod outputs;
 pub mod reduce;
 pub mod reduced;
 
+pub mod contact;
+
 pub mod kalman;
 pub mod noise;
 pub mod observability;

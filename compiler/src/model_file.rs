@@ -8,6 +8,7 @@ use faer::Mat;
 
 use crokf_formats as fmt;
 
+use crate::contact::{ContactRegion, ReducedRegion, RegionCompliance};
 use crate::fem::operators::InputKind;
 use crate::full_order::FullOrder;
 use crate::kalman;
@@ -50,7 +51,8 @@ pub fn assemble_model(
     reduced: &ReducedModel,
     schedule: &kalman::PeriodicSchedule,
     measurements: &Measurements,
-    report: fmt::CompileReport,
+    contact: Option<&(ContactRegion, RegionCompliance)>,
+    mut report: fmt::CompileReport,
 ) -> fmt::Model {
     let r = reduced.transition.nrows();
     let ops = &full.operators;
@@ -119,6 +121,22 @@ pub fn assemble_model(
             },
         })
         .collect();
+    let contact = contact.map(|(region, compliance)| {
+        let rows3 = 3 * region.len();
+        let p = out.nrows() - rows3;
+        let (section, note) = region.section(
+            fem,
+            compliance,
+            ReducedRegion {
+                transition: reduced.transition.as_ref(),
+                balanced_order: reduced.balanced_order,
+                rows: out.subrows(p, rows3),
+                input_rows: reduced.contact_input.as_ref(),
+            },
+        );
+        report.notes.push(note);
+        section
+    });
     fmt::Model {
         dt: full.wilson.dt,
         theta: full.wilson.theta,
@@ -141,5 +159,6 @@ pub fn assemble_model(
         report,
         inputs_digest: full.digest(),
         tier: None,
+        contact,
     }
 }

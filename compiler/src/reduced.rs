@@ -19,8 +19,12 @@ pub struct ReducedModel {
     /// G_w (r × noise channels), unit-variance channels.
     pub noise_input: Mat<f64>,
     /// All output rows (p×r) in the order of
-    /// [`OutputRows::weighted`](crate::outputs::OutputRows::weighted), weights removed.
+    /// [`OutputRows::weighted`](crate::outputs::OutputRows::weighted), weights removed, then
+    /// (with a contact region) the 3n displacement rows of its nodes.
     pub outputs: Mat<f64>,
+    /// Bᵀ of the contact region (3n × r): row 3i + c is the input column of a unit force in
+    /// direction c on region node i (0 rows without a region).
+    pub contact_input: Mat<f64>,
     /// Hankel singular values σ₁ ≥ σ₂ ≥ … of the weighted modal system.
     pub hankel_singular_values: Vec<f64>,
     /// 2 Σ_{i>r} σᵢ ≥ ‖G − G_r‖∞ (weighted outputs).
@@ -35,27 +39,39 @@ pub struct ReducedModel {
 
 impl ReducedModel {
     /// Splits a balanced truncation of the weighted system into deterministic and noise input
-    /// columns (the first `deterministic_inputs` are deterministic) and removes the output
-    /// weights `weights` (one per output row), then fixes the states' signs.
+    /// columns (the first `deterministic_inputs` are deterministic, the next `noise_inputs`
+    /// noise; columns past them, a contact region's directions, are dropped), keeps the first
+    /// `weights.len()` output rows and removes their weights, appends a contact region's
+    /// displacement rows and input rows `contact` ((3n×r, 3n×r), [`ReducedSystem::project_outputs`]
+    /// and [`ReducedSystem::input_map`]), then fixes the states' signs.
     pub fn from_truncation(
         system: ReducedSystem,
         deterministic_inputs: usize,
+        noise_inputs: usize,
         weights: &[f64],
+        contact: Option<(Mat<f64>, Mat<f64>)>,
     ) -> Self {
         let r = system.order;
         let m = deterministic_inputs;
-        let noise = system.input.ncols() - m;
-        let mut outputs = system.output;
+        let noise = noise_inputs;
+        let p = weights.len();
+        let (region_rows, contact_input) =
+            contact.unwrap_or_else(|| (Mat::zeros(0, r), Mat::zeros(0, r)));
+        let mut outputs = Mat::<f64>::zeros(p + region_rows.nrows(), r);
         for (i, w) in weights.iter().enumerate() {
             for j in 0..r {
-                outputs[(i, j)] /= w;
+                outputs[(i, j)] = system.output[(i, j)] / w;
             }
         }
+        outputs
+            .submatrix_mut(p, 0, region_rows.nrows(), r)
+            .copy_from(&region_rows);
         let mut reduced = ReducedModel {
             transition: system.transition,
             input: system.input.subcols(0, m).to_owned(),
             noise_input: system.input.subcols(m, noise).to_owned(),
             outputs,
+            contact_input,
             hankel_singular_values: system.hankel_singular_values,
             error_bound: system.error_bound,
             balanced_order: r,
@@ -99,6 +115,10 @@ impl ReducedModel {
                 .iter_mut()
                 .for_each(|v| *v = -*v);
             self.outputs.col_mut(j).iter_mut().for_each(|v| *v = -*v);
+            self.contact_input
+                .col_mut(j)
+                .iter_mut()
+                .for_each(|v| *v = -*v);
         }
     }
 
@@ -161,6 +181,10 @@ impl ReducedModel {
                 noise_input[(r + 3 * k + c, kept.len() + 3 * k + c)] = sigma;
             }
         }
+        let mut contact_input = Mat::<f64>::zeros(self.contact_input.nrows(), r2);
+        contact_input
+            .submatrix_mut(0, 0, self.contact_input.nrows(), r)
+            .copy_from(&self.contact_input);
         let p = self.outputs.nrows();
         let mut outputs = Mat::<f64>::zeros(p, r2);
         outputs.submatrix_mut(0, 0, p, r).copy_from(&self.outputs);
@@ -185,6 +209,7 @@ impl ReducedModel {
             input,
             noise_input,
             outputs,
+            contact_input,
             ..self
         }
     }

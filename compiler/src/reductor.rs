@@ -14,6 +14,7 @@ use faer::Mat;
 use crokf_kernel::wilson;
 
 use crate::accuracy::{self, ReferenceResponses};
+use crate::contact::{ContactRegion, RegionCompliance};
 use crate::error::CompileError;
 use crate::full_order::FullOrder;
 use crate::kalman::{self, KalmanError, PeriodicSchedule};
@@ -71,6 +72,8 @@ pub struct Reductor<'a> {
     pub basis: ModalBasis,
     /// The modal Wilson-θ system with weighted outputs.
     pub system: ModalSystem,
+    /// The scene's contact region with its full-order static compliance (docs/contact.md).
+    pub contact: Option<(ContactRegion, RegionCompliance)>,
     reference: OnceCell<ReferenceResponses>,
     static_outputs: Mat<f64>,
 }
@@ -95,12 +98,26 @@ impl<'a> Reductor<'a> {
         let rows = timer.stage("outputs", || OutputRows::build(fem, ops));
         let weighted = rows.weighted();
         let weights: Vec<f64> = weighted.iter().map(|(_, w)| *w).collect();
-        let outputs: SparseColMat<usize, f64> = stack_rows(&weighted, n);
+        let contact = timer.stage("contact", || Self::contact_region(full))?;
+        // A contact region's kept compliance directions are inputs and outputs of the modal
+        // basis and the truncation too (after the scene's own), so the reduced model keeps what
+        // a force on the region excites and shows there.
+        let (contact_columns, contact_rows) = match &contact {
+            Some((region, compliance)) => (
+                region.input_columns(compliance, n),
+                region.output_rows(compliance),
+            ),
+            None => (Vec::new(), Vec::new()),
+        };
+        let mut truncation_rows = weighted.clone();
+        truncation_rows.extend(contact_rows.iter().map(|r| (r, 1.0)));
+        let outputs: SparseColMat<usize, f64> = stack_rows(&truncation_rows, n);
         let input_columns: Vec<&[f64]> = ops
             .inputs
             .iter()
             .chain(&ops.noise)
             .map(|c| c.column.as_slice())
+            .chain(contact_columns.iter().map(Vec::as_slice))
             .collect();
         let b: Mat<f64> = columns(&input_columns, n);
         let spec = &full.scene.scene.reduction;
@@ -151,12 +168,20 @@ impl<'a> Reductor<'a> {
             })
             .map_err(reduce_err)?;
         // K⁻¹b_j of the deterministic inputs (B's first columns) on every output row.
+        // With a contact region, its nodes' rows follow (region DOFs of K⁻¹B).
         let solved = basis.static_response.subcols(0, ops.inputs.len());
-        let static_outputs = Mat::from_fn(weighted.len(), ops.inputs.len(), |i, j| {
-            weighted[i].0.iter().map(|&(d, w)| w * solved[(d, j)]).sum()
+        let p = weighted.len();
+        let region_dofs: &[usize] = contact.as_ref().map_or(&[], |(c, _)| &c.dofs);
+        let static_outputs = Mat::from_fn(p + region_dofs.len(), ops.inputs.len(), |i, j| {
+            if i < p {
+                weighted[i].0.iter().map(|&(d, w)| w * solved[(d, j)]).sum()
+            } else {
+                solved[(region_dofs[i - p], j)]
+            }
         });
         Ok(Reductor {
             full,
+            contact,
             measurements: Measurements::new(ops),
             rows,
             weights,
@@ -165,6 +190,29 @@ impl<'a> Reductor<'a> {
             reference: OnceCell::new(),
             static_outputs,
         })
+    }
+
+    /// The scene's contact region and its full-order static compliance, if it declares one.
+    fn contact_region(
+        full: &FullOrder,
+    ) -> Result<Option<(ContactRegion, RegionCompliance)>, CompileError> {
+        let fem = &full.fem;
+        let unit = full.scene.scene.mesh.units.to_metres();
+        let region =
+            ContactRegion::build(&full.mesh, &full.scene.scene, fem, unit).map_err(|source| {
+                CompileError::Fem {
+                    path: full.scene_path().to_owned(),
+                    source,
+                }
+            })?;
+        let Some(region) = region else {
+            return Ok(None);
+        };
+        let compliance = region.compliance(fem).map_err(|what| CompileError::Fem {
+            path: full.scene_path().to_owned(),
+            source: crate::fem::FemError::Scene(format!("contact '{}': {what}", region.name)),
+        })?;
+        Ok(Some((region, compliance)))
     }
 
     /// The order rule without measurement: an explicit order, else a tolerance, from the
@@ -190,7 +238,33 @@ impl<'a> Reductor<'a> {
                     source,
                 })?;
         let ops = &self.full.operators;
-        let reduced = ReducedModel::from_truncation(truncation, ops.inputs.len(), &self.weights);
+        let contact = self.contact.as_ref().map(|(region, _)| {
+            let rows = stack_rows(
+                &region
+                    .displacement_rows()
+                    .iter()
+                    .map(|r| (r, 1.0))
+                    .collect::<Vec<_>>(),
+                self.full.fem.dof_count(),
+            );
+            let region_rows = truncation
+                .project_outputs(rows.as_ref())
+                .expect("the region's rows span the model's DOFs");
+            let v = &self.basis.vectors;
+            let map = truncation.input_map();
+            let contact_input = Mat::from_fn(region.dofs.len(), map.nrows(), |i, j| {
+                let d = region.dofs[i];
+                (0..v.ncols()).map(|k| v[(d, k)] * map[(j, k)]).sum()
+            });
+            (region_rows, contact_input)
+        });
+        let reduced = ReducedModel::from_truncation(
+            truncation,
+            ops.inputs.len(),
+            ops.noise.len(),
+            &self.weights,
+            contact,
+        );
         let mut noise = self.full.noise_model().map_err(|e| self.noise_error(e))?;
         if noise.groups.is_empty() {
             return Ok(reduced);

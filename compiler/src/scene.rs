@@ -403,6 +403,72 @@ fn one() -> u32 {
     1
 }
 
+/// A contact region: the surface nodes a tool may touch, the tool's shape and the force bound
+/// (docs/contact.md).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Contact {
+    /// Label.
+    pub name: String,
+    /// Mesh group name, or `select`; only the boundary nodes of the selection take part.
+    #[serde(default)]
+    pub group: Option<String>,
+    /// Union of node selectors (instead of `group`).
+    #[serde(default)]
+    pub select: Option<Vec<Selector>>,
+    /// The tool: a rigid sphere of this radius, mesh units (> 0), centred at the tool position.
+    pub radius: f64,
+    /// The largest tool force the runtime returns, N (> 0): the force is clamped to it.
+    pub max_force: f64,
+    /// Relative eigenvalue of the region's static compliance down to which its directions are
+    /// inputs and outputs of the balanced truncation (default
+    /// [`DEFAULT_CONTACT_RANK_TOLERANCE`]); the rest is the stored static residual.
+    #[serde(default)]
+    pub rank_tolerance: Option<f64>,
+}
+
+/// Default `rank_tolerance` of a contact region.
+pub const DEFAULT_CONTACT_RANK_TOLERANCE: f64 = 1e-2;
+
+impl Contact {
+    /// The nodes this region may touch (before taking the boundary).
+    pub fn target(&self) -> Target<'_> {
+        target(&self.group, &self.select)
+    }
+
+    /// The rank tolerance (the scene's or [`DEFAULT_CONTACT_RANK_TOLERANCE`]).
+    pub fn rank_tolerance(&self) -> f64 {
+        self.rank_tolerance
+            .unwrap_or(DEFAULT_CONTACT_RANK_TOLERANCE)
+    }
+
+    /// Checks of the fields that need no mesh.
+    fn check(&self, index: usize) -> Result<(), String> {
+        let at = format!("contact[{index}] '{}'", self.name);
+        if self.group.is_some() == self.select.is_some() {
+            return Err(format!("{at}: give exactly one of `group` and `select`"));
+        }
+        if !(self.radius.is_finite() && self.radius > 0.0) {
+            return Err(format!(
+                "{at}: radius = {} must be finite and > 0 (mesh units)",
+                self.radius
+            ));
+        }
+        if !(self.max_force.is_finite() && self.max_force > 0.0 && self.max_force <= 1e9) {
+            return Err(format!(
+                "{at}: max_force = {} must be in (0, 1e9] N",
+                self.max_force
+            ));
+        }
+        if let Some(t) = self.rank_tolerance {
+            if !(t.is_finite() && t > 0.0 && t < 1.0) {
+                return Err(format!("{at}: rank_tolerance = {t} must be in (0, 1)"));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// A displayed node set.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -867,6 +933,9 @@ pub struct Scene {
     /// Reduction settings.
     #[serde(default)]
     pub reduction: ReductionSpec,
+    /// Where a tool may touch the body (at most one region; docs/contact.md).
+    #[serde(default, rename = "contact")]
+    pub contacts: Vec<Contact>,
 }
 
 /// A scene with the file it came from.
@@ -981,6 +1050,28 @@ impl Scene {
         Ok(())
     }
 
+    /// The `[[contact]]` entries: at most one, each complete and in range, on the warped tier.
+    fn check_contacts(&self) -> Result<(), String> {
+        if self.contacts.len() > 1 {
+            return Err(format!(
+                "{} [[contact]] regions: a scene has at most one (give its `select` several \
+                 selectors instead)",
+                self.contacts.len()
+            ));
+        }
+        for (i, c) in self.contacts.iter().enumerate() {
+            c.check(i)?;
+            if self.reduction.model == ModelTier::Corotational {
+                return Err(format!(
+                    "contact[{i}] '{}': contact runs on the warped linear tier only; remove \
+                     [reduction] model = \"corotational\" or the [[contact]] entry",
+                    c.name
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// Parses scene text; `path` names the file in messages and anchors relative `node_list`
     /// paths. A leading UTF-8 byte-order mark is skipped.
     pub fn parse(text: &str, path: &Path) -> Result<Self, SceneError> {
@@ -992,6 +1083,7 @@ impl Scene {
         scene
             .resolve_ranges()
             .and_then(|()| scene.check())
+            .and_then(|()| scene.check_contacts())
             .map_err(|what| SceneError::Invalid {
                 path: path.to_owned(),
                 what,
@@ -1014,8 +1106,17 @@ impl Scene {
         let l = self.loads.iter().map(|x| &x.select);
         let n = self.force_noise.iter().map(|x| &x.select);
         let d = self.display.iter().map(|x| &x.select);
+        let c = self.contacts.iter().map(|x| &x.select);
         let mut files: Vec<&Path> = Vec::new();
-        for sel in m.chain(f).chain(l).chain(n).chain(d).flatten().flatten() {
+        for sel in m
+            .chain(f)
+            .chain(l)
+            .chain(n)
+            .chain(d)
+            .chain(c)
+            .flatten()
+            .flatten()
+        {
             if let Some(file) = sel.node_list.as_deref() {
                 if !files.contains(&file) {
                     files.push(file);
@@ -1031,10 +1132,12 @@ impl Scene {
         let l = self.loads.iter_mut().map(|x| &mut x.select);
         let n = self.force_noise.iter_mut().map(|x| &mut x.select);
         let d = self.display.iter_mut().map(|x| &mut x.select);
+        let c = self.contacts.iter_mut().map(|x| &mut x.select);
         m.chain(f)
             .chain(l)
             .chain(n)
             .chain(d)
+            .chain(c)
             .flat_map(|s| s.iter_mut().flatten())
     }
 

@@ -12,6 +12,7 @@
 //!
 //! Encoding is deterministic: the same [`Model`] always gives the same bytes.
 
+mod contact;
 mod matrix;
 mod model;
 pub mod output;
@@ -21,6 +22,7 @@ mod tier;
 mod validate;
 pub mod vtk;
 
+pub use contact::ContactRegion;
 pub use matrix::Matrix;
 pub use model::{
     component_label, CompileReport, InputChannel, InputKind, InputsDigest, KalmanGains,
@@ -37,6 +39,8 @@ use sha2::{Digest, Sha256};
 pub const MAGIC: [u8; 8] = *b"CROKF\0\r\n";
 /// The format version this crate writes and the only one it reads.
 ///
+/// A model with a contact region is written as [`CONTACT_FORMAT_VERSION`] (8); one without is
+/// written, byte for byte, as version 7 was, and this crate reads both.
 /// Version 7 adds the levels of the tier's force σ and the statistic that moves between them
 /// (`CorotationalTier::force_levels`, `CorotationalTier::adaptation`, docs/design.md §11.10).
 /// Version 6 adds the tier's measured model error (`CorotationalTier::model_error`, the filter's
@@ -48,6 +52,9 @@ pub const MAGIC: [u8; 8] = *b"CROKF\0\r\n";
 /// Version 2 stores the measurement noise once per channel (`kalman.measurement_variance`);
 /// version 1 also had a lossy per-sensor `noise_std` (the largest σ over its components).
 pub const FORMAT_VERSION: u32 = 7;
+/// The version of a model file with a contact region (`Model::contact`, docs/contact.md):
+/// readers of version 7 refuse it by its version.
+pub const CONTACT_FORMAT_VERSION: u32 = 8;
 /// Header length in bytes (magic + version + payload length + SHA-256).
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 32;
 
@@ -224,10 +231,10 @@ impl Header {
             });
         }
         let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
-        if version != FORMAT_VERSION {
+        if version != FORMAT_VERSION && version != CONTACT_FORMAT_VERSION {
             return Err(FormatError::UnsupportedVersion {
                 found: version,
-                supported: FORMAT_VERSION,
+                supported: CONTACT_FORMAT_VERSION,
             });
         }
         let mut len = [0u8; 8];
@@ -266,7 +273,15 @@ pub fn wrap_payload(payload: &[u8]) -> Vec<u8> {
 ///
 /// Does not validate; a producer should call [`Model::validate`] first, since [`decode`] will.
 pub fn encode(model: &Model) -> Vec<u8> {
-    wrap_payload(&encode_payload(model))
+    let payload = encode_payload(model);
+    let mut header = Header::for_payload(&payload);
+    if model.contact.is_some() {
+        header.version = CONTACT_FORMAT_VERSION;
+    }
+    let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
+    out.extend_from_slice(&header.to_bytes());
+    out.extend_from_slice(&payload);
+    out
 }
 
 /// Reads a model file: checks magic, version, length, SHA-256, the MessagePack structure,
@@ -295,6 +310,20 @@ pub fn decode(bytes: &[u8]) -> Result<Model, FormatError> {
         });
     }
     let model = decode_payload(payload)?;
+    if (header.version == CONTACT_FORMAT_VERSION) != model.contact.is_some() {
+        return Err(FormatError::Invalid {
+            path: "contact".into(),
+            message: format!(
+                "a version {} file {} a contact region",
+                header.version,
+                if model.contact.is_some() {
+                    "must not carry"
+                } else {
+                    "must carry"
+                }
+            ),
+        });
+    }
     model.validate()?;
     Ok(model)
 }

@@ -40,6 +40,10 @@ pub struct Model {
     pub inputs_digest: InputsDigest,
     /// The co-rotational tier (format v3; `None` for the warped linear tier).
     pub tier: Option<crate::CorotationalTier>,
+    /// The contact region a tool may touch (format v8; `None` without `[[contact]]`, and then
+    /// not written: such a file is a version 7 file).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact: Option<crate::ContactRegion>,
 }
 
 /// One deterministic input channel (one column of G).

@@ -165,5 +165,6 @@ pub fn benchmark_model(r: usize, inputs: usize, measured: usize, nodes: usize) -
         report: fmt::CompileReport::default(),
         inputs_digest: fmt::InputsDigest::default(),
         tier: None,
+        contact: None,
     }
 }

@@ -245,8 +245,79 @@ impl Model {
         if let Some(tier) = &self.tier {
             check_tier(self, tier)?;
         }
+        if let Some(contact) = &self.contact {
+            check_contact(contact, r)?;
+        }
         Ok(())
     }
+}
+
+/// The contact region (format v8) for state dimension r.
+fn check_contact(c: &crate::ContactRegion, r: u64) -> Result<(), FormatError> {
+    let path = format!("contact '{}'", c.name);
+    let n = c.node_tags.len() as u64;
+    if n == 0 {
+        return Err(invalid(format!("{path}.node_tags"), "must list ≥ 1 node"));
+    }
+    check_positive(&format!("{path}.tool_radius"), c.tool_radius)?;
+    check_positive(&format!("{path}.max_force"), c.max_force)?;
+    check_matrix(&format!("{path}.rest_positions"), &c.rest_positions, n, 3)?;
+    check_matrix(&format!("{path}.normals"), &c.normals, n, 3)?;
+    for i in 0..n as usize {
+        let v = &c.normals.data[3 * i..3 * i + 3];
+        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        if (len - 1.0).abs() > 1e-9 {
+            return Err(invalid(
+                format!("{path}.normals"),
+                format!("row {i} must be a unit vector, its length is {len}"),
+            ));
+        }
+    }
+    check_matrix(
+        &format!("{path}.displacement_rows"),
+        &c.displacement_rows,
+        3 * n,
+        r,
+    )?;
+    check_matrix(&format!("{path}.input_rows"), &c.input_rows, 3 * n, r)?;
+    if c.residual_blocks.len() != 9 * c.residual_pairs.len() {
+        return Err(invalid(
+            format!("{path}.residual_blocks"),
+            format!(
+                "holds {} values, expected 9 per pair ({} pairs)",
+                c.residual_blocks.len(),
+                c.residual_pairs.len()
+            ),
+        ));
+    }
+    check_finite(&format!("{path}.residual_blocks"), &c.residual_blocks, 9)?;
+    for (k, w) in c.residual_pairs.windows(2).enumerate() {
+        if w[0] >= w[1] {
+            return Err(invalid(
+                format!("{path}.residual_pairs[{}]", k + 1),
+                format!(
+                    "must be strictly increasing, found {:?} then {:?}",
+                    w[0], w[1]
+                ),
+            ));
+        }
+    }
+    for (k, p) in c.residual_pairs.iter().enumerate() {
+        if p[0] > p[1] || p[1] as u64 >= n {
+            return Err(invalid(
+                format!("{path}.residual_pairs[{k}]"),
+                format!("({}, {}) must have i ≤ j < {n}", p[0], p[1]),
+            ));
+        }
+    }
+    let radius = c.residual_radius;
+    if !(radius.is_finite() && radius >= 0.0) {
+        return Err(invalid(
+            format!("{path}.residual_radius"),
+            format!("must be finite and ≥ 0, got {radius}"),
+        ));
+    }
+    Ok(())
 }
 
 /// The Kalman section `prefix` (`kalman` or `tier.kalman`) for state dimension r and q

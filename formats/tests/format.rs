@@ -94,20 +94,29 @@ fn other_versions_and_wrong_magic() {
             err,
             FormatError::UnsupportedVersion {
                 found: old,
-                supported: 7
+                supported: 8
             }
         );
         assert_eq!(
             err.to_string(),
-            format!("model format v{old}, this runtime reads v7: recompile the model with crokf-compile")
+            format!("model format v{old}, this runtime reads v8: recompile the model with crokf-compile")
         );
     }
+    // A model without a contact region is a version 7 file; version 8 must carry one.
+    assert_eq!(encode(&small_model())[8..12], 7u32.to_le_bytes());
     let mut bytes = encode(&small_model());
     bytes[8..12].copy_from_slice(&8u32.to_le_bytes());
     let err = decode(&bytes).unwrap_err();
     assert!(
+        err.to_string().contains("must carry a contact region"),
+        "{err}"
+    );
+    let mut bytes = encode(&small_model());
+    bytes[8..12].copy_from_slice(&9u32.to_le_bytes());
+    let err = decode(&bytes).unwrap_err();
+    assert!(
         err.to_string()
-            .starts_with("model format v8, this runtime reads v7: "),
+            .starts_with("model format v9, this runtime reads v8: "),
         "{err}"
     );
     let mut bytes = encode(&small_model());

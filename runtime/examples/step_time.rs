@@ -85,6 +85,7 @@ fn model(r: usize, n: usize) -> Model {
         report: CompileReport::default(),
         inputs_digest: InputsDigest::default(),
         tier: None,
+        contact: None,
     }
 }
 

@@ -12,6 +12,7 @@ mod corotational;
 mod step;
 mod warped;
 
+use crate::contact::{ContactPoint, ContactWork, ToolContact, MAX_TOOLS};
 use crate::covariance::Gate;
 use crate::prepared::PreparedModel;
 use crate::RuntimeError;
@@ -65,6 +66,8 @@ pub struct Estimator {
     gated: Vec<u64>,
     gated_total: u64,
     gated_last: usize,
+    /// The contact step's scratch and results (a model with a contact region only).
+    contact: Option<Box<ContactWork>>,
 }
 
 impl Clone for Estimator {
@@ -83,6 +86,7 @@ impl Clone for Estimator {
             gated: self.gated.clone(),
             gated_total: self.gated_total,
             gated_last: self.gated_last,
+            contact: self.contact.clone(),
         }
     }
 }
@@ -118,6 +122,10 @@ impl Estimator {
             gated: vec![0; q],
             gated_total: 0,
             gated_last: 0,
+            contact: prepared
+                .contact
+                .as_ref()
+                .map(|_| Box::new(ContactWork::new(prepared.r))),
             shared: prepared,
         }
     }
@@ -167,6 +175,9 @@ impl Estimator {
         self.gated.iter_mut().for_each(|v| *v = 0);
         self.gated_total = 0;
         self.gated_last = 0;
+        if let Some(c) = self.contact.as_mut() {
+            c.reset();
+        }
         self.k = 0;
         self.phase = 0;
         self.cov = CovarianceKind::Posterior;
@@ -449,6 +460,101 @@ impl Estimator {
                 (self.k, self.phase, self.cov, self.awaiting_update) = saved;
                 Err(e)
             }
+        }
+    }
+
+    /// One step with tools on the contact region (docs/contact.md): `predict(inputs)`, then the
+    /// contact of each tool (its centre's position this step, m, model frame; at most
+    /// [`MAX_TOOLS`]) solved on the predicted state and its forces added to the prediction,
+    /// then `update(measurements)`. All or nothing: a non-finite tool position, a model without
+    /// a contact region, a co-rotational model, bad inputs or measurements, or a non-finite
+    /// result leave the estimator exactly as before. The results are read with
+    /// [`Estimator::tool_contact`] and [`Estimator::contact_points`].
+    pub fn step_with_tools(
+        &mut self,
+        tools: &[[f64; 3]],
+        inputs: &[f64],
+        measurements: &[Option<f64>],
+    ) -> Result<usize, RuntimeError> {
+        check_len("measurements", self.channels, measurements.len())?;
+        let step = self.k + 1;
+        if self.shared.contact.is_none() {
+            return Err(RuntimeError::NoContactRegion);
+        }
+        if self.tier.is_corotational() {
+            return Err(RuntimeError::ContactOnTier);
+        }
+        if tools.len() > MAX_TOOLS {
+            return Err(RuntimeError::TooManyTools {
+                given: tools.len(),
+                max: MAX_TOOLS,
+            });
+        }
+        for (t, c) in tools.iter().enumerate() {
+            if let Some(k) = (0..3).find(|&k| !c[k].is_finite()) {
+                return Err(RuntimeError::NonFiniteTool {
+                    step,
+                    tool: t,
+                    component: crokf_formats::component_label(k as u8),
+                    value: c[k],
+                });
+            }
+        }
+        let get = |i: usize| measurements[i];
+        self.check_inputs(inputs)?;
+        self.check_measurements(&get, step)?;
+        let saved = (self.k, self.phase, self.cov, self.awaiting_update);
+        self.predict_checked(inputs)?;
+        let sh = &*self.shared;
+        let (Some(pc), Some(work)) = (sh.contact.as_ref(), self.contact.as_mut()) else {
+            unreachable!("a model with a contact region has its scratch");
+        };
+        work.save();
+        let prior = &sh.model.kalman.phases[self.phase].prior_covariance.data;
+        let solved = work.solve(pc, self.tier.state(), tools, prior)
+            && self.tier.add_to_state(sh, &work.delta);
+        if !solved {
+            work.restore();
+            self.tier.rollback(sh);
+            (self.k, self.phase, self.cov, self.awaiting_update) = saved;
+            return Err(RuntimeError::NonFiniteState {
+                step,
+                stage: "contact",
+                index: 0,
+            });
+        }
+        match self.update_checked(&get) {
+            Ok(used) => Ok(used),
+            Err(e) => {
+                if let Some(work) = self.contact.as_mut() {
+                    work.restore();
+                }
+                self.tier.rollback(&self.shared);
+                (self.k, self.phase, self.cov, self.awaiting_update) = saved;
+                Err(e)
+            }
+        }
+    }
+
+    /// The last contact step's result for tool `t` (`None` without a contact step or past the
+    /// tools of the last step).
+    pub fn tool_contact(&self, t: usize) -> Option<&ToolContact> {
+        let c = self.contact.as_ref()?;
+        (t < c.tool_count).then(|| &c.tools[t])
+    }
+
+    /// The contact points of the last contact step (nodes pressing on a tool).
+    pub fn contact_points(&self) -> &[ContactPoint] {
+        self.contact
+            .as_ref()
+            .map_or(&[], |c| &c.points[..c.point_count])
+    }
+
+    /// Whether the contact step also computes each tool force's σ from the prediction's
+    /// covariance (off by default: it costs about m r² per step for m contacts).
+    pub fn set_contact_force_std(&mut self, on: bool) {
+        if let Some(c) = self.contact.as_mut() {
+            c.with_std = on;
         }
     }
 

@@ -16,6 +16,7 @@
 
 mod adaptation;
 pub mod capi;
+mod contact;
 mod covariance;
 mod estimator;
 mod prepared;
@@ -24,6 +25,7 @@ pub mod tier;
 pub mod warp;
 
 pub use adaptation::ForceLevel;
+pub use contact::{ContactPoint, ContactStatus, ToolContact, MAX_CONTACTS, MAX_TOOLS};
 pub use crokf_formats::{FormatError, Model};
 pub use estimator::{CovarianceKind, Estimator, DEFAULT_GATE_SIGMAS};
 pub use prepared::{DisplayRowFormat, PreparedModel, COMPACT_ABOVE_BYTES};
@@ -164,6 +166,36 @@ pub enum RuntimeError {
     /// A co-rotational tier step was refused (estimator untouched).
     #[error(transparent)]
     Tier(#[from] crate::tier::TierError),
+    /// A tool step on a model without a contact region.
+    #[error(
+        "the model has no contact region: declare a [[contact]] in the scene and compile again"
+    )]
+    NoContactRegion,
+    /// A tool step on the co-rotational tier.
+    #[error(
+        "contact runs on the warped linear tier only; this model carries the co-rotational tier"
+    )]
+    ContactOnTier,
+    /// More tools than the contact step takes.
+    #[error("{given} tools given; the contact step takes at most {max}")]
+    TooManyTools {
+        /// Tools given.
+        given: usize,
+        /// The most.
+        max: usize,
+    },
+    /// A non-finite tool position (estimator untouched).
+    #[error("step {step}: tool {tool} position {component} is not finite ({value})")]
+    NonFiniteTool {
+        /// The step k being computed.
+        step: u64,
+        /// Tool index.
+        tool: usize,
+        /// x, y or z.
+        component: &'static str,
+        /// The value.
+        value: f64,
+    },
     /// Node set index out of range.
     #[error("node set {index} does not exist (the model has {count})")]
     NoSuchNodeSet {

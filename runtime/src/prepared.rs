@@ -93,6 +93,8 @@ pub struct PreparedModel {
     pub(crate) rotation_scale: Vec<f32>,
     /// The co-rotational tier (docs/design.md §10), when the model has one.
     pub(crate) tier: Option<crate::tier::TierModel>,
+    /// The contact region arranged for the contact step (docs/contact.md).
+    pub(crate) contact: Option<crate::contact::PreparedContact>,
 }
 
 /// Dense row-major n×n product.
@@ -411,6 +413,10 @@ impl PreparedModel {
             .map(|t| crate::tier::TierModel::new(&model, t));
         Ok(PreparedModel {
             tier,
+            contact: model
+                .contact
+                .as_ref()
+                .map(crate::contact::PreparedContact::new),
             r,
             load_channels,
             channel,

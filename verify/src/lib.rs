@@ -12,6 +12,7 @@
 
 pub mod bench;
 pub mod comparison;
+pub mod contact;
 pub mod identify;
 pub mod nonlinear;
 pub mod scenario;

@@ -112,6 +112,8 @@ pub struct ReducedSystem {
     pub reduced_to_modal: Mat<f64>,
     /// u ≈ D x: nodal displacement (n) from the reduced state, n×r (V T_q).
     displacement_map: Mat<f64>,
+    /// The reduced input of a unit modal force held over one step, r×k: G = this · Vᵀ B.
+    input_map: Mat<f64>,
     /// Notes (order capped, ρ(F) ≥ 1, …).
     pub warnings: Vec<String>,
     /// Stage timings, s.
@@ -612,6 +614,15 @@ impl ModalSystem {
             g.t[i] * g.gamma[i][p % 3] * self.modal_inputs[(i, col)]
         });
         let input = sr.transpose() * &gam;
+        // The same projection for a unit modal force on mode i (column i; inactive modes 0).
+        let mut input_map = Mat::<f64>::zeros(r, self.n_modes());
+        for (a, &i) in g.active.iter().enumerate() {
+            for row in 0..r {
+                input_map[(row, i)] = (0..3)
+                    .map(|s| sr[(3 * a + s, row)] * g.t[i] * g.gamma[i][s])
+                    .sum();
+            }
+        }
         // q = z₁/tᵢ: T_q (k×r), physical reduced_to_modal and modal_to_reduced.
         let k = self.n_modes();
         let mut tq = Mat::zeros(k, r);
@@ -657,6 +668,7 @@ impl ModalSystem {
             modal_to_reduced,
             reduced_to_modal,
             displacement_map,
+            input_map,
             warnings,
             timings,
         })
@@ -688,6 +700,12 @@ impl ReducedSystem {
             faer::get_global_parallelism(),
         );
         Ok(out)
+    }
+
+    /// The r×k map from a modal force (Vᵀ b, k) to the reduced input column of b: G = this · Vᵀ B
+    /// for any force pattern b, seen by the truncation or not.
+    pub fn input_map(&self) -> MatRef<'_, f64> {
+        self.input_map.as_ref()
     }
 
     /// u ≈ D x: the n×r map from the reduced state to the nodal displacements.

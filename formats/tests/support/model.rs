@@ -109,5 +109,6 @@ pub fn small_model() -> Model {
             compiler_version: "test".into(),
         },
         tier: None,
+        contact: None,
     }
 }

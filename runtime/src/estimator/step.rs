@@ -130,6 +130,12 @@ pub(crate) trait TierStep: std::fmt::Debug + Send + Sync {
     /// co-rotational tier; docs/design.md §11.11).
     fn set_covariance_recursion(&mut self, _on: bool) {}
 
+    /// Adds `delta` to the predicted state (a contact force's response, docs/contact.md);
+    /// false when the tier takes no contact (the co-rotational tier).
+    fn add_to_state(&mut self, _shared: &PreparedModel, _delta: &[f64]) -> bool {
+        false
+    }
+
     /// The filter's own covariance while it carries one (the co-rotational tier's recursion
     /// while channels are missing, docs/design.md §11.11), else `None`.
     fn covariance(&self) -> Option<&[f64]> {

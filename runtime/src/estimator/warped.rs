@@ -111,6 +111,14 @@ impl TierStep for WarpedStep {
         self.sync_x32(shared);
     }
 
+    fn add_to_state(&mut self, shared: &PreparedModel, delta: &[f64]) -> bool {
+        for (x, d) in self.x.iter_mut().zip(delta) {
+            *x += d;
+        }
+        self.sync_x32(shared);
+        true
+    }
+
     fn reset(&mut self) {
         self.x.iter_mut().for_each(|v| *v = 0.0);
         self.x32.iter_mut().for_each(|v| *v = 0.0);

@@ -308,6 +308,7 @@ pub fn synthetic_model(spec: &Spec) -> Model {
         },
         inputs_digest: InputsDigest::default(),
         tier: None,
+        contact: None,
     }
 }
 

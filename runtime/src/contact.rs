@@ -1,0 +1,869 @@
+//! The contact step (docs/contact.md): a rigid spherical tool on the model's contact region.
+//!
+//! Each step, after the prediction x⁻ = F x + G u without contact, the region nodes near each
+//! tool are found on the body's *current* surface (p_i = X_i + C_i x⁻; a fresh search every
+//! step, never a frozen set), and unilateral frictionless (Signorini) contact is solved on the
+//! reduced model's one-step compliance of those nodes:
+//!
+//! ```text
+//! gap_a = g_a + Σ_b A_ab λ_b ≥ 0,   λ_a ≥ 0,   λ_a · gap_a = 0,
+//! g_a = |p_a − c| − R,  n_a = (p_a − c)/|p_a − c|,  A_ab = n_aᵀ (C_a B_bᵀ + D_ab) n_b
+//! ```
+//!
+//! (λ_a the normal force on node a, N; B_b the node's input rows, D_ab the stored static
+//! residual compliance) by an active-set method (principal pivoting with an iteration cap,
+//! warm-started from the last step's contacts). The forces λ_a n_a enter the prediction as
+//! inputs, x⁻ += Σ_a λ_a B_aᵀ n_a, before the markers' update. The tool receives −Σ_a λ_a n_a,
+//! bounded by the region's `max_force`; its stiffness is N A⁻¹ Nᵀ over the active contacts
+//! (N/m, the one-step stiffness for a device loop faster than the model), and its σ comes
+//! from the prediction's covariance, Cov(F) = N A⁻¹ Hₙ P⁻ Hₙᵀ A⁻ᵀ Nᵀ ([`crate::Estimator::tool_force_std`]).
+//!
+//! Everything is allocated when the estimator is built: the step allocates nothing.
+
+use crokf_formats::ContactRegion;
+
+/// Most tools at once (a probe and a grasper).
+pub const MAX_TOOLS: usize = 2;
+
+/// Most region nodes in one contact problem, over all tools; further candidates are left out
+/// and the step's status says so.
+pub const MAX_CONTACTS: usize = 48;
+
+/// A node whose free gap is below this fraction of the tool radius joins the contact problem
+/// (it may be pushed into the tool by its neighbours' forces; λ = 0 when not).
+const CANDIDATE_MARGIN: f64 = 0.25;
+
+/// Cap on the active-set iterations of one contact problem.
+const MAX_PIVOTS: usize = 4 * MAX_CONTACTS;
+
+/// What the last contact step did for a tool.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ContactStatus {
+    /// No region node touches the tool.
+    #[default]
+    Free,
+    /// In contact, every constraint met.
+    Touching,
+    /// The force was above `max_force` and was scaled down to it: the tool went deeper than the
+    /// model can push back within its bound (a tool pressed too far, started inside the body,
+    /// or jumped).
+    Clamped,
+    /// More candidate nodes than [`MAX_CONTACTS`]: the nearest ones were solved, the rest left
+    /// out.
+    Overflow,
+    /// The active-set iterations reached their cap: the last iterate's non-negative part was
+    /// used.
+    NotConverged,
+}
+
+/// The result of the last contact step for one tool (world = the model's frame).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ToolContact {
+    /// Force of the body on the tool, N.
+    pub force: [f64; 3],
+    /// Torque of the body on the tool about its centre, N·m.
+    pub torque: [f64; 3],
+    /// ∂(−force)/∂(position), 3×3 row-major, N/m: the tool force changes by −K δc for a small
+    /// move δc at the current contacts.
+    pub stiffness: [f64; 9],
+    /// Number of region nodes pressing on the tool (λ > 0).
+    pub active: usize,
+    /// Deepest penetration of the free prediction into the tool, m (0 when free).
+    pub depth: f64,
+    /// σ of `force` per component, N, from the prediction's covariance (computed when
+    /// [`crate::Estimator::set_contact_force_std`] is on, else 0).
+    pub force_std: [f64; 3],
+    /// What happened.
+    pub status: ContactStatus,
+}
+
+/// One contact point of the last step.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ContactPoint {
+    /// The tool it touches.
+    pub tool: usize,
+    /// Index of the node in the region (`model.contact.node_tags`).
+    pub node: usize,
+    /// Position of the node after the step (with the contact force), m.
+    pub position: [f64; 3],
+    /// Force of the tool on the body at the node, N.
+    pub force: [f64; 3],
+}
+
+/// The region's data arranged for the step, derived once per model.
+#[derive(Clone, Debug)]
+pub(crate) struct PreparedContact {
+    pub radius: f64,
+    pub max_force: f64,
+    /// Rest positions, 3 per node.
+    rest: Vec<f64>,
+    /// Rest normals, 3 per node.
+    normals: Vec<f64>,
+    /// C (3n × r) and Bᵀ (3n × r), row-major.
+    rows: Vec<f64>,
+    input_rows: Vec<f64>,
+    /// Per node: the largest Frobenius norm of its 3×r displacement block (for the search's
+    /// displacement bound).
+    row_norm_max: f64,
+    /// Residual blocks: per node i, its neighbours j with the block D_ij (row-major 3×3),
+    /// CSR-like: `neighbours[start[i]..start[i + 1]]`.
+    start: Vec<usize>,
+    neighbours: Vec<(u32, [f64; 9])>,
+    /// The search grid over rest positions.
+    grid: Grid,
+}
+
+/// A uniform grid over the region's rest positions (CSR of node indices per cell).
+#[derive(Clone, Debug)]
+struct Grid {
+    origin: [f64; 3],
+    cell: f64,
+    dims: [usize; 3],
+    start: Vec<usize>,
+    nodes: Vec<u32>,
+}
+
+impl Grid {
+    fn new(rest: &[f64], cell: f64) -> Self {
+        let n = rest.len() / 3;
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in rest.chunks_exact(3) {
+            for c in 0..3 {
+                lo[c] = lo[c].min(p[c]);
+                hi[c] = hi[c].max(p[c]);
+            }
+        }
+        // At most 64 cells a side: a coarser cell only costs more candidates.
+        let extent = (0..3).map(|c| hi[c] - lo[c]).fold(0.0, f64::max);
+        let cell = cell.max(extent / 64.0).max(f64::MIN_POSITIVE);
+        let dims = [0, 1, 2].map(|c| (((hi[c] - lo[c]) / cell).floor() as usize + 1).max(1));
+        let cells = dims[0] * dims[1] * dims[2];
+        let index = |p: &[f64]| -> usize {
+            let i = [0, 1, 2].map(|c| (((p[c] - lo[c]) / cell) as usize).min(dims[c] - 1));
+            (i[2] * dims[1] + i[1]) * dims[0] + i[0]
+        };
+        let mut count = vec![0usize; cells + 1];
+        for p in rest.chunks_exact(3) {
+            count[index(p) + 1] += 1;
+        }
+        for k in 0..cells {
+            count[k + 1] += count[k];
+        }
+        let mut fill = count.clone();
+        let mut nodes = vec![0u32; n];
+        for (i, p) in rest.chunks_exact(3).enumerate() {
+            let k = index(p);
+            nodes[fill[k]] = i as u32;
+            fill[k] += 1;
+        }
+        Grid {
+            origin: lo,
+            cell,
+            dims,
+            start: count,
+            nodes,
+        }
+    }
+
+    /// Calls `f(node)` for every node in the cells that meet the ball (c, reach).
+    fn visit(&self, c: &[f64; 3], reach: f64, mut f: impl FnMut(usize)) {
+        let mut lo = [0usize; 3];
+        let mut hi = [0usize; 3];
+        for k in 0..3 {
+            let a = ((c[k] - reach - self.origin[k]) / self.cell).floor();
+            let b = ((c[k] + reach - self.origin[k]) / self.cell).floor();
+            if b < 0.0 || a > (self.dims[k] - 1) as f64 {
+                return;
+            }
+            lo[k] = a.max(0.0) as usize;
+            hi[k] = (b as usize).min(self.dims[k] - 1);
+        }
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                for x in lo[0]..=hi[0] {
+                    let k = (z * self.dims[1] + y) * self.dims[0] + x;
+                    for &node in &self.nodes[self.start[k]..self.start[k + 1]] {
+                        f(node as usize);
+                    }
+                }
+            }
+        }
+    }
+}
+
+impl PreparedContact {
+    pub(crate) fn new(c: &ContactRegion) -> Self {
+        let n = c.len();
+        let r = c.displacement_rows.cols as usize;
+        let rows = c.displacement_rows.data.clone();
+        let row_norm_max = (0..n)
+            .map(|i| {
+                rows[3 * i * r..3 * (i + 1) * r]
+                    .iter()
+                    .map(|v| v * v)
+                    .sum::<f64>()
+                    .sqrt()
+            })
+            .fold(0.0, f64::max);
+        let mut lists: Vec<Vec<(u32, [f64; 9])>> = vec![Vec::new(); n];
+        for (k, p) in c.residual_pairs.iter().enumerate() {
+            let (i, j) = (p[0] as usize, p[1] as usize);
+            let mut block = [0.0; 9];
+            block.copy_from_slice(&c.residual_blocks[9 * k..9 * k + 9]);
+            lists[i].push((j as u32, block));
+            if i != j {
+                let t = [0, 3, 6, 1, 4, 7, 2, 5, 8].map(|m| block[m]);
+                lists[j].push((i as u32, t));
+            }
+        }
+        let mut start = Vec::with_capacity(n + 1);
+        let mut neighbours = Vec::new();
+        start.push(0);
+        for mut l in lists {
+            l.sort_by_key(|e| e.0);
+            neighbours.extend(l);
+            start.push(neighbours.len());
+        }
+        PreparedContact {
+            radius: c.tool_radius,
+            max_force: c.max_force,
+            rest: c.rest_positions.data.clone(),
+            normals: c.normals.data.clone(),
+            rows,
+            input_rows: c.input_rows.data.clone(),
+            row_norm_max,
+            start,
+            neighbours,
+            grid: Grid::new(&c.rest_positions.data, 2.0 * c.tool_radius),
+        }
+    }
+
+    fn residual(&self, i: usize, j: usize) -> Option<&[f64; 9]> {
+        let list = &self.neighbours[self.start[i]..self.start[i + 1]];
+        list.binary_search_by_key(&(j as u32), |e| e.0)
+            .ok()
+            .map(|k| &list[k].1)
+    }
+}
+
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut acc = [0.0f64; 4];
+    let ca = a.chunks_exact(4);
+    let cb = b.chunks_exact(4);
+    let tail: f64 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    for (x, y) in ca.zip(cb) {
+        for l in 0..4 {
+            acc[l] += x[l] * y[l];
+        }
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
+}
+
+/// The contact step's state and scratch (allocated once per estimator).
+#[derive(Clone, Debug)]
+pub(crate) struct ContactWork {
+    r: usize,
+    /// Candidates of this step (`candidates` of them): (tool, node), their free gap, normal
+    /// and free position.
+    candidates: usize,
+    cand: Vec<(usize, usize)>,
+    gap: Vec<f64>,
+    normal: Vec<[f64; 3]>,
+    position: Vec<[f64; 3]>,
+    /// Per candidate: h_a = C_aᵀ n_a and b_a = B_a n_a (r each).
+    h: Vec<f64>,
+    b: Vec<f64>,
+    /// A (MAX_CONTACTS²), the active-set scratch.
+    a: Vec<f64>,
+    lambda: Vec<f64>,
+    active: Vec<bool>,
+    lu: Vec<f64>,
+    piv: Vec<usize>,
+    rhs: Vec<f64>,
+    /// State increment Σ λ_a b_a.
+    pub delta: Vec<f64>,
+    /// Nodes active last step (region node index, tool), for the warm start.
+    was_active: Vec<(usize, usize)>,
+    was_count: usize,
+    /// Results of the last step.
+    pub tools: [ToolContact; MAX_TOOLS],
+    pub tool_count: usize,
+    pub tool_position: [[f64; 3]; MAX_TOOLS],
+    pub points: Vec<ContactPoint>,
+    pub point_count: usize,
+    /// Candidates of the last step that pressed (indices into `cand`), for the force σ.
+    pressed: Vec<usize>,
+    pressed_count: usize,
+    scratch: Vec<f64>,
+    /// Whether the step computes each tool's force σ.
+    pub with_std: bool,
+    /// The results and warm start before the last step, for a rollback.
+    saved: Saved,
+}
+
+/// What a rollback restores (preallocated).
+#[derive(Clone, Debug)]
+struct Saved {
+    was_active: Vec<(usize, usize)>,
+    was_count: usize,
+    tools: [ToolContact; MAX_TOOLS],
+    tool_count: usize,
+    tool_position: [[f64; 3]; MAX_TOOLS],
+    points: Vec<ContactPoint>,
+    point_count: usize,
+}
+
+impl ContactWork {
+    pub(crate) fn new(r: usize) -> Self {
+        let m = MAX_CONTACTS;
+        ContactWork {
+            r,
+            candidates: 0,
+            cand: vec![(0, 0); m],
+            gap: vec![0.0; m],
+            normal: vec![[0.0; 3]; m],
+            position: vec![[0.0; 3]; m],
+            h: vec![0.0; m * r],
+            b: vec![0.0; m * r],
+            a: vec![0.0; m * m],
+            lambda: vec![0.0; m],
+            active: vec![false; m],
+            lu: vec![0.0; m * m],
+            piv: vec![0; m],
+            rhs: vec![0.0; m],
+            delta: vec![0.0; r],
+            was_active: vec![(0, 0); m],
+            was_count: 0,
+            tools: [ToolContact::default(); MAX_TOOLS],
+            tool_count: 0,
+            tool_position: [[0.0; 3]; MAX_TOOLS],
+            points: vec![ContactPoint::default(); m],
+            point_count: 0,
+            pressed: vec![0; m],
+            pressed_count: 0,
+            scratch: vec![0.0; m * r.max(m)],
+            with_std: false,
+            saved: Saved {
+                was_active: vec![(0, 0); m],
+                was_count: 0,
+                tools: [ToolContact::default(); MAX_TOOLS],
+                tool_count: 0,
+                tool_position: [[0.0; 3]; MAX_TOOLS],
+                points: vec![ContactPoint::default(); m],
+                point_count: 0,
+            },
+        }
+    }
+
+    /// Keeps the results and the warm start for [`ContactWork::restore`] (no allocation).
+    pub(crate) fn save(&mut self) {
+        let s = &mut self.saved;
+        s.was_active.copy_from_slice(&self.was_active);
+        s.was_count = self.was_count;
+        s.tools = self.tools;
+        s.tool_count = self.tool_count;
+        s.tool_position = self.tool_position;
+        s.points.copy_from_slice(&self.points);
+        s.point_count = self.point_count;
+    }
+
+    /// Back to what [`ContactWork::save`] kept.
+    pub(crate) fn restore(&mut self) {
+        let s = &self.saved;
+        self.was_active.copy_from_slice(&s.was_active);
+        self.was_count = s.was_count;
+        self.tools = s.tools;
+        self.tool_count = s.tool_count;
+        self.tool_position = s.tool_position;
+        self.points.copy_from_slice(&s.points);
+        self.point_count = s.point_count;
+    }
+
+    /// Back to no contact (an estimator reset).
+    pub(crate) fn reset(&mut self) {
+        self.was_count = 0;
+        self.tool_count = 0;
+        self.point_count = 0;
+        self.pressed_count = 0;
+        self.tools = [ToolContact::default(); MAX_TOOLS];
+    }
+
+    /// Solves the contact of `tools` on the free prediction `x` (r, the whole state) and
+    /// leaves the state increment in [`ContactWork::delta`] and the results in `tools`,
+    /// `points`. Changes nothing outside the scratch; returns false when the result is not
+    /// finite (the caller then refuses the step).
+    pub(crate) fn solve(
+        &mut self,
+        pc: &PreparedContact,
+        x: &[f64],
+        tools: &[[f64; 3]],
+        prior: &[f64],
+    ) -> bool {
+        let r = self.r;
+        let radius = pc.radius;
+        let xnorm = dot(x, x).sqrt();
+        let bound = pc.row_norm_max * xnorm;
+        let reach = radius * (1.0 + CANDIDATE_MARGIN) + bound;
+        // 1. Candidates on the current surface.
+        let mut m = 0usize;
+        let mut overflow = [false; MAX_TOOLS];
+        let mut depth = [0.0f64; MAX_TOOLS];
+        for (t, c) in tools.iter().enumerate() {
+            let (cand, gap, normal, position) = (
+                &mut self.cand,
+                &mut self.gap,
+                &mut self.normal,
+                &mut self.position,
+            );
+            pc.grid.visit(c, reach, |i| {
+                let rows = &pc.rows[3 * i * r..3 * (i + 1) * r];
+                let u = [
+                    dot(&rows[..r], x),
+                    dot(&rows[r..2 * r], x),
+                    dot(&rows[2 * r..], x),
+                ];
+                let p = [0, 1, 2].map(|k| pc.rest[3 * i + k] + u[k]);
+                let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+                let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                let g = dist - radius;
+                if g >= CANDIDATE_MARGIN * radius {
+                    return;
+                }
+                // A node taken by the other tool already keeps the deeper of the two.
+                if let Some(k) = (0..m).find(|&k| cand[k].1 == i) {
+                    if g < gap[k] {
+                        cand[k].0 = t;
+                        gap[k] = g;
+                        normal[k] = unit(d, dist, &pc.normals[3 * i..3 * i + 3]);
+                        position[k] = p;
+                    }
+                    return;
+                }
+                if m == MAX_CONTACTS {
+                    // Replace the shallowest candidate when this one is deeper.
+                    let (k, &worst) = gap[..m]
+                        .iter()
+                        .enumerate()
+                        .max_by(|a, b| a.1.total_cmp(b.1))
+                        .expect("MAX_CONTACTS > 0");
+                    overflow[t] = true;
+                    if g >= worst {
+                        return;
+                    }
+                    cand[k] = (t, i);
+                    gap[k] = g;
+                    normal[k] = unit(d, dist, &pc.normals[3 * i..3 * i + 3]);
+                    position[k] = p;
+                    return;
+                }
+                cand[m] = (t, i);
+                gap[m] = g;
+                normal[m] = unit(d, dist, &pc.normals[3 * i..3 * i + 3]);
+                position[m] = p;
+                m += 1;
+            });
+        }
+        self.candidates = m;
+        for k in 0..m {
+            let t = self.cand[k].0;
+            depth[t] = depth[t].max(-self.gap[k]);
+        }
+        // 2. h_a = C_aᵀ n_a, b_a = B_a n_a and A.
+        for k in 0..m {
+            let i = self.cand[k].1;
+            let n = self.normal[k];
+            let rows = &pc.rows[3 * i * r..3 * (i + 1) * r];
+            let inputs = &pc.input_rows[3 * i * r..3 * (i + 1) * r];
+            let h = &mut self.h[k * r..(k + 1) * r];
+            let b = &mut self.b[k * r..(k + 1) * r];
+            for j in 0..r {
+                h[j] = n[0] * rows[j] + n[1] * rows[r + j] + n[2] * rows[2 * r + j];
+                b[j] = n[0] * inputs[j] + n[1] * inputs[r + j] + n[2] * inputs[2 * r + j];
+            }
+        }
+        for a in 0..m {
+            for c in 0..m {
+                let mut v = dot(&self.h[a * r..(a + 1) * r], &self.b[c * r..(c + 1) * r]);
+                if let Some(d) = pc.residual(self.cand[a].1, self.cand[c].1) {
+                    let (na, nc) = (self.normal[a], self.normal[c]);
+                    for p in 0..3 {
+                        for q in 0..3 {
+                            v += na[p] * d[3 * p + q] * nc[q];
+                        }
+                    }
+                }
+                self.a[a * m + c] = v;
+            }
+        }
+        // 3. The LCP by principal pivoting, warm-started.
+        for k in 0..m {
+            let node = self.cand[k];
+            self.active[k] = self.gap[k] < 0.0
+                || self.was_active[..self.was_count]
+                    .iter()
+                    .any(|&(i, t)| i == node.1 && t == node.0);
+        }
+        let mut converged = false;
+        for _ in 0..MAX_PIVOTS {
+            if !self.solve_active(m) {
+                return false;
+            }
+            // A negative force leaves the active set (the most negative first).
+            let worst = (0..m)
+                .filter(|&k| self.active[k] && self.lambda[k] < 0.0)
+                .min_by(|&a, &b| self.lambda[a].total_cmp(&self.lambda[b]));
+            if let Some(k) = worst {
+                self.active[k] = false;
+                continue;
+            }
+            // A penetrating inactive node joins (the deepest first).
+            let tol = 1e-12 * radius.max(1e-9);
+            let mut deepest: Option<(usize, f64)> = None;
+            for k in 0..m {
+                if self.active[k] {
+                    continue;
+                }
+                let w = self.gap[k]
+                    + (0..m)
+                        .filter(|&c| self.active[c])
+                        .map(|c| self.a[k * m + c] * self.lambda[c])
+                        .sum::<f64>();
+                if w < -tol && deepest.is_none_or(|(_, d)| w < d) {
+                    deepest = Some((k, w));
+                }
+            }
+            match deepest {
+                Some((k, _)) => self.active[k] = true,
+                None => {
+                    converged = true;
+                    break;
+                }
+            }
+        }
+        for k in 0..m {
+            if !self.active[k] || self.lambda[k] < 0.0 {
+                self.lambda[k] = 0.0;
+            }
+        }
+        // 4. Tool forces, the bound, the stiffness.
+        let ntools = tools.len();
+        let mut clamped = [false; MAX_TOOLS];
+        for t in 0..ntools {
+            let mut f = [0.0; 3];
+            for k in (0..m).filter(|&k| self.cand[k].0 == t) {
+                for c in 0..3 {
+                    f[c] -= self.lambda[k] * self.normal[k][c];
+                }
+            }
+            let mag = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+            if mag > pc.max_force {
+                let s = pc.max_force / mag;
+                for k in (0..m).filter(|&k| self.cand[k].0 == t) {
+                    self.lambda[k] *= s;
+                }
+                clamped[t] = true;
+            }
+        }
+        self.delta.iter_mut().for_each(|v| *v = 0.0);
+        let mut pressed = 0;
+        for k in 0..m {
+            let l = self.lambda[k];
+            if l > 0.0 {
+                let b = &self.b[k * r..(k + 1) * r];
+                for (d, &bv) in self.delta.iter_mut().zip(b) {
+                    *d += l * bv;
+                }
+                self.pressed[pressed] = k;
+                pressed += 1;
+            }
+        }
+        if self.delta.iter().any(|v| !v.is_finite()) {
+            return false;
+        }
+        self.pressed_count = pressed;
+        self.stiffness_and_points(pc, x, tools, &clamped, &overflow, &depth, converged);
+        if self.with_std {
+            for t in 0..tools.len() {
+                let std = self.force_std(t, prior);
+                if std.iter().any(|v| !v.is_finite()) {
+                    return false;
+                }
+                self.tools[t].force_std = std;
+            }
+        }
+        // The warm start of the next step.
+        self.was_count = 0;
+        for &k in &self.pressed[..pressed] {
+            self.was_active[self.was_count] = (self.cand[k].1, self.cand[k].0);
+            self.was_count += 1;
+        }
+        true
+    }
+
+    /// σ of tool `t`'s force (N, per world component) from the prediction's covariance `p`
+    /// (r×r row-major, P⁻ of the step): Cov(F) = N A⁻¹ (Hₙ P Hₙᵀ) A⁻ᵀ Nᵀ over the tool's
+    /// pressed contacts (hₐ = C_aᵀ n_a the rows Hₙ). Zero when the tool touches nothing.
+    fn force_std(&mut self, t: usize, p: &[f64]) -> [f64; 3] {
+        let r = self.r;
+        let total = self.candidates;
+        let mut s = 0;
+        for q in 0..self.pressed_count {
+            let k = self.pressed[q];
+            if self.cand[k].0 == t {
+                self.piv[s] = k;
+                s += 1;
+            }
+        }
+        if s == 0 {
+            return [0.0; 3];
+        }
+        // M = A_SS⁻ᵀ Nᵀ (s×3): then Cov(F) = Mᵀ (Hₙ P Hₙᵀ) M.
+        let mut m3 = [[0.0f64; 3]; MAX_CONTACTS];
+        for col in 0..3 {
+            for i in 0..s {
+                for j in 0..s {
+                    // Transposed: A_SSᵀ.
+                    self.lu[i * s + j] = self.a[self.piv[j] * total + self.piv[i]];
+                }
+                self.rhs[i] = self.normal[self.piv[i]][col];
+            }
+            if !gauss(&mut self.lu[..s * s], &mut self.rhs[..s], s) {
+                return [f64::NAN; 3];
+            }
+            for i in 0..s {
+                m3[i][col] = self.rhs[i];
+            }
+        }
+        // V = Hₙ P (s×r) into scratch, then S = V Hₙᵀ (s×s) into lu.
+        for i in 0..s {
+            let h = &self.h[self.piv[i] * r..(self.piv[i] + 1) * r];
+            for j in 0..r {
+                let col_sum: f64 = (0..r).map(|k| h[k] * p[k * r + j]).sum();
+                self.scratch[i * r + j] = col_sum;
+            }
+        }
+        for i in 0..s {
+            for j in 0..s {
+                let hj = &self.h[self.piv[j] * r..(self.piv[j] + 1) * r];
+                self.lu[i * s + j] = dot(&self.scratch[i * r..(i + 1) * r], hj);
+            }
+        }
+        let mut out = [0.0; 3];
+        for (c, o) in out.iter_mut().enumerate() {
+            let mut v = 0.0;
+            for i in 0..s {
+                for j in 0..s {
+                    v += m3[i][c] * self.lu[i * s + j] * m3[j][c];
+                }
+            }
+            *o = v.max(0.0).sqrt();
+        }
+        out
+    }
+
+    /// λ over the active set: A_SS λ_S = −g_S (Gaussian elimination with partial pivoting);
+    /// false when the system is singular or not finite.
+    fn solve_active(&mut self, m: usize) -> bool {
+        let mut s = 0;
+        for k in 0..m {
+            if self.active[k] {
+                self.piv[s] = k;
+                s += 1;
+            }
+        }
+        for k in 0..m {
+            self.lambda[k] = 0.0;
+        }
+        if s == 0 {
+            return true;
+        }
+        for i in 0..s {
+            for j in 0..s {
+                self.lu[i * s + j] = self.a[self.piv[i] * m + self.piv[j]];
+            }
+            self.rhs[i] = -self.gap[self.piv[i]];
+        }
+        if !gauss(&mut self.lu[..s * s], &mut self.rhs[..s], s) {
+            return false;
+        }
+        for i in 0..s {
+            self.lambda[self.piv[i]] = self.rhs[i];
+        }
+        true
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn stiffness_and_points(
+        &mut self,
+        pc: &PreparedContact,
+        x: &[f64],
+        tools: &[[f64; 3]],
+        clamped: &[bool; MAX_TOOLS],
+        overflow: &[bool; MAX_TOOLS],
+        depth: &[f64; MAX_TOOLS],
+        converged: bool,
+    ) {
+        let r = self.r;
+        let m_all = self.pressed_count;
+        self.tool_count = tools.len();
+        self.point_count = 0;
+        for (t, c) in tools.iter().enumerate() {
+            self.tool_position[t] = *c;
+            let mut tc = ToolContact {
+                depth: depth[t],
+                ..ToolContact::default()
+            };
+            // The pressed contacts of this tool: their A block, inverted column by column
+            // against the normals (K = N A⁻¹ Nᵀ).
+            let mut s = 0;
+            for q in 0..m_all {
+                let k = self.pressed[q];
+                if self.cand[k].0 == t {
+                    self.piv[s] = k;
+                    s += 1;
+                }
+            }
+            for i in 0..s {
+                let k = self.piv[i];
+                let l = self.lambda[k];
+                let n = self.normal[k];
+                let f_body = [l * n[0], l * n[1], l * n[2]];
+                // Position after the step: free position + the contact's displacement there.
+                let i_node = self.cand[k].1;
+                let rows = &pc.rows[3 * i_node * r..3 * (i_node + 1) * r];
+                let mut p = [0.0; 3];
+                for (comp, pv) in p.iter_mut().enumerate() {
+                    let row = &rows[comp * r..(comp + 1) * r];
+                    *pv = pc.rest[3 * i_node + comp] + dot(row, x) + dot(row, &self.delta);
+                }
+                for q in 0..s {
+                    let kq = self.piv[q];
+                    if let Some(d) = pc.residual(i_node, self.cand[kq].1) {
+                        let lq = self.lambda[kq];
+                        let nq = self.normal[kq];
+                        for a in 0..3 {
+                            p[a] += (0..3).map(|b| d[3 * a + b] * lq * nq[b]).sum::<f64>();
+                        }
+                    }
+                }
+                for comp in 0..3 {
+                    tc.force[comp] -= f_body[comp];
+                }
+                let arm = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+                let ft = [-f_body[0], -f_body[1], -f_body[2]];
+                tc.torque[0] += arm[1] * ft[2] - arm[2] * ft[1];
+                tc.torque[1] += arm[2] * ft[0] - arm[0] * ft[2];
+                tc.torque[2] += arm[0] * ft[1] - arm[1] * ft[0];
+                if self.point_count < self.points.len() {
+                    self.points[self.point_count] = ContactPoint {
+                        tool: t,
+                        node: i_node,
+                        position: p,
+                        force: f_body,
+                    };
+                    self.point_count += 1;
+                }
+            }
+            tc.active = s;
+            if s > 0 {
+                // A_SS of the pressed set, then K = N A⁻¹ Nᵀ by three solves.
+                let total = self.candidates;
+                let lu = &mut self.scratch[..s * s];
+                for i in 0..s {
+                    for j in 0..s {
+                        lu[i * s + j] = self.a[self.piv[i] * total + self.piv[j]];
+                    }
+                }
+                let mut k3 = [0.0; 9];
+                for col in 0..3 {
+                    for i in 0..s {
+                        self.rhs[i] = self.normal[self.piv[i]][col];
+                    }
+                    let lu = &mut self.lu[..s * s];
+                    lu.copy_from_slice(&self.scratch[..s * s]);
+                    if !gauss(lu, &mut self.rhs[..s], s) {
+                        break;
+                    }
+                    for row in 0..3 {
+                        k3[3 * row + col] = (0..s)
+                            .map(|i| self.normal[self.piv[i]][row] * self.rhs[i])
+                            .sum();
+                    }
+                }
+                tc.stiffness = k3;
+            }
+            tc.status = if clamped[t] {
+                ContactStatus::Clamped
+            } else if overflow[t] {
+                ContactStatus::Overflow
+            } else if !converged {
+                ContactStatus::NotConverged
+            } else if s > 0 {
+                ContactStatus::Touching
+            } else {
+                ContactStatus::Free
+            };
+            self.tools[t] = tc;
+        }
+    }
+}
+
+/// The unit vector d/|d|, or the rest normal when the node sits at the tool's centre.
+#[inline]
+fn unit(d: [f64; 3], dist: f64, rest_normal: &[f64]) -> [f64; 3] {
+    if dist > 1e-300 {
+        [d[0] / dist, d[1] / dist, d[2] / dist]
+    } else {
+        [rest_normal[0], rest_normal[1], rest_normal[2]]
+    }
+}
+
+/// Solves a (s×s, row-major, overwritten) x = b in place in b by Gaussian elimination with
+/// partial pivoting; false when singular or not finite.
+fn gauss(a: &mut [f64], b: &mut [f64], s: usize) -> bool {
+    for col in 0..s {
+        let mut p = col;
+        for row in col + 1..s {
+            if a[row * s + col].abs() > a[p * s + col].abs() {
+                p = row;
+            }
+        }
+        let pivot = a[p * s + col];
+        if !(pivot.abs() > 0.0) || !pivot.is_finite() {
+            return false;
+        }
+        if p != col {
+            for j in 0..s {
+                a.swap(col * s + j, p * s + j);
+            }
+            b.swap(col, p);
+        }
+        for row in col + 1..s {
+            let f = a[row * s + col] / pivot;
+            if f != 0.0 {
+                for j in col..s {
+                    a[row * s + j] -= f * a[col * s + j];
+                }
+                b[row] -= f * b[col];
+            }
+        }
+    }
+    for col in (0..s).rev() {
+        let mut v = b[col];
+        for j in col + 1..s {
+            v -= a[col * s + j] * b[j];
+        }
+        b[col] = v / a[col * s + col];
+        if !b[col].is_finite() {
+            return false;
+        }
+    }
+    true
+}

@@ -1,0 +1,214 @@
+//! The full-order contact reference (docs/contact.md): the scene's full-order linear FEM
+//! (Wilson-θ, J factored once) with the same rigid spherical tool and the same frictionless
+//! node-on-sphere contact law as the runtime, solved to convergence each step by an algorithm
+//! of its own: normals taken at the end-of-step positions of the current iterate (a fixed
+//! point, not the runtime's normals at the free prediction), every region node tested at every
+//! iterate, the linear complementarity problem solved by projected Gauss–Seidel on the exact
+//! full-order one-step compliance (J⁻¹/θ³ at the contact nodes, no reduction, no residual).
+
+use std::collections::BTreeMap;
+
+use crokf_compile::contact::ContactRegion;
+use crokf_compile::full_order::FullOrder;
+use crokf_compile::stepping::linear::LinearSimulator;
+use crokf_compile::stepping::{Simulator, SteppingError};
+
+/// Outer iterations (contact search and normals) of one step.
+const MAX_OUTER: usize = 60;
+/// Gauss–Seidel sweeps of one complementarity problem.
+const MAX_SWEEPS: usize = 20_000;
+
+/// The result of one reference step.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ReferenceContact {
+    /// Force of the body on the tool, N.
+    pub force: [f64; 3],
+    /// Region nodes pressing on the tool.
+    pub active: usize,
+    /// Largest penetration left at the end of the step, m (the solve's residual).
+    pub residual_penetration: f64,
+}
+
+/// The full-order linear FEM of a scene with a tool on its contact region.
+pub struct ContactReference<'a> {
+    full: &'a FullOrder,
+    sim: LinearSimulator,
+    region: ContactRegion,
+    /// End-of-step displacement of every DOF per unit force on a region DOF, cached per DOF.
+    columns: BTreeMap<usize, Vec<f64>>,
+    free: Vec<f64>,
+}
+
+impl<'a> ContactReference<'a> {
+    /// The reference of a full-order model whose scene declares a contact region.
+    pub fn new(full: &'a FullOrder) -> Result<Self, String> {
+        let unit = full.scene.scene.mesh.units.to_metres();
+        let region = ContactRegion::build(&full.mesh, &full.scene.scene, &full.fem, unit)
+            .map_err(|e| e.to_string())?
+            .ok_or_else(|| {
+                format!(
+                    "{}: the scene declares no [[contact]] region",
+                    full.scene_path().display()
+                )
+            })?;
+        let sim = LinearSimulator::new(&full.fem, full.wilson).map_err(|e| e.to_string())?;
+        Ok(ContactReference {
+            full,
+            sim,
+            region,
+            columns: BTreeMap::new(),
+            free: vec![0.0; full.fem.dof_count()],
+        })
+    }
+
+    /// The region (its nodes, in the model file's order).
+    pub fn region(&self) -> &ContactRegion {
+        &self.region
+    }
+
+    fn column(&mut self, dof: usize) -> &[f64] {
+        let n = self.full.fem.dof_count();
+        let sim = &self.sim;
+        self.columns.entry(dof).or_insert_with(|| {
+            let mut b = vec![0.0; n];
+            b[dof] = 1.0;
+            sim.step_compliance(&mut b);
+            b
+        })
+    }
+
+    /// One step with the tool's centre at `tool` (m) and the external load `f` (n DOFs, N).
+    pub fn step(&mut self, tool: [f64; 3], f: &[f64]) -> Result<ReferenceContact, SteppingError> {
+        let n = self.full.fem.dof_count();
+        let radius = self.region.radius;
+        self.sim.end_displacement(f, &mut self.free)?;
+        let nodes = self.region.len();
+        let rest: Vec<[f64; 3]> = self
+            .region
+            .nodes
+            .iter()
+            .map(|&i| self.full.fem.positions[i])
+            .collect();
+        // Active nodes (region index) with their force vectors λ n.
+        let mut active: Vec<usize> = Vec::new();
+        let mut lambda: Vec<f64> = Vec::new();
+        let mut normals: Vec<[f64; 3]> = Vec::new();
+        let mut position = vec![[0.0; 3]; nodes];
+        let mut converged_penetration = 0.0;
+        for _ in 0..MAX_OUTER {
+            // End-of-step positions of every region node under the current forces.
+            let mut u = self.free.clone();
+            for (k, &a) in active.iter().enumerate() {
+                for c in 0..3 {
+                    let d = self.region.dofs[3 * a + c];
+                    let fc = lambda[k] * normals[k][c];
+                    if fc != 0.0 {
+                        let col = self.column(d).to_vec();
+                        u.iter_mut().zip(&col).for_each(|(u, v)| *u += fc * v);
+                    }
+                }
+            }
+            let mut deepest = 0.0f64;
+            let mut added = false;
+            for i in 0..nodes {
+                let d3 = [0, 1, 2].map(|c| self.region.dofs[3 * i + c]);
+                let p = [0, 1, 2].map(|c| rest[i][c] + u[d3[c]]);
+                position[i] = p;
+                let d = [p[0] - tool[0], p[1] - tool[1], p[2] - tool[2]];
+                let gap = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() - radius;
+                if gap < 0.0 {
+                    deepest = deepest.max(-gap);
+                    if !active.contains(&i) {
+                        active.push(i);
+                        lambda.push(0.0);
+                        normals.push([0.0; 3]);
+                        added = true;
+                    }
+                }
+            }
+            converged_penetration = deepest;
+            // Normals at the current end-of-step positions.
+            let mut moved = 0.0f64;
+            for (k, &a) in active.iter().enumerate() {
+                let p = position[a];
+                let d = [p[0] - tool[0], p[1] - tool[1], p[2] - tool[2]];
+                let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-300);
+                let nn = [d[0] / len, d[1] / len, d[2] / len];
+                moved = moved.max(
+                    (0..3)
+                        .map(|c| (nn[c] - normals[k][c]).abs())
+                        .fold(0.0, f64::max),
+                );
+                normals[k] = nn;
+            }
+            if !added && moved < 1e-10 && deepest < 1e-9 * radius {
+                break;
+            }
+            // The complementarity problem on the free positions with the current normals:
+            // gap_a(λ) = |p_free,a − c| − R (linearised along n_a) + Σ_b n_aᵀ W_ab n_b λ_b.
+            let m = active.len();
+            let mut a_mat = vec![0.0; m * m];
+            let mut g0 = vec![0.0; m];
+            for (ka, &a) in active.iter().enumerate() {
+                let pa = [0, 1, 2].map(|c| rest[a][c] + self.free[self.region.dofs[3 * a + c]]);
+                g0[ka] = (0..3)
+                    .map(|c| (pa[c] - tool[c]) * normals[ka][c])
+                    .sum::<f64>()
+                    - radius;
+                for (kb, &b) in active.iter().enumerate() {
+                    let mut v = 0.0;
+                    for cb in 0..3 {
+                        let col = self.column(self.region.dofs[3 * b + cb]).to_vec();
+                        for ca in 0..3 {
+                            v += normals[ka][ca]
+                                * col[self.region.dofs[3 * a + ca]]
+                                * normals[kb][cb];
+                        }
+                    }
+                    a_mat[ka * m + kb] = v;
+                }
+            }
+            let scale = g0.iter().fold(0.0f64, |s, v| s.max(v.abs())).max(1e-300);
+            for _ in 0..MAX_SWEEPS {
+                let mut change = 0.0f64;
+                for ka in 0..m {
+                    let w: f64 = g0[ka]
+                        + (0..m)
+                            .map(|kb| a_mat[ka * m + kb] * lambda[kb])
+                            .sum::<f64>();
+                    let next = (lambda[ka] - w / a_mat[ka * m + ka]).max(0.0);
+                    change = change.max(((next - lambda[ka]) * a_mat[ka * m + ka]).abs());
+                    lambda[ka] = next;
+                }
+                if change < 1e-14 * scale {
+                    break;
+                }
+            }
+        }
+        // Commit the step with the contact forces.
+        let mut load = f.to_vec();
+        let mut force = [0.0; 3];
+        let mut pressing = 0;
+        for (k, &a) in active.iter().enumerate() {
+            if lambda[k] > 0.0 {
+                pressing += 1;
+            }
+            for c in 0..3 {
+                load[self.region.dofs[3 * a + c]] += lambda[k] * normals[k][c];
+                force[c] -= lambda[k] * normals[k][c];
+            }
+        }
+        debug_assert_eq!(load.len(), n);
+        self.sim.step(&load)?;
+        Ok(ReferenceContact {
+            force,
+            active: pressing,
+            residual_penetration: converged_penetration,
+        })
+    }
+
+    /// Full-order displacement after the last step (n DOFs).
+    pub fn displacement(&self) -> &[f64] {
+        self.sim.displacement()
+    }
+}
