@@ -207,7 +207,7 @@ impl ContactRegion {
         order.sort_by(|&a, &b| s[b].total_cmp(&s[a]));
         let eigenvalues: Vec<f64> = order.iter().map(|&i| s[i]).collect();
         let top = eigenvalues.first().copied().unwrap_or(0.0);
-        if !(top > 0.0) {
+        if top.is_nan() || top <= 0.0 {
             return Err("the region's static compliance is zero".into());
         }
         let kept = eigenvalues

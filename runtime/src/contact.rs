@@ -836,7 +836,7 @@ fn gauss(a: &mut [f64], b: &mut [f64], s: usize) -> bool {
             }
         }
         let pivot = a[p * s + col];
-        if !(pivot.abs() > 0.0) || !pivot.is_finite() {
+        if pivot == 0.0 || !pivot.is_finite() {
             return false;
         }
         if p != col {
