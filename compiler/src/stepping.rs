@@ -17,7 +17,7 @@ pub use corotational::{CorotationalSimulator, ModifiedNewton, NewtonOptions, New
 pub use element::{
     deformation_gradient, element_force, element_tangent, polar_rotation, polar_rotation_svd,
 };
-pub use linear::{static_solve, LinearSimulator};
+pub use linear::{static_solve, LinearSimulator, StaticSolver};
 
 use crate::dynamics::WilsonTheta;
 use crate::fem::FemModel;

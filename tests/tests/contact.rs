@@ -6,6 +6,7 @@ use std::path::Path;
 
 use crokf_compile::compile::{compile, CompileOptions};
 use crokf_compile::full_order::FullOrder;
+use crokf_compile::mesh::procedural::{box_mesh, write_msh22};
 use crokf_compile::timer::StageTimer;
 use crokf_runtime::{ContactStatus, Estimator, RuntimeError};
 use crokf_verify::contact::ContactReference;
@@ -14,24 +15,11 @@ fn scene() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/meniscus/scene_touch.toml")
 }
 
-/// The accuracy target (2 % of the full-order force at every depth) is not met yet: the
-/// full-order reference chatters (hard node contact with the body's inertia at 1 kHz: the node
-/// bounces off between presses) while the reduced step, whose residual compliance is
-/// quasi-static, stays in contact; run with `--ignored` to see the figures.
-#[test]
-#[ignore = "accuracy target not met yet (docs/contact.md)"]
-fn a_pressed_sphere_gets_the_full_order_force() {
-    let compiled = compile(&scene(), &CompileOptions::default()).expect("compile");
-    let model = compiled.model;
-    let region = model
-        .contact
-        .as_ref()
-        .expect("the scene declares a contact region");
-    let mut full_timer = StageTimer::default();
-    let full = FullOrder::build(&scene(), &mut full_timer).expect("full order");
-    let mut reference = ContactReference::new(&full).expect("reference");
-    // The region node nearest (20, 0, top) mm: the tool comes down along its normal.
-    let target = [0.020, 0.0, 0.00427];
+/// The region node nearest `target` (m): its index, rest position and outward normal.
+fn nearest_node(
+    region: &crokf_formats::ContactRegion,
+    target: [f64; 3],
+) -> (usize, [f64; 3], [f64; 3]) {
     let (node, _) = (0..region.len())
         .map(|i| {
             let p = &region.rest_positions.data[3 * i..3 * i + 3];
@@ -42,53 +30,238 @@ fn a_pressed_sphere_gets_the_full_order_force() {
         .expect("nodes");
     let p = &region.rest_positions.data[3 * node..3 * node + 3];
     let n = &region.normals.data[3 * node..3 * node + 3];
+    (node, [p[0], p[1], p[2]], [n[0], n[1], n[2]])
+}
+
+fn norm(v: [f64; 3]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+fn relative(got: [f64; 3], want: [f64; 3]) -> f64 {
+    norm([got[0] - want[0], got[1] - want[1], got[2] - want[2]]) / norm(want).max(1e-300)
+}
+
+/// What a staged press measured.
+struct Press {
+    /// Worst relative error of the reduced model's settled force against the full order's.
+    worst: f64,
+    /// Most region nodes pressing in the full-order solve.
+    most_nodes: usize,
+    /// (depth m, reduced force N, full-order force N) per stage.
+    stages: Vec<(f64, f64, f64)>,
+}
+
+/// Force against depth: the sphere pressed along the normal of the region node nearest
+/// `target` (m) in stages to each of `depths` (m), each ramped over 50 steps and held 600 steps
+/// until the body settles; the reduced model's settled tool force against the full-order static
+/// contact solve at the same tool position (the full-order FEM's K, its own solver).
+fn press(scene: &Path, target: [f64; 3], depths: &[f64]) -> Press {
+    let compiled = compile(scene, &CompileOptions::default()).expect("compile");
+    let model = compiled.model;
+    let region = model
+        .contact
+        .as_ref()
+        .expect("the scene declares a contact region");
+    let mut full_timer = StageTimer::default();
+    let full = FullOrder::build(scene, &mut full_timer).expect("full order");
+    let mut reference = ContactReference::quasi_static(&full).expect("reference");
+    let (_, p, n) = nearest_node(region, target);
     let radius = region.tool_radius;
     let mut est = Estimator::new(&model).expect("estimator");
     let inputs = vec![0.0; model.inputs.len()];
     let none = vec![None; model.measurements.len()];
     let f_ext = vec![0.0; full.fem.dof_count()];
-    // 0.6 mm deep over 300 steps, held 200 steps, lifted in one step.
-    let depth = |k: usize| -> f64 {
-        if k < 300 {
-            6e-4 * k as f64 / 300.0
-        } else if k < 500 {
-            6e-4
-        } else {
-            -1e-3
-        }
+    let at = |d: f64| [0, 1, 2].map(|i| p[i] + n[i] * (radius - d));
+    let mut out = Press {
+        worst: 0.0,
+        most_nodes: 0,
+        stages: Vec::new(),
     };
-    let mut worst = 0.0f64;
-    let mut largest = 0.0f64;
-    for k in 0..501 {
-        let d = depth(k);
-        let c = [0, 1, 2].map(|i| p[i] + n[i] * (radius - d));
-        est.step_with_tools(&[c], &inputs, &none).expect("step");
-        let got = est.tool_contact(0).expect("tool").force;
-        let want = reference.step(c, &f_ext).expect("reference step").force;
-        if k % 100 == 50 {
-            let t = est.tool_contact(0).unwrap();
-            eprintln!(
-                "k {k}: got {got:?} ({:?}, {} active) want {want:?}",
-                t.status, t.active
-            );
+    let mut previous = 0.0;
+    for &d in depths {
+        // Ramp over 50 steps, then hold until the force changes by < 1e-6 of itself per step
+        // over 20 steps (at most 20 000 steps).
+        let mut last = [0.0; 3];
+        let mut quiet = 0;
+        let mut drift = f64::INFINITY;
+        for k in 1..=20_000 {
+            let dk = previous + (d - previous) * (k.min(50) as f64 / 50.0);
+            est.step_with_tools(&[at(dk)], &inputs, &none)
+                .expect("step");
+            let f = est.tool_contact(0).expect("tool").force;
+            drift = relative(f, last);
+            last = f;
+            quiet = if k > 50 && drift < 1e-6 { quiet + 1 } else { 0 };
+            if quiet == 20 {
+                break;
+            }
         }
-        let mag = want.iter().map(|v| v * v).sum::<f64>().sqrt();
-        largest = largest.max(mag);
-        if mag > 0.05 {
-            let err = (0..3)
-                .map(|i| (got[i] - want[i]).powi(2))
-                .sum::<f64>()
-                .sqrt()
-                / mag;
-            worst = worst.max(err);
-        }
+        previous = d;
+        let tool = *est.tool_contact(0).expect("tool");
+        let want = reference
+            .solve_static(at(d), &f_ext)
+            .expect("static reference");
+        let err = relative(tool.force, want.force);
+        eprintln!(
+            "{}: depth {:.3e} m: reduced {:.4} N ({} nodes, drift {drift:.1e}), full order {:.4} N ({} nodes): {:.3} %",
+            scene.display(),
+            d,
+            norm(tool.force),
+            tool.active,
+            norm(want.force),
+            want.active,
+            100.0 * err
+        );
+        assert!(
+            quiet == 20,
+            "settled (the last step changed the force by {drift})"
+        );
+        out.worst = out.worst.max(err);
+        out.most_nodes = out.most_nodes.max(want.active);
+        out.stages.push((d, norm(tool.force), norm(want.force)));
     }
-    eprintln!("largest reference force {largest:.4} N; worst relative force error {worst:.4}");
+    out
+}
+
+/// The meniscus's femoral surface at mid-arc (the seed's scene): its horns alone hold it, so
+/// the sphere mostly bends the whole crescent and only one or two nodes touch.
+#[test]
+fn a_pressed_sphere_gets_the_full_order_force_on_the_meniscus() {
+    let depths: Vec<f64> = (1..=6).map(|k| 2.0e-4 * k as f64).collect();
+    let out = press(&scene(), [0.020, 0.0, 0.00427], &depths);
+    eprintln!(
+        "meniscus: worst relative force error {:.3} %",
+        100.0 * out.worst
+    );
     assert!(
-        worst < 0.02,
-        "force within 2 % of the full order (measured {worst})"
+        out.worst < 0.02,
+        "force within 2 % of the full order ({})",
+        out.worst
     );
 }
+
+/// A block on a rigid floor (16 × 16 × 8 mm, 0.8 mm cells, soft tissue) pressed at the top
+/// centre by a 4 mm sphere until ≥ 7 nodes touch; Hertz's F = 4/3 E* √R d^1.5 is printed beside
+/// (no target: a node-on-sphere law on a 0.8 mm mesh under-counts the contact patch).
+#[test]
+#[ignore = "misses: from 0.6 mm (13 nodes) the contact step chatters period-2 (docs/contact.md)"]
+fn a_pressed_sphere_gets_the_full_order_force_on_a_block() {
+    let dir = std::env::temp_dir().join(format!("crokf-contact-block-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temporary directory");
+    write_msh22(
+        &box_mesh([20, 20, 10], [16.0, 16.0, 8.0]),
+        &dir.join("block.msh"),
+    )
+    .expect("write mesh");
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, BLOCK_SCENE).expect("write scene");
+    let depths: Vec<f64> = (1..=6).map(|k| 1.0e-4 * k as f64).collect();
+    let out = press(&scene, [0.008, 0.008, 0.008], &depths);
+    std::fs::remove_dir_all(&dir).ok();
+    let (e, nu, r) = (5.0e5f64, 0.45f64, 4.0e-3f64);
+    let e_star = e / (1.0 - nu * nu);
+    for &(d, got, want) in &out.stages {
+        let hertz = 4.0 / 3.0 * e_star * r.sqrt() * d.powf(1.5);
+        eprintln!(
+            "block: depth {:.1} mm: reduced {got:.4} N, full order {want:.4} N, Hertz {hertz:.4} N",
+            d * 1e3
+        );
+    }
+    eprintln!(
+        "block: worst relative force error {:.3} %, {} nodes at the deepest",
+        100.0 * out.worst,
+        out.most_nodes
+    );
+    assert!(
+        out.most_nodes >= 7,
+        "the deepest press touches ≥ 7 nodes ({})",
+        out.most_nodes
+    );
+    assert!(
+        out.worst < 0.02,
+        "force within 2 % of the full order ({})",
+        out.worst
+    );
+}
+
+/// The held-out kidney (models/bodies, not used while building the contact step) with a
+/// region around its loaded pole and a 10 mm sphere.
+#[test]
+#[ignore = "misses: force direction 5 % off at 4 mm, normals taken at the free prediction (docs/contact.md)"]
+fn a_pressed_sphere_gets_the_full_order_force_on_the_kidney() {
+    let bodies = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/bodies/kidney");
+    let text = std::fs::read_to_string(bodies.join("scene_linear.toml")).expect("kidney scene");
+    let mesh = bodies.join("kidney.msh");
+    let text = text.replace(
+        "file = \"kidney.msh\"",
+        &format!("file = {:?}", mesh.display().to_string()),
+    ) + KIDNEY_CONTACT;
+    let dir = std::env::temp_dir().join(format!("crokf-contact-kidney-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temporary directory");
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, text).expect("write scene");
+    let depths: Vec<f64> = (1..=5).map(|k| 1.0e-3 * k as f64).collect();
+    let out = press(&scene, [0.07, 0.025, 0.0], &depths);
+    std::fs::remove_dir_all(&dir).ok();
+    eprintln!(
+        "kidney: worst relative force error {:.3} %, {} nodes at the deepest",
+        100.0 * out.worst,
+        out.most_nodes
+    );
+    assert!(
+        out.worst < 0.02,
+        "force within 2 % of the full order ({})",
+        out.worst
+    );
+}
+
+const BLOCK_SCENE: &str = r#"
+[mesh]
+file = "block.msh"
+units = "mm"
+
+[[material]]
+group = "body"
+young_modulus = 5.0e5
+poisson_ratio = 0.45
+density = 1100.0
+
+[damping]
+alpha = 5.0
+beta = 1.0e-3
+
+[[fixed]]
+select = [{ box = { min = [-1.0, -1.0, -0.1], max = [17.0, 17.0, 0.1] }, nodes = "all" }]
+
+[[load]]
+name = "side"
+select = [{ box = { min = [15.9, 6.0, 2.0], max = [16.1, 10.0, 6.0] }, nodes = "boundary" }]
+distribution = "area"
+range = 0.5
+
+[[sensor]]
+name = "corner"
+position = [16.0, 16.0, 8.0]
+noise_std = 2.0e-4
+
+[[contact]]
+name = "top"
+select = [{ box = { min = [3.0, 3.0, 7.9], max = [13.0, 13.0, 8.1] }, nodes = "boundary" }]
+radius = 4.0
+max_force = 20.0
+
+[time]
+dt = 0.001
+theta = 1.4
+"#;
+
+const KIDNEY_CONTACT: &str = r#"
+[[contact]]
+name = "pole"
+select = [{ sphere = { center = [0.058, 0.025, 0.0], radius = 0.02 }, nodes = "boundary" }]
+radius = 0.01
+max_force = 5.0
+"#;
 
 #[test]
 fn a_press_pushes_back_within_its_bound_and_leaving_gives_zero_at_once() {

@@ -1,16 +1,21 @@
-//! The full-order contact reference (docs/contact.md): the scene's full-order linear FEM
-//! (Wilson-θ, J factored once) with the same rigid spherical tool and the same frictionless
-//! node-on-sphere contact law as the runtime, solved to convergence each step by an algorithm
-//! of its own: normals taken at the end-of-step positions of the current iterate (a fixed
-//! point, not the runtime's normals at the free prediction), every region node tested at every
-//! iterate, the linear complementarity problem solved by projected Gauss–Seidel on the exact
-//! full-order one-step compliance (J⁻¹/θ³ at the contact nodes, no reduction, no residual).
+//! The full-order contact reference (docs/contact.md): the scene's full-order linear FEM with
+//! the same rigid spherical tool and the same frictionless node-on-sphere contact law as the
+//! runtime, solved to convergence by an algorithm of its own: normals taken at the solved
+//! positions of the current iterate (a fixed point, not the runtime's normals at the free
+//! prediction), every region node tested at every iterate, the linear complementarity problem
+//! solved by projected Gauss–Seidel on the exact full-order compliance of the contact nodes
+//! (no reduction, no residual).
+//!
+//! Two references share that solve: [`ContactReference::new`] steps in time (Wilson-θ, J
+//! factored once; the compliance is the one-step J⁻¹/θ³) and [`ContactReference::quasi_static`]
+//! solves static equilibrium K u = f + contact forces (compliance K⁻¹) for each tool position:
+//! the force against depth and path of a slow press or slide, without the body's inertia.
 
 use std::collections::BTreeMap;
 
 use crokf_compile::contact::ContactRegion;
 use crokf_compile::full_order::FullOrder;
-use crokf_compile::stepping::linear::LinearSimulator;
+use crokf_compile::stepping::linear::{LinearSimulator, StaticSolver};
 use crokf_compile::stepping::{Simulator, SteppingError};
 
 /// Outer iterations (contact search and normals) of one step.
@@ -29,19 +34,41 @@ pub struct ReferenceContact {
     pub residual_penetration: f64,
 }
 
+/// How the reference relates force to displacement.
+enum Kind {
+    /// Wilson-θ time stepping: one-step compliance J⁻¹/θ³.
+    Dynamic(LinearSimulator),
+    /// Static equilibrium: compliance K⁻¹.
+    Static(StaticSolver),
+}
+
 /// The full-order linear FEM of a scene with a tool on its contact region.
 pub struct ContactReference<'a> {
     full: &'a FullOrder,
-    sim: LinearSimulator,
+    kind: Kind,
     region: ContactRegion,
-    /// End-of-step displacement of every DOF per unit force on a region DOF, cached per DOF.
+    /// Displacement of every DOF per unit force on a region DOF, cached per DOF.
     columns: BTreeMap<usize, Vec<f64>>,
     free: Vec<f64>,
+    /// The displacement of the last solve (with its contact forces).
+    solved: Vec<f64>,
 }
 
 impl<'a> ContactReference<'a> {
-    /// The reference of a full-order model whose scene declares a contact region.
+    /// The time-stepping reference of a full-order model whose scene declares a contact region.
     pub fn new(full: &'a FullOrder) -> Result<Self, String> {
+        let sim = LinearSimulator::new(&full.fem, full.wilson).map_err(|e| e.to_string())?;
+        Self::with(full, Kind::Dynamic(sim))
+    }
+
+    /// The quasi-static reference: each [`ContactReference::solve_static`] is the static
+    /// equilibrium with the tool where it is, independent of earlier calls.
+    pub fn quasi_static(full: &'a FullOrder) -> Result<Self, String> {
+        let solver = StaticSolver::new(&full.fem).map_err(|e| e.to_string())?;
+        Self::with(full, Kind::Static(solver))
+    }
+
+    fn with(full: &'a FullOrder, kind: Kind) -> Result<Self, String> {
         let unit = full.scene.scene.mesh.units.to_metres();
         let region = ContactRegion::build(&full.mesh, &full.scene.scene, &full.fem, unit)
             .map_err(|e| e.to_string())?
@@ -51,13 +78,14 @@ impl<'a> ContactReference<'a> {
                     full.scene_path().display()
                 )
             })?;
-        let sim = LinearSimulator::new(&full.fem, full.wilson).map_err(|e| e.to_string())?;
+        let n = full.fem.dof_count();
         Ok(ContactReference {
             full,
-            sim,
+            kind,
             region,
             columns: BTreeMap::new(),
-            free: vec![0.0; full.fem.dof_count()],
+            free: vec![0.0; n],
+            solved: vec![0.0; n],
         })
     }
 
@@ -68,20 +96,70 @@ impl<'a> ContactReference<'a> {
 
     fn column(&mut self, dof: usize) -> &[f64] {
         let n = self.full.fem.dof_count();
-        let sim = &self.sim;
+        let kind = &self.kind;
         self.columns.entry(dof).or_insert_with(|| {
             let mut b = vec![0.0; n];
             b[dof] = 1.0;
-            sim.step_compliance(&mut b);
+            match kind {
+                Kind::Dynamic(sim) => sim.step_compliance(&mut b),
+                Kind::Static(solver) => solver.solve_in_place(&mut b),
+            }
             b
         })
     }
 
-    /// One step with the tool's centre at `tool` (m) and the external load `f` (n DOFs, N).
+    /// One time step with the tool's centre at `tool` (m) and the external load `f` (n DOFs,
+    /// N) held over it. Fails on the quasi-static reference.
     pub fn step(&mut self, tool: [f64; 3], f: &[f64]) -> Result<ReferenceContact, SteppingError> {
+        let Kind::Dynamic(sim) = &mut self.kind else {
+            return Err(SteppingError::Solver(
+                "step works on the time-stepping reference (ContactReference::new)".into(),
+            ));
+        };
+        sim.end_displacement(f, &mut self.free)?;
+        let (result, load) = self.solve(tool, f);
+        if let Kind::Dynamic(sim) = &mut self.kind {
+            sim.step(&load)?;
+            self.solved.copy_from_slice(sim.displacement());
+        }
+        Ok(result)
+    }
+
+    /// The static equilibrium with the tool's centre at `tool` (m) and the external load `f`
+    /// (n DOFs, N). Fails on the time-stepping reference.
+    pub fn solve_static(
+        &mut self,
+        tool: [f64; 3],
+        f: &[f64],
+    ) -> Result<ReferenceContact, SteppingError> {
+        let Kind::Static(solver) = &self.kind else {
+            return Err(SteppingError::Solver(
+                "solve_static works on the quasi-static reference (ContactReference::quasi_static)"
+                    .into(),
+            ));
+        };
+        if f.len() != self.free.len() {
+            return Err(SteppingError::Solver(format!(
+                "load vector f has {} entries, the model {}",
+                f.len(),
+                self.free.len()
+            )));
+        }
+        self.free.copy_from_slice(f);
+        solver.solve_in_place(&mut self.free);
+        let (result, load) = self.solve(tool, f);
+        self.solved.copy_from_slice(&load);
+        if let Kind::Static(solver) = &self.kind {
+            solver.solve_in_place(&mut self.solved);
+        }
+        Ok(result)
+    }
+
+    /// The contact forces on the free displacement `self.free`: the result and the load with
+    /// the contact forces added.
+    fn solve(&mut self, tool: [f64; 3], f: &[f64]) -> (ReferenceContact, Vec<f64>) {
         let n = self.full.fem.dof_count();
         let radius = self.region.radius;
-        self.sim.end_displacement(f, &mut self.free)?;
         let nodes = self.region.len();
         let rest: Vec<[f64; 3]> = self
             .region
@@ -199,16 +277,18 @@ impl<'a> ContactReference<'a> {
             }
         }
         debug_assert_eq!(load.len(), n);
-        self.sim.step(&load)?;
-        Ok(ReferenceContact {
-            force,
-            active: pressing,
-            residual_penetration: converged_penetration,
-        })
+        (
+            ReferenceContact {
+                force,
+                active: pressing,
+                residual_penetration: converged_penetration,
+            },
+            load,
+        )
     }
 
-    /// Full-order displacement after the last step (n DOFs).
+    /// Full-order displacement after the last step or static solve (n DOFs).
     pub fn displacement(&self) -> &[f64] {
-        self.sim.displacement()
+        &self.solved
     }
 }

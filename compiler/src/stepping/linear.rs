@@ -15,10 +15,31 @@ use super::{advance_all, check_len, map_state, Simulator, SteppingError};
 /// rigid-body modes).
 pub fn static_solve(fem: &FemModel, f: &[f64]) -> Result<Vec<f64>, SteppingError> {
     check_len("load vector f", fem.dof_count(), f.len())?;
-    let factor = Factor::of(&fem.stiffness, "stiffness K (static solve)")?;
     let mut u = f.to_vec();
-    factor.solve_in_place(&mut u);
+    StaticSolver::new(fem)?.solve_in_place(&mut u);
     Ok(u)
+}
+
+/// K factored once, for many static solves K u = f (a quasi-static contact reference).
+pub struct StaticSolver {
+    factor: Factor,
+    n: usize,
+}
+
+impl StaticSolver {
+    /// Sparse Cholesky of K; fails as [`static_solve`] does.
+    pub fn new(fem: &FemModel) -> Result<Self, SteppingError> {
+        Ok(StaticSolver {
+            factor: Factor::of(&fem.stiffness, "stiffness K (static solve)")?,
+            n: fem.dof_count(),
+        })
+    }
+
+    /// b ← K⁻¹ b (b: n, N in, m out).
+    pub fn solve_in_place(&self, b: &mut [f64]) {
+        debug_assert_eq!(b.len(), self.n);
+        self.factor.solve_in_place(b);
+    }
 }
 
 /// Full-order linear Wilson-θ: M Ü + C U̇ + K U = f on the free DOFs, C = αM + βK, state
