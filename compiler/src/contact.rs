@@ -266,8 +266,8 @@ impl ContactRegion {
         self.dofs.iter().map(|&d| vec![(d, 1.0)]).collect()
     }
 
-    /// The model file's section: the reduced rows `rows` (3n×r) and input rows `input_rows`
-    /// (3n×r, Bᵀ) of the full state (force states included), and the residual D = G − C (I −
+    /// The model file's section: the reduced rows `rows` (3n×r), input rows `input_rows`
+    /// (3n×r, Bᵀ) and θ-point rows of the full state (force states included), and the residual D = G − C (I −
     /// F)⁻¹ B of the balanced part (r_b states) for the node pairs within the residual radius.
     /// Returns the section and a note on the point compliance.
     pub fn section(
@@ -283,10 +283,21 @@ impl ContactRegion {
         let b = reduced.input_rows.subcols(0, rb).transpose().to_owned();
         let lu = (Mat::<f64>::identity(rb, rb) - f).partial_piv_lu();
         let steady = lu.solve(&b);
-        let reduced_compliance = c * steady;
+        let reduced_compliance = c * &steady;
+        // The θ-point rows' offset from (θ³ − 1) C: zero on a true modal steady state (no
+        // velocity, no acceleration), not quite on the truncation's. Its steady response to
+        // contact forces and to the inputs is stored as a correction, so that û = u at rest.
+        let th3 = reduced.theta.powi(3);
+        let offset = Mat::from_fn(3 * n, rb, |i, j| {
+            reduced.theta_rows[(i, j)] - (th3 - 1.0) * c[(i, j)]
+        });
+        let theta_compliance = &offset * &steady;
+        let steady_inputs = lu.solve(reduced.input.subrows(0, rb));
+        let theta_inputs = &offset * &steady_inputs;
         let residual_radius = 2.0 * self.radius * RESIDUAL_RADIUS_FACTOR;
         let mut pairs = Vec::new();
         let mut blocks = Vec::new();
+        let mut theta_blocks = Vec::new();
         let position = |i: usize| fem.positions[self.nodes[i]];
         for i in 0..n {
             let pi = position(i);
@@ -307,6 +318,20 @@ impl ContactRegion {
                         let approx =
                             0.5 * (reduced_compliance[(r, s)] + reduced_compliance[(s, r)]);
                         blocks.push(exact - approx);
+                    }
+                }
+                // D̂_ij = G_ij − (C (I − F)⁻¹ B)_ij + (offset · steady)_ij, then D̂_ji: not
+                // symmetrised, so that the steady θ-point displacement is the full order's in
+                // every direction (a node's tangential slide sets its normal).
+                for (p, q) in [(i, j), (j, i)] {
+                    for a in 0..3 {
+                        for bb in 0..3 {
+                            let (r, s) = (3 * p + a, 3 * q + bb);
+                            theta_blocks.push(
+                                compliance.matrix[(r, s)] - reduced_compliance[(r, s)]
+                                    + theta_compliance[(r, s)],
+                            );
+                        }
                     }
                 }
             }
@@ -353,8 +378,19 @@ impl ContactRegion {
             normals: fmt::Matrix::from_fn(n as u32, 3, |i, c| self.normals[i][c]),
             displacement_rows: matrix(reduced.rows),
             input_rows: matrix(reduced.input_rows),
+            theta_rows: fmt::Matrix::from_fn(3 * n as u32, reduced.rows.ncols() as u32, |i, j| {
+                if j < rb {
+                    reduced.theta_rows[(i, j)]
+                } else {
+                    // Force states hold over the step: their (static) rows are the same at
+                    // the θ-point as at its end.
+                    (reduced.theta.powi(3) - 1.0) * reduced.rows[(i, j)]
+                }
+            }),
+            theta_input_rows: matrix(theta_inputs.as_ref()),
             residual_pairs: pairs,
             residual_blocks: blocks,
+            theta_residual_blocks: theta_blocks,
             residual_radius,
         };
         (section, note)
@@ -376,4 +412,10 @@ pub struct ReducedRegion<'a> {
     pub rows: faer::MatRef<'a, f64>,
     /// Bᵀ of the region, 3n × state.
     pub input_rows: faer::MatRef<'a, f64>,
+    /// W of the region on the balanced states, 3n × balanced states ([`crate::reduced::RegionRows::theta`]).
+    pub theta_rows: faer::MatRef<'a, f64>,
+    /// Wilson's θ.
+    pub theta: f64,
+    /// G of the whole state (state × deterministic inputs).
+    pub input: faer::MatRef<'a, f64>,
 }

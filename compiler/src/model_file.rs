@@ -132,6 +132,9 @@ pub fn assemble_model(
                 balanced_order: reduced.balanced_order,
                 rows: out.subrows(p, rows3),
                 input_rows: reduced.contact_input.as_ref(),
+                theta_rows: reduced.contact_theta.as_ref(),
+                theta: full.wilson.theta,
+                input: reduced.input.as_ref(),
             },
         );
         report.notes.push(note);

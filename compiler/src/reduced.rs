@@ -8,6 +8,20 @@ use faer::Mat;
 use crate::fem::operators::{InputKind, Operators};
 use crate::reduce::ReducedSystem;
 
+/// What the reduced model keeps of a contact region, per region DOF (3n rows, node order).
+#[derive(Clone, Debug)]
+pub struct RegionRows {
+    /// C: the displacement rows (3n × r).
+    pub rows: Mat<f64>,
+    /// Bᵀ: row 3i + c is the input column of a unit force in direction c on region node i.
+    pub input: Mat<f64>,
+    /// W (3n × r): Û = θ³ C x⁺ − W x is the region's displacement at the Wilson θ-point
+    /// U(t + θΔt) of the step from x to x⁺ ([`WilsonTheta::theta_point_weights`](
+    /// crate::dynamics::WilsonTheta::theta_point_weights) on the modal state the truncation
+    /// maps x back to).
+    pub theta: Mat<f64>,
+}
+
 /// The reduced model x⁺ = F x + G u + G_w ξ, y = H x, of order r (plus 3 force states per
 /// random-walk load group, docs/design.md §6).
 #[derive(Clone, Debug)]
@@ -25,6 +39,9 @@ pub struct ReducedModel {
     /// Bᵀ of the contact region (3n × r): row 3i + c is the input column of a unit force in
     /// direction c on region node i (0 rows without a region).
     pub contact_input: Mat<f64>,
+    /// W_b of the contact region (3n × balanced states): the balanced columns of the θ-point
+    /// rows, Û = θ³ C x⁺ − W x (x the state before the step; [`RegionRows::theta`]).
+    pub contact_theta: Mat<f64>,
     /// Hankel singular values σ₁ ≥ σ₂ ≥ … of the weighted modal system.
     pub hankel_singular_values: Vec<f64>,
     /// 2 Σ_{i>r} σᵢ ≥ ‖G − G_r‖∞ (weighted outputs).
@@ -42,21 +59,27 @@ impl ReducedModel {
     /// columns (the first `deterministic_inputs` are deterministic, the next `noise_inputs`
     /// noise; columns past them, a contact region's directions, are dropped), keeps the first
     /// `weights.len()` output rows and removes their weights, appends a contact region's
-    /// displacement rows and input rows `contact` ((3n×r, 3n×r), [`ReducedSystem::project_outputs`]
-    /// and [`ReducedSystem::input_map`]), then fixes the states' signs.
+    /// rows `contact` ([`RegionRows`]), then fixes the states' signs.
     pub fn from_truncation(
         system: ReducedSystem,
         deterministic_inputs: usize,
         noise_inputs: usize,
         weights: &[f64],
-        contact: Option<(Mat<f64>, Mat<f64>)>,
+        contact: Option<RegionRows>,
     ) -> Self {
         let r = system.order;
         let m = deterministic_inputs;
         let noise = noise_inputs;
         let p = weights.len();
-        let (region_rows, contact_input) =
-            contact.unwrap_or_else(|| (Mat::zeros(0, r), Mat::zeros(0, r)));
+        let RegionRows {
+            rows: region_rows,
+            input: contact_input,
+            theta: contact_theta,
+        } = contact.unwrap_or_else(|| RegionRows {
+            rows: Mat::zeros(0, r),
+            input: Mat::zeros(0, r),
+            theta: Mat::zeros(0, r),
+        });
         let mut outputs = Mat::<f64>::zeros(p + region_rows.nrows(), r);
         for (i, w) in weights.iter().enumerate() {
             for j in 0..r {
@@ -72,6 +95,7 @@ impl ReducedModel {
             noise_input: system.input.subcols(m, noise).to_owned(),
             outputs,
             contact_input,
+            contact_theta,
             hankel_singular_values: system.hankel_singular_values,
             error_bound: system.error_bound,
             balanced_order: r,
@@ -116,6 +140,10 @@ impl ReducedModel {
                 .for_each(|v| *v = -*v);
             self.outputs.col_mut(j).iter_mut().for_each(|v| *v = -*v);
             self.contact_input
+                .col_mut(j)
+                .iter_mut()
+                .for_each(|v| *v = -*v);
+            self.contact_theta
                 .col_mut(j)
                 .iter_mut()
                 .for_each(|v| *v = -*v);

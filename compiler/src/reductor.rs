@@ -22,7 +22,7 @@ use crate::noise::NoiseModel;
 use crate::observability;
 use crate::outputs::{columns, stack_rows, Measurements, OutputRows};
 use crate::reduce::{self, ModalBasis, ModalSystem, Order};
-use crate::reduced::ReducedModel;
+use crate::reduced::{ReducedModel, RegionRows};
 use crate::timer::StageTimer;
 
 /// Tolerance σ_{r+1}/σ₁ when neither order nor tolerance is given and no measured error is
@@ -256,7 +256,25 @@ impl<'a> Reductor<'a> {
                 let d = region.dofs[i];
                 (0..v.ncols()).map(|k| v[(d, k)] * map[(j, k)]).sum()
             });
-            (region_rows, contact_input)
+            // W = θ³Λ T on the region's DOFs: Σ_k V[d, k] Σ_s w_s T[3k + s, j].
+            let w = self.full.wilson.theta_point_weights();
+            let t = &truncation.reduced_to_modal;
+            let theta = Mat::from_fn(region.dofs.len(), t.ncols(), |i, j| {
+                let d = region.dofs[i];
+                (0..v.ncols())
+                    .map(|k| {
+                        v[(d, k)]
+                            * (w[0] * t[(3 * k, j)]
+                                + w[1] * t[(3 * k + 1, j)]
+                                + w[2] * t[(3 * k + 2, j)])
+                    })
+                    .sum()
+            });
+            RegionRows {
+                rows: region_rows,
+                input: contact_input,
+                theta,
+            }
         });
         let reduced = ReducedModel::from_truncation(
             truncation,

@@ -39,7 +39,7 @@ use sha2::{Digest, Sha256};
 pub const MAGIC: [u8; 8] = *b"CROKF\0\r\n";
 /// The format version this crate writes and the only one it reads.
 ///
-/// A model with a contact region is written as [`CONTACT_FORMAT_VERSION`] (8); one without is
+/// A model with a contact region is written as [`CONTACT_FORMAT_VERSION`] (9); one without is
 /// written, byte for byte, as version 7 was, and this crate reads both.
 /// Version 7 adds the levels of the tier's force σ and the statistic that moves between them
 /// (`CorotationalTier::force_levels`, `CorotationalTier::adaptation`, docs/design.md §11.10).
@@ -53,8 +53,10 @@ pub const MAGIC: [u8; 8] = *b"CROKF\0\r\n";
 /// version 1 also had a lossy per-sensor `noise_std` (the largest σ over its components).
 pub const FORMAT_VERSION: u32 = 7;
 /// The version of a model file with a contact region (`Model::contact`, docs/contact.md):
-/// readers of version 7 refuse it by its version.
-pub const CONTACT_FORMAT_VERSION: u32 = 8;
+/// readers of version 7 refuse it by its version. Version 9 adds the region's θ-point rows
+/// (`ContactRegion::theta_rows`: the contact step enforces its gap at t + θΔt); version 8
+/// contact files are refused by their version.
+pub const CONTACT_FORMAT_VERSION: u32 = 9;
 /// Header length in bytes (magic + version + payload length + SHA-256).
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 32;
 

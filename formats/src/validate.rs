@@ -246,14 +246,14 @@ impl Model {
             check_tier(self, tier)?;
         }
         if let Some(contact) = &self.contact {
-            check_contact(contact, r)?;
+            check_contact(contact, r, m)?;
         }
         Ok(())
     }
 }
 
-/// The contact region (format v8) for state dimension r.
-fn check_contact(c: &crate::ContactRegion, r: u64) -> Result<(), FormatError> {
+/// The contact region (format v9) for state dimension r and m deterministic inputs.
+fn check_contact(c: &crate::ContactRegion, r: u64, m: u64) -> Result<(), FormatError> {
     let path = format!("contact '{}'", c.name);
     let n = c.node_tags.len() as u64;
     if n == 0 {
@@ -280,6 +280,13 @@ fn check_contact(c: &crate::ContactRegion, r: u64) -> Result<(), FormatError> {
         r,
     )?;
     check_matrix(&format!("{path}.input_rows"), &c.input_rows, 3 * n, r)?;
+    check_matrix(&format!("{path}.theta_rows"), &c.theta_rows, 3 * n, r)?;
+    check_matrix(
+        &format!("{path}.theta_input_rows"),
+        &c.theta_input_rows,
+        3 * n,
+        m,
+    )?;
     if c.residual_blocks.len() != 9 * c.residual_pairs.len() {
         return Err(invalid(
             format!("{path}.residual_blocks"),
@@ -291,6 +298,21 @@ fn check_contact(c: &crate::ContactRegion, r: u64) -> Result<(), FormatError> {
         ));
     }
     check_finite(&format!("{path}.residual_blocks"), &c.residual_blocks, 9)?;
+    if c.theta_residual_blocks.len() != 18 * c.residual_pairs.len() {
+        return Err(invalid(
+            format!("{path}.theta_residual_blocks"),
+            format!(
+                "holds {} values, expected 18 per pair ({} pairs)",
+                c.theta_residual_blocks.len(),
+                c.residual_pairs.len()
+            ),
+        ));
+    }
+    check_finite(
+        &format!("{path}.theta_residual_blocks"),
+        &c.theta_residual_blocks,
+        18,
+    )?;
     for (k, w) in c.residual_pairs.windows(2).enumerate() {
         if w[0] >= w[1] {
             return Err(invalid(

@@ -86,7 +86,8 @@ fn other_versions_and_wrong_magic() {
     assert_eq!(FORMAT_VERSION, 7);
     // Version-1 to version-6 files (before the tier's force-σ levels) are refused before
     // their payload is read, with both versions and the remedy in the message.
-    for old in [1u32, 2, 3, 4, 5, 6] {
+    // Version 8 (contact before its θ-point rows) likewise.
+    for old in [1u32, 2, 3, 4, 5, 6, 8] {
         let mut bytes = encode(&small_model());
         bytes[8..12].copy_from_slice(&old.to_le_bytes());
         let err = decode(&bytes).unwrap_err();
@@ -94,29 +95,29 @@ fn other_versions_and_wrong_magic() {
             err,
             FormatError::UnsupportedVersion {
                 found: old,
-                supported: 8
+                supported: 9
             }
         );
         assert_eq!(
             err.to_string(),
-            format!("model format v{old}, this runtime reads v8: recompile the model with crokf-compile")
+            format!("model format v{old}, this runtime reads v9: recompile the model with crokf-compile")
         );
     }
-    // A model without a contact region is a version 7 file; version 8 must carry one.
+    // A model without a contact region is a version 7 file; version 9 must carry one.
     assert_eq!(encode(&small_model())[8..12], 7u32.to_le_bytes());
     let mut bytes = encode(&small_model());
-    bytes[8..12].copy_from_slice(&8u32.to_le_bytes());
+    bytes[8..12].copy_from_slice(&9u32.to_le_bytes());
     let err = decode(&bytes).unwrap_err();
     assert!(
         err.to_string().contains("must carry a contact region"),
         "{err}"
     );
     let mut bytes = encode(&small_model());
-    bytes[8..12].copy_from_slice(&9u32.to_le_bytes());
+    bytes[8..12].copy_from_slice(&10u32.to_le_bytes());
     let err = decode(&bytes).unwrap_err();
     assert!(
         err.to_string()
-            .starts_with("model format v9, this runtime reads v8: "),
+            .starts_with("model format v10, this runtime reads v9: "),
         "{err}"
     );
     let mut bytes = encode(&small_model());

@@ -83,6 +83,20 @@ impl WilsonTheta {
         advance(self.dt, self.theta, u, v, a, u_hat)
     }
 
+    /// The weights w of Û = θ³ U' − w · [U, U̇, Ü]: the θ-point displacement Û = U(t + θΔt)
+    /// from the end-of-step one U' and the state at t ([`advance`] solved for Û), so a model
+    /// that knows U' and the state before the step knows the θ-point (the contact step enforces
+    /// its gap there: enforced at the end of the step with the force held over it, the
+    /// contact oscillates with period two). w = [θ³ − 1, Δt θ (θ² − 1), Δt² θ² (θ − 1) / 2].
+    pub fn theta_point_weights(&self) -> [f64; 3] {
+        let (th, dt) = (self.theta, self.dt);
+        [
+            th * th * th - 1.0,
+            dt * th * (th * th - 1.0),
+            0.5 * dt * dt * th * th * (th - 1.0),
+        ]
+    }
+
     /// One step of a single mass-normalised mode q̈ + c q̇ + k q = f with (q, q̇, q̈) state.
     pub fn modal_step(&self, k: f64, c: f64, s: [f64; 3], f: f64) -> [f64; 3] {
         let j = k + self.mass_coefficient() + self.damping_coefficient() * c;
@@ -139,6 +153,21 @@ mod tests {
         let (u1, v1, a1) = advance(dt, theta, u, v, 0.0, u_hat);
         assert!((u1 - (u + dt * v)).abs() < 1e-15);
         assert!((v1 - v).abs() < 1e-12 && a1.abs() < 1e-9);
+    }
+
+    /// The θ-point weights recover Û from U' and the state before the step.
+    #[test]
+    fn theta_point_from_the_end_of_the_step() {
+        let w = WilsonTheta {
+            dt: 2e-3,
+            theta: 1.4,
+        };
+        let (u, v, a, u_hat) = (0.3, -2.0, 50.0, 0.29);
+        let (u1, _, _) = w.advance(u, v, a, u_hat);
+        let c = w.theta_point_weights();
+        let th3 = w.theta.powi(3);
+        let back = th3 * u1 - (c[0] * u + c[1] * v + c[2] * a);
+        assert!((back - u_hat).abs() < 1e-12, "{back} against {u_hat}");
     }
 
     /// ρ(Φ) ≈ ‖Φ^(2^20)‖^(2^-20) by repeated squaring with rescaling (Gelfand's formula).

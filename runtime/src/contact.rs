@@ -1,22 +1,27 @@
 //! The contact step (docs/contact.md): a rigid spherical tool on the model's contact region.
 //!
 //! Each step, after the prediction x⁻ = F x + G u without contact, the region nodes near each
-//! tool are found on the body's *current* surface (p_i = X_i + C_i x⁻; a fresh search every
-//! step, never a frozen set), and unilateral frictionless (Signorini) contact is solved on the
-//! reduced model's one-step compliance of those nodes:
+//! tool are found on the body's *current* surface at the step's Wilson θ-point
+//! (p̂_i = X_i + θ³ C_i x⁻ − W_i x + E_i u; a fresh search every step, never a frozen set), and
+//! unilateral frictionless (Signorini) contact is solved there on the reduced model's θ-point
+//! compliance of those nodes:
 //!
 //! ```text
 //! gap_a = g_a + Σ_b A_ab λ_b ≥ 0,   λ_a ≥ 0,   λ_a · gap_a = 0,
-//! g_a = |p_a − c| − R,  n_a = (p_a − c)/|p_a − c|,  A_ab = n_aᵀ (C_a B_bᵀ + D_ab) n_b
+//! g_a = n_aᵀ (p̂_a − c) − R,  A_ab = n_aᵀ (θ³ C_a B_bᵀ + D̂_ab) n_b
 //! ```
 //!
-//! (λ_a the normal force on node a, N; B_b the node's input rows, D_ab the stored static
-//! residual compliance) by an active-set method (principal pivoting with an iteration cap,
-//! warm-started from the last step's contacts). The forces λ_a n_a enter the prediction as
+//! (λ_a the normal force on node a, N; B_b the node's input rows, D̂_ab the stored θ-point
+//! residual) by an active-set method (principal pivoting with an iteration cap, warm-started
+//! from the last step's contacts). The normals n_a point from the tool's centre to the solved
+//! positions: the problem is solved again with them until they stay (at most
+//! [`MAX_NORMAL_PASSES`] a step, carried to the next step), and a node the solved forces push
+//! into the tool joins it. Enforced at the end of the step instead, with the force held over
+//! it, the contact would oscillate with period two. The forces λ_a n_a enter the prediction as
 //! inputs, x⁻ += Σ_a λ_a B_aᵀ n_a, before the markers' update. The tool receives −Σ_a λ_a n_a,
 //! bounded by the region's `max_force`; its stiffness is N A⁻¹ Nᵀ over the active contacts
 //! (N/m, the one-step stiffness for a device loop faster than the model), and its σ comes
-//! from the prediction's covariance, Cov(F) = N A⁻¹ Hₙ P⁻ Hₙᵀ A⁻ᵀ Nᵀ ([`crate::Estimator::tool_force_std`]).
+//! from the prediction's covariance, Cov(F) = N A⁻¹ Hₙ P⁻ Hₙᵀ A⁻ᵀ Nᵀ.
 //!
 //! Everything is allocated when the estimator is built: the step allocates nothing.
 
@@ -29,12 +34,19 @@ pub const MAX_TOOLS: usize = 2;
 /// and the step's status says so.
 pub const MAX_CONTACTS: usize = 48;
 
-/// A node whose free gap is below this fraction of the tool radius joins the contact problem
-/// (it may be pushed into the tool by its neighbours' forces; λ = 0 when not).
+/// The search around each tool: region nodes whose free θ-point gap is below this fraction
+/// of the tool radius are checked against the solved forces (a node the neighbours' forces
+/// push into the tool joins the problem); farther nodes are taken to stay clear this step.
 const CANDIDATE_MARGIN: f64 = 0.25;
 
 /// Cap on the active-set iterations of one contact problem.
 const MAX_PIVOTS: usize = 4 * MAX_CONTACTS;
+
+/// Most contact solves of one step while the normals move to the solved positions.
+const MAX_NORMAL_PASSES: usize = 6;
+
+/// The normals are settled when no component moves by more than this.
+const NORMAL_TOLERANCE: f64 = 1e-9;
 
 /// What the last contact step did for a tool.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -102,15 +114,37 @@ pub(crate) struct PreparedContact {
     /// C (3n × r) and Bᵀ (3n × r), row-major.
     rows: Vec<f64>,
     input_rows: Vec<f64>,
-    /// Per node: the largest Frobenius norm of its 3×r displacement block (for the search's
-    /// displacement bound).
+    /// Per node i, its three θ-point rows over [x⁺; x] (2r each, row-major): [θ³ C_i | −W_i],
+    /// and E (3n × m): û = θ³ C x⁺ − W x + E u.
+    theta_rows: Vec<f64>,
+    theta_input_rows: Vec<f64>,
+    /// Per node: the Frobenius norm of its 3×r displacement block C_i, of its θ-point block
+    /// [θ³C_i | −W_i] and of E_i.
+    row_norm: Vec<f64>,
+    theta_norm: Vec<f64>,
+    input_norm: Vec<f64>,
+    /// θ³.
+    theta_cubed: f64,
+    /// Per node: the largest Frobenius norm of its 3×r displacement block, and of its θ-point
+    /// block (for the search's displacement bound).
     row_norm_max: f64,
+    theta_norm_max: f64,
+    /// The largest Frobenius norm of a θ-point residual block D̂_ij, m/N.
+    residual_norm_max: f64,
     /// Residual blocks: per node i, its neighbours j with the block D_ij (row-major 3×3),
     /// CSR-like: `neighbours[start[i]..start[i + 1]]`.
     start: Vec<usize>,
-    neighbours: Vec<(u32, [f64; 9])>,
+    neighbours: Vec<(u32, Residual)>,
     /// The search grid over rest positions.
     grid: Grid,
+}
+
+/// The residual blocks of a node pair (i, j), row-major 3×3: D_ij for the end of the step,
+/// D̂_ij for the θ-point.
+#[derive(Clone, Copy, Debug)]
+struct Residual {
+    end: [f64; 9],
+    theta: [f64; 9],
 }
 
 /// A uniform grid over the region's rest positions (CSR of node indices per cell).
@@ -193,11 +227,34 @@ impl Grid {
 }
 
 impl PreparedContact {
-    pub(crate) fn new(c: &ContactRegion) -> Self {
+    /// The region of a model stepped with Wilson's `theta`.
+    pub(crate) fn new(c: &ContactRegion, theta: f64) -> Self {
         let n = c.len();
         let r = c.displacement_rows.cols as usize;
         let rows = c.displacement_rows.data.clone();
-        let row_norm_max = (0..n)
+        let block_norm_max = |m: &[f64]| {
+            (0..n)
+                .map(|i| {
+                    m[3 * i * r..3 * (i + 1) * r]
+                        .iter()
+                        .map(|v| v * v)
+                        .sum::<f64>()
+                        .sqrt()
+                })
+                .fold(0.0, f64::max)
+        };
+        let theta_rows: Vec<f64> = (0..3 * n)
+            .flat_map(|row| {
+                let c_row = &rows[row * r..(row + 1) * r];
+                let w_row = &c.theta_rows.data[row * r..(row + 1) * r];
+                c_row
+                    .iter()
+                    .map(|v| theta * theta * theta * v)
+                    .chain(w_row.iter().map(|v| -v))
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        let row_norm: Vec<f64> = (0..n)
             .map(|i| {
                 rows[3 * i * r..3 * (i + 1) * r]
                     .iter()
@@ -205,16 +262,30 @@ impl PreparedContact {
                     .sum::<f64>()
                     .sqrt()
             })
-            .fold(0.0, f64::max);
-        let mut lists: Vec<Vec<(u32, [f64; 9])>> = vec![Vec::new(); n];
+            .collect();
+        let row_norm_max = block_norm_max(&rows);
+        let theta_norm_max = block_norm_max(&c.theta_rows.data);
+        let mut lists: Vec<Vec<(u32, Residual)>> = vec![Vec::new(); n];
+        let block = |v: &[f64]| -> [f64; 9] { std::array::from_fn(|m| v[m]) };
         for (k, p) in c.residual_pairs.iter().enumerate() {
             let (i, j) = (p[0] as usize, p[1] as usize);
-            let mut block = [0.0; 9];
-            block.copy_from_slice(&c.residual_blocks[9 * k..9 * k + 9]);
-            lists[i].push((j as u32, block));
+            let end = block(&c.residual_blocks[9 * k..]);
+            let theta = &c.theta_residual_blocks[18 * k..18 * k + 18];
+            lists[i].push((
+                j as u32,
+                Residual {
+                    end,
+                    theta: block(theta),
+                },
+            ));
             if i != j {
-                let t = [0, 3, 6, 1, 4, 7, 2, 5, 8].map(|m| block[m]);
-                lists[j].push((i as u32, t));
+                lists[j].push((
+                    i as u32,
+                    Residual {
+                        end: [0, 3, 6, 1, 4, 7, 2, 5, 8].map(|m| end[m]),
+                        theta: block(&theta[9..]),
+                    },
+                ));
             }
         }
         let mut start = Vec::with_capacity(n + 1);
@@ -232,14 +303,68 @@ impl PreparedContact {
             normals: c.normals.data.clone(),
             rows,
             input_rows: c.input_rows.data.clone(),
+            theta_norm: (0..n)
+                .map(|i| {
+                    theta_rows[6 * i * r..6 * (i + 1) * r]
+                        .iter()
+                        .map(|v| v * v)
+                        .sum::<f64>()
+                        .sqrt()
+                })
+                .collect(),
+            input_norm: {
+                let m = c.theta_input_rows.cols as usize;
+                (0..n)
+                    .map(|i| {
+                        c.theta_input_rows.data[3 * i * m..3 * (i + 1) * m]
+                            .iter()
+                            .map(|v| v * v)
+                            .sum::<f64>()
+                            .sqrt()
+                    })
+                    .collect()
+            },
+            theta_rows,
+            row_norm,
+            theta_input_rows: c.theta_input_rows.data.clone(),
+            theta_cubed: theta * theta * theta,
             row_norm_max,
+            theta_norm_max,
+            residual_norm_max: c
+                .theta_residual_blocks
+                .chunks_exact(9)
+                .map(|b| b.iter().map(|v| v * v).sum::<f64>().sqrt())
+                .fold(0.0, f64::max),
             start,
             neighbours,
             grid: Grid::new(&c.rest_positions.data, 2.0 * c.tool_radius),
         }
     }
 
-    fn residual(&self, i: usize, j: usize) -> Option<&[f64; 9]> {
+    /// Number of region nodes.
+    pub(crate) fn len(&self) -> usize {
+        self.rest.len() / 3
+    }
+
+    /// Node i's position at the θ-point of the step from x to the prediction x⁺ with inputs
+    /// `u` (no contact force): X_i + θ³ C_i x⁺ − W_i x + E_i u, `joint` = [x⁺; x].
+    #[inline]
+    fn theta_point(&self, i: usize, joint: &[f64], u: &[f64]) -> [f64; 3] {
+        let r2 = joint.len();
+        let m = u.len();
+        let mut d = [0.0; 3];
+        crate::simd::matvec(
+            &self.theta_rows[3 * i * r2..3 * (i + 1) * r2],
+            r2,
+            joint,
+            &mut d,
+            false,
+        );
+        let e = &self.theta_input_rows[3 * i * m..3 * (i + 1) * m];
+        [0, 1, 2].map(|k| self.rest[3 * i + k] + d[k] + dot(&e[k * m..(k + 1) * m], u))
+    }
+
+    fn residual(&self, i: usize, j: usize) -> Option<&Residual> {
         let list = &self.neighbours[self.start[i]..self.start[i + 1]];
         list.binary_search_by_key(&(j as u32), |e| e.0)
             .ok()
@@ -277,6 +402,24 @@ pub(crate) struct ContactWork {
     gap: Vec<f64>,
     normal: Vec<[f64; 3]>,
     position: Vec<[f64; 3]>,
+    /// The normals at the solved positions of the last pass.
+    next_normal: Vec<[f64; 3]>,
+    /// The region nodes near the tools this step: (tool, node, free θ-point position, free
+    /// gap), at most n per tool.
+    visited: Vec<(usize, usize, [f64; 3], f64)>,
+    /// The state before this step's prediction (r).
+    pub previous: Vec<f64>,
+    /// [x⁺; x] of this step (2r), of the last step, and the last step's inputs (m).
+    joint: Vec<f64>,
+    last_joint: Vec<f64>,
+    last_inputs: Vec<f64>,
+    /// The path length of [x⁺; x] and of u over all steps so far.
+    path: (f64, f64),
+    /// Per region node: its θ-point position when last evaluated and `path` then (infinite
+    /// before the first evaluation): a node whose cached position, less how far it can have
+    /// moved since, is clear of every tool is not evaluated again.
+    cache: Vec<[f64; 3]>,
+    stamp: Vec<(f64, f64)>,
     /// Per candidate: h_a = C_aᵀ n_a and b_a = B_a n_a (r each).
     h: Vec<f64>,
     b: Vec<f64>,
@@ -290,7 +433,7 @@ pub(crate) struct ContactWork {
     /// State increment Σ λ_a b_a.
     pub delta: Vec<f64>,
     /// Nodes active last step (region node index, tool), for the warm start.
-    was_active: Vec<(usize, usize)>,
+    was_active: Vec<(usize, usize, [f64; 3])>,
     was_count: usize,
     /// Results of the last step.
     pub tools: [ToolContact; MAX_TOOLS],
@@ -311,7 +454,7 @@ pub(crate) struct ContactWork {
 /// What a rollback restores (preallocated).
 #[derive(Clone, Debug)]
 struct Saved {
-    was_active: Vec<(usize, usize)>,
+    was_active: Vec<(usize, usize, [f64; 3])>,
     was_count: usize,
     tools: [ToolContact; MAX_TOOLS],
     tool_count: usize,
@@ -321,7 +464,10 @@ struct Saved {
 }
 
 impl ContactWork {
-    pub(crate) fn new(r: usize) -> Self {
+    /// Scratch for a model of r states with the region `pc`.
+    pub(crate) fn new(r: usize, pc: &PreparedContact) -> Self {
+        let n = pc.len();
+        let inputs = pc.theta_input_rows.len() / (3 * n).max(1);
         let m = MAX_CONTACTS;
         ContactWork {
             r,
@@ -330,6 +476,15 @@ impl ContactWork {
             gap: vec![0.0; m],
             normal: vec![[0.0; 3]; m],
             position: vec![[0.0; 3]; m],
+            next_normal: vec![[0.0; 3]; m],
+            visited: vec![(0, 0, [0.0; 3], 0.0); n * MAX_TOOLS],
+            previous: vec![0.0; r],
+            joint: vec![0.0; 2 * r],
+            last_joint: vec![0.0; 2 * r],
+            last_inputs: vec![0.0; inputs],
+            path: (0.0, 0.0),
+            cache: vec![[0.0; 3]; n],
+            stamp: vec![(f64::INFINITY, f64::INFINITY); n],
             h: vec![0.0; m * r],
             b: vec![0.0; m * r],
             a: vec![0.0; m * m],
@@ -339,7 +494,7 @@ impl ContactWork {
             piv: vec![0; m],
             rhs: vec![0.0; m],
             delta: vec![0.0; r],
-            was_active: vec![(0, 0); m],
+            was_active: vec![(0, 0, [0.0; 3]); m],
             was_count: 0,
             tools: [ToolContact::default(); MAX_TOOLS],
             tool_count: 0,
@@ -351,7 +506,7 @@ impl ContactWork {
             scratch: vec![0.0; m * r.max(m)],
             with_std: false,
             saved: Saved {
-                was_active: vec![(0, 0); m],
+                was_active: vec![(0, 0, [0.0; 3]); m],
                 was_count: 0,
                 tools: [ToolContact::default(); MAX_TOOLS],
                 tool_count: 0,
@@ -388,6 +543,9 @@ impl ContactWork {
 
     /// Back to no contact (an estimator reset).
     pub(crate) fn reset(&mut self) {
+        self.stamp
+            .iter_mut()
+            .for_each(|s| *s = (f64::INFINITY, f64::INFINITY));
         self.was_count = 0;
         self.tool_count = 0;
         self.point_count = 0;
@@ -395,125 +553,343 @@ impl ContactWork {
         self.tools = [ToolContact::default(); MAX_TOOLS];
     }
 
-    /// Solves the contact of `tools` on the free prediction `x` (r, the whole state) and
-    /// leaves the state increment in [`ContactWork::delta`] and the results in `tools`,
-    /// `points`. Changes nothing outside the scratch; returns false when the result is not
-    /// finite (the caller then refuses the step).
+    /// Solves the contact of `tools` on the free prediction `x` (r, the whole state, with the
+    /// deterministic inputs `inputs` as G took them) from the state before the step ([`ContactWork::previous`], set by the caller), and leaves the state increment in
+    /// [`ContactWork::delta`] and the results in `tools`, `points`. The gap is enforced at the
+    /// step's θ-point (free position p̂ = X + θ³ C x − W x_prev), with the normals taken at the
+    /// solved positions (a fixed point over at most [`MAX_NORMAL_PASSES`] solves). Changes
+    /// nothing outside the scratch; returns false when the result is not finite (the caller
+    /// then refuses the step).
     pub(crate) fn solve(
         &mut self,
         pc: &PreparedContact,
         x: &[f64],
+        inputs: &[f64],
         tools: &[[f64; 3]],
         prior: &[f64],
     ) -> bool {
         let r = self.r;
+        if inputs.len() != self.last_inputs.len() {
+            return false;
+        }
+        self.joint[..r].copy_from_slice(x);
+        self.joint[r..].copy_from_slice(&self.previous);
+        let previous = &self.previous;
         let radius = pc.radius;
-        let xnorm = dot(x, x).sqrt();
-        let bound = pc.row_norm_max * xnorm;
+        let th3 = pc.theta_cubed;
+        let bound = th3 * pc.row_norm_max * dot(x, x).sqrt()
+            + pc.theta_norm_max * dot(previous, previous).sqrt();
         let reach = radius * (1.0 + CANDIDATE_MARGIN) + bound;
-        // 1. Candidates on the current surface.
+        // 1. The region nodes near each tool at the θ-point of the free step, then the
+        // contact problem's candidates: the penetrating ones and last step's pressing ones.
+        let near = radius * (1.0 + CANDIDATE_MARGIN);
+        // The path length of [x⁺; x] and of u over the steps, for the cached positions.
+        let step_joint = self
+            .joint
+            .iter()
+            .zip(&self.last_joint)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt();
+        let step_inputs = inputs
+            .iter()
+            .zip(&self.last_inputs)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt();
+        self.path = (self.path.0 + step_joint, self.path.1 + step_inputs);
+        self.last_joint.copy_from_slice(&self.joint);
+        self.last_inputs.copy_from_slice(inputs);
+        let path = self.path;
+        let joint = &self.joint;
+        let mut seen = 0usize;
+        for (t, c) in tools.iter().enumerate() {
+            let visited = &mut self.visited;
+            let (cache, stamp) = (&mut self.cache, &mut self.stamp);
+            pc.grid.visit(c, reach, |i| {
+                // The rest position first: a node farther than the reach cannot touch.
+                let rest = [0, 1, 2].map(|k| pc.rest[3 * i + k]);
+                if distance(rest, c) > reach {
+                    return;
+                }
+                // Then its last evaluated position, with how far it can have moved since
+                // (‖[θ³C_i | −W_i]‖ times the path of [x⁺; x], ‖E_i‖ times that of u).
+                let (sj, su) = stamp[i];
+                let moved = pc.theta_norm[i] * (path.0 - sj) + pc.input_norm[i] * (path.1 - su);
+                let slack = 1e-12 * (1.0 + path.0 + path.1);
+                if sj.is_finite() && distance(cache[i], c) - moved - slack > near {
+                    return;
+                }
+                let p = pc.theta_point(i, joint, inputs);
+                cache[i] = p;
+                stamp[i] = path;
+                let g = distance(p, c) - radius;
+                visited[seen] = (t, i, p, g);
+                seen += 1;
+            });
+        }
         let mut m = 0usize;
         let mut overflow = [false; MAX_TOOLS];
         let mut depth = [0.0f64; MAX_TOOLS];
-        for (t, c) in tools.iter().enumerate() {
-            let (cand, gap, normal, position) = (
-                &mut self.cand,
-                &mut self.gap,
-                &mut self.normal,
-                &mut self.position,
-            );
-            pc.grid.visit(c, reach, |i| {
-                let rows = &pc.rows[3 * i * r..3 * (i + 1) * r];
-                let u = [
-                    dot(&rows[..r], x),
-                    dot(&rows[r..2 * r], x),
-                    dot(&rows[2 * r..], x),
-                ];
-                let p = [0, 1, 2].map(|k| pc.rest[3 * i + k] + u[k]);
-                let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
-                let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                let g = dist - radius;
-                if g >= CANDIDATE_MARGIN * radius {
-                    return;
-                }
-                // A node taken by the other tool already keeps the deeper of the two.
-                if let Some(k) = (0..m).find(|&k| cand[k].1 == i) {
-                    if g < gap[k] {
-                        cand[k].0 = t;
-                        gap[k] = g;
-                        normal[k] = unit(d, dist, &pc.normals[3 * i..3 * i + 3]);
-                        position[k] = p;
-                    }
-                    return;
-                }
-                if m == MAX_CONTACTS {
-                    // Replace the shallowest candidate when this one is deeper.
-                    let (k, &worst) = gap[..m]
-                        .iter()
-                        .enumerate()
-                        .max_by(|a, b| a.1.total_cmp(b.1))
-                        .expect("MAX_CONTACTS > 0");
-                    overflow[t] = true;
-                    if g >= worst {
-                        return;
-                    }
-                    cand[k] = (t, i);
-                    gap[k] = g;
-                    normal[k] = unit(d, dist, &pc.normals[3 * i..3 * i + 3]);
-                    position[k] = p;
-                    return;
-                }
-                cand[m] = (t, i);
-                gap[m] = g;
-                normal[m] = unit(d, dist, &pc.normals[3 * i..3 * i + 3]);
-                position[m] = p;
-                m += 1;
-            });
-        }
-        self.candidates = m;
-        for k in 0..m {
-            let t = self.cand[k].0;
-            depth[t] = depth[t].max(-self.gap[k]);
-        }
-        // 2. h_a = C_aᵀ n_a, b_a = B_a n_a and A.
-        for k in 0..m {
-            let i = self.cand[k].1;
-            let n = self.normal[k];
-            let rows = &pc.rows[3 * i * r..3 * (i + 1) * r];
-            let inputs = &pc.input_rows[3 * i * r..3 * (i + 1) * r];
-            let h = &mut self.h[k * r..(k + 1) * r];
-            let b = &mut self.b[k * r..(k + 1) * r];
-            for j in 0..r {
-                h[j] = n[0] * rows[j] + n[1] * rows[r + j] + n[2] * rows[2 * r + j];
-                b[j] = n[0] * inputs[j] + n[1] * inputs[r + j] + n[2] * inputs[2 * r + j];
+        for v in 0..seen {
+            let (t, i, p, g) = self.visited[v];
+            depth[t] = depth[t].max(-g);
+            let was = self.was_active[..self.was_count]
+                .iter()
+                .find(|&&(wi, wt, _)| wi == i && wt == t)
+                .map(|w| w.2);
+            if g < 0.0 || was.is_some() {
+                // The normal from last step's solve (the fixed point goes on over the steps).
+                let n = was.unwrap_or_else(|| toward(p, &tools[t], &pc.normals[3 * i..3 * i + 3]));
+                self.add_candidate(&mut m, (t, i), p, g, n, &mut overflow);
             }
         }
-        for a in 0..m {
-            for c in 0..m {
-                let mut v = dot(&self.h[a * r..(a + 1) * r], &self.b[c * r..(c + 1) * r]);
-                if let Some(d) = pc.residual(self.cand[a].1, self.cand[c].1) {
-                    let (na, nc) = (self.normal[a], self.normal[c]);
-                    for p in 0..3 {
-                        for q in 0..3 {
-                            v += na[p] * d[3 * p + q] * nc[q];
+        for k in 0..m {
+            self.active[k] = true;
+        }
+        let mut converged = false;
+        for pass in 0..MAX_NORMAL_PASSES {
+            // 2. Gaps along the current normals, h_a = C_aᵀ n_a, b_a = B_a n_a and
+            // A_ac = n_aᵀ (θ³ C_a B_cᵀ + D_ac) n_c.
+            for k in 0..m {
+                let (t, i) = self.cand[k];
+                let n = self.normal[k];
+                let c = tools[t];
+                let p = self.position[k];
+                self.gap[k] = (0..3).map(|q| (p[q] - c[q]) * n[q]).sum::<f64>() - radius;
+                let rows = &pc.rows[3 * i * r..3 * (i + 1) * r];
+                let inputs = &pc.input_rows[3 * i * r..3 * (i + 1) * r];
+                let h = &mut self.h[k * r..(k + 1) * r];
+                let b = &mut self.b[k * r..(k + 1) * r];
+                for j in 0..r {
+                    h[j] = n[0] * rows[j] + n[1] * rows[r + j] + n[2] * rows[2 * r + j];
+                    b[j] = n[0] * inputs[j] + n[1] * inputs[r + j] + n[2] * inputs[2 * r + j];
+                }
+            }
+            for a in 0..m {
+                for c in 0..m {
+                    let mut v = th3 * dot(&self.h[a * r..(a + 1) * r], &self.b[c * r..(c + 1) * r]);
+                    if let Some(d) = pc
+                        .residual(self.cand[a].1, self.cand[c].1)
+                        .map(|d| &d.theta)
+                    {
+                        let (na, nc) = (self.normal[a], self.normal[c]);
+                        for p in 0..3 {
+                            for q in 0..3 {
+                                v += na[p] * d[3 * p + q] * nc[q];
+                            }
                         }
                     }
+                    self.a[a * m + c] = v;
                 }
-                self.a[a * m + c] = v;
+            }
+            // 3. The LCP by principal pivoting, warm-started.
+            let Some(pivoted) = self.principal_pivoting(m, radius) else {
+                return false;
+            };
+            // 4. Normals at the solved θ-point positions; done when they stay.
+            self.accumulate_delta(m);
+            let mut moved = 0.0f64;
+            for k in 0..m {
+                let (t, i) = self.cand[k];
+                let q = self.solved_position(pc, i, self.position[k], m);
+                let n = toward(q, &tools[t], &pc.normals[3 * i..3 * i + 3]);
+                moved = moved.max(
+                    (0..3)
+                        .map(|c| (n[c] - self.normal[k][c]).abs())
+                        .fold(0.0, f64::max),
+                );
+                self.next_normal[k] = n;
+            }
+            // Nodes left out that the solved forces push into a tool join the problem: only
+            // those whose free gap is below the largest displacement the forces can cause.
+            // Checked once the normals have settled (or on the last pass).
+            let last_pass = pass + 1 == MAX_NORMAL_PASSES;
+            let mut added = false;
+            if moved >= NORMAL_TOLERANCE && !last_pass {
+                self.normal[..m].copy_from_slice(&self.next_normal[..m]);
+                for k in 0..m {
+                    self.active[k] = self.lambda[k] > 0.0;
+                }
+                continue;
+            }
+            let lsum: f64 = self.lambda[..m].iter().sum();
+            let delta_norm = th3 * dot(&self.delta, &self.delta).sqrt();
+            let residual_push = pc.residual_norm_max * lsum;
+            for v in 0..seen {
+                let (t, i, p, g) = self.visited[v];
+                if g >= delta_norm * pc.row_norm[i] + residual_push
+                    || self.cand[..m].iter().any(|&(_, ci)| ci == i)
+                {
+                    continue;
+                }
+                let q = self.solved_position(pc, i, p, m);
+                let c = tools[t];
+                if distance(q, &c) < radius * (1.0 - 1e-12) {
+                    let n = toward(q, &c, &pc.normals[3 * i..3 * i + 3]);
+                    if let Some(k) = self.add_candidate(&mut m, (t, i), p, g, n, &mut overflow) {
+                        self.next_normal[k] = n;
+                        self.lambda[k] = 0.0;
+                        added = true;
+                    }
+                }
+            }
+            self.candidates = m;
+            if !added || last_pass {
+                converged = pivoted && !added;
+                break;
+            }
+            self.normal[..m].copy_from_slice(&self.next_normal[..m]);
+            for k in 0..m {
+                self.active[k] = self.lambda[k] > 0.0;
             }
         }
-        // 3. The LCP by principal pivoting, warm-started.
-        for k in 0..m {
-            let node = self.cand[k];
-            self.active[k] = self.gap[k] < 0.0
-                || self.was_active[..self.was_count]
-                    .iter()
-                    .any(|&(i, t)| i == node.1 && t == node.0);
+        // 5. Tool forces, the bound, the stiffness.
+        let ntools = tools.len();
+        let mut clamped = [false; MAX_TOOLS];
+        for t in 0..ntools {
+            let mut f = [0.0; 3];
+            for k in (0..m).filter(|&k| self.cand[k].0 == t) {
+                for c in 0..3 {
+                    f[c] -= self.lambda[k] * self.normal[k][c];
+                }
+            }
+            let mag = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+            if mag > pc.max_force {
+                let s = pc.max_force / mag;
+                for k in (0..m).filter(|&k| self.cand[k].0 == t) {
+                    self.lambda[k] *= s;
+                }
+                clamped[t] = true;
+            }
         }
+        let pressed = self.accumulate_delta(m);
+        if self.delta.iter().any(|v| !v.is_finite()) {
+            return false;
+        }
+        self.pressed_count = pressed;
+        self.stiffness_and_points(pc, x, tools, &clamped, &overflow, &depth, converged);
+        if self.with_std {
+            for t in 0..tools.len() {
+                let std = self.force_std(t, prior);
+                if std.iter().any(|v| !v.is_finite()) {
+                    return false;
+                }
+                self.tools[t].force_std = std;
+            }
+        }
+        // The warm start of the next step.
+        self.was_count = 0;
+        for &k in &self.pressed[..pressed] {
+            self.was_active[self.was_count] = (self.cand[k].1, self.cand[k].0, self.normal[k]);
+            self.was_count += 1;
+        }
+        true
+    }
+
+    /// Node i's θ-point position under the solved forces: its free position `free` plus
+    /// θ³ C_i δ and the residual of the m candidates' forces.
+    fn solved_position(
+        &self,
+        pc: &PreparedContact,
+        i: usize,
+        free: [f64; 3],
+        m: usize,
+    ) -> [f64; 3] {
+        let r = self.r;
+        let th3 = pc.theta_cubed;
+        let mut u = [0.0; 3];
+        crate::simd::matvec(
+            &pc.rows[3 * i * r..3 * (i + 1) * r],
+            r,
+            &self.delta,
+            &mut u,
+            false,
+        );
+        let mut q = [0, 1, 2].map(|c| free[c] + th3 * u[c]);
+        for k in 0..m {
+            let l = self.lambda[k];
+            if l > 0.0 {
+                if let Some(d) = pc.residual(i, self.cand[k].1).map(|d| &d.theta) {
+                    let n = self.normal[k];
+                    for (c, qc) in q.iter_mut().enumerate() {
+                        *qc += l * (0..3).map(|s| d[3 * c + s] * n[s]).sum::<f64>();
+                    }
+                }
+            }
+        }
+        q
+    }
+
+    /// Adds node `node` = (tool, region node) to the contact problem with its free position,
+    /// free gap and normal: a node already taken by the other tool keeps the deeper of the
+    /// two; when the problem is full the shallowest candidate gives way to a deeper one (and
+    /// the tool's status says so). Returns the slot it took.
+    fn add_candidate(
+        &mut self,
+        m: &mut usize,
+        node: (usize, usize),
+        p: [f64; 3],
+        g: f64,
+        n: [f64; 3],
+        overflow: &mut [bool; MAX_TOOLS],
+    ) -> Option<usize> {
+        let slot = if let Some(k) = (0..*m).find(|&k| self.cand[k].1 == node.1) {
+            if g >= self.gap[k] {
+                return None;
+            }
+            k
+        } else if *m == MAX_CONTACTS {
+            overflow[node.0] = true;
+            let (k, &worst) = self.gap[..*m]
+                .iter()
+                .enumerate()
+                .max_by(|a, b| a.1.total_cmp(b.1))
+                .expect("MAX_CONTACTS > 0");
+            if g >= worst {
+                return None;
+            }
+            k
+        } else {
+            *m += 1;
+            *m - 1
+        };
+        self.cand[slot] = node;
+        self.gap[slot] = g;
+        self.normal[slot] = n;
+        self.position[slot] = p;
+        self.active[slot] = true;
+        Some(slot)
+    }
+
+    /// The state increment δ = Σ λ_a b_a of the pressing candidates (listed in `pressed`);
+    /// returns how many press.
+    fn accumulate_delta(&mut self, m: usize) -> usize {
+        let r = self.r;
+        self.delta.iter_mut().for_each(|v| *v = 0.0);
+        let mut pressed = 0;
+        for k in 0..m {
+            let l = self.lambda[k];
+            if l > 0.0 {
+                let b = &self.b[k * r..(k + 1) * r];
+                for (d, &bv) in self.delta.iter_mut().zip(b) {
+                    *d += l * bv;
+                }
+                self.pressed[pressed] = k;
+                pressed += 1;
+            }
+        }
+        pressed
+    }
+
+    /// The LCP gap = g + A λ ≥ 0, λ ≥ 0, λ·gap = 0 over the m candidates by principal pivoting
+    /// from the active set in `active`: λ in `lambda` (0 off the active set). `None` when a
+    /// solve fails; `Some(false)` when the pivot cap is reached.
+    fn principal_pivoting(&mut self, m: usize, radius: f64) -> Option<bool> {
         let mut converged = false;
         for _ in 0..MAX_PIVOTS {
             if !self.solve_active(m) {
-                return false;
+                return None;
             }
             // A negative force leaves the active set (the most negative first).
             let worst = (0..m)
@@ -552,59 +928,7 @@ impl ContactWork {
                 self.lambda[k] = 0.0;
             }
         }
-        // 4. Tool forces, the bound, the stiffness.
-        let ntools = tools.len();
-        let mut clamped = [false; MAX_TOOLS];
-        for t in 0..ntools {
-            let mut f = [0.0; 3];
-            for k in (0..m).filter(|&k| self.cand[k].0 == t) {
-                for c in 0..3 {
-                    f[c] -= self.lambda[k] * self.normal[k][c];
-                }
-            }
-            let mag = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
-            if mag > pc.max_force {
-                let s = pc.max_force / mag;
-                for k in (0..m).filter(|&k| self.cand[k].0 == t) {
-                    self.lambda[k] *= s;
-                }
-                clamped[t] = true;
-            }
-        }
-        self.delta.iter_mut().for_each(|v| *v = 0.0);
-        let mut pressed = 0;
-        for k in 0..m {
-            let l = self.lambda[k];
-            if l > 0.0 {
-                let b = &self.b[k * r..(k + 1) * r];
-                for (d, &bv) in self.delta.iter_mut().zip(b) {
-                    *d += l * bv;
-                }
-                self.pressed[pressed] = k;
-                pressed += 1;
-            }
-        }
-        if self.delta.iter().any(|v| !v.is_finite()) {
-            return false;
-        }
-        self.pressed_count = pressed;
-        self.stiffness_and_points(pc, x, tools, &clamped, &overflow, &depth, converged);
-        if self.with_std {
-            for t in 0..tools.len() {
-                let std = self.force_std(t, prior);
-                if std.iter().any(|v| !v.is_finite()) {
-                    return false;
-                }
-                self.tools[t].force_std = std;
-            }
-        }
-        // The warm start of the next step.
-        self.was_count = 0;
-        for &k in &self.pressed[..pressed] {
-            self.was_active[self.was_count] = (self.cand[k].1, self.cand[k].0);
-            self.was_count += 1;
-        }
-        true
+        Some(converged)
     }
 
     /// σ of tool `t`'s force (N, per world component) from the prediction's covariance `p`
@@ -745,7 +1069,7 @@ impl ContactWork {
                 }
                 for q in 0..s {
                     let kq = self.piv[q];
-                    if let Some(d) = pc.residual(i_node, self.cand[kq].1) {
+                    if let Some(d) = pc.residual(i_node, self.cand[kq].1).map(|d| &d.end) {
                         let lq = self.lambda[kq];
                         let nq = self.normal[kq];
                         for a in 0..3 {
@@ -813,6 +1137,19 @@ impl ContactWork {
             self.tools[t] = tc;
         }
     }
+}
+
+/// |p − c|.
+#[inline]
+fn distance(p: [f64; 3], c: &[f64; 3]) -> f64 {
+    ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt()
+}
+
+/// The unit vector from the tool's centre c to p, or the rest normal when p is at c.
+#[inline]
+fn toward(p: [f64; 3], c: &[f64; 3], rest_normal: &[f64]) -> [f64; 3] {
+    let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+    unit(d, distance(p, c), rest_normal)
 }
 
 /// The unit vector d/|d|, or the rest normal when the node sits at the tool's centre.

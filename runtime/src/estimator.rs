@@ -125,7 +125,7 @@ impl Estimator {
             contact: prepared
                 .contact
                 .as_ref()
-                .map(|_| Box::new(ContactWork::new(prepared.r))),
+                .map(|c| Box::new(ContactWork::new(prepared.r, c))),
             shared: prepared,
         }
     }
@@ -504,6 +504,9 @@ impl Estimator {
         self.check_inputs(inputs)?;
         self.check_measurements(&get, step)?;
         let saved = (self.k, self.phase, self.cov, self.awaiting_update);
+        if let Some(work) = self.contact.as_mut() {
+            work.previous.copy_from_slice(self.tier.state());
+        }
         self.predict_checked(inputs)?;
         let sh = &*self.shared;
         let (Some(pc), Some(work)) = (sh.contact.as_ref(), self.contact.as_mut()) else {
@@ -511,8 +514,13 @@ impl Estimator {
         };
         work.save();
         let prior = &sh.model.kalman.phases[self.phase].prior_covariance.data;
-        let solved = work.solve(pc, self.tier.state(), tools, prior)
-            && self.tier.add_to_state(sh, &work.delta);
+        let solved = work.solve(
+            pc,
+            self.tier.state(),
+            self.tier.linear_inputs(),
+            tools,
+            prior,
+        ) && self.tier.add_to_state(sh, &work.delta);
         if !solved {
             work.restore();
             self.tier.rollback(sh);

@@ -416,7 +416,7 @@ impl PreparedModel {
             contact: model
                 .contact
                 .as_ref()
-                .map(crate::contact::PreparedContact::new),
+                .map(|c| crate::contact::PreparedContact::new(c, model.theta)),
             r,
             load_channels,
             channel,

@@ -681,7 +681,7 @@ fn a_v6_model_file_is_refused_with_recompile() {
         .unwrap_err()
         .to_string();
     assert!(
-        err.contains("model format v6, this runtime reads v8") && err.contains("recompile"),
+        err.contains("model format v6, this runtime reads v9") && err.contains("recompile"),
         "{err}"
     );
 }

@@ -1,13 +1,15 @@
 //! The full-order contact reference (docs/contact.md): the scene's full-order linear FEM with
 //! the same rigid spherical tool and the same frictionless node-on-sphere contact law as the
 //! runtime, solved to convergence by an algorithm of its own: normals taken at the solved
-//! positions of the current iterate (a fixed point, not the runtime's normals at the free
-//! prediction), every region node tested at every iterate, the linear complementarity problem
-//! solved by projected Gauss–Seidel on the exact full-order compliance of the contact nodes
-//! (no reduction, no residual).
+//! positions of the current iterate (a fixed point iterated to convergence within the call),
+//! every region node tested at every iterate, the linear complementarity problem solved by
+//! projected Gauss–Seidel on the exact full-order compliance of the contact nodes (no
+//! reduction, no residual). Each call starts from the last call's contacts, so a staged press
+//! follows its load path.
 //!
 //! Two references share that solve: [`ContactReference::new`] steps in time (Wilson-θ, J
-//! factored once; the compliance is the one-step J⁻¹/θ³) and [`ContactReference::quasi_static`]
+//! factored once; the gap enforced at the θ-point t + θΔt, as the runtime does, where the
+//! compliance is J⁻¹) and [`ContactReference::quasi_static`]
 //! solves static equilibrium K u = f + contact forces (compliance K⁻¹) for each tool position:
 //! the force against depth and path of a slow press or slide, without the body's inertia.
 
@@ -19,7 +21,7 @@ use crokf_compile::stepping::linear::{LinearSimulator, StaticSolver};
 use crokf_compile::stepping::{Simulator, SteppingError};
 
 /// Outer iterations (contact search and normals) of one step.
-const MAX_OUTER: usize = 60;
+const MAX_OUTER: usize = 1000;
 /// Gauss–Seidel sweeps of one complementarity problem.
 const MAX_SWEEPS: usize = 20_000;
 
@@ -30,13 +32,17 @@ pub struct ReferenceContact {
     pub force: [f64; 3],
     /// Region nodes pressing on the tool.
     pub active: usize,
-    /// Largest penetration left at the end of the step, m (the solve's residual).
+    /// Largest penetration left by the solve, m (its residual).
     pub residual_penetration: f64,
+    /// The pressing region nodes (region index) with their normal force, N.
+    pub pressing: Vec<(usize, f64)>,
+    /// Outer passes the solve took (at most its cap, when it did not settle).
+    pub passes: usize,
 }
 
 /// How the reference relates force to displacement.
 enum Kind {
-    /// Wilson-θ time stepping: one-step compliance J⁻¹/θ³.
+    /// Wilson-θ time stepping: θ-point compliance J⁻¹.
     Dynamic(LinearSimulator),
     /// Static equilibrium: compliance K⁻¹.
     Static(StaticSolver),
@@ -52,6 +58,10 @@ pub struct ContactReference<'a> {
     free: Vec<f64>,
     /// The displacement of the last solve (with its contact forces).
     solved: Vec<f64>,
+    /// The pressing nodes of the last solve (region index, force, normal): where the next
+    /// solve starts, so that a staged press follows its load path (with a curved tool a
+    /// frictionless problem can have more than one equilibrium).
+    last: Vec<(usize, f64, [f64; 3])>,
 }
 
 impl<'a> ContactReference<'a> {
@@ -62,7 +72,7 @@ impl<'a> ContactReference<'a> {
     }
 
     /// The quasi-static reference: each [`ContactReference::solve_static`] is the static
-    /// equilibrium with the tool where it is, independent of earlier calls.
+    /// equilibrium with the tool where it is, found from the last call's contacts.
     pub fn quasi_static(full: &'a FullOrder) -> Result<Self, String> {
         let solver = StaticSolver::new(&full.fem).map_err(|e| e.to_string())?;
         Self::with(full, Kind::Static(solver))
@@ -86,6 +96,7 @@ impl<'a> ContactReference<'a> {
             columns: BTreeMap::new(),
             free: vec![0.0; n],
             solved: vec![0.0; n],
+            last: Vec::new(),
         })
     }
 
@@ -101,7 +112,7 @@ impl<'a> ContactReference<'a> {
             let mut b = vec![0.0; n];
             b[dof] = 1.0;
             match kind {
-                Kind::Dynamic(sim) => sim.step_compliance(&mut b),
+                Kind::Dynamic(sim) => sim.theta_compliance(&mut b),
                 Kind::Static(solver) => solver.solve_in_place(&mut b),
             }
             b
@@ -116,7 +127,7 @@ impl<'a> ContactReference<'a> {
                 "step works on the time-stepping reference (ContactReference::new)".into(),
             ));
         };
-        sim.end_displacement(f, &mut self.free)?;
+        sim.theta_displacement(f, &mut self.free)?;
         let (result, load) = self.solve(tool, f);
         if let Kind::Dynamic(sim) = &mut self.kind {
             sim.step(&load)?;
@@ -168,13 +179,15 @@ impl<'a> ContactReference<'a> {
             .map(|&i| self.full.fem.positions[i])
             .collect();
         // Active nodes (region index) with their force vectors λ n.
-        let mut active: Vec<usize> = Vec::new();
-        let mut lambda: Vec<f64> = Vec::new();
-        let mut normals: Vec<[f64; 3]> = Vec::new();
+        let mut active: Vec<usize> = self.last.iter().map(|l| l.0).collect();
+        let mut lambda: Vec<f64> = self.last.iter().map(|l| l.1).collect();
+        let mut normals: Vec<[f64; 3]> = self.last.iter().map(|l| l.2).collect();
         let mut position = vec![[0.0; 3]; nodes];
         let mut converged_penetration = 0.0;
+        let mut passes = 0;
         for _ in 0..MAX_OUTER {
-            // End-of-step positions of every region node under the current forces.
+            passes += 1;
+            // Positions (θ-point or static) of every region node under the current forces.
             let mut u = self.free.clone();
             for (k, &a) in active.iter().enumerate() {
                 for c in 0..3 {
@@ -205,7 +218,7 @@ impl<'a> ContactReference<'a> {
                 }
             }
             converged_penetration = deepest;
-            // Normals at the current end-of-step positions.
+            // Normals at the current positions.
             let mut moved = 0.0f64;
             for (k, &a) in active.iter().enumerate() {
                 let p = position[a];
@@ -266,10 +279,12 @@ impl<'a> ContactReference<'a> {
         // Commit the step with the contact forces.
         let mut load = f.to_vec();
         let mut force = [0.0; 3];
-        let mut pressing = 0;
+        let mut pressing = Vec::new();
+        self.last.clear();
         for (k, &a) in active.iter().enumerate() {
             if lambda[k] > 0.0 {
-                pressing += 1;
+                pressing.push((a, lambda[k]));
+                self.last.push((a, lambda[k], normals[k]));
             }
             for c in 0..3 {
                 load[self.region.dofs[3 * a + c]] += lambda[k] * normals[k][c];
@@ -280,8 +295,10 @@ impl<'a> ContactReference<'a> {
         (
             ReferenceContact {
                 force,
-                active: pressing,
+                active: pressing.len(),
                 residual_penetration: converged_penetration,
+                pressing,
+                passes,
             },
             load,
         )

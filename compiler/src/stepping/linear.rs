@@ -168,13 +168,14 @@ impl LinearSimulator {
 }
 
 impl LinearSimulator {
-    /// The displacement at the end of a step with load f (n, N) held over it, into `out` (n),
-    /// the state unchanged (one column only): what a contact solve needs before it commits.
-    pub fn end_displacement(&mut self, f: &[f64], out: &mut [f64]) -> Result<(), SteppingError> {
+    /// The displacement at the θ-point t + θΔt of a step with load f (n, N) held over it,
+    /// Û = J⁻¹ (f + M(…) + C(…)), into `out` (n), the state unchanged (one column only): where
+    /// a contact solve enforces its gap before it commits (docs/contact.md).
+    pub fn theta_displacement(&mut self, f: &[f64], out: &mut [f64]) -> Result<(), SteppingError> {
         let n = self.system.pattern.n;
         if self.columns != 1 {
             return Err(SteppingError::Solver(
-                "end_displacement works on a one-column simulator".into(),
+                "theta_displacement works on a one-column simulator".into(),
             ));
         }
         check_len("load vector f", n, f.len())?;
@@ -182,19 +183,13 @@ impl LinearSimulator {
         let [rhs, x, y] = &mut self.work;
         self.system
             .solve_column((&self.u, &self.v, &self.a), f, rhs, x, y, None);
-        let w = self.system.wilson;
-        for i in 0..n {
-            out[i] = w.advance(self.u[i], self.v[i], self.a[i], rhs[i]).0;
-        }
+        out.copy_from_slice(rhs);
         Ok(())
     }
 
-    /// b ← J⁻¹ b / θ³: the end-of-step displacement per unit load b held over the step
-    /// (U' = U + Δt U̇ + Δt²/6 (Ü' + 2Ü) with Ü' = 6/(θ³Δt²)(Û − U) + …, so ∂U'/∂f = J⁻¹/θ³).
-    pub fn step_compliance(&self, b: &mut [f64]) {
+    /// b ← J⁻¹ b: the θ-point displacement per unit load b held over the step.
+    pub fn theta_compliance(&self, b: &mut [f64]) {
         self.system.jacobian.solve_in_place(b);
-        let t3 = self.system.wilson.theta.powi(3);
-        b.iter_mut().for_each(|v| *v /= t3);
     }
 }
 

@@ -136,6 +136,12 @@ pub(crate) trait TierStep: std::fmt::Debug + Send + Sync {
         false
     }
 
+    /// The deterministic inputs of the last prediction as the reduced model's G took them
+    /// (local frame; empty for a tier that takes no contact).
+    fn linear_inputs(&self) -> &[f64] {
+        &[]
+    }
+
     /// The filter's own covariance while it carries one (the co-rotational tier's recursion
     /// while channels are missing, docs/design.md §11.11), else `None`.
     fn covariance(&self) -> Option<&[f64]> {

@@ -111,6 +111,10 @@ impl TierStep for WarpedStep {
         self.sync_x32(shared);
     }
 
+    fn linear_inputs(&self) -> &[f64] {
+        &self.u_lin
+    }
+
     fn add_to_state(&mut self, shared: &PreparedModel, delta: &[f64]) -> bool {
         for (x, d) in self.x.iter_mut().zip(delta) {
             *x += d;
