@@ -43,7 +43,7 @@ pub struct ReferenceContact {
 /// How the reference relates force to displacement.
 enum Kind {
     /// Wilson-θ time stepping: θ-point compliance J⁻¹.
-    Dynamic(LinearSimulator),
+    Dynamic(Box<LinearSimulator>),
     /// Static equilibrium: compliance K⁻¹.
     Static(StaticSolver),
 }
@@ -68,7 +68,7 @@ impl<'a> ContactReference<'a> {
     /// The time-stepping reference of a full-order model whose scene declares a contact region.
     pub fn new(full: &'a FullOrder) -> Result<Self, String> {
         let sim = LinearSimulator::new(&full.fem, full.wilson).map_err(|e| e.to_string())?;
-        Self::with(full, Kind::Dynamic(sim))
+        Self::with(full, Kind::Dynamic(Box::new(sim)))
     }
 
     /// The quasi-static reference: each [`ContactReference::solve_static`] is the static
