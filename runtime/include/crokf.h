@@ -89,6 +89,27 @@ int crokf_set_covariance_recursion(CrokfEstimator *est, int on);
  * 0 the stored covariances in use (nothing written), -1 wrong length or NULL. */
 int crokf_tier_covariance(const CrokfEstimator *est, double *out, size_t len);
 
+/* Contact (docs/contact.md): a rigid sphere tool on the model's contact region, warped tier.
+ * The tool centres are 3 doubles per tool (m, the model's frame), at most 2 tools. */
+typedef struct CrokfToolContact {
+    double force[3];     /* N: the body on the tool */
+    double torque[3];    /* N m: about the tool's centre */
+    double stiffness[9]; /* N/m, row-major: the force changes by -K dc for a small move dc */
+    double force_std[3]; /* N: with crokf_set_contact_force_std on, else 0 */
+    double depth;        /* m: deepest penetration of the free prediction */
+    uint32_t active;     /* region nodes pressing */
+    int32_t status;      /* 0 free, 1 touching, 2 clamped at the force bound, 3 overflow,
+                            4 not converged */
+} CrokfToolContact;
+size_t crokf_model_has_contact(const CrokfModel *model); /* 1: a contact region */
+/* crokf_step with tools, all or nothing (-1: the estimator exactly as before the call). */
+int crokf_step_with_tools(CrokfEstimator *est, const double *tools, size_t n_tools,
+                          const double *inputs, size_t n_inputs,
+                          const double *y, const uint8_t *present, size_t n);
+/* The last contact step's result for tool `tool`: 0, or -1 (no such tool in that step). */
+int crokf_tool_contact(const CrokfEstimator *est, size_t tool, CrokfToolContact *out);
+int crokf_set_contact_force_std(CrokfEstimator *est, int on); /* on != 0: compute the force's sigma */
+
 /* Read-outs into caller buffers; len must be exact. A read-out never succeeds with a
  * non-finite value. */
 int crokf_sensor_displacements(const CrokfEstimator *est, double *out, size_t len); /* 3*sensors */

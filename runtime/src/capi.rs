@@ -621,3 +621,138 @@ pub unsafe extern "C" fn crokf_state(e: *const CrokfEstimator, out: *mut f64, le
         Ok(0)
     })
 }
+
+/// What [`crokf_tool_contact`] writes (header `CrokfToolContact`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default)]
+pub struct CrokfToolContact {
+    /// Force of the body on the tool, N.
+    pub force: [f64; 3],
+    /// Torque of the body on the tool about its centre, N·m.
+    pub torque: [f64; 3],
+    /// The tool's 3×3 contact stiffness, row-major, N/m.
+    pub stiffness: [f64; 9],
+    /// σ of `force` per component, N (with `crokf_set_contact_force_std` on, else 0).
+    pub force_std: [f64; 3],
+    /// Deepest penetration of the free prediction into the tool, m.
+    pub depth: f64,
+    /// Region nodes pressing on the tool.
+    pub active: u32,
+    /// 0 free, 1 touching, 2 clamped at the force bound, 3 overflow, 4 not converged.
+    pub status: i32,
+}
+
+/// 1 when the model has a contact region (docs/contact.md), 0 when not or on a NULL handle.
+///
+/// # Safety
+/// `m` NULL or a live model.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_model_has_contact(m: *const CrokfModel) -> usize {
+    guard(0, || {
+        Ok(usize::from(
+            model_ref(m)?.prepared.model().contact.is_some(),
+        ))
+    })
+}
+
+/// One step with `n_tools` (≤ 2) tools whose centres are `tools` (3 per tool, m, the model's
+/// frame): prediction, contact, update, all or nothing as `crokf_step`. Returns the number of
+/// measurements used, or -1 with the estimator exactly as before the call.
+///
+/// # Safety
+/// As for `crokf_step`; `tools` holds 3 × `n_tools` doubles (or is NULL with `n_tools` 0).
+#[no_mangle]
+pub unsafe extern "C" fn crokf_step_with_tools(
+    e: *mut CrokfEstimator,
+    tools: *const f64,
+    n_tools: usize,
+    inputs: *const f64,
+    n_inputs: usize,
+    y: *const f64,
+    present: *const u8,
+    n: usize,
+) -> c_int {
+    guard(-1, || {
+        let est = &mut est_mut(e)?.est;
+        if n_tools > crate::MAX_TOOLS {
+            return Err(format!(
+                "{n_tools} tools given, the contact step takes at most {}",
+                crate::MAX_TOOLS
+            ));
+        }
+        let flat = slice(tools, 3 * n_tools, "tools")?;
+        let mut centres = [[0.0; 3]; crate::MAX_TOOLS];
+        for (t, c) in centres.iter_mut().take(n_tools).enumerate() {
+            c.copy_from_slice(&flat[3 * t..3 * t + 3]);
+        }
+        let u = slice(inputs, n_inputs, "inputs")?;
+        let centres = &centres[..n_tools];
+        let result = if y.is_null() {
+            est.step_with_tools_with(centres, u, |_| None)
+        } else {
+            let q = est.model().measurements.len();
+            if n != q {
+                return Err(format!("measurements: expected length {q}, got {n}"));
+            }
+            let ys = slice(y, n, "measurements")?;
+            let present = if present.is_null() {
+                None
+            } else {
+                Some(slice(present, n, "present")?)
+            };
+            est.step_with_tools_with(centres, u, |i| match present {
+                Some(p) if p[i] == 0 => None,
+                _ => Some(ys[i]),
+            })
+        };
+        result.map(|k| k as c_int).map_err(|e| e.to_string())
+    })
+}
+
+/// The last contact step's result for tool `tool` into `out`. Returns 0, or -1 (NULL handle
+/// or `out`, no contact step yet, or `tool` past the last step's tools).
+///
+/// # Safety
+/// `e` live estimator; `out` writable.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_tool_contact(
+    e: *const CrokfEstimator,
+    tool: usize,
+    out: *mut CrokfToolContact,
+) -> c_int {
+    guard(-1, || {
+        let est = &est_ref(e)?.est;
+        let out = out.as_mut().ok_or_else(|| "out is NULL".to_string())?;
+        let t = est.tool_contact(tool).ok_or_else(|| {
+            format!("no tool {tool} in the last contact step (crokf_step_with_tools)")
+        })?;
+        *out = CrokfToolContact {
+            force: t.force,
+            torque: t.torque,
+            stiffness: t.stiffness,
+            force_std: t.force_std,
+            depth: t.depth,
+            active: t.active as u32,
+            status: match t.status {
+                crate::ContactStatus::Free => 0,
+                crate::ContactStatus::Touching => 1,
+                crate::ContactStatus::Clamped => 2,
+                crate::ContactStatus::Overflow => 3,
+                crate::ContactStatus::NotConverged => 4,
+            },
+        };
+        Ok(0)
+    })
+}
+
+/// Whether the contact step also computes each tool force's σ (`on` ≠ 0). Returns 0 or -1.
+///
+/// # Safety
+/// `e` live estimator.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_set_contact_force_std(e: *mut CrokfEstimator, on: c_int) -> c_int {
+    guard(-1, || {
+        est_mut(e)?.est.set_contact_force_std(on != 0);
+        Ok(0)
+    })
+}

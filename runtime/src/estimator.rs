@@ -477,6 +477,17 @@ impl Estimator {
         measurements: &[Option<f64>],
     ) -> Result<usize, RuntimeError> {
         check_len("measurements", self.channels, measurements.len())?;
+        self.step_with_tools_with(tools, inputs, |i| measurements[i])
+    }
+
+    /// [`Estimator::step_with_tools`] with the measurements given by `get(channel)` (as
+    /// [`Estimator::step_with`]).
+    pub fn step_with_tools_with(
+        &mut self,
+        tools: &[[f64; 3]],
+        inputs: &[f64],
+        get: impl Fn(usize) -> Option<f64>,
+    ) -> Result<usize, RuntimeError> {
         let step = self.k + 1;
         if self.shared.contact.is_none() {
             return Err(RuntimeError::NoContactRegion);
@@ -500,7 +511,6 @@ impl Estimator {
                 });
             }
         }
-        let get = |i: usize| measurements[i];
         self.check_inputs(inputs)?;
         self.check_measurements(&get, step)?;
         let saved = (self.k, self.phase, self.cov, self.awaiting_update);

@@ -511,3 +511,108 @@ fn contact_steps_do_not_allocate() {
     assert!(touched > 300, "the path presses ({touched} steps touching)");
     assert_eq!(allocations, 0, "the contact step allocated");
 }
+
+/// The shared library next to this test binary (`CROKF_RUNTIME_LIB` overrides).
+fn runtime_cdylib() -> std::path::PathBuf {
+    if let Some(p) = std::env::var_os("CROKF_RUNTIME_LIB") {
+        return p.into();
+    }
+    let name = format!(
+        "{}crokf_runtime{}",
+        std::env::consts::DLL_PREFIX,
+        std::env::consts::DLL_SUFFIX
+    );
+    let exe = std::env::current_exe().expect("test binary path");
+    exe.ancestors()
+        .skip(1)
+        .take(3)
+        .map(|d| d.join(&name))
+        .find(|p| p.is_file())
+        .unwrap_or_else(|| panic!("{name} not found near {}", exe.display()))
+}
+
+/// The C ABI's contact step (runtime/examples/c/touch.c) gives the Rust estimator's forces bit
+/// for bit, and refuses three tools.
+#[test]
+fn the_c_abi_presses_as_rust_does() {
+    let compiled = compile(&scene(), &CompileOptions::default()).expect("compile");
+    let model = compiled.model;
+    let dir = std::env::temp_dir().join(format!("crokf-contact-capi-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temporary directory");
+    let model_path = dir.join("touch.crokf");
+    std::fs::write(&model_path, &compiled.bytes).expect("write model");
+    let region = model.contact.as_ref().expect("contact region");
+    let (_, p, n) = nearest_node(region, [0.020, 0.0, 0.00427]);
+    let radius = region.tool_radius;
+    let start = [0, 1, 2].map(|i| p[i] + n[i] * radius);
+    let (depth, steps) = (8e-4, 60);
+    let runtime = Path::new(env!("CARGO_MANIFEST_DIR")).join("../runtime");
+    let lib = runtime_cdylib();
+    let exe = dir.join("touch");
+    let cc = std::env::var("CC").unwrap_or_else(|_| "cc".into());
+    let out = std::process::Command::new(&cc)
+        .arg(runtime.join("examples/c/touch.c"))
+        .arg("-I")
+        .arg(runtime.join("include"))
+        .args(["-Wall", "-Werror"])
+        .arg(&lib)
+        .arg(format!(
+            "-Wl,-rpath,{}",
+            lib.parent().expect("folder").display()
+        ))
+        .arg("-o")
+        .arg(&exe)
+        .output()
+        .expect("C compiler runs");
+    assert!(
+        out.status.success(),
+        "{cc}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let mut args: Vec<String> = vec![model_path.display().to_string()];
+    args.extend(start.iter().chain(&n).map(|v| format!("{v:.17e}")));
+    args.push(format!("{depth:.17e}"));
+    args.push(steps.to_string());
+    let run = std::process::Command::new(&exe)
+        .args(&args)
+        .output()
+        .expect("run touch");
+    std::fs::remove_dir_all(&dir).ok();
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "touch failed: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    // The same path in Rust, from the same parsed arguments.
+    let parse = |s: &str| s.parse::<f64>().expect("number");
+    let start: Vec<f64> = args[1..4].iter().map(|s| parse(s)).collect();
+    let normal: Vec<f64> = args[4..7].iter().map(|s| parse(s)).collect();
+    let depth = parse(&args[7]);
+    let mut est = Estimator::new(&model).expect("estimator");
+    let inputs = vec![0.0; model.inputs.len()];
+    let none = vec![None; model.measurements.len()];
+    let mut lines = stdout.lines();
+    let mut touching = 0;
+    for k in 1..=steps {
+        let d = depth * k as f64 / steps as f64;
+        let tool = [0, 1, 2].map(|i| start[i] - normal[i] * d);
+        est.step_with_tools(&[tool], &inputs, &none).expect("step");
+        let t = est.tool_contact(0).expect("tool");
+        let line = lines.next().expect("a line per step");
+        let f: Vec<&str> = line.split_whitespace().collect();
+        assert_eq!(f[0], k.to_string());
+        for c in 0..3 {
+            assert_eq!(
+                parse(f[1 + c]).to_bits(),
+                t.force[c].to_bits(),
+                "step {k}: {line}"
+            );
+        }
+        assert_eq!(f[4], t.active.to_string());
+        touching += usize::from(t.active > 0);
+    }
+    assert!(touching > steps / 2, "the path presses ({touching} steps)");
+    let refused = lines.next().expect("the refusal");
+    assert!(refused.contains("at most 2"), "{refused}");
+}
