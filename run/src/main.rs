@@ -1,4 +1,4 @@
-//! `crokf-run MODEL --inputs inputs.csv [--measurements m.csv] --out estimates.csv [--vtu DIR]`
+//! `crokf-run MODEL --inputs inputs.csv [--measurements m.csv] [--tool tool.csv] --out estimates.csv [--vtu DIR]`
 //! `crokf-run MODEL --serve [--port 8080]`: the live browser viewer (`crokf-viewer`).
 //!
 //! Runs the estimator over an input history (and optional measurements) and writes the
@@ -27,6 +27,11 @@ struct Args {
     /// Measurements CSV: `step` (or `t`), then columns `sensor.x|y|z`; empty cell = missing.
     #[arg(long)]
     measurements: Option<PathBuf>,
+    /// Tool path CSV (a model with a contact region, docs/contact.md): `step` (or `t`), then
+    /// `tool0.x,tool0.y,tool0.z` [and `tool1.…`], m, one row per input row; the estimates gain
+    /// each tool's force, pressing nodes and status.
+    #[arg(long)]
+    tool: Option<PathBuf>,
     /// Output CSV: step, t, estimated sensor displacements, their standard deviations.
     #[arg(long, required_unless_present = "serve")]
     out: Option<PathBuf>,
@@ -41,7 +46,7 @@ struct Args {
     gate: f64,
     /// Serve the live viewer instead: step the model in real time and draw it in the browser
     /// (three.js page served from this binary; loopback only unless --address says otherwise).
-    #[arg(long, conflicts_with_all = ["inputs", "measurements", "out", "vtu"])]
+    #[arg(long, conflicts_with_all = ["inputs", "measurements", "tool", "out", "vtu"])]
     serve: bool,
     /// With --serve: TCP port (0: any free port).
     #[arg(long, default_value_t = 8080, requires = "serve")]
@@ -68,6 +73,9 @@ fn check_outputs(args: &Args, inputs_path: &Path, out_path: &Path) -> Result<(),
     let mut inputs: Vec<(&str, &Path)> = vec![("model", &args.model), ("--inputs", inputs_path)];
     if let Some(m) = &args.measurements {
         inputs.push(("--measurements", m));
+    }
+    if let Some(t) = &args.tool {
+        inputs.push(("--tool", t));
     }
     let mut outputs = vec![Output {
         role: "--out",
@@ -142,6 +150,31 @@ fn run(args: &Args) -> Result<(), RunError> {
         Some(p) => table::read_measurements(p, &model)?,
         None => Default::default(),
     };
+    let tools = match &args.tool {
+        Some(p) => {
+            if model.contact.is_none() {
+                return Err(RunError::Usage(format!(
+                    "--tool {}: the model {} has no contact region (declare a [[contact]] in \
+                     its scene, docs/contact.md)",
+                    p.display(),
+                    args.model.display()
+                )));
+            }
+            let t = table::read_tools(p, &model)?;
+            if t.rows.len() != inputs.rows.len() {
+                return Err(RunError::Usage(format!(
+                    "--tool {} has {} rows, --inputs {} has {}: one tool row per step",
+                    p.display(),
+                    t.rows.len(),
+                    inputs_path.display(),
+                    inputs.rows.len()
+                )));
+            }
+            Some(t)
+        }
+        None => None,
+    };
+    let tool_count = tools.as_ref().map_or(0, |t| t.rows[0].len());
     let mut est = Estimator::new(&model)?;
     est.set_innovation_gate(Some(args.gate));
     let q = model.measurements.len();
@@ -154,7 +187,13 @@ fn run(args: &Args) -> Result<(), RunError> {
         source,
     };
     let mut out = AtomicFile::create(out_path)?;
-    writeln!(out, "{}", table::estimates_header(&model)).map_err(write_err)?;
+    writeln!(
+        out,
+        "{}{}",
+        table::estimates_header(&model),
+        table::tool_header(tool_count)
+    )
+    .map_err(write_err)?;
     let mut staged = match &args.vtu {
         Some(dir) => Some(StagedDir::create_owning(dir, vtu::is_series_file_name)?),
         None => None,
@@ -188,7 +227,21 @@ fn run(args: &Args) -> Result<(), RunError> {
             .iter()
             .filter(|&&j| y[j as usize].is_some())
             .count();
-        est.step(row, y).map_err(step_err)?;
+        match &tools {
+            Some(t) => {
+                let i = (k - 1) as usize;
+                est.step_with_tools(&t.rows[i], row, y).map_err(|source| {
+                    let mut e = step_err(source);
+                    if let (RunError::Step { location, .. }, Some(p)) = (&mut e, &args.tool) {
+                        location.push_str(&format!(", {}:{}", p.display(), t.lines[i]));
+                    }
+                    e
+                })?;
+            }
+            None => {
+                est.step(row, y).map_err(step_err)?;
+            }
+        }
         offered += active as u64;
         let status = est.tier_status();
         if status.envelope.outside() {
@@ -206,6 +259,13 @@ fn run(args: &Args) -> Result<(), RunError> {
         let mut text = format!("{},{}", k, est.time());
         for v in u.iter().chain(&sd) {
             text.push_str(&format!(",{v:e}"));
+        }
+        for t in 0..tool_count {
+            let c = est.tool_contact(t).copied().unwrap_or_default();
+            text.push_str(&format!(
+                ",{:e},{:e},{:e},{},{:?}",
+                c.force[0], c.force[1], c.force[2], c.active, c.status
+            ));
         }
         writeln!(out, "{text}").map_err(write_err)?;
         if let Some(dir) = staged.as_mut() {

@@ -308,3 +308,93 @@ pub fn estimates_header(model: &Model) -> String {
     }
     h
 }
+
+/// A tool path: the centre of each tool (1 or 2) for steps 1, 2, …, n (m, the model's frame).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ToolTable {
+    /// `rows[k − 1][t]` = tool t's centre at step k.
+    pub rows: Vec<Vec<[f64; 3]>>,
+    /// `lines[k − 1]` = 1-based line of step k's row in the file.
+    pub lines: Vec<usize>,
+}
+
+/// Parses the text of a tool file (`path` only names it in errors): first column `step` or
+/// `t`, then `tool0.x,tool0.y,tool0.z` and optionally `tool1.x,tool1.y,tool1.z` (any order).
+/// Rows must be steps 1, 2, 3, … in order, every value given.
+pub fn parse_tools(path: &Path, text: &[u8], model: &Model) -> Result<ToolTable, RunError> {
+    tools_from(Records::parse(path, text)?, model)
+}
+
+/// Reads `tool.csv` (see [`parse_tools`]).
+pub fn read_tools(path: &Path, model: &Model) -> Result<ToolTable, RunError> {
+    tools_from(Records::read(path)?, model)
+}
+
+fn tools_from(records: Records, model: &Model) -> Result<ToolTable, RunError> {
+    let labels: Vec<String> = (0..crokf_runtime::MAX_TOOLS)
+        .flat_map(|t| ["x", "y", "z"].map(|c| format!("tool{t}.{c}")))
+        .collect();
+    let (by_time, cols) = records.header(&labels, false)?;
+    let head_line = records.rows.first().map_or(1, |(l, _)| *l);
+    let mut tools = 0;
+    for t in 0..crokf_runtime::MAX_TOOLS {
+        let given = (0..3).filter(|&c| cols[3 * t + c].is_some()).count();
+        match given {
+            0 => {}
+            3 if t == tools => tools += 1,
+            3 => {
+                return Err(records.err(
+                    head_line,
+                    format!("tool{t} without tool{}: number the tools from 0", t - 1),
+                ))
+            }
+            _ => {
+                let missing = (0..3)
+                    .find(|&c| cols[3 * t + c].is_none())
+                    .map_or(String::new(), |c| labels[3 * t + c].clone());
+                return Err(records.err(head_line, format!("missing column `{missing}`")));
+            }
+        }
+    }
+    if tools == 0 {
+        return Err(records.err(head_line, "missing columns `tool0.x`, `tool0.y`, `tool0.z`"));
+    }
+    records.check_widths()?;
+    let mut rows = Vec::with_capacity(records.rows.len().saturating_sub(1));
+    let mut lines = Vec::with_capacity(rows.capacity());
+    for (line, cells) in &records.rows[1..] {
+        let k = records.step_of(*line, &cells[0], by_time, model.dt)?;
+        let expected = rows.len() as u64 + 1;
+        if k != expected {
+            return Err(records.err(
+                *line,
+                format!("step {k}, expected {expected} (rows must be steps 1, 2, 3, … in order)"),
+            ));
+        }
+        let mut row = Vec::with_capacity(tools);
+        for t in 0..tools {
+            let mut centre = [0.0; 3];
+            for (c, v) in centre.iter_mut().enumerate() {
+                let label = &labels[3 * t + c];
+                *v = records
+                    .value(*line, cells, cols[3 * t + c].unwrap_or(0), label)?
+                    .ok_or_else(|| records.err(*line, format!("`{label}` is empty")))?;
+            }
+            row.push(centre);
+        }
+        rows.push(row);
+        lines.push(*line);
+    }
+    if rows.is_empty() {
+        return Err(records.err(head_line, "header only: no tool rows"));
+    }
+    Ok(ToolTable { rows, lines })
+}
+
+/// The tool columns `estimates.csv` gains with `--tool`: per tool `toolT.fx,toolT.fy,toolT.fz`
+/// (N, the body on the tool), `toolT.nodes` (pressing nodes) and `toolT.status`.
+pub fn tool_header(tools: usize) -> String {
+    (0..tools)
+        .map(|t| format!(",tool{t}.fx,tool{t}.fy,tool{t}.fz,tool{t}.nodes,tool{t}.status"))
+        .collect()
+}

@@ -1,0 +1,144 @@
+//! `crokf-run --tool`: a tool path replayed through a model with a contact region (the
+//! meniscus's `scene_touch.toml`), its forces in the estimates equal to the library's, and the
+//! tool file's errors named by file and line.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use crokf_compile::compile::{compile, CompileOptions};
+use crokf_runtime::Estimator;
+
+fn scratch(tag: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("crokf-run-tool-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temporary directory");
+    dir
+}
+
+fn run(args: &[&Path]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_crokf-run"))
+        .args(args)
+        .output()
+        .expect("crokf-run runs")
+}
+
+/// The touch model, an all-zero inputs file of `steps` rows and a tool path pressing 0.8 mm
+/// along the normal of the region's first node.
+fn setup(dir: &Path, steps: usize) -> (crokf_formats::Model, Vec<[f64; 3]>) {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/meniscus/scene_touch.toml");
+    let compiled = compile(&scene, &CompileOptions::default()).expect("compile");
+    std::fs::write(dir.join("touch.crokf"), &compiled.bytes).expect("write model");
+    let model = compiled.model;
+    let labels = model.input_labels();
+    let mut inputs = format!("step,{}\n", labels.join(","));
+    for k in 1..=steps {
+        inputs.push_str(&format!("{k}{}\n", ",0".repeat(labels.len())));
+    }
+    std::fs::write(dir.join("inputs.csv"), inputs).expect("write inputs");
+    let region = model.contact.as_ref().expect("contact region");
+    let p = &region.rest_positions.data[0..3];
+    let n = &region.normals.data[0..3];
+    let radius = region.tool_radius;
+    let path: Vec<[f64; 3]> = (1..=steps)
+        .map(|k| {
+            let d = 8e-4 * k as f64 / steps as f64;
+            [0, 1, 2].map(|i| p[i] + n[i] * (radius - d))
+        })
+        .collect();
+    let mut tool = String::from("step,tool0.x,tool0.y,tool0.z\n");
+    for (k, c) in path.iter().enumerate() {
+        tool.push_str(&format!("{},{:e},{:e},{:e}\n", k + 1, c[0], c[1], c[2]));
+    }
+    std::fs::write(dir.join("tool.csv"), tool).expect("write tool");
+    (model, path)
+}
+
+#[test]
+fn a_tool_path_gives_the_librarys_forces() {
+    let dir = scratch("forces");
+    let steps = 40;
+    let (model, path) = setup(&dir, steps);
+    let out = run(&[
+        &dir.join("touch.crokf"),
+        Path::new("--inputs"),
+        &dir.join("inputs.csv"),
+        Path::new("--tool"),
+        &dir.join("tool.csv"),
+        Path::new("--out"),
+        &dir.join("estimates.csv"),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(dir.join("estimates.csv")).expect("estimates");
+    std::fs::remove_dir_all(&dir).ok();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let fx = header
+        .iter()
+        .position(|&h| h == "tool0.fx")
+        .expect("tool0.fx column");
+    assert_eq!(header[fx + 3], "tool0.nodes");
+    assert_eq!(header[fx + 4], "tool0.status");
+    let mut est = Estimator::new(&model).expect("estimator");
+    let inputs = vec![0.0; model.inputs.len()];
+    let none = vec![None; model.measurements.len()];
+    let mut touching = 0;
+    for c in &path {
+        est.step_with_tools(&[*c], &inputs, &none).expect("step");
+        let t = est.tool_contact(0).expect("tool");
+        let cells: Vec<&str> = lines.next().expect("a row per step").split(',').collect();
+        for k in 0..3 {
+            let v: f64 = cells[fx + k].parse().expect("number");
+            assert_eq!(v.to_bits(), t.force[k].to_bits(), "{cells:?}");
+        }
+        assert_eq!(cells[fx + 3], t.active.to_string());
+        assert_eq!(cells[fx + 4], format!("{:?}", t.status));
+        touching += usize::from(t.active > 0);
+    }
+    assert!(touching > steps / 2, "the path presses ({touching} steps)");
+}
+
+#[test]
+fn bad_tool_files_are_refused_naming_file_and_line() {
+    let dir = scratch("bad");
+    let (_, _) = setup(&dir, 5);
+    let tool = dir.join("bad.csv");
+    let cases: [(&str, &str); 5] = [
+        ("step,tool0.x,tool0.y\n1,0,0\n", "missing column `tool0.z`"),
+        ("step,tool0.x,tool0.y,tool0.z\n1,0,0,nan\n", "bad.csv:2"),
+        (
+            "step,tool0.x,tool0.y,tool0.z,extra\n1,0,0,0,0\n",
+            "unknown column `extra`",
+        ),
+        (
+            "step,tool0.x,tool0.y,tool0.z\n1,0,0,0\n",
+            "one tool row per step",
+        ),
+        (
+            "step,tool1.x,tool1.y,tool1.z\n1,0,0,0\n",
+            "number the tools from 0",
+        ),
+    ];
+    for (text, expected) in cases {
+        std::fs::write(&tool, text).expect("write");
+        let out = run(&[
+            &dir.join("touch.crokf"),
+            Path::new("--inputs"),
+            &dir.join("inputs.csv"),
+            Path::new("--tool"),
+            &tool,
+            Path::new("--out"),
+            &dir.join("estimates.csv"),
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{text:?} accepted");
+        assert!(err.contains(expected), "{text:?}: {err}");
+        assert!(
+            !dir.join("estimates.csv").exists(),
+            "nothing written for {text:?}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
