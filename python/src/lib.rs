@@ -873,6 +873,78 @@ impl Estimator {
         self.inner.step(&u, &y).map_err(runtime_err)
     }
 
+    /// One step with tools on the model's contact region (docs/contact.md): `tools` the
+    /// centres of 1 or 2 spherical tools this step, (3,) or (n, 3), m, the model's frame; then
+    /// as `step`. All or nothing: a refused step (a non-finite tool, more than two tools, a
+    /// model without a contact region) raises `EstimatorError` and changes nothing. Read the
+    /// result with `tool_contact`.
+    #[pyo3(signature = (tools, inputs=None, measurements=None))]
+    fn step_with_tools(
+        &mut self,
+        tools: &Bound<'_, PyAny>,
+        inputs: Option<&Bound<'_, PyAny>>,
+        measurements: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<usize> {
+        let a: PyArrayLike1<f64, AllowTypeChange> = real_array(tools, "tools", false)?
+            .call_method1("reshape", (-1,))?
+            .extract()?;
+        let flat = a.as_array().to_vec();
+        if flat.len() % 3 != 0 || flat.is_empty() {
+            return Err(input_error(format!(
+                "tools: {} values, expected 3 per tool ((3,) or (n, 3))",
+                flat.len()
+            )));
+        }
+        let centres: Vec<[f64; 3]> = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let u = match inputs {
+            Some(obj) => input_vector(self, obj)?,
+            None => vec![0.0; self.model.inputs.len()],
+        };
+        let y = match measurements {
+            Some(obj) => measurement_vector(self, obj)?,
+            None => vec![None; self.model.measurements.len()],
+        };
+        self.inner
+            .step_with_tools(&centres, &u, &y)
+            .map_err(runtime_err)
+    }
+
+    /// The last contact step's result for tool `tool` (0-based), or None without one: a dict
+    /// with `force` (3,) N (the body on the tool), `torque` (3,) N·m about its centre,
+    /// `stiffness` (3, 3) N/m, `force_std` (3,) N (with `contact_force_std` on), `depth` m,
+    /// `nodes` (pressing region nodes) and `status` ("Free", "Touching", "Clamped",
+    /// "Overflow", "NotConverged").
+    #[pyo3(signature = (tool=0))]
+    fn tool_contact<'py>(
+        &self,
+        py: Python<'py>,
+        tool: usize,
+    ) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(t) = self.inner.tool_contact(tool) else {
+            return Ok(None);
+        };
+        let d = PyDict::new(py);
+        d.set_item("force", Array1::from(t.force.to_vec()).into_pyarray(py))?;
+        d.set_item("torque", Array1::from(t.torque.to_vec()).into_pyarray(py))?;
+        let k = Array2::from_shape_vec((3, 3), t.stiffness.to_vec())
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        d.set_item("stiffness", k.into_pyarray(py))?;
+        d.set_item(
+            "force_std",
+            Array1::from(t.force_std.to_vec()).into_pyarray(py),
+        )?;
+        d.set_item("depth", t.depth)?;
+        d.set_item("nodes", t.active)?;
+        d.set_item("status", format!("{:?}", t.status))?;
+        Ok(Some(d))
+    }
+
+    /// Whether the contact step also computes each tool force's σ (off by default).
+    #[setter]
+    fn set_contact_force_std(&mut self, on: bool) {
+        self.inner.set_contact_force_std(on);
+    }
+
     /// Runs a whole history in one call (no Python loop; the GIL is released).
     ///
     /// `inputs`: (T, m) world-frame inputs per step. `measurements`: (T, q) with NaN (or None)
