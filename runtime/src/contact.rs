@@ -125,10 +125,11 @@ pub(crate) struct PreparedContact {
     input_norm: Vec<f64>,
     /// θ³.
     theta_cubed: f64,
-    /// Per node: the largest Frobenius norm of its 3×r displacement block, and of its θ-point
-    /// block (for the search's displacement bound).
+    /// Over the nodes: the largest Frobenius norm of a 3×r block C_i, of a block W_i and of a
+    /// block E_i (the search's displacement bound).
     row_norm_max: f64,
     theta_norm_max: f64,
+    input_norm_max: f64,
     /// The largest Frobenius norm of a θ-point residual block D̂_ij, m/N.
     residual_norm_max: f64,
     /// Residual blocks: per node i, its neighbours j with the block D_ij (row-major 3×3),
@@ -263,6 +264,18 @@ impl PreparedContact {
                     .sqrt()
             })
             .collect();
+        let input_norm: Vec<f64> = {
+            let m = c.theta_input_rows.cols as usize;
+            (0..n)
+                .map(|i| {
+                    c.theta_input_rows.data[3 * i * m..3 * (i + 1) * m]
+                        .iter()
+                        .map(|v| v * v)
+                        .sum::<f64>()
+                        .sqrt()
+                })
+                .collect()
+        };
         let row_norm_max = block_norm_max(&rows);
         let theta_norm_max = block_norm_max(&c.theta_rows.data);
         let mut lists: Vec<Vec<(u32, Residual)>> = vec![Vec::new(); n];
@@ -312,18 +325,8 @@ impl PreparedContact {
                         .sqrt()
                 })
                 .collect(),
-            input_norm: {
-                let m = c.theta_input_rows.cols as usize;
-                (0..n)
-                    .map(|i| {
-                        c.theta_input_rows.data[3 * i * m..3 * (i + 1) * m]
-                            .iter()
-                            .map(|v| v * v)
-                            .sum::<f64>()
-                            .sqrt()
-                    })
-                    .collect()
-            },
+            input_norm_max: input_norm.iter().copied().fold(0.0, f64::max),
+            input_norm,
             theta_rows,
             row_norm,
             theta_input_rows: c.theta_input_rows.data.clone(),
@@ -554,9 +557,10 @@ impl ContactWork {
     }
 
     /// Solves the contact of `tools` on the free prediction `x` (r, the whole state, with the
-    /// deterministic inputs `inputs` as G took them) from the state before the step ([`ContactWork::previous`], set by the caller), and leaves the state increment in
+    /// deterministic inputs `inputs` as G took them) from the state before the step
+    /// ([`ContactWork::previous`], set by the caller), and leaves the state increment in
     /// [`ContactWork::delta`] and the results in `tools`, `points`. The gap is enforced at the
-    /// step's θ-point (free position p̂ = X + θ³ C x − W x_prev), with the normals taken at the
+    /// step's θ-point (free position p̂ = X + θ³ C x − W x_prev + E u), with the normals taken at the
     /// solved positions (a fixed point over at most [`MAX_NORMAL_PASSES`] solves). Changes
     /// nothing outside the scratch; returns false when the result is not finite (the caller
     /// then refuses the step).
@@ -578,7 +582,8 @@ impl ContactWork {
         let radius = pc.radius;
         let th3 = pc.theta_cubed;
         let bound = th3 * pc.row_norm_max * dot(x, x).sqrt()
-            + pc.theta_norm_max * dot(previous, previous).sqrt();
+            + pc.theta_norm_max * dot(previous, previous).sqrt()
+            + pc.input_norm_max * dot(inputs, inputs).sqrt();
         let reach = radius * (1.0 + CANDIDATE_MARGIN) + bound;
         // 1. The region nodes near each tool at the θ-point of the free step, then the
         // contact problem's candidates: the penetrating ones and last step's pressing ones.
