@@ -86,13 +86,21 @@ fn main() {
     let n = region.len();
     let rest = &region.rest_positions.data;
     let centroid = [0, 1, 2].map(|c| (0..n).map(|i| rest[3 * i + c]).sum::<f64>() / n as f64);
-    let d2 = |i: usize| (0..3).map(|c| (rest[3 * i + c] - centroid[c]).powi(2)).sum::<f64>();
+    let d2 = |i: usize| {
+        (0..3)
+            .map(|c| (rest[3 * i + c] - centroid[c]).powi(2))
+            .sum::<f64>()
+    };
     let node = (0..n).min_by(|&a, &b| d2(a).total_cmp(&d2(b))).unwrap_or(0);
     let p = [0, 1, 2].map(|c| rest[3 * node + c]);
     let nrm = [0, 1, 2].map(|c| region.normals.data[3 * node + c]);
     let radius = region.tool_radius;
     let tangent = {
-        let t0 = if nrm[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+        let t0 = if nrm[0].abs() < 0.9 {
+            [1.0, 0.0, 0.0]
+        } else {
+            [0.0, 1.0, 0.0]
+        };
         let d = (0..3).map(|c| t0[c] * nrm[c]).sum::<f64>();
         let t = [0, 1, 2].map(|c| t0[c] - d * nrm[c]);
         let l = (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
