@@ -189,6 +189,47 @@ mod tests {
         (log_scale / f64::powi(2.0, squarings)).exp()
     }
 
+    /// A contact held by its force over the step (docs/contact.md): one mode pressed by a
+    /// bilateral constraint that holds its displacement at 0. Enforced on the end-of-step
+    /// displacement, the closed loop's spectral radius is 2 + √3 ≈ 3.73 (a period-2
+    /// oscillation that grows), whatever the mode; enforced at the θ-point Û it is about 0.78.
+    #[test]
+    fn contact_at_the_theta_point_is_stable_and_at_the_end_of_the_step_is_not() {
+        let w = WilsonTheta {
+            dt: 1e-3,
+            theta: 1.4,
+        };
+        for omega in [1.0, 1e2, 1e3, 1e4, 1e5] {
+            for zeta in [0.0, 0.2] {
+                let (k, c) = (omega * omega, 2.0 * zeta * omega);
+                let (phi, gamma) = w.modal_block(k, c);
+                let j = k + w.mass_coefficient() + w.damping_coefficient() * c;
+                let h: [f64; 3] = std::array::from_fn(|i| {
+                    let mut e = [0.0; 3];
+                    e[i] = 1.0;
+                    (w.mass_rhs(e[0], e[1], e[2]) + c * w.damping_rhs(e[0], e[1], e[2])) / j
+                });
+                // Û = h·s + f/j = 0: f = −j h·s.
+                let theta = std::array::from_fn(|r| {
+                    std::array::from_fn(|col| phi[r][col] - gamma[r] * j * h[col])
+                });
+                // U' = Φ₀·s + Γ₀ f = 0: f = −Φ₀·s / Γ₀.
+                let end = std::array::from_fn(|r| {
+                    std::array::from_fn(|col| phi[r][col] - gamma[r] * phi[0][col] / gamma[0])
+                });
+                let (rho_theta, rho_end) = (spectral_radius_3x3(theta), spectral_radius_3x3(end));
+                assert!(
+                    rho_theta < 0.8,
+                    "ω {omega}, ζ {zeta}: θ-point ρ = {rho_theta}"
+                );
+                assert!(
+                    rho_end > 3.7,
+                    "ω {omega}, ζ {zeta}: end-of-step ρ = {rho_end}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn static_load_converges_to_static_deflection() {
         let w = WilsonTheta {
