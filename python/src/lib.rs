@@ -722,6 +722,23 @@ struct Estimator {
     channel_index: HashMap<String, usize>,
 }
 
+/// A step's inputs and measurements (`None`: zero inputs, no measurement).
+fn step_vectors(
+    est: &Estimator,
+    inputs: Option<&Bound<'_, PyAny>>,
+    measurements: Option<&Bound<'_, PyAny>>,
+) -> PyResult<(Vec<f64>, Vec<Option<f64>>)> {
+    let u = match inputs {
+        Some(obj) => input_vector(est, obj)?,
+        None => vec![0.0; est.model.inputs.len()],
+    };
+    let y = match measurements {
+        Some(obj) => measurement_vector(est, obj)?,
+        None => vec![None; est.model.measurements.len()],
+    };
+    Ok((u, y))
+}
+
 fn input_vector(est: &Estimator, obj: &Bound<'_, PyAny>) -> PyResult<Vec<f64>> {
     let m = est.model.inputs.len();
     if obj.is_none() {
@@ -862,14 +879,7 @@ impl Estimator {
         inputs: Option<&Bound<'_, PyAny>>,
         measurements: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<usize> {
-        let u = match inputs {
-            Some(obj) => input_vector(self, obj)?,
-            None => vec![0.0; self.model.inputs.len()],
-        };
-        let y = match measurements {
-            Some(obj) => measurement_vector(self, obj)?,
-            None => vec![None; self.model.measurements.len()],
-        };
+        let (u, y) = step_vectors(self, inputs, measurements)?;
         self.inner.step(&u, &y).map_err(runtime_err)
     }
 
@@ -896,14 +906,7 @@ impl Estimator {
             )));
         }
         let centres: Vec<[f64; 3]> = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let u = match inputs {
-            Some(obj) => input_vector(self, obj)?,
-            None => vec![0.0; self.model.inputs.len()],
-        };
-        let y = match measurements {
-            Some(obj) => measurement_vector(self, obj)?,
-            None => vec![None; self.model.measurements.len()],
-        };
+        let (u, y) = step_vectors(self, inputs, measurements)?;
         self.inner
             .step_with_tools(&centres, &u, &y)
             .map_err(runtime_err)

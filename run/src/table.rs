@@ -159,6 +159,25 @@ impl Records {
         Ok((by_time, cols))
     }
 
+    /// The row's step must be `expected` (rows are steps 1, 2, 3, … in order).
+    fn expect_step(
+        &self,
+        line: usize,
+        cell: &str,
+        by_time: bool,
+        dt: f64,
+        expected: u64,
+    ) -> Result<(), RunError> {
+        let k = self.step_of(line, cell, by_time, dt)?;
+        if k != expected {
+            return Err(self.err(
+                line,
+                format!("step {k}, expected {expected} (rows must be steps 1, 2, 3, … in order)"),
+            ));
+        }
+        Ok(())
+    }
+
     fn step_of(&self, line: usize, cell: &str, by_time: bool, dt: f64) -> Result<u64, RunError> {
         if by_time {
             let t: f64 = cell
@@ -222,14 +241,7 @@ fn inputs_from(records: Records, model: &Model) -> Result<InputTable, RunError> 
     let mut rows = Vec::with_capacity(records.rows.len().saturating_sub(1));
     let mut lines = Vec::with_capacity(rows.capacity());
     for (line, cells) in &records.rows[1..] {
-        let k = records.step_of(*line, &cells[0], by_time, model.dt)?;
-        let expected = rows.len() as u64 + 1;
-        if k != expected {
-            return Err(records.err(
-                *line,
-                format!("step {k}, expected {expected} (rows must be steps 1, 2, 3, … in order)"),
-            ));
-        }
+        records.expect_step(*line, &cells[0], by_time, model.dt, rows.len() as u64 + 1)?;
         let mut row = Vec::with_capacity(labels.len());
         for (label, c) in labels.iter().zip(&cols) {
             let v = records.value(*line, cells, c.unwrap_or(0), label)?;
@@ -363,14 +375,7 @@ fn tools_from(records: Records, model: &Model) -> Result<ToolTable, RunError> {
     let mut rows = Vec::with_capacity(records.rows.len().saturating_sub(1));
     let mut lines = Vec::with_capacity(rows.capacity());
     for (line, cells) in &records.rows[1..] {
-        let k = records.step_of(*line, &cells[0], by_time, model.dt)?;
-        let expected = rows.len() as u64 + 1;
-        if k != expected {
-            return Err(records.err(
-                *line,
-                format!("step {k}, expected {expected} (rows must be steps 1, 2, 3, … in order)"),
-            ));
-        }
+        records.expect_step(*line, &cells[0], by_time, model.dt, rows.len() as u64 + 1)?;
         let mut row = Vec::with_capacity(tools);
         for t in 0..tools {
             let mut centre = [0.0; 3];

@@ -99,6 +99,36 @@ unsafe fn slice_mut<'a>(p: *mut f64, n: usize, what: &str) -> Result<&'a mut [f6
     }
 }
 
+/// The measurements of a step as `crokf_step` takes them: `y` NULL for none, else `n` = q
+/// values with `present[i] == 0` marking value i missing (`present` NULL: all present).
+unsafe fn measurement_getter<'a>(
+    est: &Estimator,
+    y: *const f64,
+    present: *const u8,
+    n: usize,
+) -> Result<impl Fn(usize) -> Option<f64> + 'a, String> {
+    let values = if y.is_null() {
+        None
+    } else {
+        let q = est.model().measurements.len();
+        if n != q {
+            return Err(format!("measurements: expected length {q}, got {n}"));
+        }
+        let ys = slice(y, n, "measurements")?;
+        let present = if present.is_null() {
+            None
+        } else {
+            Some(slice(present, n, "present")?)
+        };
+        Some((ys, present))
+    };
+    Ok(move |i: usize| match values {
+        None => None,
+        Some((_, Some(p))) if p[i] == 0 => None,
+        Some((ys, _)) => Some(ys[i]),
+    })
+}
+
 /// The message of the last failed call on this thread ("" if none). Valid until the next
 /// failing call on the same thread.
 #[no_mangle]
@@ -344,25 +374,10 @@ pub unsafe extern "C" fn crokf_step(
     guard(-1, || {
         let est = &mut est_mut(e)?.est;
         let u = slice(inputs, n_inputs, "inputs")?;
-        let result = if y.is_null() {
-            est.step_with(u, |_| None)
-        } else {
-            let q = est.model().measurements.len();
-            if n != q {
-                return Err(format!("measurements: expected length {q}, got {n}"));
-            }
-            let ys = slice(y, n, "measurements")?;
-            let present = if present.is_null() {
-                None
-            } else {
-                Some(slice(present, n, "present")?)
-            };
-            est.step_with(u, |i| match present {
-                Some(p) if p[i] == 0 => None,
-                _ => Some(ys[i]),
-            })
-        };
-        result.map(|k| k as c_int).map_err(|e| e.to_string())
+        let get = measurement_getter(est, y, present, n)?;
+        est.step_with(u, get)
+            .map(|k| k as c_int)
+            .map_err(|e| e.to_string())
     })
 }
 
@@ -686,26 +701,10 @@ pub unsafe extern "C" fn crokf_step_with_tools(
             c.copy_from_slice(&flat[3 * t..3 * t + 3]);
         }
         let u = slice(inputs, n_inputs, "inputs")?;
-        let centres = &centres[..n_tools];
-        let result = if y.is_null() {
-            est.step_with_tools_with(centres, u, |_| None)
-        } else {
-            let q = est.model().measurements.len();
-            if n != q {
-                return Err(format!("measurements: expected length {q}, got {n}"));
-            }
-            let ys = slice(y, n, "measurements")?;
-            let present = if present.is_null() {
-                None
-            } else {
-                Some(slice(present, n, "present")?)
-            };
-            est.step_with_tools_with(centres, u, |i| match present {
-                Some(p) if p[i] == 0 => None,
-                _ => Some(ys[i]),
-            })
-        };
-        result.map(|k| k as c_int).map_err(|e| e.to_string())
+        let get = measurement_getter(est, y, present, n)?;
+        est.step_with_tools_with(&centres[..n_tools], u, get)
+            .map(|k| k as c_int)
+            .map_err(|e| e.to_string())
     })
 }
 

@@ -125,9 +125,8 @@ pub(crate) struct PreparedContact {
     input_norm: Vec<f64>,
     /// θ³.
     theta_cubed: f64,
-    /// Over the nodes: the largest Frobenius norm of a 3×r block C_i, of a block W_i and of a
-    /// block E_i (the search's displacement bound).
-    row_norm_max: f64,
+    /// Over the nodes: the largest of `theta_norm` and of `input_norm` (the search's
+    /// displacement bound).
     theta_norm_max: f64,
     input_norm_max: f64,
     /// The largest Frobenius norm of a θ-point residual block D̂_ij, m/N.
@@ -233,17 +232,6 @@ impl PreparedContact {
         let n = c.len();
         let r = c.displacement_rows.cols as usize;
         let rows = c.displacement_rows.data.clone();
-        let block_norm_max = |m: &[f64]| {
-            (0..n)
-                .map(|i| {
-                    m[3 * i * r..3 * (i + 1) * r]
-                        .iter()
-                        .map(|v| v * v)
-                        .sum::<f64>()
-                        .sqrt()
-                })
-                .fold(0.0, f64::max)
-        };
         let theta_rows: Vec<f64> = (0..3 * n)
             .flat_map(|row| {
                 let c_row = &rows[row * r..(row + 1) * r];
@@ -255,29 +243,9 @@ impl PreparedContact {
                     .collect::<Vec<_>>()
             })
             .collect();
-        let row_norm: Vec<f64> = (0..n)
-            .map(|i| {
-                rows[3 * i * r..3 * (i + 1) * r]
-                    .iter()
-                    .map(|v| v * v)
-                    .sum::<f64>()
-                    .sqrt()
-            })
-            .collect();
-        let input_norm: Vec<f64> = {
-            let m = c.theta_input_rows.cols as usize;
-            (0..n)
-                .map(|i| {
-                    c.theta_input_rows.data[3 * i * m..3 * (i + 1) * m]
-                        .iter()
-                        .map(|v| v * v)
-                        .sum::<f64>()
-                        .sqrt()
-                })
-                .collect()
-        };
-        let row_norm_max = block_norm_max(&rows);
-        let theta_norm_max = block_norm_max(&c.theta_rows.data);
+        let row_norm = block_norms(&rows, n);
+        let theta_norm = block_norms(&theta_rows, n);
+        let input_norm = block_norms(&c.theta_input_rows.data, n);
         let mut lists: Vec<Vec<(u32, Residual)>> = vec![Vec::new(); n];
         let block = |v: &[f64]| -> [f64; 9] { std::array::from_fn(|m| v[m]) };
         for (k, p) in c.residual_pairs.iter().enumerate() {
@@ -316,23 +284,14 @@ impl PreparedContact {
             normals: c.normals.data.clone(),
             rows,
             input_rows: c.input_rows.data.clone(),
-            theta_norm: (0..n)
-                .map(|i| {
-                    theta_rows[6 * i * r..6 * (i + 1) * r]
-                        .iter()
-                        .map(|v| v * v)
-                        .sum::<f64>()
-                        .sqrt()
-                })
-                .collect(),
+            theta_norm_max: theta_norm.iter().copied().fold(0.0, f64::max),
+            theta_norm,
             input_norm_max: input_norm.iter().copied().fold(0.0, f64::max),
             input_norm,
             theta_rows,
             row_norm,
             theta_input_rows: c.theta_input_rows.data.clone(),
             theta_cubed: theta * theta * theta,
-            row_norm_max,
-            theta_norm_max,
             residual_norm_max: c
                 .theta_residual_blocks
                 .chunks_exact(9)
@@ -410,9 +369,8 @@ pub(crate) struct ContactWork {
     /// The region nodes near the tools this step: (tool, node, free θ-point position, free
     /// gap), at most n per tool.
     visited: Vec<(usize, usize, [f64; 3], f64)>,
-    /// The state before this step's prediction (r).
-    pub previous: Vec<f64>,
-    /// [x⁺; x] of this step (2r), of the last step, and the last step's inputs (m).
+    /// [x⁺; x] of this step (2r: the prediction, then the state before it, set by
+    /// [`ContactWork::set_previous`]), of the last step, and the last step's inputs (m).
     joint: Vec<f64>,
     last_joint: Vec<f64>,
     last_inputs: Vec<f64>,
@@ -481,7 +439,6 @@ impl ContactWork {
             position: vec![[0.0; 3]; m],
             next_normal: vec![[0.0; 3]; m],
             visited: vec![(0, 0, [0.0; 3], 0.0); n * MAX_TOOLS],
-            previous: vec![0.0; r],
             joint: vec![0.0; 2 * r],
             last_joint: vec![0.0; 2 * r],
             last_inputs: vec![0.0; inputs],
@@ -518,6 +475,11 @@ impl ContactWork {
                 point_count: 0,
             },
         }
+    }
+
+    /// The state before this step's prediction (r), kept for the θ-point.
+    pub(crate) fn set_previous(&mut self, x: &[f64]) {
+        self.joint[self.r..].copy_from_slice(x);
     }
 
     /// Keeps the results and the warm start for [`ContactWork::restore`] (no allocation).
@@ -558,7 +520,7 @@ impl ContactWork {
 
     /// Solves the contact of `tools` on the free prediction `x` (r, the whole state, with the
     /// deterministic inputs `inputs` as G took them) from the state before the step
-    /// ([`ContactWork::previous`], set by the caller), and leaves the state increment in
+    /// ([`ContactWork::set_previous`], by the caller), and leaves the state increment in
     /// [`ContactWork::delta`] and the results in `tools`, `points`. The gap is enforced at the
     /// step's θ-point (free position p̂ = X + θ³ C x − W x_prev + E u), with the normals taken at the
     /// solved positions (a fixed point over at most [`MAX_NORMAL_PASSES`] solves). Changes
@@ -577,12 +539,9 @@ impl ContactWork {
             return false;
         }
         self.joint[..r].copy_from_slice(x);
-        self.joint[r..].copy_from_slice(&self.previous);
-        let previous = &self.previous;
         let radius = pc.radius;
         let th3 = pc.theta_cubed;
-        let bound = th3 * pc.row_norm_max * dot(x, x).sqrt()
-            + pc.theta_norm_max * dot(previous, previous).sqrt()
+        let bound = pc.theta_norm_max * dot(&self.joint, &self.joint).sqrt()
             + pc.input_norm_max * dot(inputs, inputs).sqrt();
         let reach = radius * (1.0 + CANDIDATE_MARGIN) + bound;
         // 1. The region nodes near each tool at the θ-point of the free step, then the
@@ -1142,6 +1101,21 @@ impl ContactWork {
             self.tools[t] = tc;
         }
     }
+}
+
+/// The Frobenius norm of each of the n blocks of 3 consecutive rows of `m` (row-major, 3n
+/// rows).
+fn block_norms(m: &[f64], n: usize) -> Vec<f64> {
+    let width = m.len() / (3 * n).max(1);
+    (0..n)
+        .map(|i| {
+            m[3 * i * width..3 * (i + 1) * width]
+                .iter()
+                .map(|v| v * v)
+                .sum::<f64>()
+                .sqrt()
+        })
+        .collect()
 }
 
 /// |p − c|.

@@ -515,7 +515,7 @@ impl Estimator {
         self.check_measurements(&get, step)?;
         let saved = (self.k, self.phase, self.cov, self.awaiting_update);
         if let Some(work) = self.contact.as_mut() {
-            work.previous.copy_from_slice(self.tier.state());
+            work.set_previous(self.tier.state());
         }
         self.predict_checked(inputs)?;
         let sh = &*self.shared;

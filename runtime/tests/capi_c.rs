@@ -30,28 +30,9 @@ fn c_example_matches_rust() {
     });
     let model_path = dir.join("model.crokf");
     std::fs::write(&model_path, crokf_formats::encode(&model)).unwrap();
-    let lib = find_cdylib();
-    let lib_dir = lib.parent().unwrap();
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     let exe = dir.join("example");
-    let cc = std::env::var("CC").unwrap_or_else(|_| "cc".into());
-    let out = Command::new(&cc)
-        .arg(manifest.join("examples/c/example.c"))
-        .arg("-I")
-        .arg(manifest.join("include"))
-        .arg("-Wall")
-        .arg("-Werror")
-        .arg(&lib)
-        .arg(format!("-Wl,-rpath,{}", lib_dir.display()))
-        .arg("-o")
-        .arg(&exe)
-        .output()
-        .expect("C compiler runs");
-    assert!(
-        out.status.success(),
-        "{cc} failed:\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    compile_c(&manifest.join("examples/c/example.c"), &exe);
     let run = Command::new(&exe)
         .arg(&model_path)
         .arg("6")

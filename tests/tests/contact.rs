@@ -11,6 +11,8 @@ use crokf_compile::timer::StageTimer;
 use crokf_runtime::{ContactStatus, Estimator, RuntimeError};
 use crokf_verify::contact::ContactReference;
 
+#[path = "../../runtime/tests/support/cdylib.rs"]
+mod cdylib;
 #[path = "../../runtime/tests/support/counting_alloc.rs"]
 mod counting_alloc;
 
@@ -44,6 +46,48 @@ fn relative(got: [f64; 3], want: [f64; 3]) -> f64 {
     norm([got[0] - want[0], got[1] - want[1], got[2] - want[2]]) / norm(want).max(1e-300)
 }
 
+/// A compiled scene with a contact region, its full-order model, and a step's empty inputs,
+/// measurements and full-order loads.
+struct Touch {
+    model: crokf_formats::Model,
+    full: FullOrder,
+    inputs: Vec<f64>,
+    none: Vec<Option<f64>>,
+    f_ext: Vec<f64>,
+}
+
+impl Touch {
+    fn new(scene: &Path) -> Self {
+        let model = compile(scene, &CompileOptions::default())
+            .expect("compile")
+            .model;
+        assert!(
+            model.contact.is_some(),
+            "the scene declares a contact region"
+        );
+        let full = FullOrder::build(scene, &mut StageTimer::default()).expect("full order");
+        Touch {
+            inputs: vec![0.0; model.inputs.len()],
+            none: vec![None; model.measurements.len()],
+            f_ext: vec![0.0; full.fem.dof_count()],
+            model,
+            full,
+        }
+    }
+
+    fn radius(&self) -> f64 {
+        self.model.contact.as_ref().map_or(0.0, |c| c.tool_radius)
+    }
+
+    /// The tool's centre pressed `d` (m) along the normal of the region node nearest `target`.
+    fn along_normal(&self, target: [f64; 3]) -> impl Fn(f64) -> [f64; 3] {
+        let region = self.model.contact.as_ref().expect("contact region");
+        let (_, p, n) = nearest_node(region, target);
+        let radius = region.tool_radius;
+        move |d: f64| [0, 1, 2].map(|i| p[i] + n[i] * (radius - d))
+    }
+}
+
 /// What a staged press measured.
 struct Press {
     /// Worst relative error of the reduced model's settled force against the full order's.
@@ -55,26 +99,21 @@ struct Press {
 }
 
 /// Force against depth: the sphere pressed along the normal of the region node nearest
-/// `target` (m) in stages to each of `depths` (m), each ramped over 50 steps and held 600 steps
-/// until the body settles; the reduced model's settled tool force against the full-order static
+/// `target` (m) in stages to each of `depths` (m), each ramped over 50 steps and held until
+/// the force changes by less than 10⁻⁹ of itself a step; the reduced model's settled tool force against the full-order static
 /// contact solve at the same tool position (the full-order FEM's K, its own solver).
 fn press(scene: &Path, target: [f64; 3], depths: &[f64]) -> Press {
-    let compiled = compile(scene, &CompileOptions::default()).expect("compile");
-    let model = compiled.model;
-    let region = model
-        .contact
-        .as_ref()
-        .expect("the scene declares a contact region");
-    let mut full_timer = StageTimer::default();
-    let full = FullOrder::build(scene, &mut full_timer).expect("full order");
-    let mut reference = ContactReference::quasi_static(&full).expect("reference");
-    let (_, p, n) = nearest_node(region, target);
-    let radius = region.tool_radius;
-    let mut est = Estimator::new(&model).expect("estimator");
-    let inputs = vec![0.0; model.inputs.len()];
-    let none = vec![None; model.measurements.len()];
-    let f_ext = vec![0.0; full.fem.dof_count()];
-    let at = |d: f64| [0, 1, 2].map(|i| p[i] + n[i] * (radius - d));
+    let touch = Touch::new(scene);
+    let Touch {
+        model,
+        full,
+        inputs,
+        none,
+        f_ext,
+    } = &touch;
+    let mut reference = ContactReference::quasi_static(full).expect("reference");
+    let mut est = Estimator::new(model).expect("estimator");
+    let at = touch.along_normal(target);
     let mut out = Press {
         worst: 0.0,
         most_nodes: 0,
@@ -89,8 +128,7 @@ fn press(scene: &Path, target: [f64; 3], depths: &[f64]) -> Press {
         let mut drift = f64::INFINITY;
         for k in 1..=50_000 {
             let dk = previous + (d - previous) * (k.min(50) as f64 / 50.0);
-            est.step_with_tools(&[at(dk)], &inputs, &none)
-                .expect("step");
+            est.step_with_tools(&[at(dk)], inputs, none).expect("step");
             let f = est.tool_contact(0).expect("tool").force;
             drift = relative(f, last);
             last = f;
@@ -102,7 +140,7 @@ fn press(scene: &Path, target: [f64; 3], depths: &[f64]) -> Press {
         previous = d;
         let tool = *est.tool_contact(0).expect("tool");
         let want = reference
-            .solve_static(at(d), &f_ext)
+            .solve_static(at(d), f_ext)
             .expect("static reference");
         let err = relative(tool.force, want.force);
         eprintln!(
@@ -145,22 +183,17 @@ fn press_in_time(
     ramp: usize,
     hold: usize,
 ) -> (f64, f64, usize) {
-    let compiled = compile(scene, &CompileOptions::default()).expect("compile");
-    let model = compiled.model;
-    let region = model
-        .contact
-        .as_ref()
-        .expect("the scene declares a contact region");
-    let mut full_timer = StageTimer::default();
-    let full = FullOrder::build(scene, &mut full_timer).expect("full order");
-    let mut reference = ContactReference::new(&full).expect("reference");
-    let (_, p, n) = nearest_node(region, target);
-    let radius = region.tool_radius;
-    let mut est = Estimator::new(&model).expect("estimator");
-    let inputs = vec![0.0; model.inputs.len()];
-    let none = vec![None; model.measurements.len()];
-    let f_ext = vec![0.0; full.fem.dof_count()];
-    let at = |d: f64| [0, 1, 2].map(|i| p[i] + n[i] * (radius - d));
+    let touch = Touch::new(scene);
+    let Touch {
+        model,
+        full,
+        inputs,
+        none,
+        f_ext,
+    } = &touch;
+    let mut reference = ContactReference::new(full).expect("reference");
+    let mut est = Estimator::new(model).expect("estimator");
+    let at = touch.along_normal(target);
     let steps = 2 * ramp + hold;
     let (mut worst, mut peak, mut most) = (0.0f64, 0.0f64, 0usize);
     for k in 1..=steps {
@@ -174,9 +207,9 @@ fn press_in_time(
             } else {
                 smooth((steps - k) as f64 / ramp as f64)
             };
-        est.step_with_tools(&[at(d)], &inputs, &none).expect("step");
+        est.step_with_tools(&[at(d)], inputs, none).expect("step");
         let got = est.tool_contact(0).expect("tool").force;
-        let want = reference.step(at(d), &f_ext).expect("reference step");
+        let want = reference.step(at(d), f_ext).expect("reference step");
         let diff = [0, 1, 2].map(|c| got[c] - want.force[c]);
         worst = worst.max(norm(diff));
         peak = peak.max(norm(want.force));
@@ -418,17 +451,18 @@ fn block_scene(tag: &str) -> (std::path::PathBuf, std::path::PathBuf) {
 #[test]
 fn a_sliding_sphere_gets_the_full_order_force_without_pops() {
     let (dir, scene) = block_scene("slide");
-    let compiled = compile(&scene, &CompileOptions::default()).expect("compile");
-    let model = compiled.model;
-    let mut full_timer = StageTimer::default();
-    let full = FullOrder::build(&scene, &mut full_timer).expect("full order");
+    let touch = Touch::new(&scene);
     std::fs::remove_dir_all(&dir).ok();
-    let mut reference = ContactReference::quasi_static(&full).expect("reference");
-    let radius = model.contact.as_ref().expect("region").tool_radius;
-    let mut est = Estimator::new(&model).expect("estimator");
-    let inputs = vec![0.0; model.inputs.len()];
-    let none = vec![None; model.measurements.len()];
-    let f_ext = vec![0.0; full.fem.dof_count()];
+    let Touch {
+        model,
+        full,
+        inputs,
+        none,
+        f_ext,
+    } = &touch;
+    let mut reference = ContactReference::quasi_static(full).expect("reference");
+    let radius = touch.radius();
+    let mut est = Estimator::new(model).expect("estimator");
     let depth = 4.0e-4;
     let top = 0.008;
     let at = |x: f64, d: f64| [x, 0.008, top + radius - d];
@@ -436,18 +470,18 @@ fn a_sliding_sphere_gets_the_full_order_force_without_pops() {
     // Press at x0 and let it settle.
     for k in 1..=2000 {
         let d = depth * (k as f64 / 200.0).min(1.0);
-        est.step_with_tools(&[at(x0, d)], &inputs, &none)
+        est.step_with_tools(&[at(x0, d)], inputs, none)
             .expect("press");
     }
     reference
-        .solve_static(at(x0, depth), &f_ext)
+        .solve_static(at(x0, depth), f_ext)
         .expect("reference press");
     let steps = 3000;
     let (mut worst, mut jump, mut most) = (0.0f64, 0.0f64, 0usize);
     let mut last = est.tool_contact(0).expect("tool").force;
     for k in 1..=steps {
         let x = x0 + (x1 - x0) * k as f64 / steps as f64;
-        est.step_with_tools(&[at(x, depth)], &inputs, &none)
+        est.step_with_tools(&[at(x, depth)], inputs, none)
             .expect("slide");
         let tool = *est.tool_contact(0).expect("tool");
         assert_eq!(tool.status, ContactStatus::Touching, "step {k}");
@@ -456,7 +490,7 @@ fn a_sliding_sphere_gets_the_full_order_force_without_pops() {
         most = most.max(tool.active);
         if k % 25 == 0 {
             let want = reference
-                .solve_static(at(x, depth), &f_ext)
+                .solve_static(at(x, depth), f_ext)
                 .expect("reference");
             worst = worst.max(relative(tool.force, want.force));
         }
@@ -512,25 +546,6 @@ fn contact_steps_do_not_allocate() {
     assert_eq!(allocations, 0, "the contact step allocated");
 }
 
-/// The shared library next to this test binary (`CROKF_RUNTIME_LIB` overrides).
-fn runtime_cdylib() -> std::path::PathBuf {
-    if let Some(p) = std::env::var_os("CROKF_RUNTIME_LIB") {
-        return p.into();
-    }
-    let name = format!(
-        "{}crokf_runtime{}",
-        std::env::consts::DLL_PREFIX,
-        std::env::consts::DLL_SUFFIX
-    );
-    let exe = std::env::current_exe().expect("test binary path");
-    exe.ancestors()
-        .skip(1)
-        .take(3)
-        .map(|d| d.join(&name))
-        .find(|p| p.is_file())
-        .unwrap_or_else(|| panic!("{name} not found near {}", exe.display()))
-}
-
 /// The C ABI's contact step (runtime/examples/c/touch.c) gives the Rust estimator's forces bit
 /// for bit, and refuses three tools.
 #[test]
@@ -547,28 +562,8 @@ fn the_c_abi_presses_as_rust_does() {
     let start = [0, 1, 2].map(|i| p[i] + n[i] * radius);
     let (depth, steps) = (8e-4, 60);
     let runtime = Path::new(env!("CARGO_MANIFEST_DIR")).join("../runtime");
-    let lib = runtime_cdylib();
     let exe = dir.join("touch");
-    let cc = std::env::var("CC").unwrap_or_else(|_| "cc".into());
-    let out = std::process::Command::new(&cc)
-        .arg(runtime.join("examples/c/touch.c"))
-        .arg("-I")
-        .arg(runtime.join("include"))
-        .args(["-Wall", "-Werror"])
-        .arg(&lib)
-        .arg(format!(
-            "-Wl,-rpath,{}",
-            lib.parent().expect("folder").display()
-        ))
-        .arg("-o")
-        .arg(&exe)
-        .output()
-        .expect("C compiler runs");
-    assert!(
-        out.status.success(),
-        "{cc}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    cdylib::compile_c(&runtime.join("examples/c/touch.c"), &exe);
     let mut args: Vec<String> = vec![model_path.display().to_string()];
     args.extend(start.iter().chain(&n).map(|v| format!("{v:.17e}")));
     args.push(format!("{depth:.17e}"));

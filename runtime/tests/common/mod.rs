@@ -1,9 +1,13 @@
 //! Small synthetic models and dense reference linear algebra for the runtime tests.
 #![allow(dead_code)]
 
+#[path = "../support/cdylib.rs"]
+mod cdylib;
+#[allow(unused_imports)]
+pub use cdylib::{compile_c, find_cdylib};
+
 use crokf_formats::*;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 
 /// The shared test generator (SplitMix64).
 pub use crokf_formats::synthetic::SplitMix64 as Rng;
@@ -318,32 +322,4 @@ pub fn scratch_dir(name: &str) -> std::path::PathBuf {
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
-}
-
-/// The freshest `libcrokf_runtime.so` next to this test binary (…/deps or its parent), or
-/// `$CROKF_RUNTIME_LIB`.
-pub fn find_cdylib() -> PathBuf {
-    if let Some(p) = std::env::var_os("CROKF_RUNTIME_LIB") {
-        return PathBuf::from(p);
-    }
-    let name = format!(
-        "{}crokf_runtime{}",
-        std::env::consts::DLL_PREFIX,
-        std::env::consts::DLL_SUFFIX
-    );
-    let exe = std::env::current_exe().unwrap();
-    let mut candidates: Vec<PathBuf> = exe
-        .ancestors()
-        .skip(1)
-        .take(3)
-        .map(|d| d.join(&name))
-        .filter(|p| p.is_file())
-        .collect();
-    candidates.sort_by_key(|p| std::fs::metadata(p).and_then(|m| m.modified()).ok());
-    candidates.pop().unwrap_or_else(|| {
-        panic!(
-            "{name} not found near {}; build the runtime crate first",
-            exe.display()
-        )
-    })
 }
