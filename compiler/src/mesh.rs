@@ -447,7 +447,7 @@ pub fn read_mesh_bytes(bytes: &[u8], path: &Path) -> Result<Mesh, MeshError> {
         return assemble(msh1::read(body, path)?, path);
     }
     if start.starts_with(b"<?xml") || start.starts_with(b"<VTKFile") {
-        return assemble(vtk::read_xml(start, path)?, path);
+        return assemble(vtk::read_xml(bytes, bytes.len() - start.len(), path)?, path);
     }
     if start.starts_with(b"# vtk DataFile") {
         return assemble(vtk::read_legacy(start, path)?, path);

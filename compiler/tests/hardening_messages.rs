@@ -104,7 +104,7 @@ fn fixed_with_no_components_is_refused_naming_the_group() {
 }
 
 #[test]
-fn a_node_list_tag_listed_twice_is_refused_naming_tag_and_lines() {
+fn a_node_list_tag_listed_twice_is_used_once_with_a_warning() {
     let dir = case_dir("duplicate_tags");
     let scene = scene_for(&dir, "cube.msh");
     let text = std::fs::read_to_string(&scene).expect("scene").replace(
@@ -113,15 +113,11 @@ fn a_node_list_tag_listed_twice_is_refused_naming_tag_and_lines() {
     );
     std::fs::write(&scene, text).expect("scene");
     std::fs::write(dir.join("base.txt"), "1 2\n3 # third\n4, 2\n").expect("list");
+    // The fixture's scene has no mode its inputs and outputs see, so it stops at the matrices;
+    // the warning's wording is asserted in tests/misleading_inputs.rs on a full compile.
     let (code, err) = compile(&[&scene, &"--export-matrices", &dir]);
-    assert_eq!(code, Some(1), "{err}");
-    assert!(
-        err.contains("base.txt")
-            && err.contains("line 3")
-            && err.contains("node 2 is listed twice")
-            && err.contains("first on line 1"),
-        "{err}"
-    );
+    assert_eq!(code, Some(0), "{err}");
+    assert!(dir.join("dofs.csv").is_file(), "{err}");
 }
 
 #[test]

@@ -141,8 +141,9 @@ impl<'m> Selections<'m> {
         let mut faces: Vec<[usize; 3]> = Vec::new();
         let mut seen_faces = BTreeSet::new();
         let mut parts = Vec::new();
+        let mut warnings = Vec::new();
         for (index, sel) in selectors.iter().enumerate() {
-            let (n, f) = self.one_node_selector(sel, index, context)?;
+            let (n, f) = self.one_node_selector(sel, index, context, &mut warnings)?;
             if n.is_empty() {
                 return Err(self.empty(context, index, sel, "nodes"));
             }
@@ -166,12 +167,16 @@ impl<'m> Selections<'m> {
             faces,
             tetrahedra: Vec::new(),
         };
-        let note = format!(
+        let mut note = format!(
             "{context}: selection took {} nodes and {} faces ({})",
             selected.nodes.len(),
             selected.faces.len(),
             parts.join("; ")
         );
+        for w in warnings {
+            note.push_str("; warning: ");
+            note.push_str(&w);
+        }
         Ok((selected, note))
     }
 
@@ -180,6 +185,7 @@ impl<'m> Selections<'m> {
         sel: &Selector,
         index: usize,
         context: &str,
+        warnings: &mut Vec<String>,
     ) -> Result<(Vec<usize>, Vec<[usize; 3]>), SelectionError> {
         let mesh = self.mesh;
         let nodes: Vec<usize> = if let Some(name) = &sel.group {
@@ -206,7 +212,9 @@ impl<'m> Selections<'m> {
             }
             nodes
         } else if let Some(file) = &sel.node_list {
-            self.node_list(file, context)?
+            let (nodes, repeated) = self.node_list(file, context)?;
+            warnings.extend(repeated);
+            nodes
         } else {
             let candidates: Vec<usize> = match sel.nodes {
                 Some(NodeDomain::Boundary) => {
@@ -315,8 +323,13 @@ impl<'m> Selections<'m> {
         }
     }
 
-    /// Node indices of the tags listed in `file`.
-    fn node_list(&self, file: &Path, context: &str) -> Result<Vec<usize>, SelectionError> {
+    /// Node indices of the tags listed in `file`, each once, and a warning naming the tags
+    /// listed more than once (exports often repeat the nodes that elements share).
+    fn node_list(
+        &self,
+        file: &Path,
+        context: &str,
+    ) -> Result<(Vec<usize>, Option<String>), SelectionError> {
         let err = |message: String| SelectionError::NodeList {
             context: context.to_owned(),
             path: file.to_owned(),
@@ -333,8 +346,8 @@ impl<'m> Selections<'m> {
             .map(|(i, &t)| (t, i))
             .collect();
         let mut out = BTreeSet::new();
-        // Tag → the line that listed it first: a tag listed twice is refused.
-        let mut first_line: BTreeMap<u64, usize> = BTreeMap::new();
+        // Tag → the lines that list it, in order: a tag listed again is used once.
+        let mut lines_of: BTreeMap<u64, Vec<usize>> = BTreeMap::new();
         for (line_no, line) in text.lines().enumerate() {
             let line = line.split('#').next().unwrap_or("");
             for token in line
@@ -347,14 +360,11 @@ impl<'m> Selections<'m> {
                         line_no + 1
                     ))
                 })?;
-                if let Some(&first) = first_line.get(&tag) {
-                    return Err(err(format!(
-                        "line {}: node {tag} is listed twice (first on line {first}); list \
-                         every node once",
-                        line_no + 1
-                    )));
+                let lines = lines_of.entry(tag).or_default();
+                lines.push(line_no + 1);
+                if lines.len() > 1 {
+                    continue;
                 }
-                first_line.insert(tag, line_no + 1);
                 let &i = index.get(&tag).ok_or_else(|| {
                     err(format!(
                         "line {}: node {tag} is not in the mesh (tags run from {} to {})",
@@ -372,6 +382,54 @@ impl<'m> Selections<'m> {
                 out.insert(i);
             }
         }
-        Ok(out.into_iter().collect())
+        Ok((out.into_iter().collect(), repeated_tags(file, &lines_of)))
     }
+}
+
+/// Tags shown by name in the warning on repeated tags; the rest are counted.
+const REPEATS_SHOWN: usize = 5;
+
+/// The warning on the tags of a node list that are listed more than once (`lines_of`: per
+/// tag, the lines that list it), or `None` when every tag is listed once.
+fn repeated_tags(file: &Path, lines_of: &BTreeMap<u64, Vec<usize>>) -> Option<String> {
+    let repeated: Vec<(u64, &Vec<usize>)> = lines_of
+        .iter()
+        .filter(|(_, lines)| lines.len() > 1)
+        .map(|(&tag, lines)| (tag, lines))
+        .collect();
+    if repeated.is_empty() {
+        return None;
+    }
+    let extra: usize = repeated.iter().map(|(_, lines)| lines.len() - 1).sum();
+    // "node 2 (3 times: lines 1, 3 and 4)", each line once, at most four.
+    let where_ = |tag: u64, l: &[usize]| {
+        let mut distinct: Vec<usize> = l.to_vec();
+        distinct.dedup();
+        let shown: Vec<String> = distinct.iter().take(4).map(usize::to_string).collect();
+        let lines = match shown.as_slice() {
+            [one] => format!("line {one}"),
+            [init @ .., last] if distinct.len() <= 4 => {
+                format!("lines {} and {last}", init.join(", "))
+            }
+            _ => format!("lines {}, …", shown.join(", ")),
+        };
+        format!("node {tag} ({} times: {lines})", l.len())
+    };
+    let mut listed: Vec<String> = repeated
+        .iter()
+        .take(REPEATS_SHOWN)
+        .map(|&(tag, l)| where_(tag, l))
+        .collect();
+    if repeated.len() > REPEATS_SHOWN {
+        listed.push(format!("{} more nodes", repeated.len() - REPEATS_SHOWN));
+    }
+    Some(format!(
+        "node_list {} lists {} node{} more than once ({}): {extra} duplicate entr{} ignored, each \
+         node is used once",
+        file.display(),
+        repeated.len(),
+        if repeated.len() == 1 { "" } else { "s" },
+        listed.join("; "),
+        if extra == 1 { "y" } else { "ies" }
+    ))
 }

@@ -14,8 +14,10 @@
 //!   stores the physical tags as `gmsh:physical`, so its groups are `"gmsh:physical:<tag>"`.
 //!
 //! The legacy reader's input is checked first where vtkio would give no useful message: an
-//! ASCII `POINTS` section with a coordinate that is not a finite number, or with fewer
-//! coordinates than it declares, is refused naming the line and the point. A panic inside
+//! ASCII `POINTS` section with a coordinate that is not a finite number (however a C library
+//! spelt the NaN or infinity: `nan(ind)`, `1.#QNAN`, ...), or with fewer coordinates than it
+//! declares, is refused naming the line, the point (0-based) and the axis; in a binary file, a
+//! non-finite coordinate is named by its point, axis and byte offset. A panic inside
 //! vtkio is caught ([`super::guard`]) and reported as a parse error.
 
 use std::collections::BTreeMap;
@@ -33,9 +35,15 @@ fn vtk_error(path: &Path, message: impl Into<String>) -> MeshError {
     }
 }
 
-/// Reads a VTK XML file (a `.vtu`); `bytes` start at `<?xml` or `<VTKFile`.
-pub(super) fn read_xml(bytes: &[u8], path: &Path) -> Result<RawMesh, MeshError> {
-    let pieces = vtu::read(bytes).map_err(|m| {
+/// Reads a VTK XML file (a `.vtu`): the file's bytes `file`, whose `<?xml` or `<VTKFile`
+/// starts at byte `start` (after a byte-order mark and blank lines).
+pub(super) fn read_xml(file: &[u8], start: usize, path: &Path) -> Result<RawMesh, MeshError> {
+    let start = start.min(file.len());
+    let origin = vtu::Origin {
+        offset: start,
+        lines: file[..start].iter().filter(|&&b| b == b'\n').count(),
+    };
+    let pieces = vtu::read(&file[start..], origin).map_err(|m| {
         vtk_error(
             path,
             format!("cannot read it as a VTK XML unstructured grid: {m}"),
@@ -81,18 +89,80 @@ fn legacy_version_5(bytes: &[u8]) -> bool {
     first.contains("Version 5") || bytes.windows(7).any(|w| w == b"OFFSETS")
 }
 
-/// In an ASCII legacy file: the first `POINTS n type` section whose coordinates are not 3n
-/// finite numbers, described with the line and the point; `None` when the points look right
-/// (or the file is binary, or has no `POINTS` line: vtkio then reports the problem).
+/// Whether `token` is how a C library spells a NaN or an infinity that Rust's parser does not
+/// read: `nan(ind)`, `-nan(0x8000)`, `nanq`, `nans` (glibc, MinGW) or `1.#QNAN`, `-1.#IND`,
+/// `1.#INF`, `1.#SNAN` (older MSVC), in any case (`nan`, `inf`, `infinity` parse as such).
+fn non_finite_spelling(token: &str) -> bool {
+    let t = token.trim_start_matches(['+', '-']).to_ascii_lowercase();
+    if t.starts_with("nan(") || t == "nanq" || t == "nans" {
+        return true;
+    }
+    match t.split_once(".#") {
+        Some((digits, kind)) => {
+            !digits.is_empty()
+                && digits.bytes().all(|b| b.is_ascii_digit())
+                && ["qnan", "snan", "ind", "inf"]
+                    .iter()
+                    .any(|k| kind.starts_with(k))
+        }
+        None => false,
+    }
+}
+
+/// The `POINTS n type` section of a binary legacy file: the first coordinate that is NaN or
+/// infinite, named by its point (0-based), its axis and its byte offset in the file; `None`
+/// when all are finite, or the section cannot be located (vtkio then reports the problem).
+fn binary_points_problem(bytes: &[u8]) -> Option<String> {
+    const KEY: &[u8] = b"\nPOINTS ";
+    let at = bytes.windows(KEY.len()).position(|w| w == KEY)? + 1;
+    let eol = at + bytes[at..].iter().position(|&b| b == b'\n')?;
+    let header = String::from_utf8_lossy(&bytes[at..eol]).into_owned();
+    let mut words = header.split_ascii_whitespace().skip(1);
+    let n: u64 = words.next()?.parse().ok()?;
+    let kind = words.next()?.to_ascii_lowercase();
+    let width = match kind.as_str() {
+        "float" => 4,
+        "double" => 8,
+        _ => return None,
+    };
+    let start = eol + 1;
+    let line = super::line_of(bytes, at);
+    // Big-endian, as VTK writes legacy binary files (and vtkio reads them here).
+    let values = bytes[start..]
+        .chunks_exact(width)
+        .take(usize::try_from(n.saturating_mul(3)).ok()?);
+    for (k, chunk) in values.enumerate() {
+        let v = if width == 4 {
+            f64::from(f32::from_be_bytes(chunk.try_into().ok()?))
+        } else {
+            f64::from_be_bytes(chunk.try_into().ok()?)
+        };
+        if !v.is_finite() {
+            return Some(format!(
+                "POINTS (line {line}, binary {kind}): point {} (0-based) has a non-finite {} \
+                 coordinate ({v}) at byte {} of the file; every coordinate must be a finite \
+                 number",
+                k / 3,
+                ["x", "y", "z"][k % 3],
+                start + k * width
+            ));
+        }
+    }
+    None
+}
+
+/// In a legacy file: the first `POINTS n type` section whose coordinates are not 3n finite
+/// numbers, described with the line (binary: the byte) and the point; `None` when the points
+/// look right (or the file has no `POINTS` line: vtkio then reports the problem).
 fn legacy_points_problem(bytes: &[u8]) -> Option<String> {
     let text = String::from_utf8_lossy(bytes);
     let mut lines = text.lines().enumerate();
     // Line 3 says ASCII or BINARY.
-    let ascii = text
-        .lines()
-        .nth(2)
-        .is_some_and(|l| l.trim().eq_ignore_ascii_case("ascii"));
-    if !ascii {
+    let third = text.lines().nth(2).map(str::trim);
+    if third.is_some_and(|l| l.eq_ignore_ascii_case("binary")) {
+        return binary_points_problem(bytes);
+    }
+    if !third.is_some_and(|l| l.eq_ignore_ascii_case("ascii")) {
         return None;
     }
     let (points_line, declared) = lines.find_map(|(i, l)| {
@@ -116,15 +186,17 @@ fn legacy_points_problem(bytes: &[u8]) -> Option<String> {
             }
             let point = got / 3;
             let axis = ["x", "y", "z"][(got % 3) as usize];
+            let non_finite = || {
+                format!(
+                    "line {}: point {point} (0-based) has a non-finite {axis} coordinate \
+                     ({tok}); every coordinate must be a finite number",
+                    i + 1
+                )
+            };
             match tok.parse::<f64>() {
                 Ok(v) if v.is_finite() => got += 1,
-                Ok(_) => {
-                    return Some(format!(
-                        "line {}: point {point} has a non-finite {axis} coordinate ({tok}); \
-                         every coordinate must be a finite number",
-                        i + 1
-                    ))
-                }
+                Ok(_) => return Some(non_finite()),
+                Err(_) if non_finite_spelling(tok) => return Some(non_finite()),
                 Err(_) if tok.chars().next().is_some_and(|c| c.is_ascii_alphabetic()) => {
                     return Some(format!(
                         "line {}: POINTS (line {points_line}) declares {n} points but the \

@@ -9,6 +9,12 @@
 //! NumberOfCells>`, the `Points` array (3 components), the `Cells` arrays `connectivity`,
 //! `offsets` and `types`, and the `CellData` arrays of one integer component (groups, see
 //! [`super::vtk`]). Point counts, cell counts and array lengths must agree.
+//!
+//! The file must be whole and text: every element closed through `</VTKFile>` (after
+//! `</AppendedData>` for appended data), else it is refused as cut short, naming the element or
+//! `DataArray` it ends inside, how many values that array has, and the closing tags missing;
+//! and UTF-8 outside raw appended data, else the first invalid byte is named by its offset in
+//! the file and its line.
 
 use std::borrow::Cow;
 
@@ -109,19 +115,130 @@ struct Document<'a> {
     pieces: Vec<PieceTag<'a>>,
     /// `(encoding is raw, payload)` of `<AppendedData>`, payload after its `_`.
     appended: Option<(bool, &'a [u8], usize)>,
+    /// When the file is cut short after `<AppendedData>` (its closing tag or `</VTKFile>`
+    /// missing): what is missing, completed by [`read`] with the array that runs past the end.
+    cut: Option<String>,
+}
+
+/// Where the bytes given to [`read`] start in the file: their byte offset and the number of
+/// lines before them (a byte-order mark and blank lines before `<?xml`).
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Origin {
+    /// Byte offset in the file.
+    pub offset: usize,
+    /// Line breaks before it.
+    pub lines: usize,
+}
+
+/// `Ok` when `bytes[range]` is UTF-8; else a message naming the first invalid byte by its
+/// offset in the file (0-based) and its line. Outside raw appended data a VTK XML file is
+/// text: VTK and meshio write ASCII (and UTF-8 names).
+fn check_utf8(bytes: &[u8], range: std::ops::Range<usize>, origin: Origin) -> Result<(), String> {
+    let Err(e) = std::str::from_utf8(&bytes[range.clone()]) else {
+        return Ok(());
+    };
+    let at = range.start + e.valid_up_to();
+    let line = origin.lines + line_at(bytes, at);
+    let declared = declared_encoding(bytes)
+        .filter(|d| !d.eq_ignore_ascii_case("utf-8") && !d.eq_ignore_ascii_case("utf8"))
+        .map(|d| format!(" (its XML declaration says encoding=\"{d}\", which crokf does not read)"))
+        .unwrap_or_default();
+    Err(format!(
+        "the file is not UTF-8 text: byte {} (0-based offset in the file, line {line}) is \
+         0x{:02X}, which is not valid UTF-8 there{declared}; outside raw appended data a VTK \
+         XML file must be UTF-8 (VTK and meshio write ASCII): a name or comment saved in \
+         another encoding, or a damaged file? Convert it (e.g. `iconv -f LATIN1 -t UTF-8 \
+         in.vtu > out.vtu`) or write it again",
+        origin.offset + at,
+        bytes[at]
+    ))
+}
+
+/// The `encoding` of the `<?xml ...?>` declaration, if the file starts with one that states it.
+fn declared_encoding(bytes: &[u8]) -> Option<String> {
+    let decl = bytes.strip_prefix(b"<?xml")?;
+    let end = decl.windows(2).position(|w| w == b"?>")?;
+    let decl = String::from_utf8_lossy(&decl[..end]).into_owned();
+    let rest = &decl[decl.find("encoding")? + "encoding".len()..];
+    let rest = rest.trim_start().strip_prefix('=')?.trim_start();
+    let quote = rest.chars().next().filter(|&c| c == '"' || c == '\'')?;
+    let value = &rest[1..];
+    Some(value[..value.find(quote)?].to_owned())
+}
+
+/// The closing tags of the open elements `stack` (outermost first), innermost first, in words:
+/// "the closing </Piece>, </UnstructuredGrid> and </VTKFile> tags are missing".
+fn missing_tags(stack: &[(Vec<u8>, usize)]) -> String {
+    let tags: Vec<String> = stack
+        .iter()
+        .rev()
+        .map(|(name, _)| format!("</{}>", String::from_utf8_lossy(name)))
+        .collect();
+    match tags.as_slice() {
+        [] => "no closing tag is missing".to_owned(),
+        [one] => format!("the closing {one} tag is missing"),
+        [init @ .., last] => format!(
+            "the closing {} and {last} tags are missing",
+            init.join(", ")
+        ),
+    }
+}
+
+const CUT_HINT: &str = "an interrupted write, copy or download? write or copy the file again";
+
+/// What an array cut off by the end of the file holds: its count of values against what the
+/// piece needs, or why its binary data cannot be decoded.
+fn partial_array(
+    tag: &ArrayTag<'_>,
+    piece: Option<&PieceTag<'_>>,
+    encoding: Option<Encoding>,
+) -> String {
+    let text: Vec<u8> = tag.text.iter().flat_map(|c| c.iter().copied()).collect();
+    let count = match tag.format {
+        Format::Ascii => Ok(text
+            .split(u8::is_ascii_whitespace)
+            .filter(|t| !t.is_empty())
+            .count() as u64),
+        Format::Binary => match (encoding, tag.scalar) {
+            (Some(enc), Some(scalar)) => {
+                blocks::read_array(&mut Base64::new(&text, 0), enc, &mut Budget::default())
+                    .and_then(|b| blocks::values(&b, scalar, enc.big_endian))
+                    .map(|v| v.len() as u64)
+            }
+            _ => return String::new(),
+        },
+        Format::Appended => return String::new(),
+    };
+    let expected = piece
+        .and_then(|p| match (tag.section, tag.name.as_str()) {
+            (Section::Points, _) => Some(p.points),
+            (Section::Cells, "offsets" | "types") | (Section::CellData, _) => Some(p.cells),
+            _ => None,
+        })
+        .and_then(|n| n.checked_mul(tag.components));
+    match (count, expected) {
+        (Ok(n), Some(want)) if n < want => format!(", which has {n} of its {want} values"),
+        (Ok(_), Some(_)) => String::new(),
+        (Ok(n), None) => format!(", which has {n} values where the file ends"),
+        (Err(e), _) => format!(", whose data is cut short ({e})"),
+    }
 }
 
 fn line_at(bytes: &[u8], offset: usize) -> usize {
     super::line_of(bytes, offset)
 }
 
-/// Parses the XML structure (everything before `<AppendedData>`, then that tag).
-fn parse(bytes: &[u8]) -> Result<Document<'_>, String> {
+/// Parses the XML structure (everything before `<AppendedData>`, then that tag). The file must
+/// be UTF-8 outside raw appended data, and complete: every element closed, through
+/// `</VTKFile>` (a file cut short is refused, naming where it ends and what is missing).
+fn parse(bytes: &[u8], origin: Origin) -> Result<Document<'_>, String> {
     const OPEN: &[u8] = b"<AppendedData";
     let open = bytes.windows(OPEN.len()).position(|w| w == OPEN);
     let head = &bytes[..open.unwrap_or(bytes.len())];
+    check_utf8(bytes, 0..head.len(), origin)?;
     let mut reader = Reader::from_reader(head);
-    let mut stack: Vec<Vec<u8>> = Vec::new();
+    // Open elements: (name, line of the start tag).
+    let mut stack: Vec<(Vec<u8>, usize)> = Vec::new();
     let mut encoding = None;
     let mut grid = false;
     let mut pieces: Vec<PieceTag<'_>> = Vec::new();
@@ -130,9 +247,30 @@ fn parse(bytes: &[u8]) -> Result<Document<'_>, String> {
     let mut array: Option<(ArrayTag<'_>, usize)> = None;
     loop {
         let at = reader.buffer_position() as usize;
-        let event = reader
-            .read_event()
-            .map_err(|e| format!("line {}: malformed XML ({e})", line_at(bytes, at)))?;
+        let event = match reader.read_event() {
+            Ok(event) => event,
+            // Syntax errors are tags, comments or declarations the input ends inside.
+            Err(quick_xml::Error::Syntax(_)) if open.is_none() => {
+                let shown: String = String::from_utf8_lossy(&head[at..])
+                    .chars()
+                    .take(24)
+                    .map(|c| if c.is_control() { ' ' } else { c })
+                    .collect();
+                let within = format!(
+                    ", in the middle of `{}` on line {}",
+                    shown.trim_end(),
+                    line_at(bytes, at)
+                );
+                return Err(cut_short(
+                    &stack,
+                    array.as_ref().map(|(t, _)| t),
+                    &pieces,
+                    encoding,
+                    &within,
+                ));
+            }
+            Err(e) => return Err(format!("line {}: malformed XML ({e})", line_at(bytes, at))),
+        };
         let line = || line_at(bytes, at);
         match event {
             Event::Start(ref e) | Event::Empty(ref e) => {
@@ -198,7 +336,7 @@ fn parse(bytes: &[u8]) -> Result<Document<'_>, String> {
                     _ => {}
                 }
                 if !empty {
-                    stack.push(name);
+                    stack.push((name, line()));
                 }
             }
             Event::End(ref e) => {
@@ -234,19 +372,69 @@ fn parse(bytes: &[u8]) -> Result<Document<'_>, String> {
             _ => {}
         }
     }
+    let root = stack.first().filter(|(name, _)| name == b"VTKFile");
+    if open.is_none() && !stack.is_empty() {
+        return Err(cut_short(
+            &stack,
+            array.as_ref().map(|(t, _)| t),
+            &pieces,
+            encoding,
+            "",
+        ));
+    }
     let encoding = encoding.ok_or("no <VTKFile> element: not a VTK XML file")?;
     if !grid {
         return Err("no <UnstructuredGrid> element".into());
     }
-    let appended = match open {
-        None => None,
-        Some(open) => Some(appended_data(bytes, open)?),
+    let (appended, cut) = match open {
+        None => (None, None),
+        Some(open) => {
+            if root.is_none() || stack.len() > 1 {
+                let (name, line) = stack.last().cloned().unwrap_or_default();
+                return Err(format!(
+                    "line {}: <AppendedData> must be a child of <VTKFile>, but <{}> (line \
+                     {line}) is still open",
+                    line_at(bytes, open),
+                    String::from_utf8_lossy(&name)
+                ));
+            }
+            let (data, cut) = appended_data(bytes, open, &stack, origin)?;
+            (Some(data), cut)
+        }
     };
     Ok(Document {
         encoding,
         pieces,
         appended,
+        cut,
     })
+}
+
+/// The message for a file that ends inside the elements `stack` (and inside `array`, if one
+/// is open), `within` saying where exactly (e.g. in the middle of a tag).
+fn cut_short(
+    stack: &[(Vec<u8>, usize)],
+    array: Option<&ArrayTag<'_>>,
+    pieces: &[PieceTag<'_>],
+    encoding: Option<Encoding>,
+    within: &str,
+) -> String {
+    let (name, line) = stack.last().cloned().unwrap_or_default();
+    let inside = match array {
+        Some(tag) => format!(
+            "DataArray '{}' (line {}, piece {}){}",
+            tag.name,
+            tag.line,
+            pieces.len(),
+            partial_array(tag, pieces.last(), encoding)
+        ),
+        None if stack.is_empty() => "the XML declaration, before <VTKFile>".to_owned(),
+        None => format!("<{}> (line {line})", String::from_utf8_lossy(&name)),
+    };
+    format!(
+        "the file is cut short: it ends inside {inside}{within}; {} ({CUT_HINT})",
+        missing_tags(stack)
+    )
 }
 
 fn at_line(line: usize, message: String) -> String {
@@ -364,9 +552,19 @@ fn finish_array<'a>(pieces: &mut [PieceTag<'a>], tag: ArrayTag<'a>) {
     }
 }
 
+/// The appended data and, when the file is cut short after `<AppendedData>`, what is missing.
+type Appended<'a> = ((bool, &'a [u8], usize), Option<String>);
+
 /// `<AppendedData encoding="raw|base64">_…`: the encoding and the payload after the `_`
-/// (up to `</AppendedData>`, or the end of the file), with the payload's byte offset.
-fn appended_data(bytes: &[u8], open: usize) -> Result<(bool, &[u8], usize), String> {
+/// (up to `</AppendedData>`, or the end of the file), with the payload's byte offset; and,
+/// when `</AppendedData>` or the `</VTKFile>` after it is missing, what is (`stack`: the open
+/// elements before `<AppendedData>`, i.e. `<VTKFile>`). Everything but raw data must be UTF-8.
+fn appended_data<'a>(
+    bytes: &'a [u8],
+    open: usize,
+    stack: &[(Vec<u8>, usize)],
+    origin: Origin,
+) -> Result<Appended<'a>, String> {
     let line = line_at(bytes, open);
     let tag_end = bytes[open..]
         .iter()
@@ -393,13 +591,59 @@ fn appended_data(bytes: &[u8], open: usize) -> Result<(bool, &[u8], usize), Stri
         .map(|p| tag_end + p)
         .ok_or_else(|| format!("line {line}: appended data without its leading `_`"))?;
     let start = underscore + 1;
+    check_utf8(bytes, open..start, origin)?;
     const CLOSE: &[u8] = b"</AppendedData>";
-    let end = bytes
+    let close = bytes
         .windows(CLOSE.len())
         .rposition(|w| w == CLOSE)
-        .filter(|&e| e >= start)
-        .unwrap_or(bytes.len());
-    Ok((raw, &bytes[start..end], start))
+        .filter(|&e| e >= start);
+    let end = close.unwrap_or(bytes.len());
+    if !raw {
+        check_utf8(bytes, start..end, origin)?;
+    }
+    let data = (raw, &bytes[start..end], start);
+    let mut open_tags = stack.to_vec();
+    let Some(close) = close else {
+        open_tags.push((b"AppendedData".to_vec(), line));
+        return Ok((
+            data,
+            Some(format!(
+                "the file is cut short: it ends inside <AppendedData> (line {line}); {}",
+                missing_tags(&open_tags)
+            )),
+        ));
+    };
+    // After </AppendedData>: comments and blank text, then </VTKFile>.
+    let tail = close + CLOSE.len();
+    check_utf8(bytes, tail..bytes.len(), origin)?;
+    let mut reader = Reader::from_reader(&bytes[tail..]);
+    reader.config_mut().allow_unmatched_ends = true;
+    loop {
+        let at = tail + reader.buffer_position() as usize;
+        match reader.read_event() {
+            Ok(Event::End(e)) if e.local_name().as_ref() == b"VTKFile" => return Ok((data, None)),
+            Ok(Event::Text(t)) if t.iter().all(u8::is_ascii_whitespace) => {}
+            Ok(Event::Comment(_) | Event::PI(_)) => {}
+            Ok(Event::Eof) | Err(quick_xml::Error::Syntax(_)) => {
+                let (_, root) = stack.first().cloned().unwrap_or_default();
+                return Ok((
+                    data,
+                    Some(format!(
+                        "the file is cut short: it ends inside <VTKFile> (line {root}), after \
+                         </AppendedData> (line {}); {}",
+                        line_at(bytes, close),
+                        missing_tags(&open_tags)
+                    )),
+                ));
+            }
+            _ => {
+                return Err(format!(
+                    "line {}: after </AppendedData> the file must end with </VTKFile>",
+                    line_at(bytes, at)
+                ))
+            }
+        }
+    }
 }
 
 /// The values of one array.
@@ -457,9 +701,28 @@ fn decode(doc: &Document<'_>, tag: &ArrayTag<'_>, budget: &mut Budget) -> Result
     blocks::values(&bytes, scalar, enc.big_endian)
 }
 
-/// Reads a VTK XML unstructured grid into pieces.
-pub(super) fn read(bytes: &[u8]) -> Result<Vec<GridPiece>, String> {
-    let doc = parse(bytes)?;
+/// Reads a VTK XML unstructured grid into pieces; `origin` places `bytes` in the file (for
+/// the offset of a byte that is not UTF-8).
+pub(super) fn read(bytes: &[u8], origin: Origin) -> Result<Vec<GridPiece>, String> {
+    let doc = parse(bytes, origin)?;
+    if let Some(cut) = &doc.cut {
+        // Name the first array whose appended data runs past the end, if one does.
+        let mut budget = Budget::default();
+        let short = doc.pieces.iter().enumerate().find_map(|(k, p)| {
+            let mut appended = p.arrays.iter().filter(|t| t.format == Format::Appended);
+            appended.find_map(|tag| {
+                decode(&doc, tag, &mut budget).err().map(|e| {
+                    format!(
+                        "; piece {}, DataArray '{}' (line {}) runs past the end: {e}",
+                        k + 1,
+                        tag.name,
+                        tag.line
+                    )
+                })
+            })
+        });
+        return Err(format!("{cut}{} ({CUT_HINT})", short.unwrap_or_default()));
+    }
     if doc.pieces.is_empty() {
         return Err("the <UnstructuredGrid> has no <Piece>".into());
     }

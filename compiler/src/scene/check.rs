@@ -1,6 +1,7 @@
 //! The scene's range checks that need no mesh: every field finite and inside its documented
 //! range, every selection well-formed, the load, noise and tier fields consistent with each
-//! other. Each refusal names the entry and the field.
+//! other (and the tier's size with the snapshots its training stores). Each refusal names the
+//! entry and the field.
 
 use super::*;
 
@@ -237,6 +238,104 @@ impl CorotationalSpec {
             names.push(name);
         }
         Ok(())
+    }
+
+    /// The snapshots the training stores against what the tier needs (`dt` the scene's time
+    /// step, s; `loads` its load names, in order): the plan's runs ([`TrainingPlan::runs`])
+    /// each keep ceil(N / every) snapshots, N = round(duration / dt) steps (every `every`-th
+    /// step and the last, [`TrainingPlan::snapshot_count`]). Refused: an `every` that keeps
+    /// only each run's last step (N > 1, every ≥ N: the training would see no run's motion),
+    /// and a pooled POD size above the snapshot count (a POD has at most as many vectors as
+    /// snapshots). The pooled size is `order`, whether the basis is the pooled POD alone or is
+    /// enriched to `basis_tolerance` (then `order` comes first, and `max_order` only caps the
+    /// enrichment, which the snapshots bound as well); when the scene states the tier's size
+    /// without `order` ([`CorotationalSpec::states_size`]), the default
+    /// [`DEFAULT_TIER_ORDER`] is that size and is checked the same way. Without a stated size
+    /// the fidelity rule chooses it from the snapshots there are.
+    ///
+    /// [`TrainingPlan::runs`]: crate::nonlinear::training::TrainingPlan::runs
+    /// [`TrainingPlan::snapshot_count`]: crate::nonlinear::training::TrainingPlan::snapshot_count
+    fn check_snapshots(&self, dt: f64, loads: &[String]) -> Result<(), String> {
+        let f = |name: &str| format!("reduction.corotational.{name}");
+        let plan = crate::nonlinear::training::TrainingPlan::from_scene(self, loads);
+        let runs = plan.runs().len();
+        let steps = plan.steps(dt);
+        let every = self.every.max(1);
+        // ceil(steps / every): the multiples of `every` up to N, and N itself.
+        let per_run = steps.div_ceil(every);
+        let total = runs.saturating_mul(per_run);
+        let run = format!(
+            "each training run is duration / time.dt = {} s / {dt} s = {steps} steps",
+            self.duration
+        );
+        let with_every = |e: usize| {
+            let per = steps.div_ceil(e);
+            format!(
+                "every = {e} keeps {per} per run, {} in all",
+                runs.saturating_mul(per)
+            )
+        };
+        if steps > 1 && every >= steps {
+            let hint = if self.every > 5 && steps > 5 {
+                format!(" (the default {})", with_every(5))
+            } else {
+                String::new()
+            };
+            return Err(format!(
+                "{} = {} keeps 1 snapshot per training run, its last step ({run}; a snapshot \
+                 every {} steps, and the last), {total} snapshot{} in all from {runs} run{}: the \
+                 tier would be trained on end states only, not on the runs' motion; use every \
+                 < {steps}{hint}",
+                f("every"),
+                self.every,
+                self.every,
+                if total == 1 { "" } else { "s" },
+                if runs == 1 { "" } else { "s" },
+            ));
+        }
+        if !self.states_size() {
+            return Ok(());
+        }
+        let order = self.order();
+        if order <= total {
+            return Ok(());
+        }
+        let field = match self.order {
+            Some(_) => format!("{} = {order}", f("order")),
+            None => format!(
+                "{} (not stated: the default {order}, the pooled POD size when the scene states \
+                 basis_tolerance, ecsw_tolerance or ecsw_max_elements)",
+                f("order")
+            ),
+        };
+        let enrich = if self.basis_tolerance.is_some() {
+            "; with basis_tolerance the enrichment adds vectors within the same snapshots, so \
+             they bound the whole basis too"
+        } else {
+            ""
+        };
+        // The largest `every` keeping ceil(order / runs) snapshots per run, if one does.
+        let need = order.div_ceil(runs.max(1));
+        let more = if need <= steps && need >= 2 {
+            let e = (steps.div_ceil(need - 1) - 1).max(1);
+            format!(", or keep more snapshots: {}", with_every(e))
+        } else if need <= steps {
+            String::new()
+        } else {
+            format!(
+                ", or lengthen the runs (duration): even every = 1 keeps only {steps} per run, \
+                 {} in all",
+                runs.saturating_mul(steps)
+            )
+        };
+        Err(format!(
+            "{field} asks for more POD vectors than the training stores snapshots: {runs} \
+             run{} × {per_run} snapshot{} per run = {total} ({run}; a snapshot every {} steps, \
+             and the last){enrich}; use order ≤ {total}{more}",
+            if runs == 1 { "" } else { "s" },
+            if per_run == 1 { "" } else { "s" },
+            self.every,
+        ))
     }
 
     /// Range checks; `loads` are the scene's load names. Messages name the field.
@@ -573,6 +672,8 @@ impl Scene {
             (ModelTier::Corotational, Some(spec)) => {
                 let loads: Vec<&str> = self.loads.iter().map(|l| l.name.as_str()).collect();
                 spec.check(&loads)?;
+                let names: Vec<String> = self.loads.iter().map(|l| l.name.clone()).collect();
+                spec.check_snapshots(self.time.dt, &names)?;
             }
             (ModelTier::Corotational, None) => {
                 return Err(
