@@ -34,8 +34,8 @@
 //! - `nodes` (required with a shape or `everything` outside `[[material]]`): `"boundary"` takes
 //!   only nodes on the boundary of the tetrahedral mesh, `"all"` every node of a tetrahedron.
 //! - `node_list`: a text file of node tags (gmsh node tags; 0-based point ids for VTK files),
-//!   separated by spaces, commas or newlines; `#` starts a comment; a tag listed twice is an
-//!   error naming both lines.
+//!   separated by spaces, commas or newlines; `#` starts a comment; a tag listed more than once
+//!   is used once, with a warning naming the tag and its lines.
 //! - In `[[material]]` a shape takes the tetrahedra whose centroid lies inside it; `nodes` and
 //!   `node_list` do not apply there.
 //! - Loads with `distribution = "area"` and displays use the boundary faces whose three nodes
@@ -754,6 +754,12 @@ pub struct CorotationalSpec {
     /// (`crokf-verify identify`, docs/identify.md) states how large the error is on the loads
     /// that recording saw; 0 turns the term off.
     pub model_error_scale: Option<f64>,
+    /// Write the model even when the tier fails its own checks on most runs (more than half
+    /// of the training runs above the self-check's threshold, or more than half of the
+    /// held-out runs above the out-of-sample threshold). Default false: such a compile fails
+    /// with the reason and the remedy, since the tier would be as far off at run time.
+    #[serde(default)]
+    pub accept_failed_check: bool,
 }
 
 /// `[[reduction.corotational.case]]`: one training load case, the groups it loads together.

@@ -315,12 +315,25 @@ fn twist_scene_with(name: &str, tier: &str) -> PathBuf {
 /// worst 100.2 %, median 89.5 %, all 48 runs above 87 %, the torque pair runs 99.1–99.6 %.
 #[test]
 fn the_self_check_flags_the_default_twist_tier() {
-    let scene = twist_scene_trained("twist-check", 0.5, 6, "");
     let options = CompileOptions {
         order: Some(8),
         skip_measured_error: true,
         ..CompileOptions::default()
     };
+    // A tier this far off its own training is not written unless the scene accepts it.
+    let refused = twist_scene_trained("twist-check-refused", 0.5, 6, "");
+    let said = match compile(&refused, &options) {
+        Ok(_) => panic!("a tier failing its check on every run was written"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        said.contains("fails its check")
+            && said.contains("not written")
+            && said.contains("[[reduction.corotational.case]]")
+            && said.contains("accept_failed_check"),
+        "{said}"
+    );
+    let scene = twist_scene_trained("twist-check", 0.5, 6, "accept_failed_check = true\n");
     let compiled = compile(&scene, &options).expect("tier compiles");
     let check = compiled.self_check.as_ref().expect("self-check");
     let worst = check.worst().expect("a checked run");
@@ -362,6 +375,14 @@ fn the_self_check_flags_the_default_twist_tier() {
         .find(|n| n.contains("WARNING"))
         .expect("a warning note");
     assert!(warning.contains(&worst.label), "{warning}");
+    let error = compiled
+        .model
+        .report
+        .notes
+        .iter()
+        .find(|n| n.contains("ERROR: the co-rotational tier fails its check"))
+        .expect("an error-level note");
+    assert!(error.contains("accept_failed_check = true"), "{error}");
 }
 
 /// A couple whose two loads the filter is to estimate (the default random walk, σ derived

@@ -134,6 +134,13 @@ impl SelfCheck {
         out
     }
 
+    /// Whether more than half of the compared runs are above the threshold: the tier fails its
+    /// check (the compile refuses to write it unless the scene accepts that).
+    pub fn fails_most(&self) -> bool {
+        let checked = self.runs.iter().filter(|r| r.checked()).count();
+        checked > 0 && 2 * self.flagged().len() > checked
+    }
+
     /// The largest run's displacement scale (RMS ‖u‖_M, kg^½·m).
     pub fn largest_scale(&self) -> f64 {
         self.runs.iter().map(|r| r.scale).fold(0.0, f64::max)

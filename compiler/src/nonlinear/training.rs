@@ -675,6 +675,56 @@ pub fn max_nodal(fem: &FemModel, u: &[f64]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// How far a displacement state is from what an elastic body can mean: its elements'
+/// smallest det F (≤ 0: inverted), how many are inverted, and the largest element rotation
+/// (the polar decomposition's angle, degrees).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Deformation {
+    /// Smallest det F over the elements.
+    pub min_det: f64,
+    /// Elements with det F ≤ 0.
+    pub inverted: usize,
+    /// Index of the element with the smallest det F.
+    pub worst_element: usize,
+    /// Largest element rotation, degrees.
+    pub max_rotation: f64,
+}
+
+/// [`Deformation`] of the free-DOF displacement `u` (m) of `fem`.
+pub fn deformation(fem: &FemModel, u: &[f64]) -> Deformation {
+    let at = |node: usize| -> [f64; 3] {
+        let mut x = fem.positions[node];
+        for (c, xc) in x.iter_mut().enumerate() {
+            if let Some(i) = fem.dofs.index[node][c] {
+                *xc += u[i];
+            }
+        }
+        x
+    };
+    let mut out = Deformation {
+        min_det: f64::INFINITY,
+        inverted: 0,
+        worst_element: 0,
+        max_rotation: 0.0,
+    };
+    for (e, element) in fem.elements.iter().enumerate() {
+        let x = element.nodes.map(at);
+        let f = crate::stepping::element::deformation_gradient(&element.geometry, &x);
+        let det = f.determinant();
+        if det.is_nan() || det <= 0.0 {
+            out.inverted += 1;
+        }
+        if det.is_nan() || det < out.min_det {
+            out.min_det = det;
+            out.worst_element = e;
+        }
+        let r = crate::stepping::element::polar_rotation(&f);
+        let cos = ((r.trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
+        out.max_rotation = out.max_rotation.max(cos.acos().to_degrees());
+    }
+    out
+}
+
 /// `work(k)` for k = 0 … `count` − 1 on up to `threads` scoped threads (at least one), each
 /// taking the next k; `started(k)` runs on the calling thread as each k begins (progress).
 /// The results by index, independent of the thread count and the order of completion.

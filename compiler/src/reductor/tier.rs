@@ -22,7 +22,7 @@ use crate::nonlinear::fidelity;
 use crate::nonlinear::filter::{
     derive_force_sigma, linearise_at_rest, linearised_filter, TierFilter, SCHEDULE_POINTS,
 };
-use crate::nonlinear::self_check::{self, OutOfSample, SelfCheck};
+use crate::nonlinear::self_check::{self, percent, OutOfSample, SelfCheck};
 use crate::nonlinear::tier::{self, Tier};
 use crate::nonlinear::training::{self, TrainingPlan};
 use crate::outputs::Measurements;
@@ -190,6 +190,25 @@ impl<'a> TierReductor<'a> {
         };
         if let Some(f) = &fidelity {
             notes.push(f.note());
+        }
+        if let Some(why) = failed_check(full, &built, &check, out_of_sample.as_ref()) {
+            if !spec.accept_failed_check {
+                return Err(fail(&format!(
+                    "{why}. The tier is not written. Remedies, in [reduction.corotational] or \
+                     the loads: declare loads that act together as a \
+                     [[reduction.corotational.case]] (a couple: `loads = {{ upper = [0, 1, 0], \
+                     lower = [0, -1, 0] }}`), which replaces the runs of each group alone; \
+                     lower a load's `range` (or `ranges`) to the largest force the body will \
+                     see (the training goes to {}× it); raise `order` or set \
+                     `basis_tolerance`. `accept_failed_check = true` writes the tier anyway",
+                    plan.max_multiple()
+                )));
+            }
+            notes.push(format!(
+                "ERROR: {why}; written all the same because [reduction.corotational] \
+                 accept_failed_check = true: loads like its training runs will be this far off \
+                 at run time"
+            ));
         }
         let model_error = check.model_error_covariance();
         let (derived, filter) = timer
@@ -432,6 +451,68 @@ impl<'a> TierReductor<'a> {
 }
 
 /// A tier error of the scene of `full`.
+/// Why the tier fails its own checks (more than half of its training runs above the
+/// self-check's threshold, or of the held-out runs above the out-of-sample one), with the
+/// training runs whose full-order snapshots invert elements named (a load range that drives
+/// the body far past what an elastic model means swamps the basis); None when it passes.
+fn failed_check(
+    full: &FullOrder,
+    built: &Tier,
+    check: &SelfCheck,
+    out_of_sample: Option<&OutOfSample>,
+) -> Option<String> {
+    let (what, failing, warning) = if check.fails_most() {
+        ("its own training runs", check, check.warning())
+    } else {
+        match out_of_sample {
+            Some(o) if o.check.fails_most() => {
+                ("the training runs held out of it", &o.check, o.warning())
+            }
+            _ => return None,
+        }
+    };
+    let checked = failing.runs.iter().filter(|r| r.checked()).count();
+    let mut why = format!(
+        "the co-rotational tier fails its check: {} of {checked} of {what} are above {} off \
+         the full-order co-rotational FEM (median {})",
+        failing.flagged().len(),
+        percent(failing.threshold),
+        percent(failing.median())
+    );
+    let training = &built.training;
+    let mut inverted: Vec<(String, usize, f64)> = Vec::new();
+    for (k, (label, _)) in training.runs.iter().enumerate() {
+        let worst = training
+            .snapshots
+            .iter()
+            .zip(&training.run_of)
+            .filter(|(_, &r)| r == k)
+            .map(|(u, _)| training::deformation(&full.fem, u))
+            .fold((0usize, 0.0f64), |a, d| {
+                (a.0.max(d.inverted), a.1.max(d.max_rotation))
+            });
+        if worst.0 > 0 {
+            inverted.push((label.clone(), worst.0, worst.1));
+        }
+    }
+    if let Some((label, count, _)) = inverted.iter().max_by_key(|x| x.1) {
+        let largest = training.envelope.max_displacement;
+        why.push_str(&format!(
+            "; {} of the {} training runs invert elements (det F ≤ 0), up to {count} in \
+             '{label}', and the largest training displacement is {largest:.3e} m: the training \
+             loads ({}× each group's range) drive the body past anything an elastic model \
+             means, and those snapshots swamp the basis",
+            inverted.len(),
+            training.runs.len(),
+            built.training.envelope.max_multiple
+        ));
+    }
+    if let Some(w) = warning {
+        why.push_str(&format!(" ({})", w.trim_start_matches("WARNING: ")));
+    }
+    Some(why)
+}
+
 fn tier_error(full: &FullOrder, e: &dyn std::fmt::Display) -> CompileError {
     CompileError::Tier {
         path: full.scene_path().to_path_buf(),
