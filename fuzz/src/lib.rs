@@ -525,7 +525,7 @@ pub fn node_list_seeds() -> Vec<Vec<u8>> {
 /// beam scene reads, and the scene is assembled on [`scene_mesh`]. The list is also parsed
 /// here, independently (UTF-8, a leading byte-order mark skipped, `#` comments, tags separated
 /// by commas or whitespace): an accepted list must fix exactly its tags, each a node of the mesh
-/// and listed once; a list that passes the independent parse must be accepted.
+/// (a tag listed again counts once); a list that passes the independent parse must be accepted.
 pub fn node_list(data: &[u8], mesh: &Mesh) -> Result<Outcome, Violation> {
     use std::sync::OnceLock;
     static DIR: OnceLock<PathBuf> = OnceLock::new();
@@ -594,10 +594,13 @@ fn independent_node_list(data: &[u8], mesh: &Mesh) -> Option<Vec<u64>> {
             .filter(|t| !t.is_empty())
         {
             let tag: u64 = token.parse().ok()?;
-            if !mesh.node_tags.contains(&tag) || tags.contains(&tag) {
+            if !mesh.node_tags.contains(&tag) {
                 return None;
             }
-            tags.push(tag);
+            // A tag listed again is used once (the reader warns).
+            if !tags.contains(&tag) {
+                tags.push(tag);
+            }
         }
     }
     (!tags.is_empty()).then_some(tags)

@@ -27,6 +27,9 @@ def scene(repo, tmp_path_factory):
     text = head + (
         "[reduction.corotational]\nduration = 0.2\nevery = 5\norder = 8\n"
         'directions = "axes"\n'
+        # A cheap tier (8 modes, 0.2 s runs) that misses its own check: these tests are about
+        # the distribution, not its accuracy.
+        "accept_failed_check = true\n"
     )
     path = d / "scene.toml"
     path.write_text(text)

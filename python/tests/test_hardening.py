@@ -223,6 +223,7 @@ def test_model_tier_names_the_corotational_tier(tmp_path, cantilever):
         "noise_std = 1.0e-3\n[time]\ndt = 0.005\n"
         '[reduction]\nmodel = "corotational"\n[reduction.corotational]\n'
         "ranges = { tip = 30.0 }\nduration = 0.1\nevery = 2\norder = 6\necsw_tolerance = 1e-2\n"
+        "accept_failed_check = true\n"
     )
     model, _ = crokf.compile(scene, report=False)
     assert model.tier == "corotational"
