@@ -755,8 +755,8 @@ pub struct CorotationalSpec {
     /// that recording saw; 0 turns the term off.
     pub model_error_scale: Option<f64>,
     /// Write the model even when the tier fails its own checks on most runs (more than half
-    /// of the training runs above the self-check's threshold, or more than half of the
-    /// held-out runs above the out-of-sample threshold). Default false: such a compile fails
+    /// of its training runs, or of the runs held out of it, more than 5 % off the full-order
+    /// co-rotational FEM). Default false: such a compile fails
     /// with the reason and the remedy, since the tier would be as far off at run time.
     #[serde(default)]
     pub accept_failed_check: bool,

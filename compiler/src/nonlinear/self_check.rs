@@ -137,8 +137,18 @@ impl SelfCheck {
     /// Whether more than half of the compared runs are above the threshold: the tier fails its
     /// check (the compile refuses to write it unless the scene accepts that).
     pub fn fails_most(&self) -> bool {
+        self.fails_most_above(self.threshold)
+    }
+
+    /// Whether more than half of the compared runs are above `threshold`.
+    pub fn fails_most_above(&self, threshold: f64) -> bool {
         let checked = self.runs.iter().filter(|r| r.checked()).count();
-        checked > 0 && 2 * self.flagged().len() > checked
+        let above = self
+            .runs
+            .iter()
+            .filter(|r| r.checked() && r.error > threshold)
+            .count();
+        checked > 0 && 2 * above > checked
     }
 
     /// The largest run's displacement scale (RMS ‖u‖_M, kg^½·m).
