@@ -7,6 +7,9 @@
 //! inline base64 binary (header and data encoded as two chunks), uncompressed or zlib (stored
 //! deflate blocks, written by hand), and raw appended data.
 
+#[path = "support/base64.rs"]
+mod base64_support;
+use base64_support::base64;
 use std::path::Path;
 
 use crokf_compile::mesh::read_mesh_bytes;
@@ -17,23 +20,6 @@ use support::{assert_no_panic_text, case_dir, compile, fixture, scene_for};
 
 // ---------------------------------------------------------------------------------------------
 // VTU files built from the cube fixture
-
-fn base64(data: &[u8]) -> String {
-    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut out = String::new();
-    for c in data.chunks(3) {
-        let b = [c[0], *c.get(1).unwrap_or(&0), *c.get(2).unwrap_or(&0)];
-        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
-        for k in 0..4 {
-            out.push(if k <= c.len() {
-                char::from(A[((n >> (18 - 6 * k)) & 63) as usize])
-            } else {
-                '='
-            });
-        }
-    }
-    out
-}
 
 /// A zlib stream of stored (uncompressed) deflate blocks.
 fn zlib_stored(data: &[u8]) -> Vec<u8> {

@@ -8,6 +8,9 @@
 //! The VTU files are written here from `models/cantilever/cantilever.msh` (the mesh's
 //! tetrahedra, 0-based point ids, `MaterialIds` = 1 on every cell).
 
+#[path = "support/base64.rs"]
+mod base64_support;
+use base64_support::base64;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -66,23 +69,6 @@ const ENCODINGS: [Encoding; 4] = [
     Encoding::Zlib,
     Encoding::AppendedRaw,
 ];
-
-fn base64(data: &[u8]) -> String {
-    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut out = String::new();
-    for c in data.chunks(3) {
-        let b = [c[0], *c.get(1).unwrap_or(&0), *c.get(2).unwrap_or(&0)];
-        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
-        for k in 0..4 {
-            out.push(if k <= c.len() {
-                char::from(A[((n >> (18 - 6 * k)) & 63) as usize])
-            } else {
-                '='
-            });
-        }
-    }
-    out
-}
 
 fn zlib(data: &[u8]) -> Vec<u8> {
     let mut e = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());

@@ -142,13 +142,15 @@ impl SelfCheck {
 
     /// Whether more than half of the compared runs are above `threshold`.
     pub fn fails_most_above(&self, threshold: f64) -> bool {
-        let checked = self.runs.iter().filter(|r| r.checked()).count();
-        let above = self
-            .runs
-            .iter()
-            .filter(|r| r.checked() && r.error > threshold)
-            .count();
+        let (above, checked) = self.above(threshold);
         checked > 0 && 2 * above > checked
+    }
+
+    /// (runs above `threshold`, runs compared).
+    pub fn above(&self, threshold: f64) -> (usize, usize) {
+        let checked = self.runs.iter().filter(|r| r.checked());
+        let above = checked.clone().filter(|r| r.error > threshold).count();
+        (above, checked.count())
     }
 
     /// The largest run's displacement scale (RMS ‖u‖_M, kg^½·m).

@@ -474,12 +474,7 @@ fn failed_check(
         }
     };
     let limit = self_check::SELF_CHECK_THRESHOLD;
-    let checked = failing.runs.iter().filter(|r| r.checked()).count();
-    let above = failing
-        .runs
-        .iter()
-        .filter(|r| r.checked() && r.error > limit)
-        .count();
+    let (above, checked) = failing.above(limit);
     let mut why = format!(
         "the co-rotational tier fails its check: {above} of {checked} of {what} are above {} \
          off the full-order co-rotational FEM (median {})",
