@@ -760,6 +760,12 @@ pub struct CorotationalSpec {
     /// with the reason and the remedy, since the tier would be as far off at run time.
     #[serde(default)]
     pub accept_failed_check: bool,
+    /// The largest element rotation a training snapshot may reach, degrees (0 < x ≤ 180).
+    /// A training run is cut at its first snapshot past it, or with an inverted element
+    /// (det F ≤ 0): the snapshots from there on are left out of the basis, the cubature and
+    /// the checks, and the report names the run, the time and the multiple of the range
+    /// reached. None: [`DEFAULT_MAX_ROTATION`].
+    pub max_rotation: Option<f64>,
 }
 
 /// `[[reduction.corotational.case]]`: one training load case, the groups it loads together.
@@ -854,7 +860,16 @@ pub const DEFAULT_TIER_ORDER: usize = 20;
 /// The ECSW tolerance unless the scene or the fidelity rule says otherwise.
 pub const DEFAULT_ECSW_TOLERANCE: f64 = 5e-3;
 
+/// Default `[reduction.corotational] max_rotation`, degrees: the largest element rotation a
+/// training snapshot keeps, chosen on the cuts it makes (docs/corotational-tier.md §12).
+pub const DEFAULT_MAX_ROTATION: f64 = 120.0;
+
 impl CorotationalSpec {
+    /// The training runs' rotation limit, degrees: as stated, else [`DEFAULT_MAX_ROTATION`].
+    pub fn max_rotation(&self) -> f64 {
+        self.max_rotation.unwrap_or(DEFAULT_MAX_ROTATION)
+    }
+
     /// The pooled POD size: `order` as stated, else [`DEFAULT_TIER_ORDER`].
     pub fn order(&self) -> usize {
         self.order.unwrap_or(DEFAULT_TIER_ORDER)

@@ -12,7 +12,7 @@ use crokf_compile::model_file::tier as section;
 use crokf_compile::nonlinear::ecsw::EcswOptions;
 use crokf_compile::nonlinear::identify::identify_noise;
 use crokf_compile::nonlinear::reduced::{ReducedModel, ReducedNewton, ReducedStepper, Refresh};
-use crokf_compile::nonlinear::training::TrainingPlan;
+use crokf_compile::nonlinear::training::{self, TrainingPlan};
 use crokf_compile::nonlinear::{filter, tier};
 use crokf_compile::report::StageTimer;
 use crokf_compile::{compile, CompileOptions, FullOrder};
@@ -336,6 +336,26 @@ fn scene_fields_are_range_checked_naming_the_field() {
             "every = 2\nmodel_error_scale = nan",
             "reduction.corotational.model_error_scale",
         ),
+        (
+            "every = 2",
+            "every = 2\nmax_rotation = 0",
+            "reduction.corotational.max_rotation",
+        ),
+        (
+            "every = 2",
+            "every = 2\nmax_rotation = -10",
+            "reduction.corotational.max_rotation",
+        ),
+        (
+            "every = 2",
+            "every = 2\nmax_rotation = 200",
+            "reduction.corotational.max_rotation",
+        ),
+        (
+            "every = 2",
+            "every = 2\nmax_rotation = nan",
+            "reduction.corotational.max_rotation",
+        ),
     ] {
         let path = dir.join("bad.toml");
         std::fs::write(&path, base.replace(from, to)).unwrap();
@@ -423,6 +443,99 @@ fn an_order_the_snapshots_cannot_give_is_refused() {
         "{:?}",
         model.report.notes
     );
+}
+
+/// A training run is cut at its first snapshot that rotates an element past `max_rotation`
+/// (or inverts one): the snapshots it keeps are the uncut run's first ones, bit for bit, the cut
+/// is where an independent reading of each snapshot's rotation first passes the limit, the
+/// compile's note counts and names the runs cut, and the self-check replays a cut run only as
+/// far as it was kept. This beam bends about 30° at its 37.5 N ramp peak, so 15° cuts some of
+/// its runs and leaves others whole.
+#[test]
+fn training_runs_are_cut_where_they_rotate_past_max_rotation() {
+    const LIMIT: f64 = 15.0;
+    let full = FullOrder::build(scene(), &mut StageTimer::default()).unwrap();
+    let mut plan = TrainingPlan::of_scene(&full).expect("a tier scene");
+    plan.max_rotation = 180.0;
+    let whole = training::train(&full, &plan, &mut |_, _, _| {}).unwrap();
+    assert!(whole.cuts.iter().all(Option::is_none), "{:?}", whole.cuts);
+    plan.max_rotation = LIMIT;
+    let trimmed = training::train(&full, &plan, &mut |_, _, _| {}).unwrap();
+    assert_eq!(trimmed.runs.len(), whole.runs.len());
+    assert_eq!(trimmed.cuts.len(), whole.runs.len());
+    let of_run = |t: &training::Training, k: usize| -> Vec<Vec<f64>> {
+        t.snapshots
+            .iter()
+            .zip(&t.run_of)
+            .filter(|(_, &r)| r == k)
+            .map(|(u, _)| u.clone())
+            .collect()
+    };
+    let mut cut = Vec::new();
+    for k in 0..whole.runs.len() {
+        let all = of_run(&whole, k);
+        let kept = of_run(&trimmed, k);
+        let past = all.iter().position(|u| {
+            let d = training::deformation(&full.fem, u);
+            d.inverted > 0 || d.max_rotation > LIMIT
+        });
+        let label = &whole.runs[k].0;
+        match past {
+            None => {
+                assert!(trimmed.cuts[k].is_none(), "{label}");
+                assert_eq!(kept, all, "{label}");
+            }
+            Some(0) => {
+                assert!(trimmed.runs[k].1.is_some(), "{label}: no snapshot kept");
+                assert!(kept.is_empty(), "{label}");
+            }
+            Some(j) => {
+                let c = trimmed.cuts[k]
+                    .as_ref()
+                    .unwrap_or_else(|| panic!("{label} not cut"));
+                assert_eq!((c.kept, c.of), (j, all.len()), "{label}");
+                assert!(c.reason.contains("rotates an element"), "{}", c.reason);
+                assert_eq!(kept[..], all[..j], "{label}");
+                cut.push((label.clone(), j));
+            }
+        }
+    }
+    eprintln!(
+        "max_rotation {LIMIT}°: {} of {} runs cut ({cut:?})",
+        cut.len(),
+        whole.runs.len()
+    );
+    assert!(!cut.is_empty() && cut.len() < whole.runs.len(), "{cut:?}");
+    assert!(
+        trimmed.envelope.max_displacement < whole.envelope.max_displacement,
+        "the envelope is the kept snapshots'"
+    );
+
+    let compiled = compiled_variant("cut.toml", |base| {
+        base.replace("every = 2", &format!("every = 2\nmax_rotation = {LIMIT}"))
+    });
+    let notes = &compiled.model.report.notes;
+    let note = notes
+        .iter()
+        .find(|n| n.contains("runs were cut"))
+        .unwrap_or_else(|| panic!("no note on the cut runs: {notes:?}"));
+    assert!(
+        note.contains(&format!(
+            "{} of {} runs were cut",
+            cut.len(),
+            whole.runs.len()
+        )) && note.contains("max_rotation = 15°")
+            && cut.iter().any(|(label, _)| note.contains(label.as_str())),
+        "{note}"
+    );
+    let check = compiled.self_check.as_ref().expect("self-check");
+    for (label, kept) in &cut {
+        let run = check.runs.iter().find(|r| &r.label == label);
+        if let Some(run) = run {
+            assert_eq!(run.snapshots, *kept, "{label}");
+            assert!(run.failure.is_none(), "{label}: {:?}", run.failure);
+        }
+    }
 }
 
 /// A cubature stopped at its element cap above its tolerance is a warning naming both fields.

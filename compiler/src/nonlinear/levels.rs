@@ -50,7 +50,10 @@ pub fn design_levels<E: std::fmt::Display>(
         match design(factor) {
             Ok(level) => levels.push(level),
             Err(e) => notes.push(format!(
-                "force σ level × {factor}: left out, its filter could not be designed ({e})"
+                "force σ level × {factor}: left out, its filter could not be designed ({e}); \
+                 the run-time filter has no such level, so when the load changes faster (or \
+                 slower) than the σ of the levels it has, its estimate lags (or is noisier) \
+                 with no level to move to"
             )),
         }
     }
@@ -128,5 +131,35 @@ mod tests {
         let zero = Mat::zeros(2, 2);
         let s = innovation_covariance(&rows, &zero, &[0, 1], &[1.0, 3.0]);
         assert!((effective_channels(&s) - 2.0).abs() < 1e-12);
+    }
+
+    /// A level whose filter cannot be designed is left out with a note naming its factor, the
+    /// design's error and what the run-time filter then lacks; with none designed there is no
+    /// statistic to move between levels.
+    #[test]
+    fn a_level_that_cannot_be_designed_is_named() {
+        let measurements = Measurements {
+            channels: vec![(0, 0)],
+            variance: vec![1e-6],
+            every: vec![1],
+        };
+        let (levels, statistic, notes) = design_levels(
+            |factor| Err::<FilterLevel, _>(format!("Riccati residual at × {factor}")),
+            &[],
+            &DMatrix::zeros(1, 2),
+            &measurements,
+            Some(0.2),
+            1e-3,
+        );
+        assert!(levels.is_empty() && statistic.is_none());
+        assert_eq!(notes.len(), LEVEL_FACTORS.len());
+        for (note, factor) in notes.iter().zip(LEVEL_FACTORS) {
+            assert!(
+                note.contains(&format!("force σ level × {factor}: left out"))
+                    && note.contains(&format!("Riccati residual at × {factor}"))
+                    && note.contains("no such level"),
+                "{note}"
+            );
+        }
     }
 }

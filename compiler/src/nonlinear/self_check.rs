@@ -335,10 +335,16 @@ fn check_runs(
             out.failure = Some(format!("training run failed: {why}"));
             return out;
         }
-        if of_run[k].len() != kept {
+        // A run cut where it left what the tier is for is replayed only that far.
+        let expected = training
+            .cuts
+            .get(k)
+            .and_then(|c| c.as_ref())
+            .map_or(kept, |c| c.kept);
+        if of_run[k].len() != expected {
             out.error = f64::INFINITY;
             out.failure = Some(format!(
-                "{} snapshots stored, the plan keeps {kept}",
+                "{} snapshots stored, the plan keeps {expected}",
                 of_run[k].len()
             ));
             return out;
@@ -375,6 +381,9 @@ fn check_runs(
                 ref2 += mu.iter().zip(u).map(|(a, b)| a * b).sum::<f64>();
                 let e = q - tier.basis.vectors.tr_mul(&mu);
                 moment.ger(1.0, &e, &e, 1.0);
+                if snapshot.len() == 0 {
+                    break;
+                }
             }
         }
         let stats = stepper.stats();
@@ -468,6 +477,7 @@ pub fn out_of_sample(
     }
     let mut rest = Training {
         runs: training.runs.clone(),
+        cuts: training.cuts.clone(),
         envelope: training.envelope.clone(),
         ..Training::default()
     };

@@ -109,6 +109,9 @@ pub struct TrainingPlan {
     pub cases: Vec<LoadCase>,
     /// Runs computed at a time (≥ 1; results do not depend on it).
     pub threads: usize,
+    /// The largest element rotation a kept snapshot may reach, degrees: a run is cut at its
+    /// first snapshot past it or with an inverted element ([`Cut`]).
+    pub max_rotation: f64,
 }
 
 /// A training load case of the plan: groups loaded together.
@@ -195,6 +198,7 @@ impl TrainingPlan {
             combinations: true,
             cases: Vec::new(),
             threads: default_threads(),
+            max_rotation: crate::scene::DEFAULT_MAX_ROTATION,
         }
     }
 
@@ -273,6 +277,7 @@ impl TrainingPlan {
             combinations: spec.combinations(),
             cases,
             threads: default_threads(),
+            max_rotation: spec.max_rotation(),
         }
     }
 
@@ -291,13 +296,15 @@ impl TrainingPlan {
 
     /// Every run, in run order (module doc).
     pub fn runs(&self) -> Vec<TrainingRun> {
-        // The built-in directions by their signs, e.g. "(+1, -1, -1)"; any other to 2 decimals.
+        // The built-in directions and their negations by their signs, e.g. "(+1, -1, -1)";
+        // any other to 2 decimals.
         let named: Vec<[f64; 3]> = axis_directions()
             .into_iter()
             .chain(tetrahedral_diagonals())
             .collect();
         let direction = |d: &[f64; 3]| {
-            if named.contains(d) {
+            let negated = d.map(|x| -x + 0.0);
+            if named.contains(d) || named.contains(&negated) {
                 format!("({:+.0}, {:+.0}, {:+.0})", d[0], d[1], d[2])
             } else {
                 format!("({:+.2}, {:+.2}, {:+.2})", d[0], d[1], d[2])
@@ -401,6 +408,24 @@ pub struct TrainingEnvelope {
     pub snapshots: usize,
 }
 
+/// Where a training run was cut: its first snapshot with an inverted element (det F ≤ 0) or an
+/// element rotated past the plan's `max_rotation`. That snapshot and the later ones are left
+/// out (the load history past that point drives the body past anything the tier is for); the
+/// run keeps `kept` snapshots, and the checks replay it only that far.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Cut {
+    /// Snapshots kept (those before the first one past the limit; ≥ 1).
+    pub kept: usize,
+    /// Snapshots the run computed.
+    pub of: usize,
+    /// Time of the first snapshot left out, s.
+    pub time: f64,
+    /// Multiple of the group's range the load history had reached there.
+    pub multiple: f64,
+    /// What that snapshot does, e.g. `inverts 3 elements` or `rotates an element 131°`.
+    pub reason: String,
+}
+
 /// Snapshots of the training runs and what they cover.
 #[derive(Clone, Debug, Default)]
 pub struct Training {
@@ -410,6 +435,9 @@ pub struct Training {
     pub run_of: Vec<usize>,
     /// Run labels and, for a run that failed, why (the run is then skipped).
     pub runs: Vec<(String, Option<String>)>,
+    /// Per run (as `runs`): where it was cut, when its load drove the body past what the tier
+    /// is for ([`Cut`]); its snapshots from there on are not in `snapshots`.
+    pub cuts: Vec<Option<Cut>>,
     /// The envelope.
     pub envelope: TrainingEnvelope,
     /// Wall time of all runs, s.
@@ -579,10 +607,47 @@ pub(crate) fn gather(
     results: Vec<Option<RunResult>>,
     started: std::time::Instant,
 ) -> Training {
+    let cut_at = run_indexed(
+        runs.len(),
+        plan.threads,
+        |k| match &results[k] {
+            Some(Ok((frames, _))) => first_past_limit(full, plan, frames),
+            _ => None,
+        },
+        |_| {},
+    );
+    let dt = full.wilson.dt;
+    let steps = plan.steps(dt);
+    let kept_steps: Vec<usize> = (1..=steps).filter(|&k| plan.keeps(k, steps)).collect();
     let mut out = Training::default();
-    for (k, (run, result)) in runs.iter().zip(results).enumerate() {
+    for (k, ((run, result), cut_at)) in runs.iter().zip(results).zip(cut_at).enumerate() {
+        let mut cut = None;
         match result {
-            Some(Ok((frames, stats))) => {
+            Some(Ok((mut frames, stats))) => {
+                if let Some((j, reason)) = cut_at.flatten() {
+                    let step = kept_steps.get(j).copied().unwrap_or(steps);
+                    let time = step as f64 * dt;
+                    let multiple = run.history.at((step - 1) as f64 * dt);
+                    if j == 0 {
+                        out.runs.push((
+                            run.label.clone(),
+                            Some(format!(
+                                "its first snapshot (t = {time} s, {multiple:.3}× the range) \
+                                 already {reason}: no snapshot kept"
+                            )),
+                        ));
+                        out.cuts.push(None);
+                        continue;
+                    }
+                    cut = Some(Cut {
+                        kept: j,
+                        of: frames.len(),
+                        time,
+                        multiple,
+                        reason,
+                    });
+                    frames.truncate(j);
+                }
                 for u in frames {
                     out.envelope.max_displacement =
                         out.envelope.max_displacement.max(max_nodal(&full.fem, &u));
@@ -597,6 +662,7 @@ pub(crate) fn gather(
                 .runs
                 .push((run.label.clone(), Some("the run did not finish".to_owned()))),
         }
+        out.cuts.push(cut);
     }
     let top = plan.max_multiple();
     out.envelope.max_multiple = top;
@@ -613,6 +679,38 @@ pub(crate) fn gather(
     out.envelope.snapshots = out.snapshots.len();
     out.seconds = started.elapsed().as_secs_f64();
     out
+}
+
+/// The first of a run's snapshots past what the tier is for, and why: an inverted element
+/// (det F ≤ 0) or an element rotated more than `plan.max_rotation` degrees. None: all within.
+fn first_past_limit(
+    full: &FullOrder,
+    plan: &TrainingPlan,
+    frames: &[Vec<f64>],
+) -> Option<(usize, String)> {
+    frames.iter().enumerate().find_map(|(j, u)| {
+        let d = deformation(&full.fem, u);
+        if d.inverted > 0 {
+            let s = if d.inverted == 1 { "" } else { "s" };
+            Some((
+                j,
+                format!(
+                    "inverts {} element{s} (det F {:.3} at element tag {})",
+                    d.inverted, d.min_det, full.fem.elements[d.worst_element].tag
+                ),
+            ))
+        } else if d.max_rotation > plan.max_rotation {
+            Some((
+                j,
+                format!(
+                    "rotates an element {:.0}° (max_rotation {}°)",
+                    d.max_rotation, plan.max_rotation
+                ),
+            ))
+        } else {
+            None
+        }
+    })
 }
 
 /// One training run: the full-order co-rotational simulator from rest under f(t) =

@@ -24,7 +24,7 @@ use crate::nonlinear::filter::{
 };
 use crate::nonlinear::self_check::{self, percent, OutOfSample, SelfCheck};
 use crate::nonlinear::tier::{self, Tier};
-use crate::nonlinear::training::{self, TrainingPlan};
+use crate::nonlinear::training::{self, Cut, Training, TrainingPlan};
 use crate::outputs::Measurements;
 use crate::progress::Progress;
 use crate::scene::CorotationalSpec;
@@ -142,6 +142,9 @@ impl<'a> TierReductor<'a> {
                 ));
             }
         }
+        if let Some(note) = cut_note(&training, plan.max_rotation) {
+            notes.push(note);
+        }
         let newton = self_check::runtime_newton(spec.newton_tolerance, spec.newton_iterations);
         // The scene's size, or the fidelity rule's choice measured out of sample.
         let (choice, ecsw, fidelity) = if spec.states_size() {
@@ -191,7 +194,7 @@ impl<'a> TierReductor<'a> {
         if let Some(f) = &fidelity {
             notes.push(f.note());
         }
-        if let Some(why) = failed_check(full, &built, &check, out_of_sample.as_ref()) {
+        if let Some(why) = failed_check(plan.max_rotation, &built, &check, out_of_sample.as_ref()) {
             if !spec.accept_failed_check {
                 return Err(fail(&format!(
                     "{why}. The tier is not written. Remedies, in [reduction.corotational] or \
@@ -356,7 +359,7 @@ impl<'a> TierReductor<'a> {
             filter
                 .level_notes
                 .iter()
-                .map(|n| format!("co-rotational tier: {n}")),
+                .map(|n| format!("WARNING: co-rotational tier: {n}")),
         );
         if let Some(s) = &filter.model_error {
             let largest = self.check.largest_scale();
@@ -450,13 +453,51 @@ impl<'a> TierReductor<'a> {
     }
 }
 
-/// A tier error of the scene of `full`.
+/// The report's note on the training runs cut where their load drove the body past what the
+/// tier is for (an inverted element, or an element rotated past `max_rotation` degrees): how
+/// many, and the ones cut at the smallest multiple of their range first. None: no run was cut.
+fn cut_note(training: &Training, max_rotation: f64) -> Option<String> {
+    let mut cut: Vec<(&str, &Cut)> = training
+        .runs
+        .iter()
+        .zip(&training.cuts)
+        .filter_map(|((label, _), c)| c.as_ref().map(|c| (label.as_str(), c)))
+        .collect();
+    if cut.is_empty() {
+        return None;
+    }
+    cut.sort_by(|a, b| a.1.multiple.total_cmp(&b.1.multiple));
+    const LISTED: usize = 3;
+    let listed: Vec<String> = cut
+        .iter()
+        .take(LISTED)
+        .map(|(label, c)| {
+            format!(
+                "'{label}' at t = {} s ({:.3}× its range): {}, {} of {} snapshots kept",
+                c.time, c.multiple, c.reason, c.kept, c.of
+            )
+        })
+        .collect();
+    let more = match cut.len().saturating_sub(LISTED) {
+        0 => String::new(),
+        n => format!("; and {n} more"),
+    };
+    Some(format!(
+        "co-rotational training: {} of {} runs were cut at their first snapshot that inverts an \
+         element or rotates one past max_rotation = {max_rotation}°, and the tier is not \
+         trained on their loads past that point: {}{more}",
+        cut.len(),
+        training.runs.len(),
+        listed.join("; ")
+    ))
+}
+
 /// Why the tier fails its own checks (more than half of its training runs above the
-/// self-check's threshold, or of the held-out runs above the out-of-sample one), with the
-/// training runs whose full-order snapshots invert elements named (a load range that drives
-/// the body far past what an elastic model means swamps the basis); None when it passes.
+/// self-check's threshold, or of the held-out runs above the out-of-sample one), with how
+/// many training runs were cut past `plan_rotation` degrees or an inverted element; None when
+/// it passes.
 fn failed_check(
-    full: &FullOrder,
+    plan_rotation: f64,
     built: &Tier,
     check: &SelfCheck,
     out_of_sample: Option<&OutOfSample>,
@@ -482,31 +523,15 @@ fn failed_check(
         percent(failing.median())
     );
     let training = &built.training;
-    let mut inverted: Vec<(String, usize, f64)> = Vec::new();
-    for (k, (label, _)) in training.runs.iter().enumerate() {
-        let worst = training
-            .snapshots
-            .iter()
-            .zip(&training.run_of)
-            .filter(|(_, &r)| r == k)
-            .map(|(u, _)| training::deformation(&full.fem, u))
-            .fold((0usize, 0.0f64), |a, d| {
-                (a.0.max(d.inverted), a.1.max(d.max_rotation))
-            });
-        if worst.0 > 0 {
-            inverted.push((label.clone(), worst.0, worst.1));
-        }
-    }
-    if let Some((label, count, _)) = inverted.iter().max_by_key(|x| x.1) {
-        let largest = training.envelope.max_displacement;
+    let cut = training.cuts.iter().flatten().count();
+    if cut > 0 {
         why.push_str(&format!(
-            "; {} of the {} training runs invert elements (det F ≤ 0), up to {count} in \
-             '{label}', and the largest training displacement is {largest:.3e} m: the training \
-             loads ({}× each group's range) drive the body past anything an elastic model \
-             means, and those snapshots swamp the basis",
-            inverted.len(),
+            "; {cut} of the {} training runs were cut where their load inverted an element or \
+             rotated one past max_rotation ({}°), and the largest training displacement kept \
+             is {:.3e} m",
             training.runs.len(),
-            built.training.envelope.max_multiple
+            plan_rotation,
+            training.envelope.max_displacement
         ));
     }
     if let Some(w) = warning {
@@ -515,6 +540,7 @@ fn failed_check(
     Some(why)
 }
 
+/// A tier error of the scene of `full`.
 fn tier_error(full: &FullOrder, e: &dyn std::fmt::Display) -> CompileError {
     CompileError::Tier {
         path: full.scene_path().to_path_buf(),

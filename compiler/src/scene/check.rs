@@ -418,6 +418,12 @@ impl CorotationalSpec {
         if let Some(c) = self.model_error_scale {
             in_range(&f("model_error_scale"), c, (0.0, 1e6), "")?;
         }
+        if let Some(angle) = self.max_rotation {
+            in_range(&f("max_rotation"), angle, (0.0, 180.0), "degrees")?;
+            if angle <= 0.0 {
+                return Err(format!("{} must be > 0 degrees", f("max_rotation")));
+            }
+        }
         in_range(
             &f("newton_tolerance"),
             self.newton_tolerance,
