@@ -10,8 +10,8 @@ use crate::error::CompileError;
 use crate::fem::operators::Operators;
 use crate::fem::FemModel;
 use crate::mesh::{read_mesh_bytes, Mesh};
-use crate::noise::{ForceSigma, ForceStatement, NoiseError, NoiseModel};
-use crate::scene::SceneFile;
+use crate::noise::{ForceSigma, ForceStatement, NoiseError, NoiseModel, NoiseSpec};
+use crate::scene::{Scene, SceneFile, DEFAULT_MODEL_ERROR_SCALE};
 use crate::timer::StageTimer;
 
 /// The compiler's version string, part of every model's input digest.
@@ -34,45 +34,57 @@ pub struct FullOrder {
     pub operators: Operators,
     /// Δt and θ (docs/design.md §2), from the scene's time spec.
     pub wilson: WilsonTheta,
+    /// What the scene states of its filters' noise ([`noise_spec`]), built once with the rest.
+    pub noise: NoiseSpec,
+}
+
+/// What `scene` states of its filters' noise (docs/design.md §11.4, §11.8–11.9): per estimated
+/// load group in scene order (each load with `force_model = "random_walk"`, the default), its
+/// force σ stated by `force_noise_std` > 0 or derived from its range (`range`, else the tier's
+/// `ranges` entry) and `rise_time`, with its rate σ (`force_rate_noise_std`, 0: no rate
+/// states); and the factor on the tier's model error (`[reduction.corotational]
+/// model_error_scale`, [`crate::scene::DEFAULT_MODEL_ERROR_SCALE`] when not stated or without
+/// a tier section). One value for the warped tier's force states and the co-rotational tier's
+/// filter. The scene's checks guarantee a range where σ is derived.
+pub fn noise_spec(scene: &Scene) -> NoiseSpec {
+    let forces = scene
+        .loads
+        .iter()
+        .enumerate()
+        .filter(|(_, l)| l.is_estimated())
+        .filter_map(|(i, l)| {
+            let sigma = if l.force_noise_std > 0.0 {
+                ForceSigma::Stated(l.force_noise_std)
+            } else {
+                ForceSigma::Derived {
+                    range: scene.load_range(l)?,
+                    rise_time: l.rise_time(),
+                }
+            };
+            Some(ForceStatement {
+                load: i,
+                sigma,
+                rate_sigma: l.force_rate_noise_std,
+                rise_time: l.rise_time(),
+            })
+        })
+        .collect();
+    let model_error_scale = scene
+        .reduction
+        .corotational
+        .as_ref()
+        .map_or(DEFAULT_MODEL_ERROR_SCALE, |c| c.model_error_scale());
+    NoiseSpec {
+        forces,
+        model_error_scale,
+    }
 }
 
 impl FullOrder {
-    /// What the scene states about its estimated load groups (docs/design.md §11.4, §11.8),
-    /// in scene order: each load with `force_model = "random_walk"` (the default), its force σ
-    /// stated by `force_noise_std` > 0 or derived from its range (`range`, else the tier's
-    /// `ranges` entry) and `rise_time`, with its rate σ (`force_rate_noise_std`, 0: no rate
-    /// states). One list for the warped tier's force states and the co-rotational tier's
-    /// ([`crate::noise::NoiseModel`]). The scene's checks guarantee a range where σ is derived.
-    pub fn force_statements(&self) -> Vec<ForceStatement> {
-        let scene = &self.scene.scene;
-        scene
-            .loads
-            .iter()
-            .enumerate()
-            .filter(|(_, l)| l.is_estimated())
-            .filter_map(|(i, l)| {
-                let sigma = if l.force_noise_std > 0.0 {
-                    ForceSigma::Stated(l.force_noise_std)
-                } else {
-                    ForceSigma::Derived {
-                        range: scene.load_range(l)?,
-                        rise_time: l.rise_time(),
-                    }
-                };
-                Some(ForceStatement {
-                    load: i,
-                    sigma,
-                    rate_sigma: l.force_rate_noise_std,
-                    rise_time: l.rise_time(),
-                })
-            })
-            .collect()
-    }
-
-    /// The scene's noise model ([`FullOrder::force_statements`] on its operators), derived σ
-    /// not yet fixed ([`NoiseModel::derive`]).
+    /// The scene's noise model ([`FullOrder::noise`] on its operators), derived σ not yet
+    /// fixed ([`NoiseModel::derive`]).
     pub fn noise_model(&self) -> Result<NoiseModel, NoiseError> {
-        NoiseModel::new(&self.force_statements(), &self.operators, self.wilson.dt)
+        NoiseModel::new(&self.noise, &self.operators, self.wilson.dt)
     }
 
     /// Reads the scene and mesh, assembles K and M and builds the operators; stage costs go to
@@ -114,7 +126,9 @@ impl FullOrder {
                     })
             })
             .collect::<Result<Vec<_>, _>>()?;
+        let noise = noise_spec(&scene.scene);
         Ok(FullOrder {
+            noise,
             scene,
             mesh,
             mesh_bytes,

@@ -1,6 +1,8 @@
-//! The noise model of both tiers' filters (docs/design.md §6, §11.4–11.5, §11.8): which
-//! stochastic states a filter carries beyond the model's own and their σ, built once from the
-//! scene (`FullOrder::noise_model`), its derived σ fixed by [`NoiseModel::derive`], and read by
+//! The noise model of both tiers' filters (docs/design.md §6, §11.4–11.5, §11.8–11.9): what the
+//! scene states of it as one value, [`NoiseSpec`] (built once, `FullOrder::noise_spec`; the
+//! noise identification varies a copy, never the scene), and which stochastic states a filter
+//! carries beyond the model's own and their σ, [`NoiseModel`], built from a spec, its derived σ
+//! fixed by [`NoiseModel::derive`], and read by
 //! the warped tier's force states (`crate::reduced::ReducedModel::with_force_states`), the
 //! co-rotational tier's filter design (`crate::nonlinear::filter`), the model file's tier
 //! section (refiltering a file for a scene) and the noise identification
@@ -60,6 +62,35 @@ pub struct ForceStatement {
     pub rise_time: f64,
 }
 
+/// What a scene states about its filters' noise, as one value: each estimated load group's
+/// force statement and the factor on the co-rotational tier's measured model error. Built once
+/// from the scene (`FullOrder::noise_spec`) and passed to every filter design, refilter and
+/// identification; a caller that needs other σ (the noise identification's fixed point, a
+/// measurement's explicit override) changes a copy.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NoiseSpec {
+    /// Per estimated load group, in scene order.
+    pub forces: Vec<ForceStatement>,
+    /// Factor on the tier's measured model error S in its filter's process noise (S × this
+    /// factor; 0: no such term; docs/design.md §11.9).
+    pub model_error_scale: f64,
+}
+
+impl NoiseSpec {
+    /// The statement of load group `load` (index into the scene's loads), if it is estimated.
+    pub fn force_mut(&mut self, load: usize) -> Option<&mut ForceStatement> {
+        self.forces.iter_mut().find(|f| f.load == load)
+    }
+
+    /// Every estimated load's force σ stated as `sigma`, N per step (nothing left to derive).
+    pub fn with_force_sigma(mut self, sigma: f64) -> Self {
+        for f in &mut self.forces {
+            f.sigma = ForceSigma::Stated(sigma);
+        }
+        self
+    }
+}
+
 /// Why the scene's noise model cannot be built.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum NoiseError {
@@ -104,6 +135,8 @@ pub struct NoiseModel {
     pub rates: bool,
     /// The white process-noise channels (indices into `Operators::noise`).
     pub white: Vec<usize>,
+    /// Factor on the tier's measured model error ([`NoiseSpec::model_error_scale`]).
+    pub model_error_scale: f64,
 }
 
 /// One derived σ, for the compile's notes.
@@ -139,13 +172,10 @@ impl Derivation {
 }
 
 impl NoiseModel {
-    /// The noise model of the force `statements` (in scene order) on the operators `ops`, the
-    /// time step `dt` (s) giving the first guess of a derived σ.
-    pub fn new(
-        statements: &[ForceStatement],
-        ops: &Operators,
-        dt: f64,
-    ) -> Result<Self, NoiseError> {
+    /// The noise model of `spec` on the operators `ops`, the time step `dt` (s) giving the
+    /// first guess of a derived σ.
+    pub fn new(spec: &NoiseSpec, ops: &Operators, dt: f64) -> Result<Self, NoiseError> {
+        let statements = &spec.forces;
         let mut groups = Vec::with_capacity(statements.len());
         for s in statements {
             let mut channels = [0; 3];
@@ -185,6 +215,7 @@ impl NoiseModel {
             groups,
             rates,
             white,
+            model_error_scale: spec.model_error_scale,
         })
     }
 
@@ -321,6 +352,7 @@ mod tests {
             ],
             rates: false,
             white: Vec::new(),
+            model_error_scale: 1.0,
         };
         let lag = |m: &NoiseModel, k: usize, delta: f64| {
             let other = m.groups[2 - k].sigma;

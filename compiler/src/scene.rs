@@ -860,6 +860,10 @@ pub const DEFAULT_TIER_ORDER: usize = 20;
 /// The ECSW tolerance unless the scene or the fidelity rule says otherwise.
 pub const DEFAULT_ECSW_TOLERANCE: f64 = 5e-3;
 
+/// Default `[reduction.corotational] model_error_scale`: the tier's filter takes its measured
+/// model error as it is (docs/design.md §11.9).
+pub const DEFAULT_MODEL_ERROR_SCALE: f64 = 1.0;
+
 /// Default `[reduction.corotational] max_rotation`, degrees: the largest element rotation a
 /// training snapshot keeps, chosen on the cuts it makes (docs/corotational-tier.md §12).
 pub const DEFAULT_MAX_ROTATION: f64 = 120.0;
@@ -880,9 +884,9 @@ impl CorotationalSpec {
         self.ecsw_tolerance.unwrap_or(DEFAULT_ECSW_TOLERANCE)
     }
 
-    /// The factor on the measured model error: as stated, else 1.
+    /// The factor on the measured model error: as stated, else [`DEFAULT_MODEL_ERROR_SCALE`].
     pub fn model_error_scale(&self) -> f64 {
-        self.model_error_scale.unwrap_or(1.0)
+        self.model_error_scale.unwrap_or(DEFAULT_MODEL_ERROR_SCALE)
     }
 
     /// The ECSW element cap: as stated, else [`DEFAULT_ECSW_MAX_ELEMENTS`].

@@ -56,7 +56,7 @@ fn the_linearised_step_is_the_compilers_transition() {
     let (path, model) = compiled();
     let t = model.tier.as_ref().unwrap();
     let full = FullOrder::build(path, &mut StageTimer::default()).unwrap();
-    let (lin, _, _) = section::linearised_of_file(&full, model).unwrap();
+    let (lin, _, _) = section::linearised_of_file(&full, model, &full.noise).unwrap();
     let (expected, _) = lin.transition().unwrap();
     let tm = TierModel::new(model, t);
     let mut st = TierState::new(&tm, model.loads.len());
@@ -118,7 +118,7 @@ fn a_lost_marker_updates_from_the_recursions_covariance() {
     let t = model.tier.as_ref().unwrap();
     let n = t.state_dim();
     let full = FullOrder::build(path, &mut StageTimer::default()).unwrap();
-    let (lin, _, _) = section::linearised_of_file(&full, model).unwrap();
+    let (lin, _, _) = section::linearised_of_file(&full, model, &full.noise).unwrap();
     let (f, _) = lin.transition().unwrap();
     let q_noise = |est: &Estimator| {
         section::file_matrix(

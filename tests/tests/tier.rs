@@ -510,6 +510,12 @@ fn training_runs_are_cut_where_they_rotate_past_max_rotation() {
         trimmed.envelope.max_displacement < whole.envelope.max_displacement,
         "the envelope is the kept snapshots'"
     );
+    // Uncut, the envelope's forces are the plan's; cut, at most those.
+    assert_eq!(whole.envelope.max_multiple, plan.max_multiple());
+    for (g, (name, f)) in whole.envelope.max_force.iter().enumerate() {
+        assert_eq!(*f, plan.max_force(g), "{name}");
+        assert!(trimmed.envelope.max_force[g].1 <= *f, "{name}");
+    }
 
     let compiled = compiled_variant("cut.toml", |base| {
         base.replace("every = 2", &format!("every = 2\nmax_rotation = {LIMIT}"))
@@ -836,7 +842,7 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
         .iter()
         .all(|&n| n > 0.0 && n <= largest * (1.0 + 1e-12)));
     let full = FullOrder::build(random_walk_scene(), &mut StageTimer::default()).unwrap();
-    let (lin, _, _) = section::linearised_of_file(&full, model).unwrap();
+    let (lin, _, _) = section::linearised_of_file(&full, model, &full.noise).unwrap();
     let reduced = section::reduced_model_of_file(&full, t).unwrap();
     let prepared = TierModel::new(model, t);
     assert_eq!(prepared.filter_count(), 1 + t.scheduled.len());
@@ -873,7 +879,7 @@ fn the_gain_schedule_solves_the_riccati_equation_at_its_points() {
         t.scheduled.len()
     );
     let mut again = model.clone();
-    section::refilter(&full, &mut again).unwrap();
+    section::refilter(&full, &mut again, &full.noise).unwrap();
     let again = again.tier.unwrap();
     assert_eq!(again.scheduled.len(), t.scheduled.len());
     for (a, b) in again.scheduled.iter().zip(&t.scheduled) {
@@ -1095,7 +1101,7 @@ fn element_det(t: &crokf_formats::CorotationalTier, e: usize, q: &[f64]) -> f64 
         + f[0][2] * (f[1][0] * f[2][1] - f[1][1] * f[2][0])
 }
 
-/// Hard case (issue 11 item 4): inverted sampled elements. (1) The runtime's force refuses
+/// Hard case: inverted sampled elements. (1) The runtime's force refuses
 /// exactly where the model file's own geometry says a sampled element is inverted (det F
 /// computed here, not by the kernel): along each basis vector, scaled until elements invert.
 /// (2) Through `Estimator`: the beam crushed by a sudden axial tip load within the input
@@ -1677,7 +1683,7 @@ fn identify_noise_recovers_the_random_walk_of_a_known_truth() {
     let inputs = vec![vec![0.0; model.inputs.len()]; recording.len()];
     let run = filter_run(model, &inputs, &recording).unwrap();
     let (innovations, filters) = (&run.innovations, &run.filters);
-    let found = identify_noise(&full, model, innovations, filters, 100, 20).unwrap();
+    let found = identify_noise(&full, &full.noise, model, innovations, filters, 100, 20).unwrap();
     let load = &found.loads[0];
     let switches = run.switches();
     let used: std::collections::BTreeSet<usize> = filters.iter().map(|f| f.0).collect();

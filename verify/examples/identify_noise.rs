@@ -137,7 +137,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     if base.tier.is_none() {
         return Err(format!("{model_path} has no co-rotational tier").into());
     }
-    let mut full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
+    let full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
     let recording = match (scenario, &recording) {
         (Some(scenario), _) => {
             let (inputs, measurements) =
@@ -163,7 +163,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         schedule,
         filter_sigma: force_sigma,
     };
-    let found = identify(&mut full, &base, &recording, &options)?;
+    let found = identify(&full, &base, &recording, &options)?;
     print!("{}", found.report());
     if let Some(out) = &out {
         found.check()?;

@@ -44,7 +44,8 @@
 //! (written once, read while the step count matches: use one file per scene and scenario);
 //! `CROKF_RUNS=open,given,withheld` runs only those; `CROKF_NO_MODEL_ERROR=1` recomputes a
 //! `FILE@SCENE2` filter without the tier's model-error noise (docs/design.md §11.9),
-//! `CROKF_MODEL_ERROR_SCALE=c` with that noise's measured covariance × c;
+//! `CROKF_MODEL_ERROR_SCALE=c` with that noise's measured covariance × c (c replaces SCENE2's
+//! `model_error_scale`);
 //! `CROKF_NOISE_SCALE=c` scales the markers' noise (0: noise-free, the filter unchanged);
 //! `CROKF_NO_SCHEDULE=1` drops the tier's gain schedule (the filter designed at rest only,
 //! docs/design.md §11.5); `CROKF_TRACE=1` prints
@@ -622,22 +623,19 @@ fn read_model(arg: &str) -> Result<crokf_formats::Model, Box<dyn std::error::Err
         Err(e) => return Err(e.into()),
     };
     let full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
+    // The scene's noise, its model-error factor replaced (not compounded) when asked.
+    let mut spec = full.noise.clone();
     if std::env::var_os("CROKF_NO_MODEL_ERROR").is_some() {
-        if let Some(t) = model.tier.as_mut() {
-            t.model_error = crokf_formats::Matrix::default();
-        }
+        spec.model_error_scale = 0.0;
     }
     if let Ok(v) = std::env::var("CROKF_MODEL_ERROR_SCALE") {
-        let c: f64 = v
+        spec.model_error_scale = v
             .parse()
-            .map_err(|_| format!("CROKF_MODEL_ERROR_SCALE={v}: not a number"))?;
-        if let Some(t) = model.tier.as_mut() {
-            for x in t.model_error.data.iter_mut() {
-                *x *= c;
-            }
-        }
+            .ok()
+            .filter(|c: &f64| c.is_finite() && *c >= 0.0)
+            .ok_or_else(|| format!("CROKF_MODEL_ERROR_SCALE={v}: not a factor ≥ 0"))?;
     }
-    let rho = crokf_compile::model_file::tier::refilter(&full, &mut model)?;
+    let rho = crokf_compile::model_file::tier::refilter(&full, &mut model, &spec)?;
     eprintln!("{arg}: tier filter recomputed, closed-loop spectral radius {rho:.6}");
     model.validate()?;
     Ok(model)

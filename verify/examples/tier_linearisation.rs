@@ -70,7 +70,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let full = match &variant {
         Some(scene) => {
             let full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
-            tier::refilter(&full, &mut model)?;
+            tier::refilter(&full, &mut model, &full.noise)?;
             full
         }
         None => base,
@@ -79,7 +79,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         .tier
         .as_ref()
         .ok_or("the model has no co-rotational tier")?;
-    let (lin0, measurements, _) = tier::linearised_of_file(&full, &model)?;
+    let (lin0, measurements, _) = tier::linearised_of_file(&full, &model, &full.noise)?;
     let reduced = tier::reduced_model_of_file(&full, t)?;
     let r = t.order as usize;
     let ops = &full.operators;

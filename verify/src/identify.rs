@@ -26,6 +26,7 @@
 use std::path::{Path, PathBuf};
 
 use crokf_compile::full_order::FullOrder;
+use crokf_compile::noise::{ForceSigma, NoiseSpec};
 use crokf_compile::nonlinear::identify::IdentifiedNoise;
 use crokf_compile::scene::{ForceModel, Scene, SceneFile};
 use crokf_formats::output::{check_paths, write_atomically, Output, OutputKind};
@@ -278,17 +279,21 @@ pub struct Identification {
     pub fixed_point: Option<FixedPoint>,
 }
 
-/// One run of the identification over the whole recording with the scene's current σ.
+/// One run of the identification over the whole recording with the σ of one [`NoiseSpec`].
 struct Run {
+    /// The σ of the run's filters.
+    spec: NoiseSpec,
     model: Model,
     innovations: Vec<Vec<f64>>,
     filters: Vec<(usize, usize)>,
     switches: usize,
 }
 
-/// Runs the tier's filter, recomputed for `full`'s noise, over `recording`.
+/// Runs the tier's filter, recomputed for the noise `spec` on the scene `full`, over
+/// `recording`.
 fn filter_over(
     full: &FullOrder,
+    spec: &NoiseSpec,
     base: &Model,
     recording: &Recording,
     schedule: bool,
@@ -300,11 +305,12 @@ fn filter_over(
         }
     }
     let failed = |e: &dyn std::fmt::Display| IdentifyError::Failed(e.to_string());
-    crokf_compile::model_file::tier::refilter(full, &mut model).map_err(|e| failed(&e))?;
+    crokf_compile::model_file::tier::refilter(full, &mut model, spec).map_err(|e| failed(&e))?;
     model.validate().map_err(|e| failed(&e))?;
     let run =
         filter_run(&model, &recording.inputs, &recording.measurements).map_err(|e| failed(&e))?;
     Ok(Run {
+        spec: spec.clone(),
         switches: run.switches(),
         model,
         innovations: run.innovations,
@@ -324,6 +330,7 @@ impl Run {
     ) -> Result<IdentifiedNoise, IdentifyError> {
         crokf_compile::nonlinear::identify::identify_noise(
             full,
+            &self.spec,
             &self.model,
             &self.innovations[..to],
             &self.filters[..to],
@@ -349,7 +356,7 @@ fn check_inputs(
                 .into(),
         ));
     };
-    if full.force_statements().is_empty() || tier.force_loads.is_empty() {
+    if full.noise.forces.is_empty() || tier.force_loads.is_empty() {
         return Err(IdentifyError::Model(
             "the model estimates no load (no load with force_model = \"random_walk\" and a \
              range or force_noise_std): there is no force σ to identify"
@@ -387,59 +394,20 @@ fn check_inputs(
 }
 
 /// Identifies the noise of `model`'s tier from `recording` (module docs). `full` is the scene
-/// the model was compiled from; its loads' σ are those of the filters during the call and
-/// restored after it. The verdict is [`Identification::check`].
+/// the model was compiled from; the filters start from its noise (`full.noise`), and the
+/// fixed point varies a copy of it. The verdict is [`Identification::check`].
 pub fn identify(
-    full: &mut FullOrder,
+    full: &FullOrder,
     model: &Model,
     recording: &Recording,
     options: &IdentifyOptions,
 ) -> Result<Identification, IdentifyError> {
     check_inputs(full, model, recording, options)?;
-    let saved: Vec<(f64, f64)> = full
-        .scene
-        .scene
-        .loads
-        .iter()
-        .map(|l| (l.force_noise_std, l.force_rate_noise_std))
-        .collect();
-    let saved_scale = spec_scale(full);
-    let result = identify_with(full, model, recording, options);
-    for (l, (f, r)) in full.scene.scene.loads.iter_mut().zip(saved) {
-        l.force_noise_std = f;
-        l.force_rate_noise_std = r;
-    }
-    set_spec_scale(full, saved_scale);
-    result
-}
-
-/// The scene's stated `model_error_scale` (None: not stated, or no tier section).
-fn spec_scale(full: &FullOrder) -> Option<f64> {
-    full.scene
-        .scene
-        .reduction
-        .corotational
-        .as_ref()
-        .and_then(|c| c.model_error_scale)
-}
-
-/// Sets the scene's `model_error_scale` (the filters of the next run use it).
-fn set_spec_scale(full: &mut FullOrder, scale: Option<f64>) {
-    if let Some(c) = full.scene.scene.reduction.corotational.as_mut() {
-        c.model_error_scale = scale;
-    }
-}
-
-fn identify_with(
-    full: &mut FullOrder,
-    model: &Model,
-    recording: &Recording,
-    options: &IdentifyOptions,
-) -> Result<Identification, IdentifyError> {
     // The scene's σ (stated or derived on the file's linearisation, as the compile did)
     // before any filter σ replaces them.
-    let (_, _, noise) = crokf_compile::model_file::tier::linearised_of_file(full, model)
-        .map_err(|e| IdentifyError::Failed(e.to_string()))?;
+    let (_, _, noise) =
+        crokf_compile::model_file::tier::linearised_of_file(full, model, &full.noise)
+            .map_err(|e| IdentifyError::Failed(e.to_string()))?;
     // (load, stated, σ_f, σ_ḟ) of each estimated load.
     let scene_sigmas: Vec<(usize, bool, f64, f64)> = noise
         .groups
@@ -449,19 +417,18 @@ fn identify_with(
             (g.load, stated, g.sigma, g.rate_sigma)
         })
         .collect();
+    let mut spec = full.noise.clone();
     if let Some(sigma) = options.filter_sigma {
         if !(sigma.is_finite() && sigma > 0.0) {
             return Err(IdentifyError::Usage(format!(
                 "filter σ {sigma}: must be > 0 (N per step)"
             )));
         }
-        for &(g, _, _, _) in &scene_sigmas {
-            full.scene.scene.loads[g].force_noise_std = sigma;
-        }
+        spec = spec.with_force_sigma(sigma);
     }
-    let scene_factor = crokf_compile::nonlinear::filter::stated_model_error_scale(full);
+    let scene_factor = full.noise.model_error_scale;
     let (steps, skip, lags) = (recording.steps(), options.skip, options.lags);
-    let mut run = filter_over(full, model, recording, options.schedule)?;
+    let mut run = filter_over(full, &spec, model, recording, options.schedule)?;
     let mut whole = run.identify(full, skip, steps, lags)?;
     let mut fixed = None;
     if options.fixed_point {
@@ -507,17 +474,21 @@ fn identify_with(
                 break;
             }
             for (g, is_rate, new) in next {
-                let load = &mut full.scene.scene.loads[g];
+                let Some(force) = spec.force_mut(g) else {
+                    return Err(IdentifyError::Failed(format!(
+                        "load group {g} identified but not estimated by the scene"
+                    )));
+                };
                 if is_rate {
-                    load.force_rate_noise_std = new;
+                    force.rate_sigma = new;
                 } else {
-                    load.force_noise_std = new;
+                    force.sigma = ForceSigma::Stated(new);
                 }
             }
             if let Some((_, new)) = whole.model_error_scale {
-                set_spec_scale(full, Some(new));
+                spec.model_error_scale = new;
             }
-            run = filter_over(full, model, recording, options.schedule)?;
+            run = filter_over(full, &spec, model, recording, options.schedule)?;
             whole = run.identify(full, skip, steps, lags)?;
             course.iterations += 1;
         }
@@ -1197,12 +1168,12 @@ pub fn identify_files(
     }
     let model = crokf_runtime::load_model(files.model).map_err(|e| failed(&e))?;
     let recording = Recording::read(&model, files.measurements, files.inputs)?;
-    let mut full = FullOrder::build(
+    let full = FullOrder::build(
         files.scene,
         &mut crokf_compile::report::StageTimer::default(),
     )
     .map_err(|e| failed(&e))?;
-    let found = identify(&mut full, &model, &recording, options)?;
+    let found = identify(&full, &model, &recording, options)?;
     if let Err(error) = found.check() {
         return Err(Refusal {
             error,

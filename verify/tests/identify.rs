@@ -168,7 +168,7 @@ fn a_known_random_walk_is_recovered_within_its_uncertainty() {
     let model = model();
     let recording = Recording::read(&model, &dir().join("walk.csv"), None).unwrap();
     assert_eq!(recording.steps(), STEPS);
-    let found = identify(&mut full(), &model, &recording, &test_options()).unwrap();
+    let found = identify(&full(), &model, &recording, &test_options()).unwrap();
     print!("{}", found.report());
     let load = &found.loads[0];
     assert_eq!(load.name, "tip");
@@ -233,7 +233,7 @@ fn the_written_scene_keeps_the_rest_and_compiles_with_the_identified_sigma() {
     // The value is the identified σ to 4 digits.
     let model = model();
     let recording = Recording::read(&model, &dir.join("walk.csv"), None).unwrap();
-    let found = identify(&mut full(), &model, &recording, &test_options()).unwrap();
+    let found = identify(&full(), &model, &recording, &test_options()).unwrap();
     let sigma = found.loads[0].force.value;
     assert!(
         (values[0] / sigma - 1.0).abs() < 5e-4,
@@ -252,7 +252,7 @@ fn the_written_scene_keeps_the_rest_and_compiles_with_the_identified_sigma() {
     assert_eq!(c.model.tier.as_ref().unwrap().force_loads, vec![0]);
     let full = FullOrder::build(&out, &mut StageTimer::default()).unwrap();
     let (_, _, noise) =
-        crokf_compile::model_file::tier::linearised_of_file(&full, &c.model).unwrap();
+        crokf_compile::model_file::tier::linearised_of_file(&full, &c.model, &full.noise).unwrap();
     assert_eq!(noise.groups[0].sigma, values[0]);
 }
 
@@ -321,10 +321,10 @@ fn a_scene_without_estimated_loads_is_refused() {
         .replace("force_model = \"random_walk\"", "force_model = \"white\"");
     let path = dir().join("white.toml");
     std::fs::write(&path, text).unwrap();
-    let mut full = FullOrder::build(&path, &mut StageTimer::default()).unwrap();
+    let full = FullOrder::build(&path, &mut StageTimer::default()).unwrap();
     let model = model();
     let recording = Recording::read(&model, &dir().join("walk.csv"), None).unwrap();
-    let e = identify(&mut full, &model, &recording, &test_options()).unwrap_err();
+    let e = identify(&full, &model, &recording, &test_options()).unwrap_err();
     assert!(matches!(e, IdentifyError::Model(_)), "{e:?}");
     assert!(e.to_string().contains("estimates no load"), "{e}");
 }
@@ -380,8 +380,8 @@ fn the_fixed_point_confirms_its_own_sigma() {
         fixed_point: true,
         ..test_options()
     };
-    let mut full = full();
-    let found = identify(&mut full, &model, &recording, &options).unwrap();
+    let full = full();
+    let found = identify(&full, &model, &recording, &options).unwrap();
     print!("{}", found.report());
     let course = found.fixed_point.as_ref().unwrap();
     assert!(course.converged, "{course:?}");
@@ -400,6 +400,10 @@ fn the_fixed_point_confirms_its_own_sigma() {
         "{load:?}"
     );
     found.check().unwrap();
-    // The scene's σ is restored after the call.
+    // The fixed point varied a copy of the scene's noise: the scene's own is as it was.
     assert_eq!(full.scene.scene.loads[0].force_noise_std, FILTER_SIGMA);
+    assert_eq!(
+        full.noise.forces[0].sigma,
+        crokf_compile::noise::ForceSigma::Stated(FILTER_SIGMA)
+    );
 }

@@ -11,7 +11,7 @@ use crokf_formats as fmt;
 
 use crate::fem::operators::InputKind;
 use crate::full_order::FullOrder;
-use crate::noise::{load_channel, NoiseModel};
+use crate::noise::{load_channel, NoiseModel, NoiseSpec};
 use crate::nonlinear::cubature::{Cubature, SampledElement};
 use crate::nonlinear::filter::{
     add_force_levels, derive_force_sigma, filter_of, measured_rows, scheduled_filters,
@@ -204,23 +204,24 @@ fn dense_matrix(m: &DMatrix<f64>) -> fmt::Matrix {
 }
 
 /// The [`LinearisedTier`] of a model file's tier at rest for the scene `full` (same mesh and
-/// loads; the scene gives the sensors' noise and rates and the force-noise σ) and the scene's
-/// [`Measurements`]: K_r at rest = Σ wₑ V_eᵀ Kₑ V_e over the sampled elements, M_r, VᵀB and the
-/// sensor rows from the file, the noise model from the scene with its derived σ fixed on this
-/// linearisation ([`derive_force_sigma`], as the compile did). The scene's distributed force
-/// noise is not in the file (no VᵀB_w): refused.
+/// loads; the scene gives the sensors' noise and rates) with the noise `spec` (the scene's own
+/// is `full.noise`), and the scene's [`Measurements`]: K_r at rest = Σ wₑ V_eᵀ Kₑ V_e over the
+/// sampled elements, M_r, VᵀB and the sensor rows from the file, the noise model of `spec`
+/// with its derived σ fixed on this linearisation ([`derive_force_sigma`], as the compile
+/// did). The scene's distributed force noise is not in the file (no VᵀB_w): refused.
 pub fn linearised_of_file(
     full: &FullOrder,
     model: &fmt::Model,
+    spec: &NoiseSpec,
 ) -> Result<(LinearisedTier, Measurements, NoiseModel), NonlinearError> {
-    let mut noise = full.noise_model()?;
+    let mut noise = NoiseModel::new(spec, &full.operators, full.wilson.dt)?;
     let (mut lin, measurements) = linearised_of_file_with(full, model, &noise)?;
     derive_force_sigma(&lin, &mut noise, &measurements)?;
     lin.force_sigma = noise.force_sigma();
     Ok((lin, measurements, noise))
 }
 
-/// [`linearised_of_file`] with the scene's noise model `noise` (`FullOrder::noise_model`).
+/// [`linearised_of_file`] with the noise model `noise` (e.g. `FullOrder::noise_model`).
 pub fn linearised_of_file_with(
     full: &FullOrder,
     model: &fmt::Model,
@@ -285,7 +286,7 @@ pub fn linearised_of_file_with(
         noise_columns,
         measured_rows: measured_rows(&measurements, |s| file_matrix(&t.sensor_rows[s])),
         model_error: (t.model_error.rows > 0).then(|| file_matrix(&t.model_error)),
-        model_error_scale: crate::nonlinear::filter::stated_model_error_scale(full),
+        model_error_scale: noise.model_error_scale,
     };
     Ok((lin, measurements))
 }
@@ -340,13 +341,18 @@ pub fn reduced_model_of_file(
 }
 
 /// Recomputes the tier filter of a model file for the scene `full` (same mesh, loads and
-/// training; other sensors' noise, rates or force-noise σ): the [`LinearisedTier`] is read
-/// from the file's tier section (M_r, K_r at rest = Σ wₑ V_eᵀ Kₑ V_e over the sampled
-/// elements, VᵀB, the sensor rows), the noise model from the scene, and the section's
-/// `force_loads` and `kalman` are replaced. The scene's distributed force noise is not in the
-/// file (no VᵀB_w): refused. Returns the new filter's closed-loop spectral radius.
-pub fn refilter(full: &FullOrder, model: &mut fmt::Model) -> Result<f64, NonlinearError> {
-    let (lin, measurements, noise) = linearised_of_file(full, model)?;
+/// training; other sensors' noise or rates) with the noise `spec` (force σ, model-error
+/// factor; the scene's own is `full.noise`): the [`LinearisedTier`] is read from the file's
+/// tier section (M_r, K_r at rest = Σ wₑ V_eᵀ Kₑ V_e over the sampled elements, VᵀB, the
+/// sensor rows), and the section's `force_loads` and `kalman` are replaced. The scene's
+/// distributed force noise is not in the file (no VᵀB_w): refused. Returns the new filter's
+/// closed-loop spectral radius.
+pub fn refilter(
+    full: &FullOrder,
+    model: &mut fmt::Model,
+    spec: &NoiseSpec,
+) -> Result<f64, NonlinearError> {
+    let (lin, measurements, noise) = linearised_of_file(full, model, spec)?;
     let Some(t) = model.tier.as_mut() else {
         return Err(NonlinearError::Invalid(
             "refilter: the model has no tier".into(),

@@ -50,20 +50,9 @@ pub struct LinearisedTier {
     /// [`super::self_check::SelfCheck::model_error_covariance`]), taken as process noise
     /// ([`model_error_noise`], docs/design.md §11.9); None: no such noise.
     pub model_error: Option<DMatrix<f64>>,
-    /// The scene's factor on `model_error` ([`stated_model_error_scale`]): the filter's
+    /// The factor on `model_error` ([`NoiseModel::model_error_scale`]): the filter's
     /// model-error covariance is S × this factor.
     pub model_error_scale: f64,
-}
-
-/// The scene's `[reduction.corotational] model_error_scale` (1 when not stated or without a
-/// tier section): the factor on the measured model error S in the tier's filter.
-pub fn stated_model_error_scale(full: &FullOrder) -> f64 {
-    full.scene
-        .scene
-        .reduction
-        .corotational
-        .as_ref()
-        .map_or(1.0, |c| c.model_error_scale())
 }
 
 impl LinearisedTier {
@@ -310,7 +299,7 @@ pub fn linearise_at_rest(
             point_rows(full, v, &ops.sensors[s].weights)
         }),
         model_error: None,
-        model_error_scale: stated_model_error_scale(full),
+        model_error_scale: noise.model_error_scale,
     }
 }
 

@@ -11,6 +11,7 @@ use crokf_formats as fmt;
 use crate::full_order::FullOrder;
 use crate::kalman;
 use crate::model_file::tier::{linearised_of_file, reduced_model_of_file};
+use crate::noise::NoiseSpec;
 
 use super::filter::scaled_system;
 use super::NonlinearError;
@@ -56,20 +57,22 @@ pub struct IdentifiedNoise {
 /// at each scheduled point, all mapped into the rest filter's scaled coordinates. Parameters:
 /// a factor on the variance of the white channels, of each random-walk load group's force
 /// increments and rate increments, of the tier's model error (when the filter has that term,
-/// docs/design.md §11.9) and of the markers' variance; each is σ² × θ, θ ≥ 0, σ those
-/// of the scene `full` (the noise model's shape: same loads and markers as the model's).
+/// docs/design.md §11.9) and of the markers' variance; each is σ² × θ, θ ≥ 0, σ those of
+/// the noise `spec` (the run's filters' σ, on the scene `full`'s loads and markers: the same as
+/// the model's).
 /// Approximation: a white channel's process noise enters through the modal load of the rest
 /// linearisation at every point (the force, rate and marker parameters are exact; the example
 /// scenes have no white channel on the tier). Lags 0 … `lags`−1.
 pub fn identify_noise(
     full: &FullOrder,
+    spec: &NoiseSpec,
     model: &fmt::Model,
     innovations: &[Vec<f64>],
     filters: &[(usize, usize)],
     skip: usize,
     lags: usize,
 ) -> Result<IdentifiedNoise, NonlinearError> {
-    let (lin, measurements, noise) = linearised_of_file(full, model)?;
+    let (lin, measurements, noise) = linearised_of_file(full, model, spec)?;
     let Some(t) = model.tier.as_ref() else {
         return Err(NonlinearError::Invalid("the model has no tier".into()));
     };

@@ -378,10 +378,10 @@ impl<'a> TierReductor<'a> {
                     String::new()
                 },
                 {
-                    let c = crate::nonlinear::filter::stated_model_error_scale(self.full);
+                    let c = self.full.noise.model_error_scale;
                     if c == 0.0 {
                         "; the scene's model_error_scale = 0 leaves it out of the filter".into()
-                    } else if c != 1.0 {
+                    } else if c != crate::scene::DEFAULT_MODEL_ERROR_SCALE {
                         format!(", × the scene's model_error_scale = {c}")
                     } else {
                         String::new()
