@@ -1,4 +1,4 @@
-//! Bad inputs that used to get a misleading answer (issue 47, item 4), each now a clear one:
+//! Bad inputs that used to get a misleading answer, each now a clear one:
 //! VTU files cut short (at 97 % of their length, or inside a closing tag) in the ASCII, inline
 //! base64, zlib and raw appended encodings; a VTU file that is not UTF-8 outside its raw
 //! appended data; a non-finite coordinate in a legacy VTK file (named by point, coordinate

@@ -1,4 +1,4 @@
-//! The mode budget from the scene (issue 13 item 4): `[reduction] max_frequency = f` keeps
+//! The mode budget from the scene: `[reduction] max_frequency = f` keeps
 //! every vibration mode up to 2f — more than the default cap of 60 when the spectrum asks for
 //! it — and no mode above; the field is range-checked against Δt and exclusive with `modes`.
 

@@ -1,4 +1,4 @@
-//! The long structure-aware mutation run of the model-file decoder (issue 14 item 4):
+//! The long structure-aware mutation run of the model-file decoder:
 //! `cargo run --release -p crokf-formats --example mutate -- [CASES] [SEED]` (default 10⁶).
 //! Prints the case count, the outcomes and the time; a panic or an accepted invalid model
 //! aborts with the payload.

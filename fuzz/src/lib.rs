@@ -1,7 +1,7 @@
-//! Structure-aware mutation fuzzing of the readers a user's files go through (issue 14 item 4):
+//! Structure-aware mutation fuzzing of the readers a user's files go through:
 //! the scene reader (TOML → range checks → group and selection resolution → assembly and
 //! operators on a small mesh), the mesh readers (gmsh MSH 1.0 / 2.2 / 4.1 ASCII and binary,
-//! legacy VTK, VTU), `crokf-run`'s CSV readers, and (issue 26) VTK files whose claimed sizes
+//! legacy VTK, VTU), `crokf-run`'s CSV readers, and VTK files whose claimed sizes
 //! are mutated ([`grid`]: binary, zlib, LZ4 and base64 blocks, appended data, legacy counts;
 //! a panic a reader catches from a dependency counts as a failure) and node-list files. The model-file decoder has its own long run
 //! in `crokf-formats` (`cargo run --release -p crokf-formats --example mutate`).

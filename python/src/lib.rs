@@ -899,7 +899,7 @@ impl Estimator {
             .call_method1("reshape", (-1,))?
             .extract()?;
         let flat = a.as_array().to_vec();
-        if flat.len() % 3 != 0 || flat.is_empty() {
+        if !flat.len().is_multiple_of(3) || flat.is_empty() {
             return Err(input_error(format!(
                 "tools: {} values, expected 3 per tool ((3,) or (n, 3))",
                 flat.len()

@@ -1,4 +1,4 @@
-//! `crokf-run` loses nothing and half-writes nothing (issue 14 items 1 and 2): outputs that are
+//! `crokf-run` loses nothing and half-writes nothing: outputs that are
 //! inputs or collide are refused before any work, a failed run leaves the old files and no
 //! stray temporary, the gate's summary line, and CSV details the csv crate handles.
 

@@ -1,4 +1,4 @@
-//! Runtime benchmark (a command, not a test; medians on one core, issue 14 item 6):
+//! Runtime benchmark (a command, not a test; medians on one core):
 //! `cargo run --release -p crokf-runtime --example bench`
 //!
 //! Synthetic models of the issue's shape (6 inputs on two load groups, 30 measured components

@@ -34,7 +34,7 @@ pub const DEFAULT_GATE_SIGMAS: f64 = 5.0;
 /// p = k mod period; `update` forms x_k = x⁻_k + K_p (y_lin − H_p x⁻_k) over the channels of
 /// phase p. The state starts at rest (x₀ = 0).
 ///
-/// Robustness (issue 14 item 2): inputs and measurements are checked against the model's
+/// Robustness: inputs and measurements are checked against the model's
 /// plausibility bounds ([`PreparedModel`]) before anything changes; an active measurement
 /// whose world-frame innovation ν_j exceeds the gate, ν_j² > g² (s_j + n_j g_j) with
 /// s_j = (H P⁻ Hᵀ + R)_jj (local frame: equal for small rotations),

@@ -1,5 +1,5 @@
 //! Everything the estimator derives from a model once, at load, shared read-only by any number
-//! of estimators (`Arc<PreparedModel>`, no copy of the matrices per instance; issue 14 item 6).
+//! of estimators (`Arc<PreparedModel>`, no copy of the matrices per instance).
 //!
 //! - read-out standard deviations sqrt(diag(C P Cᵀ)) per phase (`docs/design.md` §6);
 //! - the innovation gate's variances: per phase and active channel j,

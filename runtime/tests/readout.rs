@@ -1,4 +1,4 @@
-//! What the display read-out costs in accuracy (issue 14 item 6): node displacements from
+//! What the display read-out costs in accuracy: node displacements from
 //! grouped single-precision rows (in the compact format 16-bit fixed-point rotation rows, in
 //! the fixed16 format 16-bit displacement rows too), f32 sums and an f32 warp, against the f64
 //! path, on the committed example models under their loads and on a synthetic model with

@@ -1,4 +1,4 @@
-//! A state that stays finite (issue 14 item 2): plausibility bounds, the innovation gate, and
+//! A state that stays finite: plausibility bounds, the innovation gate, and
 //! all-or-nothing steps, on synthetic models with their own noise and on the committed example
 //! models.
 

@@ -1,4 +1,4 @@
-//! The runtime's guards on the committed example models (issue 14 item 2): the plausibility
+//! The runtime's guards on the committed example models: the plausibility
 //! bounds derived at load time, and the default innovation gate (5σ) on the models' own
 //! measurement noise — at rest, markers = N(0, σ²) of the scene's σ per channel for 1,000
 //! steps — which must gate nothing.

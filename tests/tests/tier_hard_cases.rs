@@ -1,4 +1,4 @@
-//! Hard cases of the co-rotational tier (issue 11 item 4), on a small generated beam (12×2×2
+//! Hard cases of the co-rotational tier, on a small generated beam (12×2×2
 //! cells, 288 tetrahedra) compiled with `[reduction] model = "corotational"`:
 //!
 //! - a load reversed mid-run (−z, held, then +z: both directions lie in the training plan's
@@ -424,7 +424,7 @@ fn a_couple_the_markers_cannot_see_is_named() {
     );
 }
 
-/// The twist through the product (issue 30's target: the end turned by ≥ 45°, within 2 % of
+/// The twist through the product (target: the end turned by ≥ 45°, within 2 % of
 /// the full-order co-rotational FEM at the corner marker with r ≤ 30 and ≤ 500 sampled
 /// elements, the default sizes). The scene declares the couple as its one training load case
 /// (`[[reduction.corotational.case]]`: both halves together, opposite ±y: 4 runs) and states no

@@ -1,5 +1,5 @@
-//! Per-step cost of the filter with and without the random-walk force states (issue 12,
-//! docs/design.md §11): for each scene, the model at the scene's order with its force model
+//! Per-step cost of the filter with and without the random-walk force states
+//! (docs/design.md §11): for each scene, the model at the scene's order with its force model
 //! (`random_walk`, the default: r + 3 states) and the same scene with every load's `force_model
 //! = "white"` (r states),
 //! timed back to back in alternation, predict + update with every marker, median of batches.

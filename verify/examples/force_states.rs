@@ -1,4 +1,4 @@
-//! Diagnosis of the random-walk force states at low order (issue 12, docs/design.md §11):
+//! Diagnosis of the random-walk force states at low order (docs/design.md §11):
 //! per balanced order r, the static (DC) response of the truncated model to each load channel
 //! against the full-order static solve, per output group (sensor displacement and rotation,
 //! load rotation, displayed-node displacement and rotation), the observability of a constant

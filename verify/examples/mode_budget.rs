@@ -1,4 +1,4 @@
-//! How many vibration modes and which truncation tolerance a scene needs (issue 13 item 4):
+//! How many vibration modes and which truncation tolerance a scene needs:
 //! for each mode budget m (`0` = the default rule: every mode up to 1/(4Δt), at most 60) the
 //! modal system is built once, then truncated at each tolerance; printed per row: m, the
 //! highest kept frequency, r, σ_{r+1}/σ₁ and the measured error (relative L2 over the output

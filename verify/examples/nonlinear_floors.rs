@@ -1,4 +1,4 @@
-//! Prints the error floors of the co-rotational tier (issue 11 item 1, docs/design.md §10) for
+//! Prints the error floors of the co-rotational tier (docs/design.md §10) for
 //! one scene and scenario: projection error against basis size per candidate basis, and the
 //! best fit of the warped linear read-out.
 //!

@@ -411,7 +411,8 @@ pub struct TrainingEnvelope {
 /// Where a training run was cut: its first snapshot with an inverted element (det F ≤ 0) or an
 /// element rotated past the plan's `max_rotation`. That snapshot and the later ones are left
 /// out (the load history past that point drives the body past anything the tier is for); the
-/// run keeps `kept` snapshots, and the checks replay it only that far.
+/// run keeps `kept` snapshots, the checks replay it only that far, and the envelope's forces
+/// count its load only up to its last kept snapshot.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Cut {
     /// Snapshots kept (those before the first one past the limit; ≥ 1).
@@ -620,6 +621,9 @@ pub(crate) fn gather(
     let steps = plan.steps(dt);
     let kept_steps: Vec<usize> = (1..=steps).filter(|&k| plan.keeps(k, steps)).collect();
     let mut out = Training::default();
+    // Per group (as `plan.ranges`): the largest force a kept snapshot's load history reached.
+    let mut max_force = vec![0.0f64; plan.ranges.len()];
+    let mut max_multiple = 0.0f64;
     for (k, ((run, result), cut_at)) in runs.iter().zip(results).zip(cut_at).enumerate() {
         let mut cut = None;
         match result {
@@ -648,6 +652,22 @@ pub(crate) fn gather(
                     });
                     frames.truncate(j);
                 }
+                // The multiple the load reached up to the last kept snapshot.
+                let reached = match &cut {
+                    None => run.history.multiple(),
+                    Some(c) => {
+                        let last = kept_steps.get(c.kept - 1).copied().unwrap_or(steps);
+                        (0..last)
+                            .map(|s| run.history.at(s as f64 * dt).abs())
+                            .fold(0.0, f64::max)
+                    }
+                };
+                max_multiple = max_multiple.max(reached);
+                for &(g, v) in &run.loads {
+                    if let Some(f) = max_force.get_mut(g) {
+                        *f = f.max(plan.ranges[g].1 * length3(&v) * reached);
+                    }
+                }
                 for u in frames {
                     out.envelope.max_displacement =
                         out.envelope.max_displacement.max(max_nodal(&full.fem, &u));
@@ -664,13 +684,12 @@ pub(crate) fn gather(
         }
         out.cuts.push(cut);
     }
-    let top = plan.max_multiple();
-    out.envelope.max_multiple = top;
+    out.envelope.max_multiple = max_multiple;
     out.envelope.max_force = plan
         .ranges
         .iter()
-        .enumerate()
-        .map(|(g, (n, _))| (n.clone(), plan.max_force(g)))
+        .zip(max_force)
+        .map(|((n, _), f)| (n.clone(), f))
         .collect();
     out.envelope.runs = (
         out.runs.iter().filter(|r| r.1.is_none()).count(),

@@ -1,4 +1,4 @@
-//! Structure-aware mutation of model files (issue 14 item 4): a valid model's MessagePack
+//! Structure-aware mutation of model files: a valid model's MessagePack
 //! payload is mutated (bit flips, MessagePack markers, IEEE-754 specials written over 8 bytes —
 //! which lands in matrix data, stored as raw little-endian doubles —, truncation, deleted or
 //! repeated chunks) and re-hashed, so that decoding gets past the SHA-256 check and exercises

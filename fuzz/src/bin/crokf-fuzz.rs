@@ -1,5 +1,5 @@
 //! `crokf-fuzz [--target all|scene|mesh|csv|vtu|node_list] [--cases N] [--seed S] [--crashes DIR]`: the long
-//! structure-aware mutation run of crokf's readers (issue 14 item 4). Prints, per target, the
+//! structure-aware mutation run of crokf's readers. Prints, per target, the
 //! cases, how many were accepted and refused, the time and the rate; every panic or invariant
 //! violation is written to DIR (default: the current folder) as `crash-<target>-<case>.bin` and
 //! makes the exit status non-zero (written through a temporary file and a rename, like every

@@ -1,4 +1,4 @@
-//! Error floors of the co-rotational tier (issue 11 item 1, docs/design.md §10): before any
+//! Error floors of the co-rotational tier (docs/design.md §10): before any
 //! reduced model is built, how well can a basis or a read-out represent the full-order
 //! co-rotational trajectory at all?
 //!
@@ -294,7 +294,7 @@ fn row(
     }
 }
 
-/// The floor table (issue 11 item 1) of `scenario` on `scene`: the full-order co-rotational
+/// The floor table of `scenario` on `scene`: the full-order co-rotational
 /// reference trajectory, the training runs of `options.plan`, the candidate bases
 /// (modes + static correction; + static modal derivatives; POD of the training snapshots;
 /// static correction + modes + training POD; POD of the reference itself, a tautological lower
