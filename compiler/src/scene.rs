@@ -1011,6 +1011,20 @@ impl SceneFile {
             None => self.scene.mesh.file.clone(),
         }
     }
+
+    /// The files the scene makes a command read besides itself, each with its role: the mesh
+    /// (`"mesh"`) and the `node_list` files (`"node_list"`, in scene order). The commands
+    /// refuse an output over any of them.
+    pub fn input_files(&self) -> Vec<(&'static str, PathBuf)> {
+        std::iter::once(("mesh", self.mesh_path()))
+            .chain(
+                self.scene
+                    .node_list_files()
+                    .into_iter()
+                    .map(|p| ("node_list", p.to_path_buf())),
+            )
+            .collect()
+    }
 }
 
 /// Accepted ranges of the physical fields, (min, max) inclusive, SI units.
@@ -1205,6 +1219,31 @@ mod tests {
 
     fn parse(text: &str) -> Result<Scene, SceneError> {
         Scene::parse(text, Path::new("scene.toml"))
+    }
+
+    /// The files a scene makes a command read: its mesh beside it, then its node lists in
+    /// scene order, each once per selector that names it.
+    #[test]
+    fn input_files_are_the_mesh_and_the_node_lists() {
+        let dir = Path::new("/data/body");
+        let text = MINIMAL.replace(
+            "[time]",
+            "[[fixed]]\nselect = [{ node_list = \"base.txt\" }]\n\
+             [[load]]\nname = \"push\"\nrange = 1.0\nselect = [{ node_list = \"tip.txt\" }]\n[time]",
+        );
+        let file = SceneFile {
+            path: dir.join("scene.toml"),
+            scene: Scene::parse(&text, &dir.join("scene.toml")).unwrap(),
+            text,
+        };
+        assert_eq!(
+            file.input_files(),
+            [
+                ("mesh", dir.join("m.msh")),
+                ("node_list", dir.join("base.txt")),
+                ("node_list", dir.join("tip.txt")),
+            ]
+        );
     }
 
     #[test]

@@ -1146,23 +1146,16 @@ pub fn identify_files(
 ) -> Result<Identification, Refusal> {
     let failed = |e: &dyn std::fmt::Display| IdentifyError::Failed(e.to_string());
     let scene = SceneFile::read(files.scene).map_err(|e| failed(&e))?;
-    let mesh = scene.mesh_path();
+    let read = scene.input_files();
     let mut inputs: Vec<(&str, &Path)> = vec![
         ("scene", files.scene),
         ("model", files.model),
         ("--measurements", files.measurements),
-        ("mesh", &mesh),
     ];
     if let Some(i) = files.inputs {
         inputs.push(("--inputs", i));
     }
-    inputs.extend(
-        scene
-            .scene
-            .node_list_files()
-            .into_iter()
-            .map(|p| ("node_list", p)),
-    );
+    inputs.extend(read.iter().map(|(role, p)| (*role, p.as_path())));
     if let Some(out) = files.out {
         check_output(files.scene, out, &inputs)?;
     }

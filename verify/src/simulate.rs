@@ -387,12 +387,11 @@ pub fn run(
     scenario.check_scene(scene, scenario_path)?;
     let probes = probes(fem, ops, &scenario, unit, scenario_path)?;
 
+    let read = full.scene.input_files();
+    let mut inputs: Vec<(&str, &Path)> = vec![("scene", scene_path), ("scenario", scenario_path)];
+    inputs.extend(read.iter().map(|(role, p)| (*role, p.as_path())));
     check_paths(
-        &[
-            ("scene", scene_path),
-            ("scenario", scenario_path),
-            ("mesh", &full.scene.mesh_path()),
-        ],
+        &inputs,
         &[Output {
             role: "--out",
             path: out,

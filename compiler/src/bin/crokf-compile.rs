@@ -91,10 +91,9 @@ fn is_matrix_file(name: &str) -> bool {
 /// killed run left next to the outputs.
 fn check_outputs(args: &Args) -> Result<(), String> {
     let scene = SceneFile::read(&args.scene).map_err(|e| e.to_string())?;
-    let mesh = scene.mesh_path();
-    let mut inputs = vec![("scene", args.scene.as_path()), ("mesh", mesh.as_path())];
-    let lists = scene.scene.node_list_files();
-    inputs.extend(lists.iter().map(|p| ("node_list", *p)));
+    let read = scene.input_files();
+    let mut inputs = vec![("scene", args.scene.as_path())];
+    inputs.extend(read.iter().map(|(role, p)| (*role, p.as_path())));
     if let Some(model) = &args.check {
         inputs.push(("--check model", model.as_path()));
     }

@@ -225,22 +225,13 @@ fn report(args: &ReportArgs) -> Result<(), String> {
         .chain(&args.corotational)
         .map(|p| SceneFile::read(p).map_err(|e| e.to_string()))
         .collect::<Result<_, _>>()?;
-    let meshes: Vec<PathBuf> = scenes.iter().map(SceneFile::mesh_path).collect();
+    let read: Vec<(&str, PathBuf)> = scenes.iter().flat_map(SceneFile::input_files).collect();
     let mut inputs: Vec<(&str, &std::path::Path)> =
         vec![("scene", &args.scene), ("scenario", &args.scenario)];
     if let Some(tier) = &args.corotational {
         inputs.push(("--corotational", tier));
     }
-    inputs.extend(meshes.iter().map(|m| ("mesh", m.as_path())));
-    for scene in &scenes {
-        inputs.extend(
-            scene
-                .scene
-                .node_list_files()
-                .into_iter()
-                .map(|p| ("node_list", p)),
-        );
-    }
+    inputs.extend(read.iter().map(|(role, p)| (*role, p.as_path())));
     let outputs = [Output {
         role: "--out",
         path: &args.out,
