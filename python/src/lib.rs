@@ -915,8 +915,8 @@ impl Estimator {
     /// The last contact step's result for tool `tool` (0-based), or None without one: a dict
     /// with `force` (3,) N (the body on the tool), `torque` (3,) N·m about its centre,
     /// `stiffness` (3, 3) N/m, `force_std` (3,) N (with `contact_force_std` on), `depth` m,
-    /// `nodes` (pressing region nodes) and `status` ("Free", "Touching", "Clamped",
-    /// "Overflow", "NotConverged").
+    /// `nodes` (pressing or held region nodes) and `status` ("Free", "Touching", "Grasping",
+    /// "Clamped", "Overflow", "NotConverged").
     #[pyo3(signature = (tool=0))]
     fn tool_contact<'py>(
         &self,
@@ -940,6 +940,36 @@ impl Estimator {
         d.set_item("nodes", t.active)?;
         d.set_item("status", format!("{:?}", t.status))?;
         Ok(Some(d))
+    }
+
+    /// Tool `tool` (of the last `step_with_tools`) grasps the contact-region node nearest its
+    /// centre (within 1.25 tool radii) and, from the next tool step on, holds it at its centre
+    /// plus the node's present offset, pulling as well as pushing, until `release(tool)` or a
+    /// tool step without it. Returns the node's index in the region. Raises `EstimatorError`
+    /// (nothing changed) without a contact region, a tool not in the last step, or no node
+    /// near enough.
+    #[pyo3(signature = (tool=0))]
+    fn grasp(&mut self, tool: usize) -> PyResult<usize> {
+        self.inner.grasp(tool).map_err(runtime_err)
+    }
+
+    /// Tool `tool` lets go of what it holds.
+    #[pyo3(signature = (tool=0))]
+    fn release(&mut self, tool: usize) {
+        self.inner.release(tool);
+    }
+
+    /// The region node tool `tool` holds and the held point's offset from the tool's centre
+    /// ((3,) m), or None.
+    #[pyo3(signature = (tool=0))]
+    fn grasped<'py>(
+        &self,
+        py: Python<'py>,
+        tool: usize,
+    ) -> Option<(usize, Bound<'py, PyArray1<f64>>)> {
+        self.inner
+            .grasped(tool)
+            .map(|(node, offset)| (node, Array1::from(offset.to_vec()).into_pyarray(py)))
     }
 
     /// Whether the contact step also computes each tool force's σ (off by default).

@@ -54,3 +54,30 @@ def test_a_model_without_contact_region_refuses_tools(meniscus_path):
     est = crokf.Estimator(crokf.Model.load(meniscus_path))
     with pytest.raises(crokf.EstimatorError, match="contact"):
         est.step_with_tools([0.0, 0.0, 0.0])
+
+
+def test_a_grasp_holds_the_node_and_pulls_back(touch):
+    model, path = touch
+    est = crokf.Estimator(model)
+    for c in path[:200]:  # pressed 1 mm
+        est.step_with_tools(c)
+    node = est.grasp(0)
+    held, offset = est.grasped(0)
+    assert held == node and offset.shape == (3,)
+    # Pulled 1 mm back out past where the press began: the body holds the tool back.
+    start, deepest = path[0], path[199]
+    out = start + (start - deepest)
+    for s in np.linspace(0.0, 1.0, 200):
+        est.step_with_tools(deepest + s * (out - deepest))
+        t = est.tool_contact(0)
+        assert t["status"] == "Grasping" and t["nodes"] == 1
+    pull = est.tool_contact(0)["force"]
+    assert np.dot(pull, out - deepest) < 0.0, pull
+    est.release(0)
+    assert est.grasped(0) is None
+    est.step_with_tools(out)
+    assert np.all(est.tool_contact(0)["force"] == 0.0)
+    # Far from the body there is nothing to grasp.
+    est.step_with_tools(out + np.array([0.0, 0.0, 0.05]))
+    with pytest.raises(crokf.EstimatorError, match="grasp"):
+        est.grasp(0)

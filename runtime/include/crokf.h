@@ -99,7 +99,7 @@ typedef struct CrokfToolContact {
     double depth;        /* m: deepest penetration of the free prediction */
     uint32_t active;     /* region nodes pressing */
     int32_t status;      /* 0 free, 1 touching, 2 clamped at the force bound, 3 overflow,
-                            4 not converged */
+                            4 not converged, 5 grasping */
 } CrokfToolContact;
 size_t crokf_model_has_contact(const CrokfModel *model); /* 1: a contact region */
 /* crokf_step with tools, all or nothing (-1: the estimator exactly as before the call). */
@@ -109,6 +109,12 @@ int crokf_step_with_tools(CrokfEstimator *est, const double *tools, size_t n_too
 /* The last contact step's result for tool `tool`: 0, or -1 (no such tool in that step). */
 int crokf_tool_contact(const CrokfEstimator *est, size_t tool, CrokfToolContact *out);
 int crokf_set_contact_force_std(CrokfEstimator *est, int on); /* on != 0: compute the force's sigma */
+/* Tool `tool` of the last tool step grasps the region node nearest its centre (within 1.25
+ * radii) and holds it at its centre plus the node's present offset from the next step on,
+ * pushing nowhere else: 0 and the node's region index in *node (node may be NULL), or -1 and
+ * nothing changed. crokf_release lets go (0, or -1 on a NULL handle). */
+int crokf_grasp(CrokfEstimator *est, size_t tool, size_t *node);
+int crokf_release(CrokfEstimator *est, size_t tool);
 
 /* Read-outs into caller buffers; len must be exact. A read-out never succeeds with a
  * non-finite value. */

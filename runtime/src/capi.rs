@@ -653,7 +653,8 @@ pub struct CrokfToolContact {
     pub depth: f64,
     /// Region nodes pressing on the tool.
     pub active: u32,
-    /// 0 free, 1 touching, 2 clamped at the force bound, 3 overflow, 4 not converged.
+    /// 0 free, 1 touching, 2 clamped at the force bound, 3 overflow, 4 not converged,
+    /// 5 grasping.
     pub status: i32,
 }
 
@@ -738,8 +739,43 @@ pub unsafe extern "C" fn crokf_tool_contact(
                 crate::ContactStatus::Clamped => 2,
                 crate::ContactStatus::Overflow => 3,
                 crate::ContactStatus::NotConverged => 4,
+                crate::ContactStatus::Grasping => 5,
             },
         };
+        Ok(0)
+    })
+}
+
+/// Tool `tool` (of the last tool step) grasps the contact-region node nearest its centre
+/// (`Estimator::grasp`): writes the node's index into `node` and returns 0, or returns -1 and
+/// changes nothing (NULL handle, no contact region, no such tool, no node near enough).
+///
+/// # Safety
+/// `e` live estimator; `node` NULL or valid for one write.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_grasp(
+    e: *mut CrokfEstimator,
+    tool: usize,
+    node: *mut usize,
+) -> c_int {
+    guard(-1, || {
+        let est = est_mut(e)?;
+        let n = est.est.grasp(tool).map_err(|err| err.to_string())?;
+        if !node.is_null() {
+            *node = n;
+        }
+        Ok(0)
+    })
+}
+
+/// Tool `tool` lets go of what it holds. Returns 0, or -1 on a NULL handle.
+///
+/// # Safety
+/// `e` live estimator.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_release(e: *mut CrokfEstimator, tool: usize) -> c_int {
+    guard(-1, || {
+        est_mut(e)?.est.release(tool);
         Ok(0)
     })
 }

@@ -23,6 +23,15 @@
 //! (N/m, the one-step stiffness for a device loop faster than the model), and its σ comes
 //! from the prediction's covariance, Cov(F) = N A⁻¹ Hₙ P⁻ Hₙᵀ A⁻ᵀ Nᵀ.
 //!
+//! A tool that grasps ([`crate::Estimator::grasp`]) holds one region node at its centre plus a
+//! fixed offset instead: three bilateral constraints along the axes in the same problem (their
+//! forces of either sign), and it pushes nowhere else.
+//!
+//! The search keeps a list of the nodes within half a tool radius of the near zone of each
+//! tool (a Verlet list), searched again from the grid only once the tools or the body may have
+//! moved by that much; within it, a node whose cached position, less how far it can have moved,
+//! is clear of the tool is not evaluated again.
+//!
 //! Everything is allocated when the estimator is built: the step allocates nothing.
 
 use crokf_formats::ContactRegion;
@@ -37,7 +46,11 @@ pub const MAX_CONTACTS: usize = 48;
 /// The search around each tool: region nodes whose free θ-point gap is below this fraction
 /// of the tool radius are checked against the solved forces (a node the neighbours' forces
 /// push into the tool joins the problem); farther nodes are taken to stay clear this step.
-const CANDIDATE_MARGIN: f64 = 0.25;
+pub(crate) const CANDIDATE_MARGIN: f64 = 0.25;
+
+/// The skin of the list of nodes near the tools, in tool radii: the list is searched again
+/// once the tools or the body may have moved by this much since it was made.
+const LIST_SKIN: f64 = 0.5;
 
 /// Cap on the active-set iterations of one contact problem.
 const MAX_PIVOTS: usize = 4 * MAX_CONTACTS;
@@ -56,6 +69,8 @@ pub enum ContactStatus {
     Free,
     /// In contact, every constraint met.
     Touching,
+    /// Holding its grasped point where the tool puts it ([`crate::Estimator::grasp`]).
+    Grasping,
     /// The force was above `max_force` and was scaled down to it: the tool went deeper than the
     /// model can push back within its bound (a tool pressed too far, started inside the body,
     /// or jumped).
@@ -125,12 +140,15 @@ pub(crate) struct PreparedContact {
     input_norm: Vec<f64>,
     /// θ³.
     theta_cubed: f64,
-    /// Over the nodes: the largest of `theta_norm` and of `input_norm` (the search's
-    /// displacement bound).
+    /// Over the nodes: the largest of `row_norm`, `theta_norm` and `input_norm` (the
+    /// searches' displacement bounds).
+    row_norm_max: f64,
     theta_norm_max: f64,
     input_norm_max: f64,
     /// The largest Frobenius norm of a θ-point residual block D̂_ij, m/N.
     residual_norm_max: f64,
+    /// The largest Frobenius norm of an end-of-step residual block D_ij, m/N.
+    residual_end_norm_max: f64,
     /// Residual blocks: per node i, its neighbours j with the block D_ij (row-major 3×3),
     /// CSR-like: `neighbours[start[i]..start[i + 1]]`.
     start: Vec<usize>,
@@ -284,6 +302,7 @@ impl PreparedContact {
             normals: c.normals.data.clone(),
             rows,
             input_rows: c.input_rows.data.clone(),
+            row_norm_max: row_norm.iter().copied().fold(0.0, f64::max),
             theta_norm_max: theta_norm.iter().copied().fold(0.0, f64::max),
             theta_norm,
             input_norm_max: input_norm.iter().copied().fold(0.0, f64::max),
@@ -292,6 +311,11 @@ impl PreparedContact {
             row_norm,
             theta_input_rows: c.theta_input_rows.data.clone(),
             theta_cubed: theta * theta * theta,
+            residual_end_norm_max: c
+                .residual_blocks
+                .chunks_exact(9)
+                .map(|b| b.iter().map(|v| v * v).sum::<f64>().sqrt())
+                .fold(0.0, f64::max),
             residual_norm_max: c
                 .theta_residual_blocks
                 .chunks_exact(9)
@@ -314,14 +338,7 @@ impl PreparedContact {
     fn theta_point(&self, i: usize, joint: &[f64], u: &[f64]) -> [f64; 3] {
         let r2 = joint.len();
         let m = u.len();
-        let mut d = [0.0; 3];
-        crate::simd::matvec(
-            &self.theta_rows[3 * i * r2..3 * (i + 1) * r2],
-            r2,
-            joint,
-            &mut d,
-            false,
-        );
+        let d = crate::simd::rows3(&self.theta_rows[3 * i * r2..3 * (i + 1) * r2], r2, joint);
         let e = &self.theta_input_rows[3 * i * m..3 * (i + 1) * m];
         [0, 1, 2].map(|k| self.rest[3 * i + k] + d[k] + dot(&e[k * m..(k + 1) * m], u))
     }
@@ -408,8 +425,28 @@ pub(crate) struct ContactWork {
     scratch: Vec<f64>,
     /// Whether the step computes each tool's force σ.
     pub with_std: bool,
+    /// The (tool, node) pairs that may be near a pushing tool ([`ContactWork::rebuild_list`]),
+    /// and what they were found for: the paths, the tools' centres and which tools pushed.
+    list: Vec<(u32, u32)>,
+    list_count: usize,
+    list_valid: bool,
+    list_path: (f64, f64),
+    list_tools: [[f64; 3]; MAX_TOOLS],
+    list_tool_count: usize,
+    list_pushing: [bool; MAX_TOOLS],
+    /// Per tool: the point it holds, when grasping.
+    grasp: [Option<Grasp>; MAX_TOOLS],
+    /// Per candidate: a grasp's constraint (bilateral, along a fixed axis) rather than a push.
+    bilateral: Vec<bool>,
     /// The results and warm start before the last step, for a rollback.
     saved: Saved,
+}
+
+/// A grasp: the region node a tool holds, kept at the tool's centre plus `offset` (m).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Grasp {
+    node: usize,
+    offset: [f64; 3],
 }
 
 /// What a rollback restores (preallocated).
@@ -422,6 +459,7 @@ struct Saved {
     tool_position: [[f64; 3]; MAX_TOOLS],
     points: Vec<ContactPoint>,
     point_count: usize,
+    grasp: [Option<Grasp>; MAX_TOOLS],
 }
 
 impl ContactWork {
@@ -465,6 +503,15 @@ impl ContactWork {
             pressed_count: 0,
             scratch: vec![0.0; m * r.max(m)],
             with_std: false,
+            list: vec![(0, 0); n * MAX_TOOLS],
+            list_count: 0,
+            list_valid: false,
+            list_path: (0.0, 0.0),
+            list_tools: [[0.0; 3]; MAX_TOOLS],
+            list_tool_count: 0,
+            list_pushing: [false; MAX_TOOLS],
+            grasp: [None; MAX_TOOLS],
+            bilateral: vec![false; m],
             saved: Saved {
                 was_active: vec![(0, 0, [0.0; 3]); m],
                 was_count: 0,
@@ -473,6 +520,7 @@ impl ContactWork {
                 tool_position: [[0.0; 3]; MAX_TOOLS],
                 points: vec![ContactPoint::default(); m],
                 point_count: 0,
+                grasp: [None; MAX_TOOLS],
             },
         }
     }
@@ -492,6 +540,7 @@ impl ContactWork {
         s.tool_position = self.tool_position;
         s.points.copy_from_slice(&self.points);
         s.point_count = self.point_count;
+        s.grasp = self.grasp;
     }
 
     /// Back to what [`ContactWork::save`] kept.
@@ -504,6 +553,7 @@ impl ContactWork {
         self.tool_position = s.tool_position;
         self.points.copy_from_slice(&s.points);
         self.point_count = s.point_count;
+        self.grasp = s.grasp;
     }
 
     /// Back to no contact (an estimator reset).
@@ -516,6 +566,75 @@ impl ContactWork {
         self.point_count = 0;
         self.pressed_count = 0;
         self.tools = [ToolContact::default(); MAX_TOOLS];
+        self.grasp = [None; MAX_TOOLS];
+        self.list_valid = false;
+    }
+
+    /// Tool `t` of the last step takes hold of the region node nearest its centre, by the
+    /// node's position after that step (state `x`), among those within
+    /// (1 + [`CANDIDATE_MARGIN`]) R of it: from the next step on the node is held at the
+    /// tool's centre plus its present offset, in all three directions, until
+    /// [`ContactWork::release`]. Returns the node, or `None` when the tool was not in the last
+    /// step or no region node is that near (nothing changes then).
+    pub(crate) fn grasp(&mut self, pc: &PreparedContact, t: usize, x: &[f64]) -> Option<usize> {
+        if t >= self.tool_count {
+            return None;
+        }
+        let c = self.tool_position[t];
+        let near = pc.radius * (1.0 + CANDIDATE_MARGIN);
+        // How far a node can be from rest: its rows times the state, and the residual of the
+        // last step's contact forces.
+        let pushed: f64 = self.points[..self.point_count]
+            .iter()
+            .map(|p| norm(p.force))
+            .sum();
+        let reach = near + pc.row_norm_max * dot(x, x).sqrt() + pc.residual_end_norm_max * pushed;
+        let mut best: Option<(usize, f64, [f64; 3])> = None;
+        pc.grid.visit(&c, reach, |i| {
+            let p = self.end_position(pc, i, x);
+            let d = distance(p, &c);
+            if d <= near && best.is_none_or(|(_, bd, _)| d < bd) {
+                best = Some((i, d, p));
+            }
+        });
+        let (node, _, p) = best?;
+        self.grasp[t] = Some(Grasp {
+            node,
+            offset: [0, 1, 2].map(|k| p[k] - c[k]),
+        });
+        Some(node)
+    }
+
+    /// Tool `t` lets go of what it holds (nothing when it holds nothing).
+    pub(crate) fn release(&mut self, t: usize) {
+        if let Some(g) = self.grasp.get_mut(t) {
+            *g = None;
+        }
+    }
+
+    /// The region node tool `t` holds and the held point's offset from the tool's centre.
+    pub(crate) fn grasped(&self, t: usize) -> Option<(usize, [f64; 3])> {
+        self.grasp
+            .get(t)
+            .copied()
+            .flatten()
+            .map(|g| (g.node, g.offset))
+    }
+
+    /// Region node i's position after the last step with state `x`: X_i + C_i x plus the
+    /// residual of the last step's contact forces.
+    fn end_position(&self, pc: &PreparedContact, i: usize, x: &[f64]) -> [f64; 3] {
+        let r = self.r;
+        let u = crate::simd::rows3(&pc.rows[3 * i * r..3 * (i + 1) * r], r, x);
+        let mut p = [0, 1, 2].map(|k| pc.rest[3 * i + k] + u[k]);
+        for point in &self.points[..self.point_count] {
+            if let Some(d) = pc.residual(i, point.node).map(|d| &d.end) {
+                for (a, pa) in p.iter_mut().enumerate() {
+                    *pa += (0..3).map(|b| d[3 * a + b] * point.force[b]).sum::<f64>();
+                }
+            }
+        }
+        p
     }
 
     /// Solves the contact of `tools` on the free prediction `x` (r, the whole state, with the
@@ -541,9 +660,8 @@ impl ContactWork {
         self.joint[..r].copy_from_slice(x);
         let radius = pc.radius;
         let th3 = pc.theta_cubed;
-        let bound = pc.theta_norm_max * dot(&self.joint, &self.joint).sqrt()
-            + pc.input_norm_max * dot(inputs, inputs).sqrt();
-        let reach = radius * (1.0 + CANDIDATE_MARGIN) + bound;
+        let joint_norm = dot(&self.joint, &self.joint).sqrt();
+        let input_norm = dot(inputs, inputs).sqrt();
         // 1. The region nodes near each tool at the θ-point of the free step, then the
         // contact problem's candidates: the penetrating ones and last step's pressing ones.
         let near = radius * (1.0 + CANDIDATE_MARGIN);
@@ -565,38 +683,78 @@ impl ContactWork {
         self.last_joint.copy_from_slice(&self.joint);
         self.last_inputs.copy_from_slice(inputs);
         let path = self.path;
+        // A tool absent from this step lets go; one that holds a point does not push: its
+        // neighbourhood is not searched.
+        for g in self.grasp.iter_mut().skip(tools.len()) {
+            *g = None;
+        }
+        let grasp = self.grasp;
+        // The nodes that may be near a tool: the list of those within the skin, rebuilt by a
+        // search of the grid once the tools or the body may have moved by the skin since.
+        let since = pc.theta_norm_max * (path.0 - self.list_path.0)
+            + pc.input_norm_max * (path.1 - self.list_path.1)
+            + tools
+                .iter()
+                .zip(&self.list_tools)
+                .map(|(c, c0)| distance(*c, c0))
+                .fold(0.0, f64::max);
+        let pushing: [bool; MAX_TOOLS] =
+            std::array::from_fn(|t| t < tools.len() && grasp[t].is_none());
+        if !self.list_valid
+            || tools.len() != self.list_tool_count
+            || pushing != self.list_pushing
+            || !since.is_finite()
+            || since >= pc.radius * LIST_SKIN
+        {
+            self.rebuild_list(pc, tools, pushing, joint_norm, input_norm);
+        }
         let joint = &self.joint;
         let mut seen = 0usize;
-        for (t, c) in tools.iter().enumerate() {
-            let visited = &mut self.visited;
-            let (cache, stamp) = (&mut self.cache, &mut self.stamp);
-            pc.grid.visit(c, reach, |i| {
-                // The rest position first: a node farther than the reach cannot touch.
-                let rest = [0, 1, 2].map(|k| pc.rest[3 * i + k]);
-                if distance(rest, c) > reach {
-                    return;
-                }
-                // Then its last evaluated position, with how far it can have moved since
-                // (‖[θ³C_i | −W_i]‖ times the path of [x⁺; x], ‖E_i‖ times that of u).
-                let (sj, su) = stamp[i];
-                let moved = pc.theta_norm[i] * (path.0 - sj) + pc.input_norm[i] * (path.1 - su);
-                let slack = 1e-12 * (1.0 + path.0 + path.1);
-                if sj.is_finite() && distance(cache[i], c) - moved - slack > near {
-                    return;
-                }
-                let p = pc.theta_point(i, joint, inputs);
-                cache[i] = p;
-                stamp[i] = path;
-                let g = distance(p, c) - radius;
-                visited[seen] = (t, i, p, g);
-                seen += 1;
-            });
+        for &(t, i) in &self.list[..self.list_count] {
+            let (t, i) = (t as usize, i as usize);
+            let c = &tools[t];
+            // Its last evaluated position, with how far it can have moved since
+            // (‖[θ³C_i | −W_i]‖ times the path of [x⁺; x], ‖E_i‖ times that of u).
+            let (sj, su) = self.stamp[i];
+            let moved = pc.theta_norm[i] * (path.0 - sj) + pc.input_norm[i] * (path.1 - su);
+            let slack = 1e-12 * (1.0 + path.0 + path.1);
+            let clear = near + moved + slack;
+            if sj.is_finite() && distance_squared(self.cache[i], c) > clear * clear {
+                continue;
+            }
+            let p = pc.theta_point(i, joint, inputs);
+            self.cache[i] = p;
+            self.stamp[i] = path;
+            let g = distance(p, c) - radius;
+            self.visited[seen] = (t, i, p, g);
+            seen += 1;
         }
         let mut m = 0usize;
+        // A grasp first: three bilateral constraints on its node along the axes, the gap the
+        // node's offset from where the tool holds it.
+        for (t, c) in tools.iter().enumerate() {
+            let Some(g) = grasp[t] else { continue };
+            let p = pc.theta_point(g.node, &self.joint, inputs);
+            for axis in 0..3 {
+                let mut n = [0.0; 3];
+                n[axis] = 1.0;
+                self.cand[m] = (t, g.node);
+                self.gap[m] = p[axis] - c[axis] - g.offset[axis];
+                self.normal[m] = n;
+                self.next_normal[m] = n;
+                self.position[m] = p;
+                self.bilateral[m] = true;
+                m += 1;
+            }
+        }
+        let grasped = |i: usize| grasp.iter().flatten().any(|g| g.node == i);
         let mut overflow = [false; MAX_TOOLS];
         let mut depth = [0.0f64; MAX_TOOLS];
         for v in 0..seen {
             let (t, i, p, g) = self.visited[v];
+            if grasped(i) {
+                continue;
+            }
             depth[t] = depth[t].max(-g);
             let was = self.was_active[..self.was_count]
                 .iter()
@@ -620,7 +778,10 @@ impl ContactWork {
                 let n = self.normal[k];
                 let c = tools[t];
                 let p = self.position[k];
-                self.gap[k] = (0..3).map(|q| (p[q] - c[q]) * n[q]).sum::<f64>() - radius;
+                self.gap[k] = match (self.bilateral[k], grasp[t]) {
+                    (true, Some(g)) => (0..3).map(|q| (p[q] - c[q] - g.offset[q]) * n[q]).sum(),
+                    _ => (0..3).map(|q| (p[q] - c[q]) * n[q]).sum::<f64>() - radius,
+                };
                 let rows = &pc.rows[3 * i * r..3 * (i + 1) * r];
                 let inputs = &pc.input_rows[3 * i * r..3 * (i + 1) * r];
                 let h = &mut self.h[k * r..(k + 1) * r];
@@ -655,6 +816,10 @@ impl ContactWork {
             self.accumulate_delta(m);
             let mut moved = 0.0f64;
             for k in 0..m {
+                if self.bilateral[k] {
+                    self.next_normal[k] = self.normal[k];
+                    continue;
+                }
                 let (t, i) = self.cand[k];
                 let q = self.solved_position(pc, i, self.position[k], m);
                 let n = toward(q, &tools[t], &pc.normals[3 * i..3 * i + 3]);
@@ -673,16 +838,17 @@ impl ContactWork {
             if moved >= NORMAL_TOLERANCE && !last_pass {
                 self.normal[..m].copy_from_slice(&self.next_normal[..m]);
                 for k in 0..m {
-                    self.active[k] = self.lambda[k] > 0.0;
+                    self.active[k] = self.bilateral[k] || self.lambda[k] > 0.0;
                 }
                 continue;
             }
-            let lsum: f64 = self.lambda[..m].iter().sum();
+            let lsum: f64 = self.lambda[..m].iter().map(|l| l.abs()).sum();
             let delta_norm = th3 * dot(&self.delta, &self.delta).sqrt();
             let residual_push = pc.residual_norm_max * lsum;
             for v in 0..seen {
                 let (t, i, p, g) = self.visited[v];
-                if g >= delta_norm * pc.row_norm[i] + residual_push
+                if grasped(i)
+                    || g >= delta_norm * pc.row_norm[i] + residual_push
                     || self.cand[..m].iter().any(|&(_, ci)| ci == i)
                 {
                     continue;
@@ -705,7 +871,7 @@ impl ContactWork {
             }
             self.normal[..m].copy_from_slice(&self.next_normal[..m]);
             for k in 0..m {
-                self.active[k] = self.lambda[k] > 0.0;
+                self.active[k] = self.bilateral[k] || self.lambda[k] > 0.0;
             }
         }
         // 5. Tool forces, the bound, the stiffness.
@@ -744,11 +910,64 @@ impl ContactWork {
         }
         // The warm start of the next step.
         self.was_count = 0;
-        for &k in &self.pressed[..pressed] {
-            self.was_active[self.was_count] = (self.cand[k].1, self.cand[k].0, self.normal[k]);
+        for &k in self.pressed[..pressed]
+            .iter()
+            .filter(|&&k| !self.bilateral[k])
+        {
+            self.was_active[self.was_count] = (self.cand[k].1, self.cand[k].0, self.next_normal[k]);
             self.was_count += 1;
         }
         true
+    }
+
+    /// The list of (tool, node) that may come within `near` of a pushing tool before the tools
+    /// or the body move by the skin: every node whose distance from the tool's centre, less
+    /// how far it can be from where it was last evaluated (or from rest), is within near + skin.
+    /// A node left out is more than near + skin away; it can come nearer only by the tool's
+    /// movement and its own since (bounded by the largest row norms times the paths).
+    fn rebuild_list(
+        &mut self,
+        pc: &PreparedContact,
+        tools: &[[f64; 3]],
+        pushing: [bool; MAX_TOOLS],
+        joint_norm: f64,
+        input_norm: f64,
+    ) {
+        let near = pc.radius * (1.0 + CANDIDATE_MARGIN);
+        let skin = pc.radius * LIST_SKIN;
+        let path = self.path;
+        let bound = pc.theta_norm_max * joint_norm + pc.input_norm_max * input_norm;
+        let within = near + skin;
+        let mut count = 0;
+        for (t, c) in tools.iter().enumerate() {
+            if !pushing[t] {
+                continue;
+            }
+            let (list, cache, stamp) = (&mut self.list, &self.cache, &self.stamp);
+            pc.grid.visit(c, within + bound, |i| {
+                let from_rest = pc.theta_norm[i] * joint_norm + pc.input_norm[i] * input_norm;
+                let rest = [0, 1, 2].map(|k| pc.rest[3 * i + k]);
+                let mut lower = distance(rest, c) - from_rest;
+                let (sj, su) = stamp[i];
+                if sj.is_finite() {
+                    let moved = pc.theta_norm[i] * (path.0 - sj) + pc.input_norm[i] * (path.1 - su);
+                    let slack = 1e-12 * (1.0 + path.0 + path.1);
+                    lower = lower.max(distance(cache[i], c) - moved - slack);
+                }
+                if lower <= within {
+                    list[count] = (t as u32, i as u32);
+                    count += 1;
+                }
+            });
+        }
+        self.list_count = count;
+        self.list_path = path;
+        self.list_tool_count = tools.len();
+        self.list_pushing = pushing;
+        for (t, c) in tools.iter().enumerate() {
+            self.list_tools[t] = *c;
+        }
+        self.list_valid = true;
     }
 
     /// Node i's θ-point position under the solved forces: its free position `free` plus
@@ -762,18 +981,11 @@ impl ContactWork {
     ) -> [f64; 3] {
         let r = self.r;
         let th3 = pc.theta_cubed;
-        let mut u = [0.0; 3];
-        crate::simd::matvec(
-            &pc.rows[3 * i * r..3 * (i + 1) * r],
-            r,
-            &self.delta,
-            &mut u,
-            false,
-        );
+        let u = crate::simd::rows3(&pc.rows[3 * i * r..3 * (i + 1) * r], r, &self.delta);
         let mut q = [0, 1, 2].map(|c| free[c] + th3 * u[c]);
         for k in 0..m {
             let l = self.lambda[k];
-            if l > 0.0 {
+            if l != 0.0 {
                 if let Some(d) = pc.residual(i, self.cand[k].1).map(|d| &d.theta) {
                     let n = self.normal[k];
                     for (c, qc) in q.iter_mut().enumerate() {
@@ -798,19 +1010,19 @@ impl ContactWork {
         n: [f64; 3],
         overflow: &mut [bool; MAX_TOOLS],
     ) -> Option<usize> {
-        let slot = if let Some(k) = (0..*m).find(|&k| self.cand[k].1 == node.1) {
+        let pushes = |k: &usize| !self.bilateral[*k];
+        let slot = if let Some(k) = (0..*m).filter(pushes).find(|&k| self.cand[k].1 == node.1) {
             if g >= self.gap[k] {
                 return None;
             }
             k
         } else if *m == MAX_CONTACTS {
             overflow[node.0] = true;
-            let (k, &worst) = self.gap[..*m]
-                .iter()
-                .enumerate()
-                .max_by(|a, b| a.1.total_cmp(b.1))
-                .expect("MAX_CONTACTS > 0");
-            if g >= worst {
+            // The shallowest push gives way (a grasp's constraints stay).
+            let k = (0..*m)
+                .filter(pushes)
+                .max_by(|&a, &b| self.gap[a].total_cmp(&self.gap[b]))?;
+            if g >= self.gap[k] {
                 return None;
             }
             k
@@ -823,6 +1035,7 @@ impl ContactWork {
         self.normal[slot] = n;
         self.position[slot] = p;
         self.active[slot] = true;
+        self.bilateral[slot] = false;
         Some(slot)
     }
 
@@ -834,7 +1047,7 @@ impl ContactWork {
         let mut pressed = 0;
         for k in 0..m {
             let l = self.lambda[k];
-            if l > 0.0 {
+            if l != 0.0 || self.bilateral[k] {
                 let b = &self.b[k * r..(k + 1) * r];
                 for (d, &bv) in self.delta.iter_mut().zip(b) {
                     *d += l * bv;
@@ -857,7 +1070,7 @@ impl ContactWork {
             }
             // A negative force leaves the active set (the most negative first).
             let worst = (0..m)
-                .filter(|&k| self.active[k] && self.lambda[k] < 0.0)
+                .filter(|&k| self.active[k] && !self.bilateral[k] && self.lambda[k] < 0.0)
                 .min_by(|&a, &b| self.lambda[a].total_cmp(&self.lambda[b]));
             if let Some(k) = worst {
                 self.active[k] = false;
@@ -888,7 +1101,7 @@ impl ContactWork {
             }
         }
         for k in 0..m {
-            if !self.active[k] || self.lambda[k] < 0.0 {
+            if !self.bilateral[k] && (!self.active[k] || self.lambda[k] < 0.0) {
                 self.lambda[k] = 0.0;
             }
         }
@@ -1049,17 +1262,28 @@ impl ContactWork {
                 tc.torque[0] += arm[1] * ft[2] - arm[2] * ft[1];
                 tc.torque[1] += arm[2] * ft[0] - arm[0] * ft[2];
                 tc.torque[2] += arm[0] * ft[1] - arm[1] * ft[0];
-                if self.point_count < self.points.len() {
-                    self.points[self.point_count] = ContactPoint {
-                        tool: t,
-                        node: i_node,
-                        position: p,
-                        force: f_body,
-                    };
-                    self.point_count += 1;
+                // A grasp's three constraints act on one node: one point.
+                let last = self.point_count.checked_sub(1).map(|q| self.points[q]);
+                match last {
+                    Some(lp) if lp.tool == t && lp.node == i_node => {
+                        let q = self.point_count - 1;
+                        for comp in 0..3 {
+                            self.points[q].force[comp] += f_body[comp];
+                        }
+                    }
+                    _ if self.point_count < self.points.len() => {
+                        self.points[self.point_count] = ContactPoint {
+                            tool: t,
+                            node: i_node,
+                            position: p,
+                            force: f_body,
+                        };
+                        self.point_count += 1;
+                        tc.active += 1;
+                    }
+                    _ => {}
                 }
             }
-            tc.active = s;
             if s > 0 {
                 // A_SS of the pressed set, then K = N A⁻¹ Nᵀ by three solves.
                 let total = self.candidates;
@@ -1093,6 +1317,8 @@ impl ContactWork {
                 ContactStatus::Overflow
             } else if !converged {
                 ContactStatus::NotConverged
+            } else if self.grasp[t].is_some() {
+                ContactStatus::Grasping
             } else if s > 0 {
                 ContactStatus::Touching
             } else {
@@ -1116,6 +1342,18 @@ fn block_norms(m: &[f64], n: usize) -> Vec<f64> {
                 .sqrt()
         })
         .collect()
+}
+
+/// |v|.
+#[inline]
+fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+/// |p − c|².
+#[inline]
+fn distance_squared(p: [f64; 3], c: &[f64; 3]) -> f64 {
+    (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)
 }
 
 /// |p − c|.

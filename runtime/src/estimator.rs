@@ -561,6 +561,45 @@ impl Estimator {
         (t < c.tool_count).then(|| &c.tools[t])
     }
 
+    /// Tool `t` takes hold of the contact-region node nearest its centre (where the last tool
+    /// step put it), by the node's present position, among those within 1.25 tool radii: from
+    /// the next tool step on the tool holds that node at its centre plus the node's present
+    /// offset from it, in all three directions (a bilateral constraint: the tool pulls as well
+    /// as pushes, within the region's `max_force`), and pushes nowhere else, until
+    /// [`Estimator::release`] or a tool step without tool `t`. Returns the node (index into the
+    /// region's nodes). Fails, changing nothing, on a model without a contact region, a tool
+    /// that was not in the last tool step, or no node near enough.
+    pub fn grasp(&mut self, t: usize) -> Result<usize, RuntimeError> {
+        let sh = &*self.shared;
+        let (Some(pc), Some(work)) = (sh.contact.as_ref(), self.contact.as_mut()) else {
+            return Err(RuntimeError::NoContactRegion);
+        };
+        if t >= work.tool_count {
+            return Err(RuntimeError::NoSuchTool {
+                tool: t,
+                tools: work.tool_count,
+            });
+        }
+        work.grasp(pc, t, self.tier.state())
+            .ok_or(RuntimeError::NothingToGrasp {
+                tool: t,
+                reach: pc.radius * (1.0 + crate::contact::CANDIDATE_MARGIN),
+            })
+    }
+
+    /// Tool `t` lets go of the node it holds (nothing happens when it holds none).
+    pub fn release(&mut self, t: usize) {
+        if let Some(work) = self.contact.as_mut() {
+            work.release(t);
+        }
+    }
+
+    /// The contact-region node tool `t` holds, if any, and where it holds it: the offset of
+    /// the held point from the tool's centre, m.
+    pub fn grasped(&self, t: usize) -> Option<(usize, [f64; 3])> {
+        self.contact.as_ref()?.grasped(t)
+    }
+
     /// The contact points of the last contact step (nodes pressing on a tool).
     pub fn contact_points(&self) -> &[ContactPoint] {
         self.contact

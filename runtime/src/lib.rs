@@ -196,6 +196,24 @@ pub enum RuntimeError {
         /// The value.
         value: f64,
     },
+    /// A grasp by a tool that was not in the last tool step.
+    #[error(
+        "tool {tool} was not in the last tool step ({tools} tools): step with it before it grasps"
+    )]
+    NoSuchTool {
+        /// Tool index.
+        tool: usize,
+        /// Tools of the last tool step.
+        tools: usize,
+    },
+    /// A grasp with no region node near the tool (estimator untouched).
+    #[error("tool {tool}: no contact-region node within {reach} m of its centre to grasp")]
+    NothingToGrasp {
+        /// Tool index.
+        tool: usize,
+        /// How near a node must be, m ((1 + 0.25) × the tool radius).
+        reach: f64,
+    },
     /// Node set index out of range.
     #[error("node set {index} does not exist (the model has {count})")]
     NoSuchNodeSet {

@@ -270,17 +270,7 @@ fn a_pressed_sphere_gets_the_full_order_force_on_a_block() {
 /// region around its loaded pole and a 10 mm sphere.
 #[test]
 fn a_pressed_sphere_gets_the_full_order_force_on_the_kidney() {
-    let bodies = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/bodies/kidney");
-    let text = std::fs::read_to_string(bodies.join("scene_linear.toml")).expect("kidney scene");
-    let mesh = bodies.join("kidney.msh");
-    let text = text.replace(
-        "file = \"kidney.msh\"",
-        &format!("file = {:?}", mesh.display().to_string()),
-    ) + KIDNEY_CONTACT;
-    let dir = std::env::temp_dir().join(format!("crokf-contact-kidney-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temporary directory");
-    let scene = dir.join("scene.toml");
-    std::fs::write(&scene, text).expect("write scene");
+    let (dir, scene) = kidney_scene("press");
     let depths: Vec<f64> = (1..=5).map(|k| 1.0e-3 * k as f64).collect();
     let out = press(&scene, [0.07, 0.025, 0.0], &depths);
     std::fs::remove_dir_all(&dir).ok();
@@ -431,6 +421,23 @@ fn a_press_in_time_follows_the_full_order_dynamics_on_a_block() {
 }
 
 /// The block's scene written with its mesh to a fresh temporary folder (removed by the caller).
+/// The held-out kidney's linear scene with [`KIDNEY_CONTACT`], in a scratch folder.
+fn kidney_scene(tag: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+    let bodies = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/bodies/kidney");
+    let text = std::fs::read_to_string(bodies.join("scene_linear.toml")).expect("kidney scene");
+    let mesh = bodies.join("kidney.msh");
+    let text = text.replace(
+        "file = \"kidney.msh\"",
+        &format!("file = {:?}", mesh.display().to_string()),
+    ) + KIDNEY_CONTACT;
+    let dir =
+        std::env::temp_dir().join(format!("crokf-contact-kidney-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temporary directory");
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, text).expect("write scene");
+    (dir, scene)
+}
+
 fn block_scene(tag: &str) -> (std::path::PathBuf, std::path::PathBuf) {
     let dir = std::env::temp_dir().join(format!("crokf-contact-{tag}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temporary directory");
@@ -509,7 +516,202 @@ fn a_sliding_sphere_gets_the_full_order_force_without_pops() {
     );
 }
 
-/// The contact step allocates nothing: a press, a slide and a lift with the force's σ on.
+/// What a grasp-and-drag measured.
+struct Drag {
+    /// Worst relative error of the tool force against the full-order static grasp, along the
+    /// drag (every 25 steps) and settled at its end.
+    moving: f64,
+    settled: f64,
+    /// The settled force, N.
+    force: [f64; 3],
+}
+
+/// The sphere pressed `depth` (m) along the normal of the region node nearest `target`,
+/// settled, then grasping the node nearest its centre and dragged by `drag` (m) over `steps`
+/// steps, slowly enough to stay quasi-static, then held until settled: the tool force against
+/// the full-order static solve with the same node held at the same point.
+fn grasp_and_drag(
+    scene: &Path,
+    target: [f64; 3],
+    depth: f64,
+    drag: [f64; 3],
+    steps: usize,
+) -> Drag {
+    let touch = Touch::new(scene);
+    let Touch {
+        model,
+        full,
+        inputs,
+        none,
+        f_ext,
+    } = &touch;
+    let mut reference = ContactReference::quasi_static(full).expect("reference");
+    let mut est = Estimator::new(model).expect("estimator");
+    let at = touch.along_normal(target);
+    for k in 1..=1000 {
+        let d = depth * (k as f64 / 200.0).min(1.0);
+        est.step_with_tools(&[at(d)], inputs, none).expect("press");
+    }
+    let start = at(depth);
+    let node = est.grasp(0).expect("a node near the tool");
+    let (held, offset) = est.grasped(0).expect("grasping");
+    assert_eq!(held, node);
+    let place = |s: f64| [0, 1, 2].map(|c| start[c] + s * drag[c]);
+    let want_at = |c: [f64; 3]| [0, 1, 2].map(|q| c[q] + offset[q]);
+    let mut out = Drag {
+        moving: 0.0,
+        settled: 0.0,
+        force: [0.0; 3],
+    };
+    for k in 1..=steps + 2000 {
+        let c = place((k as f64 / steps as f64).min(1.0));
+        est.step_with_tools(&[c], inputs, none).expect("drag");
+        let tool = *est.tool_contact(0).expect("tool");
+        assert_eq!(tool.status, ContactStatus::Grasping, "step {k}");
+        assert_eq!(tool.active, 1, "one node held");
+        if k % 25 == 0 && k <= steps {
+            let want = reference
+                .solve_static_grasp(node, want_at(c), f_ext)
+                .expect("reference");
+            out.moving = out.moving.max(relative(tool.force, want.force));
+        }
+    }
+    let tool = *est.tool_contact(0).expect("tool");
+    let want = reference
+        .solve_static_grasp(node, want_at(place(1.0)), f_ext)
+        .expect("reference");
+    out.settled = relative(tool.force, want.force);
+    out.force = tool.force;
+    // Letting go gives no force at once: the tool is off the body after the drag.
+    est.release(0);
+    est.step_with_tools(&[place(1.0)], inputs, none)
+        .expect("release");
+    let tool = est.tool_contact(0).expect("tool");
+    assert_eq!(tool.status, ContactStatus::Free, "released");
+    assert_eq!(tool.force, [0.0; 3]);
+    out
+}
+
+#[test]
+fn a_grasped_point_dragged_gets_the_full_order_force_on_a_block() {
+    let (dir, scene) = block_scene("grasp");
+    // Pulled 0.6 mm up and 1 mm sideways from a 0.2 mm press.
+    let out = grasp_and_drag(
+        &scene,
+        [0.008, 0.008, 0.008],
+        2.0e-4,
+        [1.0e-3, 0.0, 6.0e-4],
+        2000,
+    );
+    std::fs::remove_dir_all(&dir).ok();
+    eprintln!(
+        "block grasp: dragged within {:.2e}, settled within {:.2e} of the full order's, force {:?} N",
+        out.moving, out.settled, out.force
+    );
+    assert!(
+        out.force[2] < 0.0,
+        "pulled up, the body pulls the tool down"
+    );
+    assert!(
+        out.moving < 0.02,
+        "dragging force within 2 % ({})",
+        out.moving
+    );
+    assert!(
+        out.settled < 1e-4,
+        "settled force within 1e-4 ({})",
+        out.settled
+    );
+}
+
+/// The held-out kidney: a point at its pole grasped and pulled outwards and sideways.
+#[test]
+fn a_grasped_point_dragged_gets_the_full_order_force_on_the_kidney() {
+    let (dir, scene) = kidney_scene("grasp");
+    let out = grasp_and_drag(
+        &scene,
+        [0.07, 0.025, 0.0],
+        1.0e-3,
+        [3.0e-3, 2.0e-3, 1.0e-3],
+        2000,
+    );
+    std::fs::remove_dir_all(&dir).ok();
+    eprintln!(
+        "kidney grasp: dragged within {:.2e}, settled within {:.2e} of the full order's, force {:?} N",
+        out.moving, out.settled, out.force
+    );
+    assert!(
+        out.moving < 0.02,
+        "dragging force within 2 % ({})",
+        out.moving
+    );
+    assert!(
+        out.settled < 1e-4,
+        "settled force within 1e-4 ({})",
+        out.settled
+    );
+}
+
+/// A grasp needs a node near the tool and a tool of the last step; a failed grasp changes
+/// nothing, and a step without the tool lets go.
+#[test]
+fn a_grasp_is_refused_without_a_node_near_and_ends_without_its_tool() {
+    let compiled = compile(&scene(), &CompileOptions::default()).expect("compile");
+    let model = compiled.model;
+    let region = model.contact.as_ref().expect("contact region");
+    let p = [0, 1, 2].map(|c| region.rest_positions.data[c]);
+    let n = [0, 1, 2].map(|c| region.normals.data[c]);
+    let radius = region.tool_radius;
+    let mut est = Estimator::new(&model).expect("estimator");
+    let inputs = vec![0.0; model.inputs.len()];
+    let none = vec![None; model.measurements.len()];
+    assert!(matches!(est.grasp(0), Err(RuntimeError::NoSuchTool { .. })));
+    let far = [0, 1, 2].map(|c| p[c] + n[c] * 3.0 * radius);
+    est.step_with_tools(&[far], &inputs, &none).expect("step");
+    let before = est.state().to_vec();
+    assert!(matches!(
+        est.grasp(0),
+        Err(RuntimeError::NothingToGrasp { .. })
+    ));
+    assert!(matches!(est.grasp(1), Err(RuntimeError::NoSuchTool { .. })));
+    assert_eq!(est.grasped(0), None);
+    assert_eq!(est.state(), &before[..]);
+    let touching = [0, 1, 2].map(|c| p[c] + n[c] * radius);
+    est.step_with_tools(&[touching], &inputs, &none)
+        .expect("step");
+    est.grasp(0).expect("the node under the tool");
+    est.step_with_tools(&[touching], &inputs, &none)
+        .expect("step");
+    assert_eq!(
+        est.tool_contact(0).map(|t| t.status),
+        Some(ContactStatus::Grasping)
+    );
+    est.step_with_tools(&[], &inputs, &none).expect("no tool");
+    assert_eq!(est.grasped(0), None, "a step without the tool lets go");
+    // A pull past the region's bound is clamped to it.
+    est.step_with_tools(&[touching], &inputs, &none)
+        .expect("step");
+    est.grasp(0).expect("grasp again");
+    let mut clamped = false;
+    for k in 1..=400 {
+        let c = [0, 1, 2].map(|q| touching[q] + n[q] * 1e-4 * k as f64);
+        est.step_with_tools(&[c], &inputs, &none).expect("pull");
+        let t = est.tool_contact(0).expect("tool");
+        let mag = norm(t.force);
+        assert!(
+            mag.is_finite() && mag <= region.max_force * (1.0 + 1e-12),
+            "step {k}: {mag}"
+        );
+        clamped |= t.status == ContactStatus::Clamped;
+    }
+    assert!(
+        clamped,
+        "pulled 40 mm off, the grasp reaches the force bound"
+    );
+}
+
+/// The contact step allocates nothing: a press, a grasp, a slide and a lift with the force's σ
+/// on.
 #[test]
 fn contact_steps_do_not_allocate() {
     let compiled = compile(&scene(), &CompileOptions::default()).expect("compile");
@@ -535,15 +737,25 @@ fn contact_steps_do_not_allocate() {
     // One warm-up step, then count.
     est.step_with_tools(&[path[0]], &inputs, &none)
         .expect("step");
-    let mut touched = 0;
+    let (mut touched, mut held) = (0, 0);
     let allocations = counting_alloc::count(|| {
-        for c in &path[1..] {
+        for (k, c) in path.iter().enumerate().skip(1) {
+            // Grasped at the deepest point of the press, dragged, let go before the lift.
+            if k == 200 {
+                est.grasp(0).expect("grasp");
+            }
+            if k == 400 {
+                est.release(0);
+            }
             est.step_with_tools(&[*c], &inputs, &none).expect("step");
-            touched += usize::from(est.tool_contact(0).is_some_and(|t| t.active > 0));
+            let t = est.tool_contact(0);
+            touched += usize::from(t.is_some_and(|t| t.active > 0));
+            held += usize::from(t.is_some_and(|t| t.status == ContactStatus::Grasping));
         }
     });
     assert!(touched > 300, "the path presses ({touched} steps touching)");
-    assert_eq!(allocations, 0, "the contact step allocated");
+    assert_eq!(held, 200, "the grasp holds for 200 steps");
+    assert_eq!(allocations, 0, "the contact step (and grasp) allocated");
 }
 
 /// The C ABI's contact step (runtime/examples/c/touch.c) gives the Rust estimator's forces bit
@@ -608,6 +820,31 @@ fn the_c_abi_presses_as_rust_does() {
         touching += usize::from(t.active > 0);
     }
     assert!(touching > steps / 2, "the path presses ({touching} steps)");
+    // Then the grasp of the node under the tool, pulled back out.
+    let node = est.grasp(0).expect("grasp");
+    assert_eq!(lines.next(), Some(format!("grasped {node}").as_str()));
+    let mut pulling = 0;
+    for k in 1..=steps {
+        let d = depth * (steps - k) as f64 / steps as f64;
+        let tool = [0, 1, 2].map(|i| start[i] - normal[i] * d);
+        est.step_with_tools(&[tool], &inputs, &none).expect("step");
+        let t = est.tool_contact(0).expect("tool");
+        let line = lines.next().expect("a line per step");
+        let f: Vec<&str> = line.split_whitespace().collect();
+        assert_eq!(f[0], (steps + k).to_string());
+        for c in 0..3 {
+            assert_eq!(
+                parse(f[1 + c]).to_bits(),
+                t.force[c].to_bits(),
+                "step {}: {line}",
+                steps + k
+            );
+        }
+        assert_eq!(f[5], "5", "grasping");
+        let along: f64 = (0..3).map(|c| t.force[c] * normal[c]).sum();
+        pulling += usize::from(along < 0.0);
+    }
+    assert!(pulling > 0, "pulled out, the body holds the tool back");
     let refused = lines.next().expect("the refusal");
     assert!(refused.contains("at most 2"), "{refused}");
 }

@@ -166,6 +166,64 @@ impl<'a> ContactReference<'a> {
         Ok(result)
     }
 
+    /// The static equilibrium with region node `node` held at `target` (m) in all three
+    /// directions by a grasping tool (a bilateral constraint, the runtime's grasp) and the
+    /// external load `f` (n DOFs, N): the force λ on the node solves G_aa λ = target − X_a −
+    /// (K⁻¹ f)_a with G_aa the node's exact 3×3 static compliance. The tool pushes nowhere
+    /// else. Fails on the time-stepping reference.
+    pub fn solve_static_grasp(
+        &mut self,
+        node: usize,
+        target: [f64; 3],
+        f: &[f64],
+    ) -> Result<ReferenceContact, SteppingError> {
+        let Kind::Static(solver) = &self.kind else {
+            return Err(SteppingError::Solver(
+                "solve_static_grasp works on the quasi-static reference (ContactReference::quasi_static)"
+                    .into(),
+            ));
+        };
+        if f.len() != self.free.len() || node >= self.region.len() {
+            return Err(SteppingError::Solver(format!(
+                "load vector f has {} entries (the model {}), node {node} (the region {})",
+                f.len(),
+                self.free.len(),
+                self.region.len()
+            )));
+        }
+        self.free.copy_from_slice(f);
+        solver.solve_in_place(&mut self.free);
+        let dofs = [0, 1, 2].map(|c| self.region.dofs[3 * node + c]);
+        let rest = self.full.fem.positions[self.region.nodes[node]];
+        let mut g = [[0.0f64; 3]; 3];
+        for (b, &db) in dofs.iter().enumerate() {
+            let col = self.column(db).to_vec();
+            for (a, &da) in dofs.iter().enumerate() {
+                g[a][b] = col[da];
+            }
+        }
+        let want = [0, 1, 2].map(|c| target[c] - rest[c] - self.free[dofs[c]]);
+        let lambda = solve3(g, want).ok_or_else(|| {
+            SteppingError::Solver(format!("node {node}: its static compliance is singular"))
+        })?;
+        let mut load = f.to_vec();
+        for c in 0..3 {
+            load[dofs[c]] += lambda[c];
+        }
+        self.solved.copy_from_slice(&load);
+        if let Kind::Static(solver) = &self.kind {
+            solver.solve_in_place(&mut self.solved);
+        }
+        self.last.clear();
+        Ok(ReferenceContact {
+            force: lambda.map(|v| -v),
+            active: 1,
+            residual_penetration: 0.0,
+            pressing: vec![(node, lambda.iter().map(|v| v * v).sum::<f64>().sqrt())],
+            passes: 1,
+        })
+    }
+
     /// The contact forces on the free displacement `self.free`: the result and the load with
     /// the contact forces added.
     fn solve(&mut self, tool: [f64; 3], f: &[f64]) -> (ReferenceContact, Vec<f64>) {
@@ -308,4 +366,24 @@ impl<'a> ContactReference<'a> {
     pub fn displacement(&self) -> &[f64] {
         &self.solved
     }
+}
+
+/// x with g x = b (3×3, Cramer's rule), `None` when g is singular.
+fn solve3(g: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
+    let det = |m: [[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let d = det(g);
+    if d == 0.0 || !d.is_finite() {
+        return None;
+    }
+    Some([0, 1, 2].map(|c| {
+        let mut m = g;
+        for (row, &bv) in m.iter_mut().zip(&b) {
+            row[c] = bv;
+        }
+        det(m) / d
+    }))
 }

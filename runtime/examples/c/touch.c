@@ -1,6 +1,6 @@
 /* A tool pressed into a body through the C ABI (docs/contact.md): the sphere's centre moves
- * along -n from a surface point p (start: touching) to `depth`, and the force on the tool is
- * printed every step.
+ * along -n from a surface point p (start: touching) to `depth`, then grasps the node under it
+ * and pulls it back out to p; the force on the tool is printed every step.
  *
  *   touch MODEL px py pz nx ny nz depth steps
  *
@@ -54,6 +54,27 @@ int main(int argc, char **argv) {
         printf("%d %.17g %.17g %.17g %u %d\n", k, c.force[0], c.force[1], c.force[2],
                c.active, c.status);
     }
+    /* Grasp the node under the tool and pull it back out to where the press began. */
+    size_t node = 0;
+    if (crokf_grasp(est, 0, &node) != 0) {
+        fprintf(stderr, "error: %s\n", crokf_last_error());
+        return 1;
+    }
+    printf("grasped %zu\n", node);
+    for (int k = 1; k <= steps; k++) {
+        double d = depth * (steps - k) / steps;
+        double tool[3];
+        for (int i = 0; i < 3; i++) tool[i] = p[i] - n[i] * d;
+        CrokfToolContact c;
+        if (crokf_step_with_tools(est, tool, 1, u, m, NULL, NULL, 0) < 0 ||
+            crokf_tool_contact(est, 0, &c) != 0) {
+            fprintf(stderr, "error: %s\n", crokf_last_error());
+            return 1;
+        }
+        printf("%d %.17g %.17g %.17g %u %d\n", steps + k, c.force[0], c.force[1], c.force[2],
+               c.active, c.status);
+    }
+    if (crokf_release(est, 0) != 0) return 4;
     /* Three tools are refused, the estimator unchanged. */
     double three[9] = {0};
     if (crokf_step_with_tools(est, three, 3, u, m, NULL, NULL, 0) != -1) return 3;
