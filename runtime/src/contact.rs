@@ -344,10 +344,15 @@ impl PreparedContact {
     }
 
     fn residual(&self, i: usize, j: usize) -> Option<&Residual> {
+        self.residual_index(i, j).map(|k| &self.neighbours[k].1)
+    }
+
+    /// Where the residual block of the pair (i, j) is in `neighbours`.
+    fn residual_index(&self, i: usize, j: usize) -> Option<usize> {
         let list = &self.neighbours[self.start[i]..self.start[i + 1]];
         list.binary_search_by_key(&(j as u32), |e| e.0)
             .ok()
-            .map(|k| &list[k].1)
+            .map(|k| self.start[i] + k)
     }
 }
 
@@ -403,6 +408,9 @@ pub(crate) struct ContactWork {
     b: Vec<f64>,
     /// A (MAX_CONTACTS²), the active-set scratch.
     a: Vec<f64>,
+    /// Per candidate pair (a, c) of the pass: where their residual block is in the region's
+    /// `neighbours` (u32::MAX: none stored), found once a pass.
+    pair: Vec<u32>,
     lambda: Vec<f64>,
     active: Vec<bool>,
     lu: Vec<f64>,
@@ -486,6 +494,7 @@ impl ContactWork {
             h: vec![0.0; m * r],
             b: vec![0.0; m * r],
             a: vec![0.0; m * m],
+            pair: vec![u32::MAX; m * m],
             lambda: vec![0.0; m],
             active: vec![false; m],
             lu: vec![0.0; m * m],
@@ -794,10 +803,9 @@ impl ContactWork {
             for a in 0..m {
                 for c in 0..m {
                     let mut v = th3 * dot(&self.h[a * r..(a + 1) * r], &self.b[c * r..(c + 1) * r]);
-                    if let Some(d) = pc
-                        .residual(self.cand[a].1, self.cand[c].1)
-                        .map(|d| &d.theta)
-                    {
+                    let pair = pc.residual_index(self.cand[a].1, self.cand[c].1);
+                    self.pair[a * m + c] = pair.map_or(u32::MAX, |k| k as u32);
+                    if let Some(d) = pair.map(|k| &pc.neighbours[k].1.theta) {
                         let (na, nc) = (self.normal[a], self.normal[c]);
                         for p in 0..3 {
                             for q in 0..3 {
@@ -821,7 +829,7 @@ impl ContactWork {
                     continue;
                 }
                 let (t, i) = self.cand[k];
-                let q = self.solved_position(pc, i, self.position[k], m);
+                let q = self.candidate_position(pc, k, m);
                 let n = toward(q, &tools[t], &pc.normals[3 * i..3 * i + 3]);
                 moved = moved.max(
                     (0..3)
@@ -991,6 +999,29 @@ impl ContactWork {
                     for (c, qc) in q.iter_mut().enumerate() {
                         *qc += l * (0..3).map(|s| d[3 * c + s] * n[s]).sum::<f64>();
                     }
+                }
+            }
+        }
+        q
+    }
+
+    /// [`ContactWork::solved_position`] of candidate `a` of the m of this pass, its residual
+    /// blocks from the pass's pair table.
+    fn candidate_position(&self, pc: &PreparedContact, a: usize, m: usize) -> [f64; 3] {
+        let r = self.r;
+        let i = self.cand[a].1;
+        let free = self.position[a];
+        let th3 = pc.theta_cubed;
+        let u = crate::simd::rows3(&pc.rows[3 * i * r..3 * (i + 1) * r], r, &self.delta);
+        let mut q = [0, 1, 2].map(|c| free[c] + th3 * u[c]);
+        for k in 0..m {
+            let l = self.lambda[k];
+            let pair = self.pair[a * m + k];
+            if l != 0.0 && pair != u32::MAX {
+                let d = &pc.neighbours[pair as usize].1.theta;
+                let n = self.normal[k];
+                for (c, qc) in q.iter_mut().enumerate() {
+                    *qc += l * (0..3).map(|s| d[3 * c + s] * n[s]).sum::<f64>();
                 }
             }
         }
