@@ -28,8 +28,9 @@ struct Args {
     #[arg(long)]
     measurements: Option<PathBuf>,
     /// Tool path CSV (a model with a contact region, docs/contact.md): `step` (or `t`), then
-    /// `tool0.x,tool0.y,tool0.z` [and `tool1.…`], m, one row per input row; the estimates gain
-    /// each tool's force, pressing nodes and status.
+    /// `tool0.x,tool0.y,tool0.z` [and `tool1.…`], m, optionally `toolT.grasp` (0/1: grasp the
+    /// node nearest the tool where it turns 1, let go where it turns 0), one row per input row;
+    /// the estimates gain each tool's force, pressing nodes and status.
     #[arg(long)]
     tool: Option<PathBuf>,
     /// Output CSV: step, t, estimated sensor displacements, their standard deviations.
@@ -230,6 +231,22 @@ fn run(args: &Args) -> Result<(), RunError> {
         match &tools {
             Some(t) => {
                 let i = (k - 1) as usize;
+                // A grasp column turning 1 takes hold before the step, turning 0 lets go.
+                for (tool, &holds) in t.grasp[i].iter().enumerate() {
+                    let held = est.grasped(tool).is_some();
+                    if holds && !held {
+                        est.grasp(tool).map_err(|source| {
+                            let mut e = step_err(source);
+                            if let (RunError::Step { location, .. }, Some(p)) = (&mut e, &args.tool)
+                            {
+                                location.push_str(&format!(", {}:{}", p.display(), t.lines[i]));
+                            }
+                            e
+                        })?;
+                    } else if !holds && held {
+                        est.release(tool);
+                    }
+                }
                 est.step_with_tools(&t.rows[i], row, y).map_err(|source| {
                     let mut e = step_err(source);
                     if let (RunError::Step { location, .. }, Some(p)) = (&mut e, &args.tool) {

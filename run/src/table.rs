@@ -321,18 +321,24 @@ pub fn estimates_header(model: &Model) -> String {
     h
 }
 
-/// A tool path: the centre of each tool (1 or 2) for steps 1, 2, …, n (m, the model's frame).
+/// A tool path: the centre of each tool (1 or 2) for steps 1, 2, …, n (m, the model's frame),
+/// and whether it holds what it grasped.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ToolTable {
     /// `rows[k − 1][t]` = tool t's centre at step k.
     pub rows: Vec<Vec<[f64; 3]>>,
+    /// `grasp[k − 1][t]`: tool t holds a grasped node during step k (the `toolT.grasp` column,
+    /// 0 or 1; all false without it).
+    pub grasp: Vec<Vec<bool>>,
     /// `lines[k − 1]` = 1-based line of step k's row in the file.
     pub lines: Vec<usize>,
 }
 
 /// Parses the text of a tool file (`path` only names it in errors): first column `step` or
-/// `t`, then `tool0.x,tool0.y,tool0.z` and optionally `tool1.x,tool1.y,tool1.z` (any order).
-/// Rows must be steps 1, 2, 3, … in order, every value given.
+/// `t`, then `tool0.x,tool0.y,tool0.z` and optionally `tool1.x,tool1.y,tool1.z` (any order),
+/// and for each tool optionally `toolT.grasp` (0 or 1: the tool grasps the region node nearest
+/// it where the column turns 1 and lets go where it turns 0). Rows must be steps 1, 2, 3, … in
+/// order, every value given.
 pub fn parse_tools(path: &Path, text: &[u8], model: &Model) -> Result<ToolTable, RunError> {
     tools_from(Records::parse(path, text)?, model)
 }
@@ -343,8 +349,10 @@ pub fn read_tools(path: &Path, model: &Model) -> Result<ToolTable, RunError> {
 }
 
 fn tools_from(records: Records, model: &Model) -> Result<ToolTable, RunError> {
-    let labels: Vec<String> = (0..crokf_runtime::MAX_TOOLS)
+    let tools_max = crokf_runtime::MAX_TOOLS;
+    let labels: Vec<String> = (0..tools_max)
         .flat_map(|t| ["x", "y", "z"].map(|c| format!("tool{t}.{c}")))
+        .chain((0..tools_max).map(|t| format!("tool{t}.grasp")))
         .collect();
     let (by_time, cols) = records.header(&labels, false)?;
     let head_line = records.rows.first().map_or(1, |(l, _)| *l);
@@ -371,9 +379,16 @@ fn tools_from(records: Records, model: &Model) -> Result<ToolTable, RunError> {
     if tools == 0 {
         return Err(records.err(head_line, "missing columns `tool0.x`, `tool0.y`, `tool0.z`"));
     }
+    if let Some(t) = (tools..tools_max).find(|&t| cols[3 * tools_max + t].is_some()) {
+        return Err(records.err(
+            head_line,
+            format!("`tool{t}.grasp` without the columns `tool{t}.x`, `tool{t}.y`, `tool{t}.z`"),
+        ));
+    }
     records.check_widths()?;
     let mut rows = Vec::with_capacity(records.rows.len().saturating_sub(1));
     let mut lines = Vec::with_capacity(rows.capacity());
+    let mut grasp = Vec::with_capacity(rows.capacity());
     for (line, cells) in &records.rows[1..] {
         records.expect_step(*line, &cells[0], by_time, model.dt, rows.len() as u64 + 1)?;
         let mut row = Vec::with_capacity(tools);
@@ -387,13 +402,28 @@ fn tools_from(records: Records, model: &Model) -> Result<ToolTable, RunError> {
             }
             row.push(centre);
         }
+        let mut holds = vec![false; tools];
+        for (t, h) in holds.iter_mut().enumerate() {
+            let label = &labels[3 * tools_max + t];
+            if let Some(c) = cols[3 * tools_max + t] {
+                *h = match records.value(*line, cells, c, label)? {
+                    Some(0.0) => false,
+                    Some(1.0) => true,
+                    Some(v) => {
+                        return Err(records.err(*line, format!("`{label}`: {v} is not 0 or 1")))
+                    }
+                    None => return Err(records.err(*line, format!("`{label}` is empty"))),
+                };
+            }
+        }
+        grasp.push(holds);
         rows.push(row);
         lines.push(*line);
     }
     if rows.is_empty() {
         return Err(records.err(head_line, "header only: no tool rows"));
     }
-    Ok(ToolTable { rows, lines })
+    Ok(ToolTable { rows, grasp, lines })
 }
 
 /// The tool columns `estimates.csv` gains with `--tool`: per tool `toolT.fx,toolT.fy,toolT.fz`

@@ -105,7 +105,23 @@ fn bad_tool_files_are_refused_naming_file_and_line() {
     let dir = scratch("bad");
     let (_, _) = setup(&dir, 5);
     let tool = dir.join("bad.csv");
-    let cases: [(&str, &str); 5] = [
+    let cases: [(&str, &str); 9] = [
+        (
+            "step,tool0.x,tool0.y,tool0.z,tool0.grasp\n1,0,0,0,0\n2,0,0,0,1\n3,0,0,0,1\n4,0,0,0,1\n5,0,0,0,1\n",
+            "bad.csv:3",
+        ),
+        (
+            "step,tool0.x,tool0.y,tool0.z,tool0.grasp\n1,0,0,0,2\n",
+            "`tool0.grasp`: 2 is not 0 or 1",
+        ),
+        (
+            "step,tool0.x,tool0.y,tool0.z,tool1.grasp\n1,0,0,0,0\n",
+            "`tool1.grasp` without the columns",
+        ),
+        (
+            "step,tool0.x,tool0.y,tool0.z,tool0.grasp\n1,0,0,0,\n",
+            "`tool0.grasp` is empty",
+        ),
         ("step,tool0.x,tool0.y\n1,0,0\n", "missing column `tool0.z`"),
         ("step,tool0.x,tool0.y,tool0.z\n1,0,0,nan\n", "bad.csv:2"),
         (
@@ -141,4 +157,84 @@ fn bad_tool_files_are_refused_naming_file_and_line() {
         );
     }
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A `tool0.grasp` column: the tool presses, grasps the node under it where the column turns
+/// 1, pulls it back out, lets go where it turns 0; the estimates equal the library's with the
+/// same grasp and release.
+#[test]
+fn a_grasp_column_grasps_and_lets_go_as_the_library_does() {
+    let dir = scratch("grasp");
+    let steps = 40;
+    let (model, press) = setup(&dir, 3 * steps);
+    // Steps 1..=40 press (the first 40 of the setup's path), 41..=80 pull back out holding,
+    // 81..=120 stay out, let go.
+    let path: Vec<[f64; 3]> = (0..3 * steps)
+        .map(|k| match k {
+            k if k < steps => press[k],
+            k if k < 2 * steps => press[2 * steps - 1 - k],
+            _ => press[0],
+        })
+        .collect();
+    let holds = |k: usize| (steps..2 * steps).contains(&k);
+    let mut tool = String::from("step,tool0.x,tool0.y,tool0.z,tool0.grasp\n");
+    for (k, c) in path.iter().enumerate() {
+        tool.push_str(&format!(
+            "{},{:e},{:e},{:e},{}\n",
+            k + 1,
+            c[0],
+            c[1],
+            c[2],
+            u8::from(holds(k))
+        ));
+    }
+    std::fs::write(dir.join("tool.csv"), tool).expect("write tool");
+    let out = run(&[
+        &dir.join("touch.crokf"),
+        Path::new("--inputs"),
+        &dir.join("inputs.csv"),
+        Path::new("--tool"),
+        &dir.join("tool.csv"),
+        Path::new("--out"),
+        &dir.join("estimates.csv"),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(dir.join("estimates.csv")).expect("estimates");
+    std::fs::remove_dir_all(&dir).ok();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let fx = header
+        .iter()
+        .position(|&h| h == "tool0.fx")
+        .expect("tool0.fx column");
+    let mut est = Estimator::new(&model).expect("estimator");
+    let inputs = vec![0.0; model.inputs.len()];
+    let none = vec![None; model.measurements.len()];
+    let mut grasping = 0;
+    for (k, c) in path.iter().enumerate() {
+        if holds(k) && est.grasped(0).is_none() {
+            est.grasp(0).expect("grasp");
+        } else if !holds(k) {
+            est.release(0);
+        }
+        est.step_with_tools(&[*c], &inputs, &none).expect("step");
+        let t = est.tool_contact(0).expect("tool");
+        let cells: Vec<&str> = lines.next().expect("a row per step").split(',').collect();
+        for q in 0..3 {
+            let v: f64 = cells[fx + q].parse().expect("number");
+            assert_eq!(
+                v.to_bits(),
+                t.force[q].to_bits(),
+                "step {}: {cells:?}",
+                k + 1
+            );
+        }
+        assert_eq!(cells[fx + 4], format!("{:?}", t.status));
+        grasping += usize::from(cells[fx + 4] == "Grasping");
+    }
+    assert_eq!(grasping, steps, "held while the column is 1");
 }
