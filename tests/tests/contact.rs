@@ -652,6 +652,61 @@ fn a_grasped_point_dragged_gets_the_full_order_force_on_the_kidney() {
     );
 }
 
+/// Two tools at once on the block: one grasps a point and lifts it 0.4 mm, the other presses
+/// 0.3 mm beside it; both settled forces against the full-order static solve of the two
+/// together.
+#[test]
+fn a_grasper_and_a_probe_together_get_the_full_order_forces() {
+    let (dir, scene) = block_scene("two");
+    let touch = Touch::new(&scene);
+    std::fs::remove_dir_all(&dir).ok();
+    let Touch {
+        model,
+        full,
+        inputs,
+        none,
+        f_ext,
+    } = &touch;
+    let radius = touch.radius();
+    let mut est = Estimator::new(model).expect("estimator");
+    let top = 0.008;
+    // The grasper's centre `lift` above 0.2 mm deep, the probe's `d` deep (negative: clear).
+    let grasper = |lift: f64| [0.005, 0.008, top + radius - 2.0e-4 + lift];
+    let probe = |d: f64| [0.011, 0.008, top + radius - d];
+    for k in 1..=1000 {
+        let lift = 2.0e-4 * (1.0 - (k as f64 / 200.0).min(1.0));
+        est.step_with_tools(&[grasper(lift), probe(-1e-3)], inputs, none)
+            .expect("press");
+    }
+    let node = est.grasp(0).expect("grasp");
+    let (_, offset) = est.grasped(0).expect("grasping");
+    for k in 1..=4000 {
+        let s = (k as f64 / 1000.0).min(1.0);
+        est.step_with_tools(&[grasper(4.0e-4 * s), probe(3.0e-4 * s)], inputs, none)
+            .expect("lift and press");
+    }
+    let held = *est.tool_contact(0).expect("grasper");
+    let pressed = *est.tool_contact(1).expect("probe");
+    assert_eq!(held.status, ContactStatus::Grasping);
+    assert_eq!(pressed.status, ContactStatus::Touching);
+    let mut reference = ContactReference::quasi_static(full).expect("reference");
+    let target = [0, 1, 2].map(|c| grasper(4.0e-4)[c] + offset[c]);
+    let (want_probe, want_held) = reference
+        .solve_static_with_grasp(probe(3.0e-4), node, target, f_ext)
+        .expect("reference");
+    let (e_held, e_probe) = (
+        relative(held.force, want_held),
+        relative(pressed.force, want_probe.force),
+    );
+    eprintln!(
+        "block, grasper and probe: grasper {:?} N within {e_held:.2e}, probe {:?} N ({} nodes) \
+         within {e_probe:.2e} of the full order's",
+        held.force, pressed.force, pressed.active
+    );
+    assert!(e_held < 1e-4, "grasper within 1e-4 ({e_held})");
+    assert!(e_probe < 1e-4, "probe within 1e-4 ({e_probe})");
+}
+
 /// A grasp needs a node near the tool and a tool of the last step; a failed grasp changes
 /// nothing, and a step without the tool lets go.
 #[test]

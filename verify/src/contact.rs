@@ -227,6 +227,54 @@ impl<'a> ContactReference<'a> {
     /// The contact forces on the free displacement `self.free`: the result and the load with
     /// the contact forces added.
     fn solve(&mut self, tool: [f64; 3], f: &[f64]) -> (ReferenceContact, Vec<f64>) {
+        self.solve_with(tool, f, None)
+    }
+
+    /// [`ContactReference::solve_static`] with a second tool holding region node `node` at
+    /// `target` (m) in all three directions (the runtime's grasp), solved together with the
+    /// pushing tool's contacts. The result is the pushing tool's; the grasp's force on its
+    /// tool is the second value.
+    pub fn solve_static_with_grasp(
+        &mut self,
+        tool: [f64; 3],
+        node: usize,
+        target: [f64; 3],
+        f: &[f64],
+    ) -> Result<(ReferenceContact, [f64; 3]), SteppingError> {
+        let Kind::Static(solver) = &self.kind else {
+            return Err(SteppingError::Solver(
+                "solve_static_with_grasp works on the quasi-static reference".into(),
+            ));
+        };
+        if f.len() != self.free.len() || node >= self.region.len() {
+            return Err(SteppingError::Solver(format!(
+                "load vector f has {} entries (the model {}), node {node} (the region {})",
+                f.len(),
+                self.free.len(),
+                self.region.len()
+            )));
+        }
+        self.free.copy_from_slice(f);
+        solver.solve_in_place(&mut self.free);
+        self.last.retain(|l| l.0 != node);
+        let (result, load) = self.solve_with(tool, f, Some((node, target)));
+        let held = [0, 1, 2]
+            .map(|c| f[self.region.dofs[3 * node + c]] - load[self.region.dofs[3 * node + c]]);
+        self.solved.copy_from_slice(&load);
+        if let Kind::Static(solver) = &self.kind {
+            solver.solve_in_place(&mut self.solved);
+        }
+        Ok((result, held))
+    }
+
+    /// The solve with an optional grasp (region node, target): its three bilateral rows along
+    /// the axes join the complementarity problem, unprojected.
+    fn solve_with(
+        &mut self,
+        tool: [f64; 3],
+        f: &[f64],
+        grasp: Option<(usize, [f64; 3])>,
+    ) -> (ReferenceContact, Vec<f64>) {
         let n = self.full.fem.dof_count();
         let radius = self.region.radius;
         let nodes = self.region.len();
@@ -240,6 +288,18 @@ impl<'a> ContactReference<'a> {
         let mut active: Vec<usize> = self.last.iter().map(|l| l.0).collect();
         let mut lambda: Vec<f64> = self.last.iter().map(|l| l.1).collect();
         let mut normals: Vec<[f64; 3]> = self.last.iter().map(|l| l.2).collect();
+        // The grasp's rows first, if any: bilateral, along the axes.
+        let held = grasp.map(|(g, _)| g);
+        if let Some((g, _)) = grasp {
+            for axis in 0..3 {
+                let mut e = [0.0; 3];
+                e[axis] = 1.0;
+                active.insert(axis, g);
+                lambda.insert(axis, 0.0);
+                normals.insert(axis, e);
+            }
+        }
+        let fixed = if grasp.is_some() { 3 } else { 0 };
         let mut position = vec![[0.0; 3]; nodes];
         let mut converged_penetration = 0.0;
         let mut passes = 0;
@@ -265,7 +325,7 @@ impl<'a> ContactReference<'a> {
                 position[i] = p;
                 let d = [p[0] - tool[0], p[1] - tool[1], p[2] - tool[2]];
                 let gap = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() - radius;
-                if gap < 0.0 {
+                if gap < 0.0 && held != Some(i) {
                     deepest = deepest.max(-gap);
                     if !active.contains(&i) {
                         active.push(i);
@@ -278,7 +338,7 @@ impl<'a> ContactReference<'a> {
             converged_penetration = deepest;
             // Normals at the current positions.
             let mut moved = 0.0f64;
-            for (k, &a) in active.iter().enumerate() {
+            for (k, &a) in active.iter().enumerate().skip(fixed) {
                 let p = position[a];
                 let d = [p[0] - tool[0], p[1] - tool[1], p[2] - tool[2]];
                 let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-300);
@@ -290,7 +350,12 @@ impl<'a> ContactReference<'a> {
                 );
                 normals[k] = nn;
             }
-            if !added && moved < 1e-10 && deepest < 1e-9 * radius {
+            let slip = grasp.map_or(0.0, |(g, target)| {
+                (0..3)
+                    .map(|c| (position[g][c] - target[c]).abs())
+                    .fold(0.0, f64::max)
+            });
+            if !added && moved < 1e-10 && deepest < 1e-9 * radius && slip < 1e-12 * radius {
                 break;
             }
             // The complementarity problem on the free positions with the current normals:
@@ -300,10 +365,15 @@ impl<'a> ContactReference<'a> {
             let mut g0 = vec![0.0; m];
             for (ka, &a) in active.iter().enumerate() {
                 let pa = [0, 1, 2].map(|c| rest[a][c] + self.free[self.region.dofs[3 * a + c]]);
-                g0[ka] = (0..3)
-                    .map(|c| (pa[c] - tool[c]) * normals[ka][c])
-                    .sum::<f64>()
-                    - radius;
+                g0[ka] = match grasp {
+                    Some((_, target)) if ka < fixed => pa[ka] - target[ka],
+                    _ => {
+                        (0..3)
+                            .map(|c| (pa[c] - tool[c]) * normals[ka][c])
+                            .sum::<f64>()
+                            - radius
+                    }
+                };
                 for (kb, &b) in active.iter().enumerate() {
                     let mut v = 0.0;
                     for cb in 0..3 {
@@ -325,7 +395,8 @@ impl<'a> ContactReference<'a> {
                         + (0..m)
                             .map(|kb| a_mat[ka * m + kb] * lambda[kb])
                             .sum::<f64>();
-                    let next = (lambda[ka] - w / a_mat[ka * m + ka]).max(0.0);
+                    let step = lambda[ka] - w / a_mat[ka * m + ka];
+                    let next = if ka < fixed { step } else { step.max(0.0) };
                     change = change.max(((next - lambda[ka]) * a_mat[ka * m + ka]).abs());
                     lambda[ka] = next;
                 }
@@ -340,13 +411,15 @@ impl<'a> ContactReference<'a> {
         let mut pressing = Vec::new();
         self.last.clear();
         for (k, &a) in active.iter().enumerate() {
-            if lambda[k] > 0.0 {
+            if lambda[k] > 0.0 && k >= fixed {
                 pressing.push((a, lambda[k]));
                 self.last.push((a, lambda[k], normals[k]));
             }
             for c in 0..3 {
                 load[self.region.dofs[3 * a + c]] += lambda[k] * normals[k][c];
-                force[c] -= lambda[k] * normals[k][c];
+                if k >= fixed {
+                    force[c] -= lambda[k] * normals[k][c];
+                }
             }
         }
         debug_assert_eq!(load.len(), n);
