@@ -52,11 +52,9 @@ fn setup(dir: &Path, steps: usize) -> (crokf_formats::Model, Vec<[f64; 3]>) {
     (model, path)
 }
 
-#[test]
-fn a_tool_path_gives_the_librarys_forces() {
-    let dir = scratch("forces");
-    let steps = 40;
-    let (model, path) = setup(&dir, steps);
+/// `crokf-run` over the folder's model, inputs and `tool.csv`: the estimates' text (the
+/// folder is removed).
+fn replay(dir: &Path) -> String {
     let out = run(&[
         &dir.join("touch.crokf"),
         Path::new("--inputs"),
@@ -72,7 +70,16 @@ fn a_tool_path_gives_the_librarys_forces() {
         String::from_utf8_lossy(&out.stderr)
     );
     let text = std::fs::read_to_string(dir.join("estimates.csv")).expect("estimates");
-    std::fs::remove_dir_all(&dir).ok();
+    std::fs::remove_dir_all(dir).ok();
+    text
+}
+
+#[test]
+fn a_tool_path_gives_the_librarys_forces() {
+    let dir = scratch("forces");
+    let steps = 40;
+    let (model, path) = setup(&dir, steps);
+    let text = replay(&dir);
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();
     let fx = header
@@ -189,22 +196,7 @@ fn a_grasp_column_grasps_and_lets_go_as_the_library_does() {
         ));
     }
     std::fs::write(dir.join("tool.csv"), tool).expect("write tool");
-    let out = run(&[
-        &dir.join("touch.crokf"),
-        Path::new("--inputs"),
-        &dir.join("inputs.csv"),
-        Path::new("--tool"),
-        &dir.join("tool.csv"),
-        Path::new("--out"),
-        &dir.join("estimates.csv"),
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let text = std::fs::read_to_string(dir.join("estimates.csv")).expect("estimates");
-    std::fs::remove_dir_all(&dir).ok();
+    let text = replay(&dir);
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();
     let fx = header

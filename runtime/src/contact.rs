@@ -583,12 +583,9 @@ impl ContactWork {
     /// node's position after that step (state `x`), among those within
     /// (1 + [`CANDIDATE_MARGIN`]) R of it: from the next step on the node is held at the
     /// tool's centre plus its present offset, in all three directions, until
-    /// [`ContactWork::release`]. Returns the node, or `None` when the tool was not in the last
-    /// step or no region node is that near (nothing changes then).
+    /// [`ContactWork::release`]. Returns the node, or `None` when no region node is that near
+    /// (nothing changes then). The caller checks that tool `t` was in the last step.
     pub(crate) fn grasp(&mut self, pc: &PreparedContact, t: usize, x: &[f64]) -> Option<usize> {
-        if t >= self.tool_count {
-            return None;
-        }
         let c = self.tool_position[t];
         let near = pc.radius * (1.0 + CANDIDATE_MARGIN);
         // How far a node can be from rest: its rows times the state, and the residual of the

@@ -143,21 +143,7 @@ impl<'a> ContactReference<'a> {
         tool: [f64; 3],
         f: &[f64],
     ) -> Result<ReferenceContact, SteppingError> {
-        let Kind::Static(solver) = &self.kind else {
-            return Err(SteppingError::Solver(
-                "solve_static works on the quasi-static reference (ContactReference::quasi_static)"
-                    .into(),
-            ));
-        };
-        if f.len() != self.free.len() {
-            return Err(SteppingError::Solver(format!(
-                "load vector f has {} entries, the model {}",
-                f.len(),
-                self.free.len()
-            )));
-        }
-        self.free.copy_from_slice(f);
-        solver.solve_in_place(&mut self.free);
+        self.static_free("solve_static", f, None)?;
         let (result, load) = self.solve(tool, f);
         self.solved.copy_from_slice(&load);
         if let Kind::Static(solver) = &self.kind {
@@ -177,22 +163,7 @@ impl<'a> ContactReference<'a> {
         target: [f64; 3],
         f: &[f64],
     ) -> Result<ReferenceContact, SteppingError> {
-        let Kind::Static(solver) = &self.kind else {
-            return Err(SteppingError::Solver(
-                "solve_static_grasp works on the quasi-static reference (ContactReference::quasi_static)"
-                    .into(),
-            ));
-        };
-        if f.len() != self.free.len() || node >= self.region.len() {
-            return Err(SteppingError::Solver(format!(
-                "load vector f has {} entries (the model {}), node {node} (the region {})",
-                f.len(),
-                self.free.len(),
-                self.region.len()
-            )));
-        }
-        self.free.copy_from_slice(f);
-        solver.solve_in_place(&mut self.free);
+        self.static_free("solve_static_grasp", f, Some(node))?;
         let dofs = [0, 1, 2].map(|c| self.region.dofs[3 * node + c]);
         let rest = self.full.fem.positions[self.region.nodes[node]];
         let mut g = [[0.0f64; 3]; 3];
@@ -224,6 +195,38 @@ impl<'a> ContactReference<'a> {
         })
     }
 
+    /// The free static displacement K⁻¹ f into `self.free`, for the quasi-static solve `what`;
+    /// fails on the time-stepping reference, on a load vector of the wrong length, or a
+    /// region node (`node`) past the region.
+    fn static_free(
+        &mut self,
+        what: &str,
+        f: &[f64],
+        node: Option<usize>,
+    ) -> Result<(), SteppingError> {
+        let Kind::Static(solver) = &self.kind else {
+            return Err(SteppingError::Solver(format!(
+                "{what} works on the quasi-static reference (ContactReference::quasi_static)"
+            )));
+        };
+        if f.len() != self.free.len() {
+            return Err(SteppingError::Solver(format!(
+                "load vector f has {} entries, the model {}",
+                f.len(),
+                self.free.len()
+            )));
+        }
+        if let Some(node) = node.filter(|&i| i >= self.region.len()) {
+            return Err(SteppingError::Solver(format!(
+                "node {node}: the region has {}",
+                self.region.len()
+            )));
+        }
+        self.free.copy_from_slice(f);
+        solver.solve_in_place(&mut self.free);
+        Ok(())
+    }
+
     /// The contact forces on the free displacement `self.free`: the result and the load with
     /// the contact forces added.
     fn solve(&mut self, tool: [f64; 3], f: &[f64]) -> (ReferenceContact, Vec<f64>) {
@@ -241,21 +244,7 @@ impl<'a> ContactReference<'a> {
         target: [f64; 3],
         f: &[f64],
     ) -> Result<(ReferenceContact, [f64; 3]), SteppingError> {
-        let Kind::Static(solver) = &self.kind else {
-            return Err(SteppingError::Solver(
-                "solve_static_with_grasp works on the quasi-static reference".into(),
-            ));
-        };
-        if f.len() != self.free.len() || node >= self.region.len() {
-            return Err(SteppingError::Solver(format!(
-                "load vector f has {} entries (the model {}), node {node} (the region {})",
-                f.len(),
-                self.free.len(),
-                self.region.len()
-            )));
-        }
-        self.free.copy_from_slice(f);
-        solver.solve_in_place(&mut self.free);
+        self.static_free("solve_static_with_grasp", f, Some(node))?;
         self.last.retain(|l| l.0 != node);
         let (result, load) = self.solve_with(tool, f, Some((node, target)));
         let held = [0, 1, 2]
