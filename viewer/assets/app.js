@@ -1,7 +1,9 @@
 // crokf viewer page: draws the displayed node set streamed by the server (server-sent events,
 // positions in metres as little-endian float32, base64), shades it by displacement magnitude
 // |u| = |x - X| or by the read-out standard deviation σ, draws the markers (sensors), and sends
-// load-group forces (N, world frame) and play/pause/reset to POST /control.
+// load-group forces (N, world frame) and play/pause/reset to POST /control. On a model with a
+// contact region, a tool sphere the user drags (POST /control {"tool": [x, y, z]}, m) and the
+// force of the body on it, as an arrow and in newtons.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/OrbitControls.js';
 
@@ -65,7 +67,8 @@ async function main() {
   geometry.setIndex(new THREE.BufferAttribute(new Uint32Array(model.triangles), 1));
   geometry.computeVertexNormals();
   const material = new THREE.MeshPhongMaterial({ vertexColors: true, side: THREE.DoubleSide, shininess: 20 });
-  scene.add(new THREE.Mesh(geometry, material));
+  const surface = new THREE.Mesh(geometry, material);
+  scene.add(surface);
   // Mesh lines share the surface's position attribute, so they follow the deformation.
   scene.add(new THREE.Mesh(geometry, new THREE.MeshBasicMaterial({ color: 0x000000, wireframe: true, transparent: true, opacity: 0.1 })));
 
@@ -101,6 +104,9 @@ async function main() {
     });
     loadsDiv.appendChild(fs);
   });
+
+  const tool = model.contact ? setupTool(model.contact, { scene, camera, controls, view, surface, diag }) : null;
+  document.getElementById('tool').hidden = !tool;
 
   let playing = true;
   const playButton = document.getElementById('play');
@@ -152,6 +158,7 @@ async function main() {
     playing = f.stats.playing;
     playButton.textContent = playing ? 'pause' : 'play';
     document.getElementById('error').textContent = f.error || '';
+    if (tool) tool.onFrame(f);
   }
 
   let fpsWindowStart = performance.now();
@@ -196,6 +203,193 @@ async function main() {
   }
   requestAnimationFrame(draw);
   state.ready = true;
+}
+
+// The tool: a sphere of the contact region's radius (m, model frame = the drawn frame).
+// "place tool" puts it just off the middle of the region and turns the view to look at it
+// along the region's normal; a double click on the body puts it there. Dragging the sphere
+// (or Shift + drag anywhere) moves it on the plane through its centre facing the camera; the
+// wheel over the sphere (or Shift + wheel) and the W / S keys move it along the view
+// direction (W pushes into the scene). Everything else goes to the orbit controls.
+function setupTool(contact, { scene, camera, controls, view, surface, diag }) {
+  const state = window.crokf;
+  const radius = contact.radius;
+  const step = radius / 20; // one wheel notch or key press, m
+  const mesh = new THREE.Mesh(new THREE.SphereGeometry(radius, 32, 24),
+    new THREE.MeshPhongMaterial({ color: 0xc8d2ff, emissive: 0x202840, transparent: true, opacity: 0.6 }));
+  mesh.visible = false;
+  scene.add(mesh);
+  // Force arrow: |F| times a fixed scale (m per N, 1-2-5), capped at 4 radii.
+  const cap = 4 * radius;
+  const nice = (v) => { const e = Math.pow(10, Math.floor(Math.log10(v))); const m = v / e; return (m >= 5 ? 5 : m >= 2 ? 2 : 1) * e; };
+  const scaleSelect = document.getElementById('tool-scale');
+  const base = nice(cap / (contact.max_force / 50)); // the cap at 1/50 of the force bound
+  [0.01, 0.1, 1, 10, 100].forEach((k) => {
+    const o = document.createElement('option');
+    o.value = String(base * k);
+    o.textContent = `arrow ${Number((base * k * 1e3).toPrecision(3))} mm per N (cap ${(cap * 1e3).toPrecision(3)} mm)`;
+    if (k === 1) o.selected = true;
+    scaleSelect.appendChild(o);
+  });
+  const arrow = new THREE.ArrowHelper(new THREE.Vector3(0, 0, 1), new THREE.Vector3(), radius, 0xffd23f);
+  for (const m of [arrow.line.material, arrow.cone.material]) { m.depthTest = false; m.transparent = true; }
+  arrow.renderOrder = 10;
+  arrow.visible = false;
+  scene.add(arrow);
+  const label = document.getElementById('tool-force');
+
+  // The region's node nearest its centroid, with its outward normal: where "place tool" goes.
+  const rp = contact.positions, rn = contact.normals, count = rp.length / 3;
+  const mid = new THREE.Vector3();
+  for (let i = 0; i < count; i++) mid.add(new THREE.Vector3(rp[3 * i], rp[3 * i + 1], rp[3 * i + 2]));
+  mid.divideScalar(Math.max(count, 1));
+  let best = 0, bestD = Infinity;
+  for (let i = 0; i < count; i++) {
+    const d = mid.distanceToSquared(new THREE.Vector3(rp[3 * i], rp[3 * i + 1], rp[3 * i + 2]));
+    if (d < bestD) { bestD = d; best = i; }
+  }
+  const home = new THREE.Vector3(rp[3 * best], rp[3 * best + 1], rp[3 * best + 2]);
+  const homeNormal = new THREE.Vector3(rn[3 * best], rn[3 * best + 1], rn[3 * best + 2]).normalize();
+
+  // The tool as this page set it (null: none), and the sending of it: one request in flight,
+  // the latest position queued behind it.
+  let centre = null;
+  let inflight = false, queued = false, lastLocal = -Infinity;
+  function send() {
+    lastLocal = performance.now();
+    if (inflight) { queued = true; return; }
+    inflight = true;
+    queued = false;
+    post({ tool: centre ? centre.toArray() : null })
+      .catch((e) => state.errors.push(String(e)))
+      .finally(() => { inflight = false; lastLocal = performance.now(); if (queued) send(); });
+  }
+  function setCentre(c) {
+    centre = c ? c.clone() : null;
+    mesh.visible = !!centre;
+    if (centre) mesh.position.copy(centre);
+    state.toolPosition = centre ? centre.toArray() : null;
+    send();
+  }
+
+  document.getElementById('tool-place').addEventListener('click', () => {
+    const c = home.clone().addScaledVector(homeNormal, 1.5 * radius);
+    // Look at it along the normal (a little tilted, so that the orbit keeps its up vector).
+    const side = new THREE.Vector3().crossVectors(homeNormal, camera.up);
+    if (side.lengthSq() < 1e-6) side.set(1, 0, 0);
+    const dir = homeNormal.clone().addScaledVector(side.normalize().cross(homeNormal), 0.25).normalize();
+    controls.target.copy(c);
+    camera.position.copy(c).addScaledVector(dir, 0.6 * diag);
+    controls.update();
+    setCentre(c);
+  });
+  document.getElementById('tool-remove').addEventListener('click', () => setCentre(null));
+
+  const raycaster = new THREE.Raycaster();
+  const ndc = new THREE.Vector2();
+  function ray(e) {
+    const r = view.getBoundingClientRect();
+    ndc.set(((e.clientX - r.left) / r.width) * 2 - 1, -((e.clientY - r.top) / r.height) * 2 + 1);
+    raycaster.setFromCamera(ndc, camera);
+    return raycaster.ray;
+  }
+  const viewDirection = () => camera.getWorldDirection(new THREE.Vector3());
+  const overTool = (e) => {
+    if (!centre) return false;
+    ray(e);
+    return raycaster.intersectObject(mesh, false).length > 0;
+  };
+
+  // Capture phase on the canvas's parent: a tool gesture never reaches the orbit controls.
+  let drag = null;
+  view.addEventListener('pointerdown', (e) => {
+    if (e.button !== 0 || !centre || !(e.shiftKey || overTool(e))) return;
+    e.stopPropagation();
+    e.preventDefault();
+    const plane = new THREE.Plane().setFromNormalAndCoplanarPoint(viewDirection(), centre);
+    const hit = ray(e).intersectPlane(plane, new THREE.Vector3());
+    if (!hit) return;
+    drag = { plane, offset: centre.clone().sub(hit), pointer: e.pointerId };
+    view.setPointerCapture(e.pointerId);
+  }, { capture: true });
+  view.addEventListener('pointermove', (e) => {
+    if (!drag || e.pointerId !== drag.pointer) return;
+    const hit = ray(e).intersectPlane(drag.plane, new THREE.Vector3());
+    if (hit) setCentre(hit.add(drag.offset));
+  });
+  const endDrag = (e) => { if (drag && e.pointerId === drag.pointer) { drag = null; view.releasePointerCapture(e.pointerId); } };
+  view.addEventListener('pointerup', endDrag);
+  view.addEventListener('pointercancel', endDrag);
+  view.addEventListener('wheel', (e) => {
+    if (!centre || !(e.shiftKey || overTool(e))) return;
+    e.stopPropagation();
+    e.preventDefault();
+    // Shift turns a vertical wheel into deltaX on some systems.
+    const delta = e.deltaY || e.deltaX;
+    const notches = Math.min(Math.max(Math.abs(delta) / 100, 0.1), 3);
+    setCentre(centre.clone().addScaledVector(viewDirection(), -Math.sign(delta) * notches * step));
+  }, { capture: true, passive: false });
+  window.addEventListener('keydown', (e) => {
+    if (!centre || (e.target.closest && e.target.closest('input, select, textarea'))) return;
+    const k = e.key.toLowerCase();
+    if (k !== 'w' && k !== 's') return;
+    setCentre(centre.clone().addScaledVector(viewDirection(), (k === 'w' ? 1 : -1) * (e.shiftKey ? 5 : 1) * step));
+  });
+  view.addEventListener('dblclick', (e) => {
+    ray(e);
+    const hit = raycaster.intersectObject(surface, false)[0];
+    if (!hit || !hit.face) return;
+    const n = hit.face.normal.clone();
+    if (n.dot(camera.position.clone().sub(hit.point)) < 0) n.negate();
+    setCentre(hit.point.clone().addScaledVector(n, 1.25 * radius));
+  });
+
+  // Where the sphere's centre is on the page (client pixels), for the browser test's drag.
+  state.toolScreen = () => {
+    if (!centre) return null;
+    const v = centre.clone().project(camera);
+    const r = view.getBoundingClientRect();
+    return [r.left + ((v.x + 1) / 2) * r.width, r.top + ((1 - v.y) / 2) * r.height];
+  };
+
+  const dir = new THREE.Vector3();
+  return {
+    onFrame(f) {
+      const t = f.tool;
+      // Follow the server's tool (another page, a reload) unless this page just set it.
+      if (!drag && !inflight && performance.now() - lastLocal > 500) {
+        const server = t ? new THREE.Vector3(...t.position) : null;
+        if (!!server !== !!centre || (server && !server.equals(centre))) {
+          centre = server;
+          mesh.visible = !!centre;
+          if (centre) mesh.position.copy(centre);
+          state.toolPosition = centre ? centre.toArray() : null;
+        }
+      }
+      state.toolForce = t ? t.force_magnitude : null;
+      state.toolServerPosition = t ? t.position : null;
+      state.toolStatus = t ? t.status : null;
+      if (!t) {
+        arrow.visible = false;
+        label.textContent = 'no tool';
+        return;
+      }
+      const F = t.force_magnitude;
+      const scale = Number(scaleSelect.value);
+      arrow.visible = F > 0;
+      if (F > 0) {
+        dir.set(...t.force).divideScalar(F);
+        arrow.position.set(...t.position);
+        arrow.setDirection(dir);
+        const length = Math.min(F * scale, cap);
+        arrow.setLength(length, Math.min(0.3 * length, 0.6 * radius), Math.min(0.2 * length, 0.4 * radius));
+      }
+      label.textContent =
+        `|F| ${F === 0 ? '0' : F.toPrecision(4)} N   (${t.force.map((v) => v.toFixed(5)).join(', ')}) N\n` +
+        `${t.status}, ${t.active} pressing node${t.active === 1 ? '' : 's'}, depth ${(t.depth * 1e3).toFixed(3)} mm` +
+        (F * scale > cap ? '\narrow capped' : '');
+    },
+  };
 }
 
 main().catch((e) => {

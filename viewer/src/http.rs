@@ -147,12 +147,14 @@ fn handle(mut request: tiny_http::Request, state: &State) {
 }
 
 /// Applies a control message: a JSON object with any of `"forces": {"group": [fx, fy, fz]}`
-/// (N, world frame), `"playing": bool`, `"reset": bool` and `"gravity": scale`. Anything else
+/// (N, world frame), `"playing": bool`, `"reset": bool`, `"gravity": scale` and `"tool": [x, y,
+/// z]` (the tool sphere's centre, m, model frame) or `"tool": null` (no tool). Anything else
 /// (not an object, an unknown key, a value of the wrong type, a force or gravity scale beyond
 /// the runtime's plausibility bound for its channel, a gravity scale on a model without a
-/// gravity input) is refused with the reason, and nothing is applied.
+/// gravity input, a tool on a model without a contact region, a tool coordinate that is not a
+/// finite number) is refused with the reason, and nothing is applied.
 fn control(body: &[u8], state: &State) -> Result<(), String> {
-    const KEYS: &str = "\"forces\", \"playing\", \"reset\", \"gravity\"";
+    const KEYS: &str = "\"forces\", \"playing\", \"reset\", \"gravity\", \"tool\"";
     let value: serde_json::Value =
         serde_json::from_slice(body).map_err(|e| format!("control message is not JSON: {e}"))?;
     let object = value.as_object().ok_or_else(|| {
@@ -160,7 +162,7 @@ fn control(body: &[u8], state: &State) -> Result<(), String> {
     })?;
     if let Some(key) = object
         .keys()
-        .find(|k| !["forces", "playing", "reset", "gravity"].contains(&k.as_str()))
+        .find(|k| !["forces", "playing", "reset", "gravity", "tool"].contains(&k.as_str()))
     {
         return Err(format!("unknown control {key:?}; the controls are {KEYS}"));
     }
@@ -227,7 +229,14 @@ fn control(body: &[u8], state: &State) -> Result<(), String> {
         }
         None => None,
     };
+    let tool = match object.get("tool") {
+        None => None,
+        Some(t) => Some(tool(t, state.shared.has_contact())?),
+    };
     state.shared.with_controls(|c| {
+        if let Some(t) = tool {
+            c.tool = t;
+        }
         for (g, f) in forces {
             c.forces[g] = f;
         }
@@ -240,6 +249,34 @@ fn control(body: &[u8], state: &State) -> Result<(), String> {
         c.reset |= reset;
     });
     Ok(())
+}
+
+/// The value of `"tool"`: `null` (no tool) or `[x, y, z]`, finite numbers (m, model frame), on
+/// a model with a contact region.
+fn tool(value: &serde_json::Value, has_contact: bool) -> Result<Option<[f64; 3]>, String> {
+    if !has_contact {
+        return Err(
+            "this model has no contact region (its scene declares no [[contact]], \
+                    docs/contact.md): 'tool' does not apply"
+                .to_string(),
+        );
+    }
+    if value.is_null() {
+        return Ok(None);
+    }
+    let a = value.as_array().filter(|a| a.len() == 3).ok_or_else(|| {
+        format!("'tool' must be [x, y, z] (the tool's centre, m, model frame) or null, got {value}")
+    })?;
+    let mut centre = [0.0; 3];
+    for (c, x) in a.iter().enumerate() {
+        centre[c] = x.as_f64().filter(|x| x.is_finite()).ok_or_else(|| {
+            format!(
+                "'tool': coordinate {c} ({}) must be a finite number of metres, got {x}",
+                ["x", "y", "z"][c]
+            )
+        })?;
+    }
+    Ok(Some(centre))
 }
 
 /// A server-sent event stream: one `data:` line of JSON per published frame, a comment line

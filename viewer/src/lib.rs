@@ -10,11 +10,19 @@
 //! default.
 //!
 //! Routes: `GET /` page, `GET /app.js`, `GET /three/*` (vendored three.js), `GET /model.json`
-//! (rest geometry, triangles, sensors, loads), `GET /events` (server-sent events, one JSON
-//! frame each), `POST /control` (a JSON object with any of `{"forces": {"group": [fx, fy,
-//! fz]}, "playing": bool, "reset": bool, "gravity": scale}`; anything else, a value of the wrong
-//! type, a force or gravity beyond the runtime's plausibility bound, or a gravity on a model
-//! without a gravity input is answered 400 with the reason, and changes nothing).
+//! (rest geometry, triangles, sensors, loads, the contact region or null), `GET /events`
+//! (server-sent events, one JSON frame each), `POST /control` (a JSON object with any of
+//! `{"forces": {"group": [fx, fy, fz]}, "playing": bool, "reset": bool, "gravity": scale,
+//! "tool": [x, y, z] | null}`; anything else, a value of the wrong type, a force or gravity
+//! beyond the runtime's plausibility bound, a gravity on a model without a gravity input, a
+//! tool on a model without a contact region or a tool coordinate that is not a finite number
+//! is answered 400 with the reason, and changes nothing).
+//!
+//! The tool: on a model with a contact region (docs/contact.md), while the page has set a
+//! tool (a rigid sphere of the region's radius, centre in m, model frame) the stepping thread
+//! calls [`crokf_runtime::Estimator::step_with_tools`] instead of `step`, and every frame
+//! carries the tool's centre, the force of the body on it (N), its magnitude, the pressing
+//! nodes and the contact status.
 
 mod http;
 mod sim;

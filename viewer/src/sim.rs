@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use base64::Engine;
 use crokf_formats::{InputKind, Model};
-use crokf_runtime::Estimator;
+use crokf_runtime::{Estimator, ToolContact};
 
 use crate::ServeOptions;
 
@@ -54,6 +54,9 @@ pub(crate) struct Controls {
     pub gravity: f64,
     pub playing: bool,
     pub reset: bool,
+    /// Centre of the spherical tool, m (model frame); `None`: no tool (plain steps). Only set
+    /// on a model with a contact region.
+    pub tool: Option<[f64; 3]>,
 }
 
 struct SharedState {
@@ -71,6 +74,8 @@ pub(crate) struct Shared {
     force_bounds: Vec<[f64; 3]>,
     /// The plausibility bound of the gravity scale, `None` without a gravity input.
     gravity_bound: Option<f64>,
+    /// Whether the model has a contact region (a tool may be set).
+    has_contact: bool,
     state: Mutex<SharedState>,
     new_frame: Condvar,
 }
@@ -98,6 +103,7 @@ impl Shared {
             load_names: model.loads.iter().map(|l| l.name.clone()).collect(),
             force_bounds,
             gravity_bound,
+            has_contact: model.contact.is_some(),
             state: Mutex::new(SharedState {
                 frame: Arc::new(String::new()),
                 generation: 0,
@@ -106,6 +112,7 @@ impl Shared {
                     gravity,
                     playing,
                     reset: false,
+                    tool: None,
                 },
                 stats: Stats::default(),
             }),
@@ -131,6 +138,11 @@ impl Shared {
     /// The plausibility bound of the gravity scale, `None` when the model has no gravity input.
     pub fn gravity_bound(&self) -> Option<f64> {
         self.gravity_bound
+    }
+
+    /// Whether the model has a contact region, so that the page may set a tool.
+    pub fn has_contact(&self) -> bool {
+        self.has_contact
     }
 
     pub fn stats(&self) -> Stats {
@@ -209,6 +221,9 @@ struct Snapshot {
     stats: Stats,
     forces: Vec<[f64; 3]>,
     gravity: f64,
+    /// The tool as set by the page, with the result of the last contact step since it was set
+    /// (`None` before the first one).
+    tool: Option<([f64; 3], Option<ToolContact>)>,
     error: Option<String>,
 }
 
@@ -235,6 +250,9 @@ pub(crate) struct Simulation {
     frame_interval: Duration,
     inputs: Vec<f64>,
     no_measurements: Vec<Option<f64>>,
+    /// The result of the last contact step since the tool was set (cleared when the page takes
+    /// the tool away and on a reset).
+    tool_result: Option<ToolContact>,
 }
 
 impl Simulation {
@@ -247,6 +265,7 @@ impl Simulation {
             frame_interval,
             inputs: vec![0.0; m],
             no_measurements: vec![None; q],
+            tool_result: None,
         }
     }
 
@@ -286,11 +305,15 @@ impl Simulation {
             });
             if controls.reset {
                 self.est.reset();
+                self.tool_result = None;
                 error = None;
                 origin = Instant::now();
                 done_since_origin = 0;
             }
             self.set_inputs(&controls);
+            if controls.tool.is_none() {
+                self.tool_result = None;
+            }
             let now = Instant::now();
             if controls.playing && !was_playing {
                 origin = now;
@@ -307,15 +330,35 @@ impl Simulation {
                 }
                 for _ in 0..behind {
                     let t0 = Instant::now();
-                    if let Err(e) = self.est.step(&self.inputs, &self.no_measurements) {
-                        // Only a singular warp (|ω̄| near 2π) can fail here: stop stepping and
-                        // show the runtime's message until the page resets.
-                        error = Some(e.to_string());
+                    let stepped = match controls.tool {
+                        None => self
+                            .est
+                            .step(&self.inputs, &self.no_measurements)
+                            .map_err(|e| e.to_string()),
+                        Some(c) => self
+                            .est
+                            .step_with_tools(&[c], &self.inputs, &self.no_measurements)
+                            .map_err(|e| {
+                                format!(
+                                    "contact step with the tool at [{}, {}, {}] m: {e}",
+                                    c[0], c[1], c[2]
+                                )
+                            }),
+                    };
+                    if let Err(e) = stepped {
+                        // A plain step fails only on a singular warp (|ω̄| near 2π), a contact
+                        // step also on a non-finite contact solve: stop stepping and show the
+                        // runtime's message until the page resets (the estimator is left as
+                        // it was before the failed step).
+                        error = Some(e);
                         break;
                     }
                     step_times.push(t0.elapsed().as_secs_f64() * 1e6);
                     done_since_origin += 1;
                     window_steps += 1;
+                    if controls.tool.is_some() {
+                        self.tool_result = self.est.tool_contact(0).copied();
+                    }
                 }
             }
             let now = Instant::now();
@@ -341,6 +384,7 @@ impl Simulation {
                     h.stats.clone_from(&stats);
                     h.forces.clone_from(&controls.forces);
                     h.gravity = controls.gravity;
+                    h.tool = controls.tool.map(|c| (c, self.tool_result));
                     h.error.clone_from(&error);
                 }
                 handover.fresh.notify_all();
@@ -479,11 +523,33 @@ impl Framer {
             "markers": self.markers,
             "forces": snap.forces,
             "gravity": snap.gravity,
+            "tool": snap.tool.as_ref().map(|(position, result)| tool_json(position, result.as_ref())),
             "stats": stats,
             "error": failure,
         })
         .to_string()
     }
+}
+
+/// The tool in a frame: its centre as the page set it (m, model frame) and the result of the
+/// last contact step since it was set: the force of the body on the tool (N, model frame), its
+/// magnitude, the torque about the centre (N·m), the pressing nodes, the deepest penetration
+/// of the free prediction (m) and the status. Before the first contact step (set while
+/// paused): zero force, status "Free", `stepped` false.
+fn tool_json(position: &[f64; 3], result: Option<&ToolContact>) -> serde_json::Value {
+    let c = result.copied().unwrap_or_default();
+    let magnitude =
+        (c.force[0] * c.force[0] + c.force[1] * c.force[1] + c.force[2] * c.force[2]).sqrt();
+    serde_json::json!({
+        "position": position,
+        "force": c.force,
+        "force_magnitude": magnitude,
+        "torque": c.torque,
+        "active": c.active,
+        "depth": c.depth,
+        "status": format!("{:?}", c.status),
+        "stepped": result.is_some(),
+    })
 }
 
 /// The static description of the scene the page loads once (`GET /model.json`): rest
@@ -517,6 +583,18 @@ pub(crate) fn model_json(model: &Model, set: usize, options: &ServeOptions) -> S
         .inputs
         .iter()
         .any(|i| matches!(i.kind, InputKind::Gravity { .. }));
+    // The contact region, where the page's tool may press: the tool radius (m), the force
+    // bound (N), the region's name and its nodes' rest positions and outward normals (m, 3 per
+    // node) for placing the tool.
+    let contact = model.contact.as_ref().map(|c| {
+        serde_json::json!({
+            "radius": c.tool_radius,
+            "max_force": c.max_force,
+            "region": c.name,
+            "positions": c.rest_positions.data,
+            "normals": c.normals.data,
+        })
+    });
     serde_json::json!({
         "title": options.title,
         "dt": model.dt,
@@ -527,6 +605,7 @@ pub(crate) fn model_json(model: &Model, set: usize, options: &ServeOptions) -> S
         "sensors": sensors,
         "loads": loads,
         "gravity": gravity,
+        "contact": contact,
         "force_range": options.force_range,
         "frame_rate": options.frame_rate,
     })

@@ -1,11 +1,14 @@
 //! The viewer in a real browser: headless Chromium driven over W3C WebDriver (chromedriver)
 //! loads the page of the meniscus, moves the probe's z force slider, and the drawn surface
-//! must move with no script error. Skipped, with a message, when `chromium` or `chromedriver`
-//! is not installed (Debian: `apt-get install chromium chromium-driver`).
+//! must move with no script error; on the touch model (`scene_touch.toml`, compiled here) it
+//! places the tool, pushes it into the body with the mouse wheel and drags it, and the printed
+//! tool force must follow. Skipped, with a message, when `chromium` or `chromedriver` is not
+//! installed (Debian: `apt-get install chromium chromium-driver`).
 //!
 //! Prints the measured stepping rate, step time, frame rates (sent, received, drawn) with
 //! `-- --nocapture`. `CROKF_VIEWER_SCREENSHOT=path.png` saves a screenshot of the meniscus
-//! under the probe there (the README's `viewer/screenshot.png`).
+//! under the probe there (the README's `viewer/screenshot.png`),
+//! `CROKF_VIEWER_TOOL_SCREENSHOT=path.png` one of the tool pressing on the touch model.
 
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
@@ -123,30 +126,20 @@ fn start_driver(chromedriver: &Path) -> Driver {
     panic!("chromedriver did not become ready within 20 s");
 }
 
-#[test]
-fn slider_moves_the_drawn_meniscus() {
+/// Chromium and chromedriver from PATH, or `None` (the test then says SKIPPED).
+fn browser() -> Option<(PathBuf, PathBuf)> {
     let (Some(chromium), Some(chromedriver)) = (
         find_program(&["chromium", "chromium-browser", "google-chrome"]),
         find_program(&["chromedriver"]),
     ) else {
         println!("SKIPPED browser test: chromium and chromedriver not found on PATH (apt-get install chromium chromium-driver)");
-        return;
+        return None;
     };
-    let model_path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../models/meniscus/model.crokf");
-    let model = crokf_runtime::load_model(&model_path).expect("meniscus model");
-    let server = Server::start(
-        model,
-        ServeOptions {
-            port: 0,
-            force_range: 0.5,
-            title: "meniscus/model.crokf".into(),
-            ..ServeOptions::default()
-        },
-    )
-    .expect("viewer starts");
-    let driver = start_driver(&chromedriver);
-    let profile = std::env::temp_dir().join(format!("crokf-viewer-test-{}", std::process::id()));
+    Some((chromium, chromedriver))
+}
+
+/// A headless Chromium session on `driver` with its profile in `profile`, showing `url`.
+fn open(driver: &Driver, chromium: &Path, profile: &Path, url: &str) -> Session {
     let caps = json!({"capabilities": {"alwaysMatch": {
         "browserName": "chrome",
         "goog:chromeOptions": {
@@ -168,8 +161,43 @@ fn slider_moves_the_drawn_meniscus() {
     wd(
         "POST",
         &format!("{}/url", session.base),
-        Some(json!({"url": server.url()})),
+        Some(json!({"url": url})),
     );
+    session
+}
+
+fn save_screenshot(session: &Session, variable: &str) {
+    if let Some(path) = std::env::var_os(variable) {
+        let png = wd("GET", &format!("{}/screenshot", session.base), None);
+        let bytes = base64::engine::general_purpose::STANDARD
+            .decode(png.as_str().expect("base64 PNG"))
+            .expect("valid base64");
+        std::fs::write(&path, bytes).expect("write screenshot");
+        println!("screenshot: {}", PathBuf::from(path).display());
+    }
+}
+
+#[test]
+fn slider_moves_the_drawn_meniscus() {
+    let Some((chromium, chromedriver)) = browser() else {
+        return;
+    };
+    let model_path =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../models/meniscus/model.crokf");
+    let model = crokf_runtime::load_model(&model_path).expect("meniscus model");
+    let server = Server::start(
+        model,
+        ServeOptions {
+            port: 0,
+            force_range: 0.5,
+            title: "meniscus/model.crokf".into(),
+            ..ServeOptions::default()
+        },
+    )
+    .expect("viewer starts");
+    let driver = start_driver(&chromedriver);
+    let profile = std::env::temp_dir().join(format!("crokf-viewer-test-{}", std::process::id()));
+    let session = open(&driver, &chromium, &profile, server.url());
 
     let loaded = session.wait_for(
         "return window.crokf.ready === true && window.crokf.framesDrawn > 10 && window.crokf.step > 0;",
@@ -229,14 +257,7 @@ fn slider_moves_the_drawn_meniscus() {
     assert_eq!(page["errors"], json!([]), "script errors on the page");
     assert!(stats.step_rate_hz > 0.0 && stats.frames > 0);
 
-    if let Some(path) = std::env::var_os("CROKF_VIEWER_SCREENSHOT") {
-        let png = wd("GET", &format!("{}/screenshot", session.base), None);
-        let bytes = base64::engine::general_purpose::STANDARD
-            .decode(png.as_str().expect("base64 PNG"))
-            .expect("valid base64");
-        std::fs::write(&path, bytes).expect("write screenshot");
-        println!("screenshot: {}", PathBuf::from(path).display());
-    }
+    save_screenshot(&session, "CROKF_VIEWER_SCREENSHOT");
 
     // Closing the tab (ending the session) leaves the server running.
     wd("DELETE", &session.base, None);
@@ -247,6 +268,151 @@ fn slider_moves_the_drawn_meniscus() {
         server.stats().frames > frames,
         "server stopped after the tab closed"
     );
+    server.stop();
+    drop(driver);
+    let _ = std::fs::remove_dir_all(&profile);
+}
+
+/// Where the page draws the tool's centre (client pixels, rounded).
+fn tool_on_screen(session: &Session) -> (i64, i64) {
+    let p = session.exec("return window.crokf.toolScreen();");
+    let c = |i: usize| p[i].as_f64().expect("tool on screen").round() as i64;
+    (c(0), c(1))
+}
+
+/// W3C actions: one input source with its action list.
+fn act(session: &Session, source: Value) {
+    wd(
+        "POST",
+        &format!("{}/actions", session.base),
+        Some(json!({"actions": [source]})),
+    );
+}
+
+#[test]
+fn the_tool_is_dragged_and_its_force_printed() {
+    let Some((chromium, chromedriver)) = browser() else {
+        return;
+    };
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/meniscus/scene_touch.toml");
+    let options = crokf_compile::compile::CompileOptions {
+        skip_measured_error: true,
+        ..Default::default()
+    };
+    let model = crokf_compile::compile::compile(&scene, &options)
+        .expect("compile the touch scene")
+        .model;
+    let server = Server::start(
+        model,
+        ServeOptions {
+            port: 0,
+            title: "meniscus/scene_touch.toml".into(),
+            ..ServeOptions::default()
+        },
+    )
+    .expect("viewer starts");
+    let driver = start_driver(&chromedriver);
+    let profile =
+        std::env::temp_dir().join(format!("crokf-viewer-tool-test-{}", std::process::id()));
+    let session = open(&driver, &chromium, &profile, server.url());
+    let loaded = session.wait_for(
+        "return window.crokf.ready === true && window.crokf.framesDrawn > 10 && window.crokf.step > 0;",
+        Duration::from_secs(30),
+    );
+    let errors = session.exec("return window.crokf.errors;");
+    assert!(loaded, "page did not draw frames within 30 s: {errors}");
+    let shown = session.exec(
+        "return [document.getElementById('tool').hidden, document.getElementById('tool-force').textContent];",
+    );
+    assert_eq!(
+        shown,
+        json!([false, "no tool"]),
+        "the tool panel on a contact model"
+    );
+
+    // Place the tool (1 mm off the middle of the region, the view turned to look at it).
+    session.exec("document.getElementById('tool-place').click(); return true;");
+    assert!(
+        session.wait_for(
+            "return window.crokf.toolStatus === 'Free';",
+            Duration::from_secs(20)
+        ),
+        "the placed tool did not come back in the frames: {}",
+        session.exec("return [window.crokf.toolStatus, window.crokf.errors];")
+    );
+
+    // Push it in with the mouse wheel over the sphere: 6 × 0.3 mm along the view direction.
+    let (x, y) = tool_on_screen(&session);
+    let scrolls: Vec<Value> = (0..6)
+        .map(|_| json!({"type": "scroll", "x": x, "y": y, "deltaX": 0, "deltaY": -300, "origin": "viewport", "duration": 0}))
+        .collect();
+    act(
+        &session,
+        json!({"type": "wheel", "id": "wheel", "actions": scrolls}),
+    );
+    let pressed = session.wait_for(
+        "return window.crokf.toolForce > 1e-4 && window.crokf.toolStatus === 'Touching' && \
+         document.getElementById('tool-force').textContent.startsWith('|F| ') && \
+         !document.getElementById('tool-force').textContent.startsWith('|F| 0 N');",
+        Duration::from_secs(20),
+    );
+    let printed = session.exec(
+        "return [window.crokf.toolForce, window.crokf.toolStatus, document.getElementById('tool-force').textContent, window.crokf.errors];",
+    );
+    assert!(pressed, "the wheel did not press the tool in: {printed}");
+    save_screenshot(&session, "CROKF_VIEWER_TOOL_SCREENSHOT");
+
+    // Drag it 40 px to the side with the mouse: the tool moves on the view plane (the orbit
+    // controls do not take the gesture) and the printed force changes.
+    let before = session.exec("return window.crokf.toolPosition;");
+    let label = printed[2].clone();
+    let (x, y) = tool_on_screen(&session);
+    act(
+        &session,
+        json!({"type": "pointer", "id": "mouse", "parameters": {"pointerType": "mouse"}, "actions": [
+            {"type": "pointerMove", "x": x, "y": y, "origin": "viewport", "duration": 0},
+            {"type": "pointerDown", "button": 0},
+            {"type": "pointerMove", "x": x + 40, "y": y, "origin": "viewport", "duration": 300},
+            {"type": "pointerUp", "button": 0}
+        ]}),
+    );
+    let after = session.exec("return window.crokf.toolPosition;");
+    assert_ne!(before, after, "the drag did not move the tool");
+    let moved_on_screen = tool_on_screen(&session);
+    assert!(
+        (moved_on_screen.0 - x - 40).abs() <= 2 && (moved_on_screen.1 - y).abs() <= 2,
+        "the tool followed the pointer: ({x}, {y}) + (40, 0) -> {moved_on_screen:?}"
+    );
+    let script = format!(
+        "return JSON.stringify(window.crokf.toolServerPosition) === JSON.stringify(window.crokf.toolPosition) && \
+         document.getElementById('tool-force').textContent !== {label};"
+    );
+    let changed = session.wait_for(&script, Duration::from_secs(20));
+    let printed_after = session.exec(
+        "return [window.crokf.toolForce, document.getElementById('tool-force').textContent];",
+    );
+    assert!(
+        changed,
+        "the printed force did not follow the drag: {label} -> {printed_after}"
+    );
+
+    // Remove it.
+    session.exec("document.getElementById('tool-remove').click(); return true;");
+    assert!(
+        session.wait_for(
+            "return window.crokf.toolStatus === null && \
+             document.getElementById('tool-force').textContent === 'no tool';",
+            Duration::from_secs(20)
+        ),
+        "the tool was not removed"
+    );
+    let errors = session.exec("return window.crokf.errors;");
+    assert_eq!(errors, json!([]), "script errors on the page");
+    println!(
+        "viewer tool: pressed {} -> dragged {}",
+        printed[2], printed_after[1]
+    );
+    wd("DELETE", &session.base, None);
     server.stop();
     drop(driver);
     let _ = std::fs::remove_dir_all(&profile);
