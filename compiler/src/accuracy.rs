@@ -62,6 +62,40 @@ pub fn standard_tests(full: &FullOrder, steps: usize, f_high: f64) -> Vec<LoadTe
     ]
 }
 
+/// A unit step on each deterministic input channel alone (`step.<label>`, e.g. `step.tip.x`),
+/// `steps` steps each: a weak channel's error shows on its own instead of inside the others'.
+pub fn channel_steps(full: &FullOrder, steps: usize) -> Vec<LoadTest> {
+    let m = full.operators.inputs.len();
+    full.operators
+        .inputs
+        .iter()
+        .enumerate()
+        .map(|(j, c)| LoadTest {
+            name: format!("step.{}", c.label),
+            inputs: (0..steps)
+                .map(|_| (0..m).map(|i| if i == j { 1.0 } else { 0.0 }).collect())
+                .collect(),
+        })
+        .collect()
+}
+
+/// How the full-order reference is stepped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stepping {
+    /// Wilson-θ at the scene's Δt: the same scheme as a Wilson-θ reduced model, so the error
+    /// is the reduction's alone.
+    SameScheme,
+    /// Wilson-θ at Δt / `substeps` with the load of each scene step held over its sub-steps
+    /// and the acceleration restarted where it changes
+    /// ([`LinearSimulator::consistent_acceleration`]): second order in the sub-step, the
+    /// continuous-time response of the full-order model to the held loads as `substeps`
+    /// grows.
+    Converged {
+        /// Sub-steps per scene step (≥ 1).
+        substeps: usize,
+    },
+}
+
 /// Displacement rows the error is measured on: sensors and displayed nodes, with their row
 /// indices in [`OutputRows::weighted`] order.
 fn measured_rows(rows: &OutputRows) -> Vec<(usize, &SparseRow)> {
@@ -101,6 +135,24 @@ impl ReferenceResponses {
         rows: &OutputRows,
         tests: Vec<LoadTest>,
     ) -> Result<Self, SteppingError> {
+        Self::simulate_with(full, rows, tests, Stepping::SameScheme)
+    }
+
+    /// [`ReferenceResponses::simulate`] with the reference stepped as `stepping` says.
+    pub fn simulate_with(
+        full: &FullOrder,
+        rows: &OutputRows,
+        tests: Vec<LoadTest>,
+        stepping: Stepping,
+    ) -> Result<Self, SteppingError> {
+        let substeps = match stepping {
+            Stepping::SameScheme => 1,
+            Stepping::Converged { substeps } => substeps.max(1),
+        };
+        let wilson = crate::dynamics::WilsonTheta {
+            dt: full.wilson.dt / substeps as f64,
+            theta: full.wilson.theta,
+        };
         let fem = &full.fem;
         let n = fem.dof_count();
         let measured = measured_rows(rows);
@@ -111,7 +163,7 @@ impl ReferenceResponses {
         let steps = tests.iter().map(|t| t.inputs.len()).max().unwrap_or(0);
         // n > 0: the modal stage refuses a model without free DOFs before this runs.
         if steps > 0 && n > 0 {
-            let mut reference = LinearSimulator::batch(fem, full.wilson, tests.len())?;
+            let mut reference = LinearSimulator::batch(fem, wilson, tests.len())?;
             let mut f = vec![0.0; n * tests.len()];
             for k in 0..steps {
                 for (test, f) in tests.iter().zip(f.chunks_exact_mut(n)) {
@@ -127,7 +179,12 @@ impl ReferenceResponses {
                         }
                     }
                 }
-                reference.step(&f)?;
+                if matches!(stepping, Stepping::Converged { .. }) {
+                    reference.consistent_acceleration(&f)?;
+                }
+                for _ in 0..substeps {
+                    reference.step(&f)?;
+                }
                 let all = reference.displacement();
                 for ((test, recorded), full_u) in
                     tests.iter().zip(&mut values).zip(all.chunks_exact(n))
@@ -148,6 +205,21 @@ impl ReferenceResponses {
             rows: measured.iter().map(|&(i, _)| i).collect(),
             sensor_rows: 3 * rows.sensors.len(),
         })
+    }
+
+    /// Relative L2 difference of `other` from these responses per test (same tests and rows):
+    /// `"<test>"` over displayed nodes and sensors, ‖other − self‖ / ‖self‖.
+    pub fn relative_difference(&self, other: &ReferenceResponses) -> BTreeMap<String, f64> {
+        self.tests
+            .iter()
+            .zip(self.values.iter().zip(&other.values))
+            .map(|(test, (a, b))| {
+                let (err, norm) = a.iter().zip(b).fold((0.0, 0.0), |(e, n), (a, b)| {
+                    (e + (b - a) * (b - a), n + a * a)
+                });
+                (test.name.clone(), (err / norm).sqrt())
+            })
+            .collect()
     }
 
     /// Relative L2 errors of the reduced model per test: `"<test>"` over displayed nodes and

@@ -101,6 +101,14 @@ pub fn compile_reduced(
     notes.extend(reductor.basis.warnings.iter().cloned());
     notes.extend(reduced.warnings.iter().cloned());
     notes.extend(order_note);
+    if full.scene.scene.time.scheme == crate::scene::Scheme::Exact {
+        notes.push(format!(
+            "time scheme exact: each mode's response to the load held over the step \
+             (zero-order hold); the measured error and the order rule compare with the full-order \
+             response converged in time (Wilson-θ at Δt/{})",
+            crate::reductor::CONVERGED_SUBSTEPS
+        ));
+    }
     notes.extend(crate::advice::tier_advice(reductor));
     // Force states come from the loads (estimated by default), white channels from `force_noise`.
     let estimated_loads = full.noise_model().is_ok_and(|n| !n.groups.is_empty());

@@ -23,6 +23,7 @@ use crate::observability;
 use crate::outputs::{columns, stack_rows, Measurements, OutputRows};
 use crate::reduce::{self, ModalBasis, ModalSystem, Order};
 use crate::reduced::{ReducedModel, RegionRows};
+use crate::scene::Scheme;
 use crate::timer::StageTimer;
 
 /// Tolerance σ_{r+1}/σ₁ when neither order nor tolerance is given and no measured error is
@@ -57,6 +58,11 @@ pub const DEFAULT_MAX_MODES: usize = 60;
 
 /// Longest step/chirp history of the measured error, steps.
 pub const MEASURE_MAX_STEPS: usize = 400;
+/// Sub-steps per scene step of the converged full-order reference of an exactly stepped
+/// model: at Δt/32 the reference's own error (a third of its difference from Δt/16, second
+/// order) is 5e-4 on the meniscus chirp, ≤ 1e-4 on the cantilever, tentacle, kidney and arch
+/// (`cargo run --release -p crokf-verify --example time_error -- SCENE --substeps 32`).
+pub const CONVERGED_SUBSTEPS: usize = 32;
 
 /// The modal system of a full-order model with everything an order-r model is derived from.
 pub struct Reductor<'a> {
@@ -157,13 +163,14 @@ impl<'a> Reductor<'a> {
         }
         let system = timer
             .stage("modal_system", || {
-                ModalSystem::new(
+                ModalSystem::with_scheme(
                     &basis,
                     b.as_ref(),
                     outputs.as_ref(),
                     fem.alpha,
                     fem.beta,
                     full.wilson,
+                    full.scene.scene.time.scheme,
                 )
             })
             .map_err(reduce_err)?;
@@ -466,6 +473,39 @@ impl<'a> Reductor<'a> {
         Ok(self.reference()?.sensor_rms_errors(reduced))
     }
 
+    /// How the measured error's full-order reference is stepped: with the model's own
+    /// Wilson-θ at Δt (the error is then the reduction's alone), or, for a model stepped
+    /// exactly (`[time] scheme = "exact"`), converged in time at Δt/[`CONVERGED_SUBSTEPS`]
+    /// (there is no full-order exact step to compare with).
+    pub fn reference_stepping(&self) -> accuracy::Stepping {
+        match self.full.scene.scene.time.scheme {
+            Scheme::WilsonTheta => accuracy::Stepping::SameScheme,
+            Scheme::Exact => accuracy::Stepping::Converged {
+                substeps: CONVERGED_SUBSTEPS,
+            },
+        }
+    }
+
+    /// The measured error's load tests (docs/design.md §7): steps per test (two periods of the
+    /// lowest mode, 100 to [`MEASURE_MAX_STEPS`]) and the chirp's top frequency, Hz (the
+    /// scene's `max_frequency`, else 5 f₁ capped at 0.2/Δt).
+    pub fn measure_plan(&self) -> (usize, f64) {
+        let f1 = self
+            .basis
+            .frequencies_hz
+            .first()
+            .copied()
+            .unwrap_or(1.0)
+            .max(1e-9);
+        let dt = self.full.wilson.dt;
+        let steps = ((2.0 / (f1 * dt)).ceil() as usize).clamp(100, MEASURE_MAX_STEPS);
+        let f_high = match self.full.scene.scene.reduction.max_frequency {
+            Some(f) => f,
+            None => (5.0 * f1).min(0.2 / dt),
+        };
+        (steps, f_high)
+    }
+
     /// The full-order linear responses the measured error compares against (docs/design.md §7),
     /// simulated on first use and kept.
     pub fn reference(&self) -> Result<&ReferenceResponses, CompileError> {
@@ -473,27 +513,18 @@ impl<'a> Reductor<'a> {
             return Ok(reference);
         }
         {
-            let f1 = self
-                .basis
-                .frequencies_hz
-                .first()
-                .copied()
-                .unwrap_or(1.0)
-                .max(1e-9);
-            let dt = self.full.wilson.dt;
-            let steps = ((2.0 / (f1 * dt)).ceil() as usize).clamp(100, MEASURE_MAX_STEPS);
-            let f_high = match self.full.scene.scene.reduction.max_frequency {
-                Some(f) => f,
-                None => (5.0 * f1).min(0.2 / dt),
-            };
+            let (steps, f_high) = self.measure_plan();
             let tests = accuracy::standard_tests(self.full, steps, f_high);
-            let responses =
-                ReferenceResponses::simulate(self.full, &self.rows, tests).map_err(|source| {
-                    CompileError::Stepping {
-                        path: self.full.scene_path().to_owned(),
-                        source,
-                    }
-                })?;
+            let responses = ReferenceResponses::simulate_with(
+                self.full,
+                &self.rows,
+                tests,
+                self.reference_stepping(),
+            )
+            .map_err(|source| CompileError::Stepping {
+                path: self.full.scene_path().to_owned(),
+                source,
+            })?;
             Ok(self.reference.get_or_init(|| responses))
         }
     }

@@ -645,6 +645,30 @@ pub struct TimeSpec {
     /// Wilson θ (≥ 1.37).
     #[serde(default = "default_theta")]
     pub theta: f64,
+    /// How the linear (warped) tier's modes are stepped ([`Scheme`]).
+    #[serde(default)]
+    pub scheme: Scheme,
+}
+
+/// The time discretisation of the linear (warped) tier's modal system (docs/design.md §2).
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum Scheme {
+    /// Wilson-θ with the scene's θ (the co-rotational tier and the contact step use it too).
+    #[default]
+    WilsonTheta,
+    /// Each mode's exact response to a load held over the step (zero-order hold).
+    Exact,
+}
+
+impl Scheme {
+    /// The scene's spelling.
+    pub fn name(self) -> &'static str {
+        match self {
+            Scheme::WilsonTheta => "wilson-theta",
+            Scheme::Exact => "exact",
+        }
+    }
 }
 
 fn default_theta() -> f64 {
@@ -1298,6 +1322,41 @@ mod tests {
                 .of(Component::Y),
             2e-4
         );
+    }
+
+    /// `[time] scheme`: the default, both spellings, an unknown one, and the combinations the
+    /// exact scheme cannot serve (no damping, a contact region, the co-rotational tier).
+    #[test]
+    fn the_time_scheme_is_read_and_checked() {
+        assert_eq!(parse(MINIMAL).unwrap().time.scheme, Scheme::WilsonTheta);
+        let damped = MINIMAL.replace("[time]", "[damping]\nalpha = 1.0\n[time]");
+        for (text, scheme) in [
+            ("wilson-theta", Scheme::WilsonTheta),
+            ("exact", Scheme::Exact),
+        ] {
+            let scene =
+                parse(&damped.replace("dt = 0.01", &format!("dt = 0.01\nscheme = \"{text}\"")))
+                    .unwrap();
+            assert_eq!(scene.time.scheme, scheme);
+            assert_eq!(scheme.name(), text);
+        }
+        let exact = |text: &str| {
+            parse(&text.replace("dt = 0.01", "dt = 0.01\nscheme = \"exact\""))
+                .unwrap_err()
+                .to_string()
+        };
+        let e = parse(&MINIMAL.replace("dt = 0.01", "dt = 0.01\nscheme = \"newmark\""))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("newmark") && e.contains("exact"), "{e}");
+        assert!(exact(MINIMAL).contains("needs damping"));
+        let e = exact(&damped.replace("[time]", "[reduction]\nmodel = \"corotational\"\n[time]"));
+        assert!(e.contains("Newton iterations"), "{e}");
+        let e = exact(&damped.replace(
+            "[time]",
+            "[[contact]]\nname = \"touch\"\nselect = [{ group = \"body\" }]\nradius = 0.001\nmax_force = 3.0\n[time]",
+        ));
+        assert!(e.contains("θ-point"), "{e}");
     }
 
     #[test]

@@ -14,6 +14,7 @@
 //! ```
 
 pub mod block;
+pub mod exact;
 mod lanes;
 mod simd;
 pub mod wilson;

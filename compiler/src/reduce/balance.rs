@@ -17,6 +17,7 @@
 use super::modes::ModalBasis;
 use super::ReduceError;
 use crate::dynamics::WilsonTheta;
+use crate::scene::Scheme;
 use faer::linalg::matmul::matmul;
 use faer::sparse::linalg::matmul::sparse_dense_matmul;
 use faer::sparse::SparseColMatRef;
@@ -240,6 +241,29 @@ impl ModalSystem {
         beta: f64,
         wilson: WilsonTheta,
     ) -> Result<Self, ReduceError> {
+        Self::with_scheme(
+            basis,
+            inputs,
+            outputs,
+            alpha,
+            beta,
+            wilson,
+            Scheme::WilsonTheta,
+        )
+    }
+
+    /// [`ModalSystem::new`] with the modes stepped by `scheme`: Wilson-θ's blocks
+    /// ([`WilsonTheta::modal_block`]) or the exact zero-order-hold ones
+    /// ([`crokf_kernel::exact::modal_block`]) over `wilson.dt`.
+    pub fn with_scheme(
+        basis: &ModalBasis,
+        inputs: MatRef<'_, f64>,
+        outputs: SparseColMatRef<'_, usize, f64>,
+        alpha: f64,
+        beta: f64,
+        wilson: WilsonTheta,
+        scheme: Scheme,
+    ) -> Result<Self, ReduceError> {
         let v = &basis.vectors;
         let (n, k) = (v.nrows(), v.ncols());
         if inputs.nrows() != n {
@@ -297,7 +321,10 @@ impl ModalSystem {
         let mut gamma = Vec::with_capacity(k);
         let mut spectral_radii = Vec::with_capacity(k);
         for &w2 in &basis.omega2 {
-            let (p, g) = wilson.modal_block(w2, alpha + beta * w2);
+            let (p, g) = match scheme {
+                Scheme::WilsonTheta => wilson.modal_block(w2, alpha + beta * w2),
+                Scheme::Exact => crokf_kernel::exact::modal_block(wilson.dt, w2, alpha + beta * w2),
+            };
             let nu = if w2 > 0.0 {
                 w2.sqrt().min(1.0 / wilson.dt)
             } else {

@@ -58,6 +58,8 @@ pub struct LinearSimulator {
     v: Vec<f64>,
     a: Vec<f64>,
     time: f64,
+    /// M's factor, made on the first [`LinearSimulator::consistent_acceleration`].
+    mass_factor: Option<Factor>,
     /// k, the number of histories stepped together.
     columns: usize,
     /// Threads a step of k > 1 columns uses (≤ k, ≤ the cores).
@@ -160,6 +162,7 @@ impl LinearSimulator {
             v: vec![0.0; n],
             a: vec![0.0; n],
             time: 0.0,
+            mass_factor: None,
             columns,
             threads: columns.min(cores),
             work: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],
@@ -190,6 +193,53 @@ impl LinearSimulator {
     /// b ← J⁻¹ b: the θ-point displacement per unit load b held over the step.
     pub fn theta_compliance(&self, b: &mut [f64]) {
         self.system.jacobian.solve_in_place(b);
+    }
+
+    /// Ü ← M⁻¹ (f − K U − C U̇) in every column (f: n × columns): the acceleration the
+    /// equation of motion gives under a load f that starts now. Wilson-θ assumes the
+    /// acceleration linear over a step, so a load that jumps at a step's start costs it first
+    /// order in Δt; restarting the acceleration where the load changes keeps it second order
+    /// (the converged reference of [`crate::accuracy`] sub-steps this way).
+    pub fn consistent_acceleration(&mut self, f: &[f64]) -> Result<(), SteppingError> {
+        let n = self.system.pattern.n;
+        check_len("load vector f", n * self.columns, f.len())?;
+        if self.mass_factor.is_none() {
+            let factor = self
+                .system
+                .pattern
+                .factor(&self.system.mass, "mass matrix M")?;
+            self.mass_factor = Some(factor);
+        }
+        let system = &self.system;
+        let [rhs, x, y] = &mut self.work;
+        let (rhs, x, y) = (&mut rhs[..n], &mut x[..n], &mut y[..n]);
+        for (((a, u), v), f) in self
+            .a
+            .chunks_exact_mut(n)
+            .zip(self.u.chunks_exact(n))
+            .zip(self.v.chunks_exact(n))
+            .zip(f.chunks_exact(n))
+        {
+            // K U + C U̇ = K (U + β U̇) + α M U̇.
+            x.iter_mut()
+                .zip(u.iter().zip(v))
+                .for_each(|(x, (u, v))| *x = u + system.beta * v);
+            system.pattern.mul(&system.stiffness, x, rhs);
+            if system.alpha != 0.0 {
+                system.pattern.mul(&system.mass, v, y);
+                rhs.iter_mut()
+                    .zip(y.iter())
+                    .for_each(|(r, y)| *r += system.alpha * y);
+            }
+            a.iter_mut()
+                .zip(f)
+                .zip(rhs.iter())
+                .for_each(|((a, f), r)| *a = f - r);
+            if let Some(m) = &self.mass_factor {
+                m.solve_in_place(a);
+            }
+        }
+        Ok(())
     }
 }
 
