@@ -12,6 +12,8 @@
 //! reduce at many orders), [`reduced`] (one reduced system), [`accuracy`] (measured error
 //! against the full-order reference), [`timer`] (stage costs), [`report`], [`check`] (`--check`), and [`compile()`], which
 //! only wires them. Stages never import the wiring; [`error`] holds the boundary error type.
+//! After the compile, [`identify`] (`crokf-compile identify`) fits a compiled tier's noise to
+//! a recording and writes it into a copy of the scene.
 //! Verification (scenarios, comparison reports, benchmarks) lives in the `crokf-verify` crate.
 
 pub mod scene;
@@ -45,6 +47,7 @@ pub mod check;
 pub mod compile;
 pub mod error;
 pub mod full_order;
+pub mod identify;
 pub mod progress;
 pub mod reductor;
 pub mod report;

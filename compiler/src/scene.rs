@@ -775,7 +775,7 @@ pub struct CorotationalSpec {
     /// Factor on the tier's measured model error taken as process noise (docs/design.md
     /// §11.9): the filter's model-error covariance is the self-check's S × this factor. None:
     /// 1 (S as measured over the training runs); a value identified from a recording
-    /// (`crokf-verify identify`, docs/identify.md) states how large the error is on the loads
+    /// (`crokf-compile identify`, docs/identify.md) states how large the error is on the loads
     /// that recording saw; 0 turns the term off.
     pub model_error_scale: Option<f64>,
     /// Write the model even when the tier fails its own checks on most runs (more than half

@@ -227,3 +227,36 @@ fn training_cases_are_listed_and_run_one_at_a_time() {
         "{err}"
     );
 }
+
+/// A first argument `identify` selects `crokf-compile identify` (its own usage on a missing
+/// argument); a scene file of that name is compiled as `./identify`.
+#[test]
+fn a_first_argument_identify_selects_the_subcommand() {
+    let dir = case_dir("identify");
+    let scene = scene_in(&dir);
+    let mut text = std::fs::read_to_string(&scene).expect("scene");
+    text.push_str(
+        "[[load]]\nname = \"push\"\ngroup = \"body\"\ndistribution = \"uniform\"\n\
+         force_model = \"white\"\n",
+    );
+    std::fs::write(dir.join("identify"), text).expect("write the scene");
+    let run = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_crokf-compile"))
+            .current_dir(&dir)
+            .args(args)
+            .output()
+            .expect("run crokf-compile")
+    };
+    let out = run(&["identify", "-o", "model.crokf"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("Usage: crokf-compile identify") && err.contains("--measurements"),
+        "{err}"
+    );
+    assert!(!dir.join("model.crokf").exists());
+    let out = run(&["./identify", "-o", "model.crokf", "--no-measure"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(dir.join("model.crokf").is_file());
+}

@@ -602,7 +602,7 @@ fn run_training_case<'py>(
 /// `{"value", "uncertainty", "blocks"}` of an identified parameter.
 fn estimate_dict<'py>(
     py: Python<'py>,
-    e: &crokf_verify::identify::Estimate,
+    e: &crokf_compile::identify::Estimate,
 ) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("value", e.value)?;
@@ -612,7 +612,7 @@ fn estimate_dict<'py>(
 }
 
 /// Identifies the force σ of a co-rotational model's estimated loads from a recording
-/// (`crokf-verify identify`; autocovariance least squares on the tier filter's innovations).
+/// (`crokf-compile identify`; autocovariance least squares on the tier filter's innovations).
 ///
 /// `scene`: the scene the model was compiled from; `model`: the `.crokf` file; `measurements`
 /// and `inputs`: `crokf-run`'s CSV files (no inputs: the loads withheld); `out`: a copy of the
@@ -637,7 +637,7 @@ fn identify<'py>(
     skip: usize,
     fixed_point: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
-    use crokf_verify::identify as id;
+    use crokf_compile::identify as id;
     let options = id::IdentifyOptions {
         lags,
         skip,

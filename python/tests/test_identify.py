@@ -162,7 +162,7 @@ def test_a_known_random_walk_is_recovered_and_written(beam):
     kept = [
         "force_noise_std = 5e-2" if line.startswith("force_noise_std = ") else line
         for line in text.splitlines()
-        if not line.startswith("# identified by crokf-verify identify from walk.csv")
+        if not line.startswith("# identified by crokf-compile identify from walk.csv")
     ]
     assert "\n".join(kept) + "\n" == SCENE
 

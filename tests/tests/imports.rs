@@ -8,6 +8,9 @@
 //! module. The crate root (`lib.rs`, `main.rs`) only declares and re-exports its modules: its
 //! own arrows are not counted. A strongly connected set of two or more files is a circle; the
 //! test fails naming each circle's arrows and the paths behind them.
+//!
+//! Between crates: the product's crates never depend on `crokf-verify`
+//! ([`the_product_does_not_import_verify`]).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -391,6 +394,47 @@ fn no_crate_has_an_import_circle() {
         }
     }
     assert!(report.is_empty(), "import circles:\n{}", report.join("\n"));
+}
+
+/// The product (the compiler, the runtime, crokf-run, the viewer, the shared formats and kernel,
+/// the Python package) never depends on the verification crate: no `crokf-verify` dependency in
+/// its `Cargo.toml`, no `crokf_verify` path in its code (comments aside).
+#[test]
+fn the_product_does_not_import_verify() {
+    let root = root();
+    let mut found = Vec::new();
+    for name in [
+        "compiler", "runtime", "run", "viewer", "formats", "kernel", "python",
+    ] {
+        let dir = root.join(name);
+        let manifest = std::fs::read_to_string(dir.join("Cargo.toml")).expect("read a manifest");
+        for (i, line) in manifest.lines().enumerate() {
+            if line.trim_start().starts_with("crokf-verify") {
+                found.push(format!("{name}/Cargo.toml:{}: {line}", i + 1));
+            }
+        }
+        let mut files = Vec::new();
+        rust_files(&dir.join("src"), &mut files);
+        files.sort();
+        for file in files {
+            let text = std::fs::read_to_string(&file).expect("read a source file");
+            for (i, line) in text.lines().enumerate() {
+                if code_of(line).contains("crokf_verify") {
+                    let shown = file
+                        .strip_prefix(&root)
+                        .unwrap_or(&file)
+                        .display()
+                        .to_string();
+                    found.push(format!("{shown}:{}: {}", i + 1, line.trim()));
+                }
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "the product imports crokf-verify:\n{}",
+        found.join("\n")
+    );
 }
 
 /// The walk itself: grouped `use` trees, `super` out of an inline module, a circle found.

@@ -17,12 +17,12 @@ use std::process::Command;
 
 use crokf_compile::scene::SceneFile;
 
+#[path = "support/tools.rs"]
+mod tools;
+use tools::{repository, tools};
+
 /// The heading of the README section whose first `sh` block is the quickstart.
 const HEADING: &str = "## Bring your own mesh";
-
-fn repository() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
 
 /// The first ```` ```sh ```` block after [`HEADING`], without its fences.
 fn quickstart_block(readme: &str) -> Result<String, String> {
@@ -48,50 +48,6 @@ fn the_quickstart_block_is_found() {
     // A block in a later section is not the quickstart's.
     let later = "## Bring your own mesh\ntext\n## Next\n```sh\nd\n```\n";
     assert!(quickstart_block(later).is_err());
-}
-
-/// The folder of this build's binaries, with `crokf-compile` and `crokf-run` built (cargo's
-/// own freshness check: nothing is rebuilt when they are up to date). Every binary of the
-/// workspace is built, as `cargo test --workspace` builds them: the same packages and so the
-/// same features, so that after that command this build is a no-op (the dev-dependencies add
-/// no feature to a normal dependency; a `--bin` build of two packages alone resolves fewer
-/// features and compiled both crates again).
-fn tools() -> PathBuf {
-    // target/<profile>/deps/quickstart-<hash> → target/<profile>
-    let exe = std::env::current_exe().expect("test executable path");
-    let dir = exe
-        .parent()
-        .and_then(Path::parent)
-        .expect("target/<profile>/deps")
-        .to_path_buf();
-    let profile = match dir.file_name().and_then(|n| n.to_str()) {
-        Some("debug") => "dev".to_owned(),
-        Some(other) => other.to_owned(),
-        None => panic!("no profile folder above {}", exe.display()),
-    };
-    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| env!("CARGO").into());
-    let out = Command::new(cargo)
-        .current_dir(repository())
-        .args([
-            "build",
-            "--locked",
-            "--workspace",
-            "--bins",
-            "--profile",
-            &profile,
-        ])
-        .output()
-        .expect("cargo runs");
-    assert!(
-        out.status.success(),
-        "cargo build of the tools failed:\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    for tool in ["crokf-compile", "crokf-run"] {
-        let path = dir.join(format!("{tool}{}", std::env::consts::EXE_SUFFIX));
-        assert!(path.is_file(), "{} was not built", path.display());
-    }
-    dir
 }
 
 /// A temporary folder removed when dropped.
@@ -151,7 +107,7 @@ fn the_readme_quickstart_runs_as_written() {
     let root = repository();
     let readme = std::fs::read_to_string(root.join("README.md")).expect("README.md");
     let block = quickstart_block(&readme).unwrap_or_else(|e| panic!("{e}"));
-    let tools = tools();
+    let tools = tools(&["crokf-compile", "crokf-run"]);
 
     // A temporary folder with a copy of models/quickstart/, as in a checkout.
     let tmp =

@@ -7,6 +7,7 @@
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
+use crokf_compile::identify::filter_run;
 use crokf_compile::mesh::procedural::BeamScene;
 use crokf_compile::model_file::tier as section;
 use crokf_compile::nonlinear::ecsw::EcswOptions;
@@ -19,7 +20,6 @@ use crokf_compile::{compile, CompileOptions, FullOrder};
 use crokf_formats::synthetic::SplitMix64;
 use crokf_runtime::tier::{Gate, TierModel, TierState};
 use crokf_runtime::{Estimator, RuntimeError, TierError, DEFAULT_GATE_SIGMAS};
-use crokf_verify::nonlinear::identify::filter_run;
 use nalgebra::DVector;
 
 #[path = "../../runtime/tests/support/counting_alloc.rs"]

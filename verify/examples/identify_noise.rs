@@ -16,7 +16,7 @@
 //!   the loads are withheld).
 //!
 //! The identification, its uncertainty over disjoint blocks and its verdict are
-//! `crokf_verify::identify` (the product command is `crokf-verify identify`, for a user's
+//! `crokf_compile::identify` (the product command is `crokf-compile identify`, for a user's
 //! recording); this example adds the simulated recording and the filter flags below. The
 //! markers' factor is the check of the result: the markers' noise is known (a tracking
 //! system's specification; the scene's by construction when simulated), so a factor outside
@@ -28,7 +28,7 @@
 //! filter at rest only; `--fixed-point` repeats the identification with the filters of the σ
 //! just identified until they agree to 1 % (at most 10 runs, the same recording): the σ that,
 //! used in the filter, its own innovations confirm; `--lags L` (30), `--skip S` (50 steps);
-//! `-o IDENTIFIED.toml` writes the scene with what was identified, as `crokf-verify identify
+//! `-o IDENTIFIED.toml` writes the scene with what was identified, as `crokf-compile identify
 //! -o` does (in the scene's folder; nothing when the verdict refuses).
 //!
 //! ```sh
@@ -43,11 +43,13 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use crokf_compile::identify::{
+    identified_scene, identify, write_scene, IdentifyOptions, Recording,
+};
 use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
 use crokf_runtime::load_model;
 use crokf_verify::comparison::Gaussian;
-use crokf_verify::identify::{identified_scene, identify, write_scene, IdentifyOptions, Recording};
 use crokf_verify::nonlinear::reference::Reference;
 use crokf_verify::scenario::{Horizon, Scenario};
 

@@ -6,14 +6,12 @@
 //! - [`vtu`]: ParaView VTU/PVD series of a simulation's frames;
 //! - [`comparison`]: speed against error, full-order references vs the runtime at several
 //!   orders (one modal system, truncated per order), with Markdown, CSV and SVG output;
-//! - [`identify`]: the tier's noise identified from a recording (`crokf-verify identify`);
 //! - [`mod@bench`]: structured benchmark meshes and benchmarks (medians, ratios in
 //!   one run).
 
 pub mod bench;
 pub mod comparison;
 pub mod contact;
-pub mod identify;
 pub mod nonlinear;
 pub mod scenario;
 pub mod simulate;

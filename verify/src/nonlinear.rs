@@ -7,7 +7,6 @@
 //! `--example nonlinear_tier -- …` print the tables of `docs/corotational-tier.md`.
 
 pub mod floors;
-pub mod identify;
 pub mod manifold;
 pub mod reference;
 pub mod sampling;

@@ -1,6 +1,12 @@
 //! `crokf-compile`: mesh (gmsh MSH, VTK .vtu/.vtk) + scene → hashed, deterministic reduced
 //! Kalman model file.
+//!
+//! `crokf-compile identify SCENE MODEL --measurements M.csv [--inputs I.csv] [-o IDENTIFIED.toml]
+//! [--fixed-point] [--lags L] [--skip S]`: the tier's noise identified from a recording
+//! ([`crokf_compile::identify`], docs/identify.md). A first argument that is exactly `identify`
+//! selects it; a scene file of that name is compiled as `crokf-compile ./identify`.
 
+use std::ffi::OsString;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -8,6 +14,7 @@ use clap::Parser;
 
 use crokf_compile::check::{check, CheckOutcome};
 use crokf_compile::fem::export::{self, export_matrices};
+use crokf_compile::identify::command::{self as identify, IdentifyArgs};
 use crokf_compile::nonlinear::cases::{run_into, scene_cases, CaseCache};
 use crokf_compile::report::StageTimer;
 use crokf_compile::scene::SceneFile;
@@ -16,10 +23,21 @@ use crokf_formats::output::{
     check_folder_inputs, check_paths, sweep_stale_temporaries, AtomicFile, Output, OutputKind,
 };
 
+/// The first argument that selects `crokf-compile identify`.
+const IDENTIFY: &str = "identify";
+
 /// Compile a scene (TOML) and its tetrahedral mesh (gmsh .msh, VTK .vtu or legacy .vtk) into a
 /// crokf model file.
 #[derive(Parser, Debug)]
-#[command(version, about, long_about = None)]
+#[command(
+    version,
+    about,
+    long_about = None,
+    after_help = "crokf-compile identify SCENE MODEL --measurements M.csv [...]: the force σ and \
+        the tier's model error identified from a recording (crokf-compile identify --help). A \
+        first argument `identify` selects it; a scene file named `identify` is given as \
+        ./identify."
+)]
 struct Args {
     /// Scene file (TOML).
     scene: PathBuf,
@@ -64,18 +82,43 @@ struct Args {
     run_case: Option<usize>,
 }
 
+/// `crokf-compile identify …` ([`identify::run`]).
+#[derive(Parser, Debug)]
+#[command(
+    name = "crokf-compile identify",
+    bin_name = "crokf-compile identify",
+    version,
+    about = identify::ABOUT
+)]
+struct IdentifyCli {
+    #[command(flatten)]
+    args: IdentifyArgs,
+}
+
 fn main() -> ExitCode {
-    let args = Args::parse();
-    #[cfg(unix)]
-    if let Err(e) = crokf_formats::output::install_interrupt_cleanup("crokf-compile") {
-        eprintln!("crokf-compile: warning: no cleanup on interrupt: {e}");
+    let mut argv: Vec<OsString> = std::env::args_os().collect();
+    if argv.get(1).is_some_and(|a| a == IDENTIFY) {
+        argv.remove(1);
+        let cli = IdentifyCli::parse_from(argv);
+        install_interrupt_cleanup();
+        return identify::run(&cli.args, "crokf-compile");
     }
+    let args = Args::parse_from(argv);
+    install_interrupt_cleanup();
     match run(&args) {
         Ok(code) => code,
         Err(message) => {
             eprintln!("crokf-compile: error: {message}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Removes the temporaries of an interrupted write on SIGINT/SIGTERM (warns where it cannot).
+fn install_interrupt_cleanup() {
+    #[cfg(unix)]
+    if let Err(e) = crokf_formats::output::install_interrupt_cleanup("crokf-compile") {
+        eprintln!("crokf-compile: warning: no cleanup on interrupt: {e}");
     }
 }
 

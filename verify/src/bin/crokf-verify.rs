@@ -7,7 +7,7 @@
 //! crokf-verify beam --tetrahedra N --out DIR      # a structured beam mesh + scene (benchmarks)
 //! crokf-verify bench [--assembly 10000,50000,200000] [--steps 2000,20000,50000] [--orders 10,20,40,80]
 //! crokf-verify identify SCENE MODEL --measurements M.csv [--inputs I.csv] [-o IDENTIFIED.toml]
-//!                       [--fixed-point] [--lags L] [--skip S]
+//!                       [--fixed-point] [--lags L] [--skip S]   # = crokf-compile identify
 //! ```
 //! runs the full-order reference (linear or co-rotational Wilson-θ) through a scenario and
 //! writes `DIR/trajectories.csv` and, with `--vtu`, `DIR/frames/frame_NNNN.vtu` + `DIR/series.pvd`.
@@ -26,7 +26,7 @@ use crokf_formats::output::{
 
 /// The files `report` writes into its `--out` folder (besides `tip_sigma_*.svg`).
 const REPORT_FILES: [&str; 4] = ["report.md", "report.csv", "report.svg", "sweep.md"];
-use crokf_verify::identify::IdentifyError;
+use crokf_compile::identify::command::{self as identify, IdentifyArgs};
 use crokf_verify::simulate::{self, SimulationOptions};
 use crokf_verify::{bench, comparison};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -53,80 +53,9 @@ enum Command {
     Beam(BeamArgs),
     /// Benchmarks: assembly, full-order step and runtime step times, medians, ratios in one run.
     Bench(BenchArgs),
-    /// Identify the force σ of a co-rotational model's estimated loads from a recording
-    /// (autocovariance least squares on the filter's innovations), with an uncertainty over 4
-    /// disjoint blocks; -o writes a copy of the scene with the identified force_noise_std.
-    /// A refusal exits with status 2 and writes nothing.
+    // `crokf-compile identify` under this name: the same arguments, output and exit status.
+    #[command(about = identify::ABOUT, long_about = None)]
     Identify(IdentifyArgs),
-}
-
-#[derive(Args)]
-struct IdentifyArgs {
-    /// Scene file (TOML) the model was compiled from.
-    scene: PathBuf,
-    /// Model file (.crokf) with a co-rotational tier.
-    model: PathBuf,
-    /// Recorded markers (crokf-run's measurements CSV: `step` or `t`, then `sensor.x`, …).
-    #[arg(long)]
-    measurements: PathBuf,
-    /// Recorded inputs (crokf-run's inputs CSV); without it every input is 0 (loads withheld).
-    #[arg(long)]
-    inputs: Option<PathBuf>,
-    /// Write a copy of SCENE with each identified load's force_noise_std (same folder as
-    /// SCENE).
-    #[arg(short = 'o', long = "out", value_name = "IDENTIFIED.toml")]
-    out: Option<PathBuf>,
-    /// Repeat with the filters of the σ just identified until they agree to 1 % (at most 10
-    /// runs).
-    #[arg(long)]
-    fixed_point: bool,
-    /// Lags of the innovations' autocovariances.
-    #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u64).range(2..=10_000))]
-    lags: u64,
-    /// Steps left out at the start (the filter's transient from rest).
-    #[arg(long, default_value_t = 50)]
-    skip: u64,
-}
-
-/// `identify`: the report on stdout, the refusal on stderr (exit 2), nothing written unless
-/// identified.
-fn identify(args: &IdentifyArgs) -> Result<(), IdentifyError> {
-    use crokf_verify::identify as id;
-    let files = id::Files {
-        scene: &args.scene,
-        model: &args.model,
-        measurements: &args.measurements,
-        inputs: args.inputs.as_deref(),
-        out: args.out.as_deref(),
-    };
-    let options = id::IdentifyOptions {
-        lags: args.lags as usize,
-        skip: args.skip as usize,
-        fixed_point: args.fixed_point,
-        ..id::IdentifyOptions::default()
-    };
-    match id::identify_files(&files, &options) {
-        Ok(found) => {
-            print!("{}", found.report());
-            if let Some(out) = &args.out {
-                let mut written: Vec<String> = found
-                    .excited_loads()
-                    .map(|l| format!("force_noise_std of {}", l.name))
-                    .collect();
-                if found.model_error_changed().is_some() {
-                    written.push("[reduction.corotational] model_error_scale".into());
-                }
-                println!("wrote {} ({})", out.display(), written.join(", "));
-            }
-            Ok(())
-        }
-        Err(refusal) => {
-            if let Some(found) = &refusal.found {
-                print!("{}", found.report());
-            }
-            Err(refusal.error)
-        }
-    }
 }
 
 #[derive(Args)]
@@ -539,15 +468,7 @@ fn main() -> ExitCode {
         Command::Report(args) => report(args),
         Command::Beam(args) => beam(args),
         Command::Bench(args) => bench_cmd(args),
-        Command::Identify(args) => {
-            return match identify(args) {
-                Ok(()) => ExitCode::SUCCESS,
-                Err(e) => {
-                    eprintln!("crokf-verify: identify refused: {e}");
-                    ExitCode::from(2)
-                }
-            }
-        }
+        Command::Identify(args) => return identify::run(args, "crokf-verify"),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,38 +1,18 @@
-//! `crokf-verify identify`: the co-rotational tier's noise identified from a recording
-//! (autocovariance least squares, docs/design.md §11.6), with an uncertainty, refusals, and
-//! the identified σ written into a copy of the scene for the next compile.
-//!
-//! The tier of a model file, its filters (gain schedule included) recomputed for the scene's
-//! noise, runs from rest over a recording (inputs and markers in `crokf-run`'s CSV formats);
-//! its innovations after the first `skip` steps give the sample autocovariances and
-//! `crokf_compile::nonlinear::identify::identify_noise` the σ that explain them: each
-//! estimated load's force σ_f (and rate σ_ḟ with rate states), the tier's model error as a
-//! factor on its measured covariance (the scene's `model_error_scale`, written into the copy
-//! when the recording disagrees with it) and the markers' σ as a factor on the scene's.
-//!
-//! Uncertainty: the recording after `skip` is cut into [`BLOCKS`] disjoint blocks of equal
-//! length; each block is identified alone (the filter still runs over the whole recording from
-//! rest; a block's autocovariances use only pairs of its own steps), and the uncertainty of
-//! the whole recording's value is the standard error of the block values, s/√K (s their
-//! sample standard deviation, K = [`BLOCKS`]: batch means).
-//!
-//! Refusals ([`IdentifyError`]): a recording shorter than [`MIN_STEPS_PER_LAG`] × lags steps
-//! after `skip` or with fewer than [`MIN_MARKER_UPDATES`] marker updates there; a model
-//! without a co-rotational tier or without estimated loads; a recording that does not excite
-//! any force parameter (each within two uncertainties of 0: the markers' noise alone explains
-//! the innovations); a markers' factor outside [`MARKER_FACTOR_RANGE`] (the markers' noise is
-//! known, so the linearised filters do not explain the innovations).
+//! The identification of a recording: the tier's filters, recomputed for a [`NoiseSpec`], run
+//! over it ([`filter_run`]), their innovations fitted by [`identify_noise`] on the whole
+//! recording and on each of [`BLOCKS`] blocks, `--fixed-point`'s iteration, the verdict
+//! ([`Identification::check`]) and the report ([`Identification::report`]). Module docs of
+//! [`crate::identify`]: the method, the uncertainty and the refusals.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use crokf_compile::full_order::FullOrder;
-use crokf_compile::noise::{ForceSigma, NoiseSpec};
-use crokf_compile::nonlinear::identify::IdentifiedNoise;
-use crokf_compile::scene::{ForceModel, Scene, SceneFile};
-use crokf_formats::output::{check_paths, write_atomically, Output, OutputKind};
 use crokf_formats::Model;
 
-use crate::nonlinear::identify::filter_run;
+use crate::full_order::FullOrder;
+use crate::noise::{ForceSigma, NoiseSpec};
+use crate::nonlinear::identify::{identify_noise, IdentifiedNoise};
+
+use super::filter_run::filter_run;
 
 /// The recording after `skip` is cut into this many disjoint blocks for the uncertainty.
 pub const BLOCKS: usize = 4;
@@ -305,7 +285,7 @@ fn filter_over(
         }
     }
     let failed = |e: &dyn std::fmt::Display| IdentifyError::Failed(e.to_string());
-    crokf_compile::model_file::tier::refilter(full, &mut model, spec).map_err(|e| failed(&e))?;
+    crate::model_file::tier::refilter(full, &mut model, spec).map_err(|e| failed(&e))?;
     model.validate().map_err(|e| failed(&e))?;
     let run =
         filter_run(&model, &recording.inputs, &recording.measurements).map_err(|e| failed(&e))?;
@@ -328,7 +308,7 @@ impl Run {
         to: usize,
         lags: usize,
     ) -> Result<IdentifiedNoise, IdentifyError> {
-        crokf_compile::nonlinear::identify::identify_noise(
+        identify_noise(
             full,
             &self.spec,
             &self.model,
@@ -405,15 +385,14 @@ pub fn identify(
     check_inputs(full, model, recording, options)?;
     // The scene's σ (stated or derived on the file's linearisation, as the compile did)
     // before any filter σ replaces them.
-    let (_, _, noise) =
-        crokf_compile::model_file::tier::linearised_of_file(full, model, &full.noise)
-            .map_err(|e| IdentifyError::Failed(e.to_string()))?;
+    let (_, _, noise) = crate::model_file::tier::linearised_of_file(full, model, &full.noise)
+        .map_err(|e| IdentifyError::Failed(e.to_string()))?;
     // (load, stated, σ_f, σ_ḟ) of each estimated load.
     let scene_sigmas: Vec<(usize, bool, f64, f64)> = noise
         .groups
         .iter()
         .map(|g| {
-            let stated = matches!(g.statement, crokf_compile::noise::ForceSigma::Stated(_));
+            let stated = matches!(g.statement, ForceSigma::Stated(_));
             (g.load, stated, g.sigma, g.rate_sigma)
         })
         .collect();
@@ -588,14 +567,16 @@ pub fn identify(
 }
 
 impl Identification {
-    /// The loads whose σ_f the recording excites (written by [`identified_scene`]).
+    /// The loads whose σ_f the recording excites (written by
+    /// [`identified_scene`](super::scene_edit::identified_scene)).
     pub fn excited_loads(&self) -> impl Iterator<Item = &LoadSigma> {
         self.loads.iter().filter(|l| l.force.excited())
     }
 
     /// The model error's identified factor when it differs from the scene's by more than
-    /// [`EXCITED_UNCERTAINTIES`] uncertainties (written by [`identified_scene`]); None when the
-    /// recording agrees with the scene's factor or the filter has no such term.
+    /// [`EXCITED_UNCERTAINTIES`] uncertainties (written by
+    /// [`identified_scene`](super::scene_edit::identified_scene)); None when the recording
+    /// agrees with the scene's factor or the filter has no such term.
     pub fn model_error_changed(&self) -> Option<&Estimate> {
         self.model_error
             .as_ref()
@@ -805,453 +786,9 @@ impl Identification {
     }
 }
 
-/// The text of `scene` with each excited load's `force_noise_std` set to its identified σ_f
-/// (rounded to 4 significant digits), `force_model = "random_walk"` made explicit, and a
-/// comment line above the value naming this command, the recording and the uncertainty;
-/// every other byte as in the file. The loads must be `[[load]]` tables. The result is
-/// parsed back and compared with the scene (refused unless only those fields changed).
-pub fn identified_scene(
-    scene: &SceneFile,
-    found: &Identification,
-) -> Result<String, IdentifyError> {
-    let values: Vec<(usize, f64, String)> = found
-        .excited_loads()
-        .map(|l| {
-            let value: f64 = format!("{:.3e}", l.force.value)
-                .parse()
-                .unwrap_or(l.force.value);
-            let comment = format!(
-                "identified by crokf-verify identify from {} ({} steps, lags {}, skip {}): \
-                 {:.3e} ± {:.1e} N per step (standard error over {BLOCKS} blocks); the scene's \
-                 was {:.3e} ({})",
-                found.recording,
-                found.steps,
-                found.lags,
-                found.skip,
-                l.force.value,
-                l.force.uncertainty,
-                l.scene_sigma,
-                if l.stated {
-                    "stated"
-                } else {
-                    "derived from range and rise_time"
-                }
-            );
-            (l.load, value, comment)
-        })
-        .collect();
-    let mut text = set_force_sigmas(&scene.text, &values)
-        .map_err(|e| IdentifyError::Failed(format!("{}: {e}", scene.path.display())))?;
-    let scale = found.model_error_changed().map(|m| {
-        let value: f64 = format!("{:.3e}", m.value).parse().unwrap_or(m.value);
-        let comment = format!(
-            "identified by crokf-verify identify from {} ({} steps, lags {}, skip {}): {:.3} ± \
-             {:.1e} (standard error over {BLOCKS} blocks); the scene's was {}",
-            found.recording,
-            found.steps,
-            found.lags,
-            found.skip,
-            m.value,
-            m.uncertainty,
-            found.model_error.as_ref().map_or(1.0, |m| m.scene)
-        );
-        (value, comment)
-    });
-    if let Some((value, comment)) = &scale {
-        text = set_model_error_scale(&text, *value, comment)
-            .map_err(|e| IdentifyError::Failed(format!("{}: {e}", scene.path.display())))?;
-    }
-    // Only the stated fields changed: the parsed copy equals the scene with them set.
-    let written = Scene::parse(&text, &scene.path)
-        .map_err(|e| IdentifyError::Failed(format!("the edited scene does not parse: {e}")))?;
-    let mut expected =
-        Scene::parse(&scene.text, &scene.path).map_err(|e| IdentifyError::Failed(e.to_string()))?;
-    for &(g, value, _) in &values {
-        expected.loads[g].force_noise_std = value;
-        expected.loads[g].force_model_stated = Some(ForceModel::RandomWalk);
-    }
-    if let (Some((value, _)), Some(spec)) = (&scale, expected.reduction.corotational.as_mut()) {
-        spec.model_error_scale = Some(*value);
-    }
-    if written != expected {
-        return Err(IdentifyError::Failed(format!(
-            "{}: editing the scene changed more than its force σ and model-error factor; \
-             write the loads as [[load]] tables and [reduction.corotational] as a table, with \
-             one key per line",
-            scene.path.display()
-        )));
-    }
-    Ok(text)
-}
-
-/// A table's values as the TOML parser sees them (byte spans into the text).
-type SpannedTable = std::collections::BTreeMap<String, toml::Spanned<toml::Value>>;
-
-/// The `[[load]]` tables and `[reduction.corotational]` as the TOML parser sees them.
-#[derive(serde::Deserialize)]
-struct SpannedScene {
-    #[serde(default)]
-    load: Vec<SpannedTable>,
-    reduction: Option<SpannedReduction>,
-}
-
-/// `[reduction]`'s `corotational` table.
-#[derive(serde::Deserialize)]
-struct SpannedReduction {
-    corotational: Option<SpannedTable>,
-}
-
-/// The last table header before byte `at` of `body`, without spaces and comment
-/// (`[[load]]`, `[reduction.corotational]`).
-fn header_before(body: &str, at: usize) -> Option<String> {
-    body[..at]
-        .lines()
-        .rev()
-        .map(str::trim)
-        .find(|l| l.starts_with('['))
-        .map(|h| h.split('#').next().unwrap_or("").replace([' ', '\t'], ""))
-}
-
-/// A scene's text parsed with byte spans, for edits that keep every other byte (a byte-order
-/// mark and CRLF line ends included).
-struct SceneText<'a> {
-    text: &'a str,
-    /// Bytes of a leading byte-order mark (0 or 3).
-    bom: usize,
-    parsed: SpannedScene,
-    newline: &'static str,
-}
-
-impl<'a> SceneText<'a> {
-    fn parse(text: &'a str) -> Result<Self, String> {
-        let bom = if text.starts_with('\u{feff}') { 3 } else { 0 };
-        let parsed = toml::from_str(&text[bom..]).map_err(|e| e.to_string())?;
-        let newline = if text.contains("\r\n") { "\r\n" } else { "\n" };
-        Ok(SceneText {
-            text,
-            bom,
-            parsed,
-            newline,
-        })
-    }
-
-    /// The text after the byte-order mark (the spans' reference).
-    fn body(&self) -> &'a str {
-        &self.text[self.bom..]
-    }
-
-    fn line_start(&self, at: usize) -> usize {
-        self.body()[..at].rfind('\n').map_or(0, |i| i + 1)
-    }
-
-    fn line_end(&self, at: usize) -> usize {
-        let body = self.body();
-        body[at..].find('\n').map_or(body.len(), |i| at + i + 1)
-    }
-
-    /// The spaces and tabs that start the line at `line_start`.
-    fn indent(&self, line_start: usize) -> String {
-        self.body()[line_start..]
-            .chars()
-            .take_while(|c| *c == ' ' || *c == '\t')
-            .collect()
-    }
-
-    /// The text with `edits` (byte ranges of the body, new text) applied from the end.
-    fn edited(&self, mut edits: Vec<(std::ops::Range<usize>, String)>) -> String {
-        edits.sort_by(|a, b| b.0.start.cmp(&a.0.start).then(b.0.end.cmp(&a.0.end)));
-        let mut out = self.body().to_owned();
-        for (range, new) in edits {
-            out.replace_range(range, &new);
-        }
-        format!("{}{out}", &self.text[..self.bom])
-    }
-}
-
-/// `text` with load `g`'s `force_noise_std` = value (and `force_model = "random_walk"`) for
-/// each `(g, value, comment)`, the comment on a line of its own above the value.
-fn set_force_sigmas(text: &str, values: &[(usize, f64, String)]) -> Result<String, String> {
-    let scene = SceneText::parse(text)?;
-    let (body, newline) = (scene.body(), scene.newline);
-    let mut edits: Vec<(std::ops::Range<usize>, String)> = Vec::new();
-    for (g, value, comment) in values {
-        let table = scene
-            .parsed
-            .load
-            .get(*g)
-            .ok_or_else(|| format!("load {g} is not in the file"))?;
-        let name = table
-            .get("name")
-            .ok_or_else(|| format!("load {g} has no name"))?;
-        let start = scene.line_start(name.span().start);
-        // The table must be a `[[load]]` table: its header is the last table header before
-        // its name.
-        if header_before(body, start).as_deref() != Some("[[load]]") {
-            return Err(format!(
-                "load '{}' is not a [[load]] table with one key per line: write it so to \
-                 have its force σ written",
-                name.get_ref().as_str().unwrap_or("?")
-            ));
-        }
-        let indent = scene.indent(start);
-        let comment_line = format!("{indent}# {comment}{newline}");
-        let model_line = match table.get("force_model") {
-            Some(_) => String::new(),
-            None => format!("{indent}force_model = \"random_walk\"{newline}"),
-        };
-        let number = format!("{value:e}");
-        match table.get("force_noise_std") {
-            Some(old) => {
-                let at = scene.line_start(old.span().start);
-                edits.push((old.span(), number));
-                edits.push((at..at, format!("{model_line}{comment_line}")));
-            }
-            None => {
-                let last = table.values().map(|v| v.span().end).max().unwrap_or(0);
-                let at = scene.line_end(last);
-                let lead = if at == body.len() && !body.ends_with('\n') {
-                    newline
-                } else {
-                    ""
-                };
-                edits.push((
-                    at..at,
-                    format!(
-                        "{lead}{model_line}{comment_line}{indent}force_noise_std = {number}{newline}"
-                    ),
-                ));
-            }
-        }
-    }
-    Ok(scene.edited(edits))
-}
-
-/// `text` with `[reduction.corotational] model_error_scale = value`, the comment on a line of
-/// its own above it: the key's line replaced where the table states it, else the key added
-/// above the table's first key. The table must be written as a `[reduction.corotational]`
-/// header with one key per line.
-fn set_model_error_scale(text: &str, value: f64, comment: &str) -> Result<String, String> {
-    let scene = SceneText::parse(text)?;
-    let table = scene
-        .parsed
-        .reduction
-        .as_ref()
-        .and_then(|r| r.corotational.as_ref())
-        .ok_or("no [reduction.corotational] table to write model_error_scale in")?;
-    let first = table
-        .values()
-        .map(|v| scene.line_start(v.span().start))
-        .min()
-        .ok_or("[reduction.corotational] has no keys")?;
-    if header_before(scene.body(), first).as_deref() != Some("[reduction.corotational]") {
-        return Err(
-            "[reduction.corotational] is not written as a table with one key per \
-                    line: write it so to have model_error_scale written"
-                .into(),
-        );
-    }
-    let (range, indent) = match table.get("model_error_scale") {
-        Some(old) => {
-            let at = scene.line_start(old.span().start);
-            (at..scene.line_end(old.span().end), scene.indent(at))
-        }
-        None => (first..first, String::new()),
-    };
-    let newline = scene.newline;
-    let line =
-        format!("{indent}# {comment}{newline}{indent}model_error_scale = {value:e}{newline}");
-    Ok(scene.edited(vec![(range, line)]))
-}
-
-/// Writes `text` (from [`identified_scene`]) to `out`, atomically. Refused: `out` equal to
-/// one of `inputs`, or in another folder than the scene's (its relative paths, the mesh and
-/// node lists, resolve from the scene's folder).
-pub fn write_scene(
-    scene: &Path,
-    out: &Path,
-    inputs: &[(&str, &Path)],
-    text: &str,
-) -> Result<(), IdentifyError> {
-    check_output(scene, out, inputs)?;
-    write_atomically(out, text.as_bytes()).map_err(|e| IdentifyError::Failed(e.to_string()))
-}
-
-/// The checks of [`write_scene`], before any work.
-pub fn check_output(
-    scene: &Path,
-    out: &Path,
-    inputs: &[(&str, &Path)],
-) -> Result<(), IdentifyError> {
-    let outputs = [Output {
-        role: "-o",
-        path: out,
-        kind: OutputKind::File,
-    }];
-    check_paths(inputs, &outputs).map_err(|e| IdentifyError::Usage(e.to_string()))?;
-    let folder = |p: &Path| {
-        crokf_formats::output::canonical(p).and_then(|c| c.parent().map(Path::to_path_buf))
-    };
-    let (a, b): (Option<PathBuf>, Option<PathBuf>) = (folder(scene), folder(out));
-    if a.is_none() || a != b {
-        return Err(IdentifyError::Usage(format!(
-            "-o {}: write the identified scene into the scene's folder ({}): its relative \
-             paths (mesh file, node lists) resolve from there",
-            out.display(),
-            scene
-                .parent()
-                .filter(|p| !p.as_os_str().is_empty())
-                .unwrap_or(Path::new("."))
-                .display()
-        )));
-    }
-    Ok(())
-}
-
-/// The files of one identification (the command's arguments).
-#[derive(Clone, Debug)]
-pub struct Files<'a> {
-    /// The scene the model was compiled from.
-    pub scene: &'a Path,
-    /// The model file, with a co-rotational tier.
-    pub model: &'a Path,
-    /// The recorded markers (`crokf-run`'s measurements CSV).
-    pub measurements: &'a Path,
-    /// The recorded inputs (`crokf-run`'s inputs CSV); `None`: every input 0.
-    pub inputs: Option<&'a Path>,
-    /// Where the scene with the identified σ goes (the scene's folder).
-    pub out: Option<&'a Path>,
-}
-
-/// A refusal, with the identification when there was one (its report says why).
-#[derive(Debug)]
-pub struct Refusal {
-    /// Why.
-    pub error: IdentifyError,
-    /// The identification refused by its verdict (not excited, markers unexplained).
-    pub found: Option<Box<Identification>>,
-}
-
-impl From<IdentifyError> for Refusal {
-    fn from(error: IdentifyError) -> Refusal {
-        Refusal { error, found: None }
-    }
-}
-
-/// `crokf-verify identify` (and `crokf.identify`): reads the files, refuses an output over an
-/// input or outside the scene's folder before any work, identifies, checks the verdict and
-/// writes the scene with the identified σ to `files.out` (nothing written on a refusal).
-pub fn identify_files(
-    files: &Files<'_>,
-    options: &IdentifyOptions,
-) -> Result<Identification, Refusal> {
-    let failed = |e: &dyn std::fmt::Display| IdentifyError::Failed(e.to_string());
-    let scene = SceneFile::read(files.scene).map_err(|e| failed(&e))?;
-    let read = scene.input_files();
-    let mut inputs: Vec<(&str, &Path)> = vec![
-        ("scene", files.scene),
-        ("model", files.model),
-        ("--measurements", files.measurements),
-    ];
-    if let Some(i) = files.inputs {
-        inputs.push(("--inputs", i));
-    }
-    inputs.extend(read.iter().map(|(role, p)| (*role, p.as_path())));
-    if let Some(out) = files.out {
-        check_output(files.scene, out, &inputs)?;
-    }
-    let model = crokf_runtime::load_model(files.model).map_err(|e| failed(&e))?;
-    let recording = Recording::read(&model, files.measurements, files.inputs)?;
-    let full = FullOrder::build(
-        files.scene,
-        &mut crokf_compile::report::StageTimer::default(),
-    )
-    .map_err(|e| failed(&e))?;
-    let found = identify(&full, &model, &recording, options)?;
-    if let Err(error) = found.check() {
-        return Err(Refusal {
-            error,
-            found: Some(Box::new(found)),
-        });
-    }
-    if let Some(out) = files.out {
-        let text = identified_scene(&full.scene, &found)?;
-        write_scene(files.scene, out, &inputs, &text)?;
-    }
-    Ok(found)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    const SCENE: &str = "# a scene\n[mesh]\nfile = \"m.msh\"\n\n[[load]]\nname = \"tip\"\n\
-        group = \"tip\"   # the end\nrange = 20.0\n\n[[load]]\n  name = \"side\"\n  \
-        force_model = \"random_walk\"\n  force_noise_std = 0.5 # old\n  rise_time = 0.1\n\n\
-        [time]\ndt = 0.001\n";
-
-    /// A stated σ is replaced in place; a load without one gets `force_model` and the value
-    /// after its last key; every other byte is kept.
-    #[test]
-    fn force_sigmas_are_set_and_the_rest_is_kept() {
-        let out =
-            set_force_sigmas(SCENE, &[(0, 0.25, "c0".into()), (1, 1.5e-3, "c1".into())]).unwrap();
-        let expected = "# a scene\n[mesh]\nfile = \"m.msh\"\n\n[[load]]\nname = \"tip\"\n\
-        group = \"tip\"   # the end\nrange = 20.0\nforce_model = \"random_walk\"\n# c0\n\
-        force_noise_std = 2.5e-1\n\n[[load]]\n  name = \"side\"\n  \
-        force_model = \"random_walk\"\n  # c1\n  force_noise_std = 1.5e-3 # old\n  rise_time = 0.1\n\n\
-        [time]\ndt = 0.001\n";
-        assert_eq!(out, expected);
-        // CRLF line ends stay CRLF, a byte-order mark stays.
-        let crlf = format!("\u{feff}{}", SCENE.replace('\n', "\r\n"));
-        let out = set_force_sigmas(&crlf, &[(0, 0.25, "c0".into())]).unwrap();
-        assert!(out.starts_with('\u{feff}'));
-        assert!(out.contains(
-            "range = 20.0\r\nforce_model = \"random_walk\"\r\n# c0\r\nforce_noise_std = 2.5e-1\r\n"
-        ));
-        assert_eq!(out.matches('\n').count(), out.matches("\r\n").count());
-    }
-
-    /// A load written as an inline table is refused, naming it.
-    #[test]
-    fn inline_loads_are_refused() {
-        let text = "load = [{ name = \"tip\", range = 1.0 }]\n";
-        let e = set_force_sigmas(text, &[(0, 0.25, "c".into())]).unwrap_err();
-        assert!(e.contains("'tip'") && e.contains("[[load]]"), "{e}");
-    }
-
-    /// The tier's `model_error_scale`: replaced in place where `[reduction.corotational]`
-    /// states it (its indent kept), else added as the table's first key; CRLF kept; a scene
-    /// without that table header is refused.
-    #[test]
-    fn the_model_error_scale_is_set_in_its_table() {
-        let text = "[reduction]\nmodel = \"corotational\"\n\n[reduction.corotational]\n\
-            duration = 1.0\n  model_error_scale = 1.0 # was\n\n[time]\ndt = 0.001\n";
-        let out = set_model_error_scale(text, 0.25, "c").unwrap();
-        assert_eq!(
-            out,
-            "[reduction]\nmodel = \"corotational\"\n\n[reduction.corotational]\n\
-            duration = 1.0\n  # c\n  model_error_scale = 2.5e-1\n\n[time]\ndt = 0.001\n"
-        );
-        let without = text.replace("  model_error_scale = 1.0 # was\n", "");
-        let out = set_model_error_scale(&without, 0.25, "c").unwrap();
-        assert!(
-            out.contains("[reduction.corotational]\n# c\nmodel_error_scale = 2.5e-1\nduration"),
-            "{out}"
-        );
-        // The key of another table is not taken for it.
-        let other = without.replace("dt = 0.001", "dt = 0.001\nmodel_error_scale = 3.0");
-        let out = set_model_error_scale(&other, 0.25, "c").unwrap();
-        assert!(out.contains("model_error_scale = 3.0") && out.contains("= 2.5e-1\nduration"));
-        let crlf = text.replace('\n', "\r\n");
-        let out = set_model_error_scale(&crlf, 0.25, "c").unwrap();
-        assert!(
-            out.contains("  # c\r\n  model_error_scale = 2.5e-1\r\n"),
-            "{out}"
-        );
-        assert_eq!(out.matches('\n').count(), out.matches("\r\n").count());
-        let e = set_model_error_scale("[time]\ndt = 0.001\n", 0.25, "c").unwrap_err();
-        assert!(e.contains("[reduction.corotational]"), "{e}");
-    }
 
     /// The uncertainty is s/√K of the block values.
     #[test]

@@ -1,31 +1,21 @@
-//! `crokf-verify identify` end to end on a small co-rotational beam (12×2×2 cells, the tier
+//! `crokf-compile identify` end to end on a small co-rotational beam (12×2×2 cells, the tier
 //! of tests/tests/tier.rs): a recording whose force is a random walk of known σ, the command's
 //! numbers and uncertainty, each refusal (exit 2, nothing written), and the written scene.
 //!
-//! `cargo test -p crokf-verify --test identify -- --nocapture` prints the figures.
+//! `cargo test -p crokf-compile --test identify -- --nocapture` prints the figures.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
 use std::sync::OnceLock;
 
-use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
+use crokf_compile::identify::{identify, IdentifyError, IdentifyOptions, Recording, BLOCKS};
 use crokf_compile::report::StageTimer;
 use crokf_compile::scene::{ForceModel, SceneFile};
-use crokf_compile::{compile, CompileOptions, FullOrder};
-use crokf_formats::synthetic::SplitMix64;
-use crokf_runtime::Estimator;
-use crokf_verify::identify::{identify, IdentifyError, IdentifyOptions, Recording, BLOCKS};
+use crokf_compile::{compile, FullOrder};
 
-/// The filter's σ_f in the scene, N per step.
-const FILTER_SIGMA: f64 = 0.05;
-/// The truth's σ_f: 10× the filter's (docs/design.md §11.6, the tier test).
-const TRUE_SIGMA: f64 = 0.5;
-/// Steps of the recordings.
-const STEPS: usize = 1500;
-
-const TIER: &str = "[reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
-    ranges = { tip = 30.0 }\nduration = 0.15\nevery = 2\norder = 10\necsw_tolerance = 1e-2\n\
-    newton_tolerance = 1e-12\nnewton_iterations = 60\n";
+#[path = "support/identify_beam.rs"]
+mod identify_beam;
+use identify_beam::{options, truth, write_beam, write_csv, FILTER_SIGMA, STEPS, TRUE_SIGMA};
 
 /// The folder: beam.msh, scene.toml (σ_f stated, a comment line first), model.crokf, the
 /// recordings; written once per test process.
@@ -33,29 +23,10 @@ fn dir() -> &'static PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
         let dir = std::env::temp_dir().join(format!("crokf-identify-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        write_msh22(
-            &box_mesh([12, 2, 2], [1.0, 0.1, 0.1]),
-            &dir.join("beam.msh"),
-        )
-        .unwrap();
-        let text = "# the identify test's beam\n".to_owned()
-            + &BeamScene {
-                sensors: vec![("tip".into(), [0.99, 0.05, 0.1])],
-                displays: vec![("end".into(), "xmax".into())],
-                dt: 0.005,
-                force_noise_std: Some(FILTER_SIGMA),
-                force_model: Some("random_walk".into()),
-                ..BeamScene::default()
-            }
-            .toml()
-            + TIER;
-        std::fs::write(dir.join("scene.toml"), text).unwrap();
-        let c = compile(&dir.join("scene.toml"), &options()).unwrap();
-        std::fs::write(dir.join("model.crokf"), &c.bytes).unwrap();
+        let model = write_beam(&dir);
         // The recordings: a random-walk force of σ 0.5 N per step (seed 11), markers with the
         // scene's noise; the same with no force; the same force with twice the markers' noise.
-        let model = &c.model;
+        let model = &model;
         write_csv(
             &dir.join("walk.csv"),
             model,
@@ -69,59 +40,6 @@ fn dir() -> &'static PathBuf {
         );
         dir
     })
-}
-
-fn options() -> CompileOptions {
-    CompileOptions {
-        order: Some(8),
-        skip_measured_error: true,
-        ..CompileOptions::default()
-    }
-}
-
-/// Markers per step of the tier itself driven open loop by a tip force that is a random walk
-/// of σ `sigma` per step in each component, plus Gaussian noise of `noise` × the scene's σ.
-fn truth(model: &crokf_formats::Model, sigma: f64, noise: f64, seed: u64) -> Vec<Vec<Option<f64>>> {
-    let channels: Vec<usize> = ["tip.x", "tip.y", "tip.z"]
-        .iter()
-        .map(|l| model.inputs.iter().position(|c| c.label == *l).unwrap())
-        .collect();
-    let variance = &model.tier.as_ref().unwrap().kalman.measurement_variance;
-    let mut rng = SplitMix64(seed);
-    let mut truth = Estimator::new(model).unwrap();
-    let mut u = vec![0.0; model.inputs.len()];
-    let mut y = vec![0.0; variance.len()];
-    (0..STEPS)
-        .map(|_| {
-            truth.predict(&u).unwrap();
-            truth.measurement_estimates(&mut y).unwrap();
-            let row = y
-                .iter()
-                .zip(variance)
-                .map(|(v, s2)| Some(v + noise * s2.sqrt() * rng.normal()))
-                .collect();
-            for &c in &channels {
-                u[c] += sigma * rng.normal();
-            }
-            row
-        })
-        .collect()
-}
-
-/// A `crokf-run` measurements file: `step`, then the model's labels.
-fn write_csv(path: &Path, model: &crokf_formats::Model, rows: &[Vec<Option<f64>>]) {
-    let mut text = format!("step,{}\n", model.measurement_labels().join(","));
-    for (k, row) in rows.iter().enumerate() {
-        text.push_str(&(k + 1).to_string());
-        for v in row {
-            text.push(',');
-            if let Some(v) = v {
-                text.push_str(&format!("{v:e}"));
-            }
-        }
-        text.push('\n');
-    }
-    std::fs::write(path, text).unwrap();
 }
 
 fn model() -> crokf_formats::Model {
@@ -141,11 +59,11 @@ fn test_options() -> IdentifyOptions {
     }
 }
 
-/// `crokf-verify identify scene.toml model.crokf --measurements FILE ARGS…` in the folder:
+/// `crokf-compile identify scene.toml model.crokf --measurements FILE ARGS…` in the folder:
 /// (exit code, stdout, stderr).
 fn command(measurements: &str, args: &[&str]) -> (i32, String, String) {
     let dir = dir();
-    let out = Command::new(env!("CARGO_BIN_EXE_crokf-verify"))
+    let out = Command::new(env!("CARGO_BIN_EXE_crokf-compile"))
         .current_dir(dir)
         .args(["identify", "scene.toml", "model.crokf", "--measurements"])
         .arg(measurements)
@@ -218,7 +136,7 @@ fn the_written_scene_keeps_the_rest_and_compiles_with_the_identified_sigma() {
     // Byte for byte the scene but for the value and the comment above it.
     let (mut kept, mut comments, mut values) = (Vec::new(), 0, Vec::new());
     for line in written.split_inclusive('\n') {
-        if line.starts_with("# identified by crokf-verify identify from walk.csv (1500 steps") {
+        if line.starts_with("# identified by crokf-compile identify from walk.csv (1500 steps") {
             comments += 1;
             assert!(line.contains("standard error over 4 blocks"), "{line}");
         } else if let Some(v) = line.strip_prefix("force_noise_std = ") {

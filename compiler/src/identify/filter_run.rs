@@ -1,6 +1,7 @@
 //! A filter run as the noise identification needs it (docs/design.md §11.6,
-//! `crokf_compile::nonlinear::identify::identify_noise`): the innovations of every step and the
-//! gain-schedule filter and phase that updated it, from rest, the innovation gate off.
+//! [`identify_noise`](crate::nonlinear::identify::identify_noise)): the innovations of every
+//! step and the gain-schedule filter and phase that updated it, from rest, the innovation gate
+//! off, through the runtime's [`Estimator`].
 
 use crokf_runtime::{Estimator, Model, RuntimeError};
 
