@@ -1,15 +1,19 @@
 //! `crokf-run`: replays a recorded input history (and optional measurements) through a crokf
 //! model and writes the estimates (`docs/model-format.md` §6). The estimator itself is
-//! `crokf-runtime`; this crate adds the CSV and VTU files around it, written through temporary
-//! files and renames (`crokf_formats::output`), so that a failed run leaves the old files or
-//! nothing.
+//! `crokf-runtime`, and so are the CSV readers (`crokf_runtime::table`, feature `table`,
+//! re-exported here); this crate adds the CSV and VTU files around it, written through
+//! temporary files and renames (`crokf_formats::output`), so that a failed run leaves the old
+//! files or nothing.
 
-pub mod table;
 pub mod vtu;
 
+/// The CSV files of a recording and the headers of `estimates.csv`: the runtime's readers
+/// (feature `table`), shared with `crokf-compile identify`.
+pub use crokf_runtime::table;
+
 use crokf_formats::output::OutputError;
+use crokf_runtime::table::TableError;
 use crokf_runtime::RuntimeError;
-use std::path::PathBuf;
 
 /// Everything `crokf-run` can fail on; messages name the file, line, step and channel.
 #[derive(Debug, thiserror::Error)]
@@ -17,24 +21,9 @@ pub enum RunError {
     /// The command line asks for something impossible.
     #[error("{0}")]
     Usage(String),
-    /// An input file could not be read.
-    #[error("cannot read {path}: {source}")]
-    Read {
-        /// File.
-        path: PathBuf,
-        /// Cause.
-        source: std::io::Error,
-    },
-    /// A CSV file is malformed.
-    #[error("{path}:{line}: {message}")]
-    Csv {
-        /// File.
-        path: PathBuf,
-        /// 1-based line.
-        line: usize,
-        /// What is wrong.
-        message: String,
-    },
+    /// An input file could not be read, or a CSV file is malformed (file and line).
+    #[error(transparent)]
+    Table(#[from] TableError),
     /// Loading the model or building the estimator failed.
     #[error(transparent)]
     Runtime(#[from] RuntimeError),

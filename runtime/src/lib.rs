@@ -21,6 +21,8 @@ mod covariance;
 mod estimator;
 mod prepared;
 mod simd;
+#[cfg(feature = "table")]
+pub mod table;
 pub mod tier;
 pub mod warp;
 

@@ -10,7 +10,9 @@
 //! test fails naming each circle's arrows and the paths behind them.
 //!
 //! Between crates: the product's crates never depend on `crokf-verify`
-//! ([`the_product_does_not_import_verify`]).
+//! ([`the_product_does_not_import_verify`]), and the compiler never depends on the replay tool
+//! `crokf-run` or its viewer `crokf-viewer`, directly or through another crate of the
+//! repository ([`the_compiler_does_not_depend_on_the_replay_tool`]).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -434,6 +436,153 @@ fn the_product_does_not_import_verify() {
         found.is_empty(),
         "the product imports crokf-verify:\n{}",
         found.join("\n")
+    );
+}
+
+/// The normal dependencies a manifest names (`[dependencies]`, `[target.….dependencies]` and
+/// `[dependencies.NAME]` sections; not dev- or build-dependencies), each with its `path = "…"`
+/// if it gives one.
+fn normal_dependencies(manifest: &str) -> Vec<(String, Option<String>)> {
+    let mut out = Vec::new();
+    let mut in_section = false;
+    for line in manifest.lines() {
+        let line = code_of_toml(line).trim();
+        if line.starts_with('[') {
+            let header = line.trim_matches(|c| c == '[' || c == ']').trim();
+            in_section = header == "dependencies"
+                || (header.starts_with("target.") && header.ends_with(".dependencies"));
+            if let Some(name) = header.strip_prefix("dependencies.") {
+                out.push((name.trim().to_owned(), None));
+            }
+            continue;
+        }
+        if !in_section || line.is_empty() {
+            continue;
+        }
+        let name: String = line
+            .chars()
+            .take_while(|c| c.is_alphanumeric() || *c == '-' || *c == '_')
+            .collect();
+        if name.is_empty() {
+            continue;
+        }
+        let path = line[name.len()..].match_indices("path").find_map(|(i, _)| {
+            let rest = &line[name.len() + i + 4..];
+            let rest = rest.trim_start().strip_prefix('=')?.trim_start();
+            let rest = rest.strip_prefix('"')?;
+            Some(rest[..rest.find('"')?].to_owned())
+        });
+        out.push((name, path));
+    }
+    out
+}
+
+/// A manifest line without its `#` comment (a `#` inside a string ends it early).
+fn code_of_toml(line: &str) -> &str {
+    line.find('#').map_or(line, |i| &line[..i])
+}
+
+/// The repository's crates by package name: `[workspace.dependencies]` of the root manifest
+/// (`crokf-x = { path = "x" }`) → folder.
+fn workspace_crates(root: &Path) -> BTreeMap<String, PathBuf> {
+    let manifest =
+        std::fs::read_to_string(root.join("Cargo.toml")).expect("read the root manifest");
+    let mut out = BTreeMap::new();
+    let mut in_section = false;
+    for line in manifest.lines() {
+        let line = code_of_toml(line).trim();
+        if line.starts_with('[') {
+            in_section = line == "[workspace.dependencies]";
+            continue;
+        }
+        if !in_section {
+            continue;
+        }
+        if let Some((name, Some(path))) = normal_dependencies(&format!("[dependencies]\n{line}"))
+            .into_iter()
+            .next()
+        {
+            out.insert(name, root.join(path));
+        }
+    }
+    out
+}
+
+/// The repository crates `dir`'s crate depends on through normal dependencies, directly or
+/// through other repository crates: package name → the chain that leads to it.
+fn normal_closure(root: &Path, dir: &Path) -> BTreeMap<String, Vec<String>> {
+    let members = workspace_crates(root);
+    let mut found: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    let mut todo = vec![(dir.to_path_buf(), Vec::<String>::new())];
+    while let Some((dir, chain)) = todo.pop() {
+        let manifest = std::fs::read_to_string(dir.join("Cargo.toml")).expect("read a manifest");
+        for (name, path) in normal_dependencies(&manifest) {
+            let folder = match path {
+                Some(p) => Some(dir.join(p)),
+                None => members.get(&name).cloned(),
+            };
+            let Some(folder) = folder else {
+                continue; // a crate from the registry
+            };
+            if found.contains_key(&name) {
+                continue;
+            }
+            let mut to = chain.clone();
+            to.push(name.clone());
+            found.insert(name, to.clone());
+            todo.push((folder, to));
+        }
+    }
+    found
+}
+
+/// The compiler (a library the Python package and the verification crate link) does not pull
+/// in the replay tool and its HTTP viewer: neither `crokf-run` nor `crokf-viewer` is among its
+/// normal dependencies, direct or through another crate of the repository (the recording's
+/// CSV readers of `crokf-compile identify` are `crokf_runtime::table`).
+#[test]
+fn the_compiler_does_not_depend_on_the_replay_tool() {
+    let root = root();
+    let closure = normal_closure(&root, &root.join("compiler"));
+    assert!(
+        closure.contains_key("crokf-runtime") && closure.contains_key("crokf-formats"),
+        "the walk missed the compiler's own dependencies: {closure:?}"
+    );
+    let found: Vec<String> = ["crokf-run", "crokf-viewer"]
+        .iter()
+        .filter_map(|name| closure.get(*name))
+        .map(|chain| format!("crokf-compile -> {}", chain.join(" -> ")))
+        .collect();
+    assert!(
+        found.is_empty(),
+        "crokf-compile depends on the replay tool:\n{}",
+        found.join("\n")
+    );
+    // The walk sees through a crate: crokf-run reaches the viewer.
+    let run = normal_closure(&root, &root.join("run"));
+    assert_eq!(
+        run.get("crokf-viewer").map(Vec::as_slice),
+        Some(&["crokf-viewer".to_owned()][..])
+    );
+}
+
+/// The manifest reader: sections, inline tables, paths, comments.
+#[test]
+fn the_manifest_reader_keeps_normal_dependencies_only() {
+    let text = "[package]\nname = \"x\"\n[dependencies]\n# crokf-run.workspace = true\n\
+                crokf-runtime = { workspace = true, features = [\"table\"] }\n\
+                local = { path = \"../local\" } # a comment\n\
+                [target.'cfg(unix)'.dependencies]\nlibc = \"0.2\"\n\
+                [dev-dependencies]\ncrokf-run.workspace = true\n\
+                [build-dependencies]\nsyn = \"3\"\n[dependencies.crokf-viewer]\nworkspace = true\n";
+    assert_eq!(
+        normal_dependencies(text),
+        [
+            ("crokf-runtime".to_owned(), None),
+            ("local".to_owned(), Some("../local".to_owned())),
+            ("libc".to_owned(), None),
+            ("crokf-viewer".to_owned(), None),
+        ]
     );
 }
 

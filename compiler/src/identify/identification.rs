@@ -51,7 +51,7 @@ pub enum IdentifyError {
     Model(String),
     /// A CSV file of the recording (file, line and column in the message).
     #[error(transparent)]
-    Table(#[from] crokf_run::RunError),
+    Table(#[from] crokf_runtime::table::TableError),
     /// The options or the output path.
     #[error("{0}")]
     Usage(String),
@@ -101,7 +101,7 @@ pub struct Recording {
 }
 
 impl Recording {
-    /// A user's recording in `crokf-run`'s CSV formats (`run/src/table.rs`): steps 1 … n (n:
+    /// A user's recording in `crokf-run`'s CSV formats (`crokf_runtime::table`): steps 1 … n (n:
     /// the inputs' rows, else the last measured step); without an inputs file every input is
     /// 0 (the loads withheld).
     pub fn read(
@@ -109,9 +109,9 @@ impl Recording {
         measurements: &Path,
         inputs: Option<&Path>,
     ) -> Result<Recording, IdentifyError> {
-        let table = crokf_run::table::read_measurements(measurements, model)?;
+        let table = crokf_runtime::table::read_measurements(measurements, model)?;
         let rows = match inputs {
-            Some(path) => crokf_run::table::read_inputs(path, model)?.rows,
+            Some(path) => crokf_runtime::table::read_inputs(path, model)?.rows,
             None => {
                 let last = table.keys().next_back().copied().unwrap_or(0) as usize;
                 vec![vec![0.0; model.inputs.len()]; last]

@@ -1,16 +1,42 @@
-//! CSV input/output for `crokf-run`, read with the `csv` crate: comma-separated, a header row,
-//! RFC 4180 quoting, CRLF or LF line ends, a UTF-8 byte-order mark ignored, cells trimmed; blank
-//! lines and lines starting with `#` are skipped.
+//! The recording's CSV files (inputs, measurements, tool paths) and the headers of
+//! `estimates.csv`, read with the `csv` crate: comma-separated, a header row, RFC 4180 quoting,
+//! CRLF or LF line ends, a UTF-8 byte-order mark ignored, cells trimmed; blank lines and lines
+//! starting with `#` are skipped. Only with the `table` feature (off by default: without it
+//! the runtime library and its cdylib do not depend on `csv`); used by `crokf-run` (the
+//! replay) and by `crokf-compile identify` (the recording), which must not depend on the
+//! replay tool.
 //!
 //! Step convention (`docs/design.md` §6, `docs/model-format.md` §2): step k = 1, 2, … is the
 //! k-th prediction; the load of step k acts over (t_{k−1}, t_k] and the measurement and
 //! estimate of step k are at t_k = k·Δt. The first column of an input or measurement file is
 //! `step` (k, an integer) or `t` (t_k in seconds, k = round(t/Δt)).
 
-use crate::RunError;
-use crokf_runtime::Model;
+use crate::Model;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+/// A CSV file that cannot be read or is malformed; messages name the file and the line.
+#[derive(Debug, thiserror::Error)]
+pub enum TableError {
+    /// The file could not be read.
+    #[error("cannot read {path}: {source}")]
+    Read {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// The file is malformed.
+    #[error("{path}:{line}: {message}")]
+    Csv {
+        /// File.
+        path: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+}
 
 /// One value per input channel (model order) for steps 1, 2, …, n.
 #[derive(Clone, Debug, PartialEq)]
@@ -43,7 +69,7 @@ struct Records {
 
 impl Records {
     /// Parses `text` (the content of `path`).
-    fn parse(path: &Path, text: &[u8]) -> Result<Records, RunError> {
+    fn parse(path: &Path, text: &[u8]) -> Result<Records, TableError> {
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(false)
             .flexible(true)
@@ -69,7 +95,7 @@ impl Records {
                         csv::ErrorKind::Utf8 { .. } => "not valid UTF-8".to_owned(),
                         _ => e.to_string(),
                     };
-                    return Err(RunError::Csv {
+                    return Err(TableError::Csv {
                         path: path.to_path_buf(),
                         line,
                         message,
@@ -83,8 +109,8 @@ impl Records {
         })
     }
 
-    fn read(path: &Path) -> Result<Records, RunError> {
-        let text = std::fs::read(path).map_err(|source| RunError::Read {
+    fn read(path: &Path) -> Result<Records, TableError> {
+        let text = std::fs::read(path).map_err(|source| TableError::Read {
             path: path.to_path_buf(),
             source,
         })?;
@@ -92,7 +118,7 @@ impl Records {
     }
 
     /// Every data row must have as many cells as the header.
-    fn check_widths(&self) -> Result<(), RunError> {
+    fn check_widths(&self) -> Result<(), TableError> {
         let width = self.rows.first().map_or(0, |(_, h)| h.len());
         for (line, cells) in self.rows.iter().skip(1) {
             if cells.len() != width {
@@ -105,8 +131,8 @@ impl Records {
         Ok(())
     }
 
-    fn err(&self, line: usize, message: impl Into<String>) -> RunError {
-        RunError::Csv {
+    fn err(&self, line: usize, message: impl Into<String>) -> TableError {
+        TableError::Csv {
             path: self.path.clone(),
             line,
             message: message.into(),
@@ -118,7 +144,7 @@ impl Records {
         &self,
         labels: &[String],
         all_required: bool,
-    ) -> Result<(bool, Vec<Option<usize>>), RunError> {
+    ) -> Result<(bool, Vec<Option<usize>>), TableError> {
         let Some((line, head)) = self.rows.first() else {
             return Err(self.err(1, "empty file: expected a header row"));
         };
@@ -167,7 +193,7 @@ impl Records {
         by_time: bool,
         dt: f64,
         expected: u64,
-    ) -> Result<(), RunError> {
+    ) -> Result<(), TableError> {
         let k = self.step_of(line, cell, by_time, dt)?;
         if k != expected {
             return Err(self.err(
@@ -178,7 +204,7 @@ impl Records {
         Ok(())
     }
 
-    fn step_of(&self, line: usize, cell: &str, by_time: bool, dt: f64) -> Result<u64, RunError> {
+    fn step_of(&self, line: usize, cell: &str, by_time: bool, dt: f64) -> Result<u64, TableError> {
         if by_time {
             let t: f64 = cell
                 .parse()
@@ -205,7 +231,7 @@ impl Records {
         cells: &[String],
         c: usize,
         label: &str,
-    ) -> Result<Option<f64>, RunError> {
+    ) -> Result<Option<f64>, TableError> {
         let Some(cell) = cells.get(c) else {
             return Err(self.err(
                 line,
@@ -225,16 +251,16 @@ impl Records {
 /// Parses the text of an inputs file (`path` only names it in errors): first column `step` or
 /// `t`, then one column per input label (all required, any order). Rows must be steps
 /// 1, 2, 3, … in order; a file with a header and no rows is an error.
-pub fn parse_inputs(path: &Path, text: &[u8], model: &Model) -> Result<InputTable, RunError> {
+pub fn parse_inputs(path: &Path, text: &[u8], model: &Model) -> Result<InputTable, TableError> {
     inputs_from(Records::parse(path, text)?, model)
 }
 
 /// Reads `inputs.csv` (see [`parse_inputs`]).
-pub fn read_inputs(path: &Path, model: &Model) -> Result<InputTable, RunError> {
+pub fn read_inputs(path: &Path, model: &Model) -> Result<InputTable, TableError> {
     inputs_from(Records::read(path)?, model)
 }
 
-fn inputs_from(records: Records, model: &Model) -> Result<InputTable, RunError> {
+fn inputs_from(records: Records, model: &Model) -> Result<InputTable, TableError> {
     let labels = model.input_labels();
     let (by_time, cols) = records.header(&labels, true)?;
     records.check_widths()?;
@@ -265,16 +291,16 @@ pub fn parse_measurements(
     path: &Path,
     text: &[u8],
     model: &Model,
-) -> Result<MeasurementTable, RunError> {
+) -> Result<MeasurementTable, TableError> {
     measurements_from(Records::parse(path, text)?, model)
 }
 
 /// Reads `measurements.csv` (see [`parse_measurements`]).
-pub fn read_measurements(path: &Path, model: &Model) -> Result<MeasurementTable, RunError> {
+pub fn read_measurements(path: &Path, model: &Model) -> Result<MeasurementTable, TableError> {
     measurements_from(Records::read(path)?, model)
 }
 
-fn measurements_from(records: Records, model: &Model) -> Result<MeasurementTable, RunError> {
+fn measurements_from(records: Records, model: &Model) -> Result<MeasurementTable, TableError> {
     let labels = model.measurement_labels();
     let (by_time, cols) = records.header(&labels, false)?;
     records.check_widths()?;
@@ -339,17 +365,17 @@ pub struct ToolTable {
 /// and for each tool optionally `toolT.grasp` (0 or 1: the tool grasps the region node nearest
 /// it where the column turns 1 and lets go where it turns 0). Rows must be steps 1, 2, 3, … in
 /// order, every value given.
-pub fn parse_tools(path: &Path, text: &[u8], model: &Model) -> Result<ToolTable, RunError> {
+pub fn parse_tools(path: &Path, text: &[u8], model: &Model) -> Result<ToolTable, TableError> {
     tools_from(Records::parse(path, text)?, model)
 }
 
 /// Reads `tool.csv` (see [`parse_tools`]).
-pub fn read_tools(path: &Path, model: &Model) -> Result<ToolTable, RunError> {
+pub fn read_tools(path: &Path, model: &Model) -> Result<ToolTable, TableError> {
     tools_from(Records::read(path)?, model)
 }
 
-fn tools_from(records: Records, model: &Model) -> Result<ToolTable, RunError> {
-    let tools_max = crokf_runtime::MAX_TOOLS;
+fn tools_from(records: Records, model: &Model) -> Result<ToolTable, TableError> {
+    let tools_max = crate::MAX_TOOLS;
     let labels: Vec<String> = (0..tools_max)
         .flat_map(|t| ["x", "y", "z"].map(|c| format!("tool{t}.{c}")))
         .chain((0..tools_max).map(|t| format!("tool{t}.grasp")))
@@ -357,7 +383,7 @@ fn tools_from(records: Records, model: &Model) -> Result<ToolTable, RunError> {
     let (by_time, cols) = records.header(&labels, false)?;
     let head_line = records.rows.first().map_or(1, |(l, _)| *l);
     let mut tools = 0;
-    for t in 0..crokf_runtime::MAX_TOOLS {
+    for t in 0..crate::MAX_TOOLS {
         let given = (0..3).filter(|&c| cols[3 * t + c].is_some()).count();
         match given {
             0 => {}
