@@ -12,7 +12,7 @@
 //!   marker at every step), the loads withheld (every load channel 0; `--given`: given);
 //!   `--write-recording FILE` also writes these markers as a `crokf-run` measurements file; or
 //! - a user's, `SCENE MODEL --recording MEASUREMENTS.csv [--inputs INPUTS.csv]`, in
-//!   `crokf-run`'s CSV formats (`run/src/table.rs`; without an inputs file every input is 0:
+//!   `crokf-run`'s CSV formats (`runtime/src/table.rs`; without an inputs file every input is 0:
 //!   the loads are withheld).
 //!
 //! The identification, its uncertainty over disjoint blocks and its verdict are
