@@ -8,20 +8,8 @@ use std::time::Duration;
 
 use crokf_viewer::{ServeOptions, Server};
 
-fn post(url: &str, body: &str) -> (u16, String) {
-    let agent: ureq::Agent = ureq::Agent::config_builder()
-        .http_status_as_error(false)
-        .timeout_global(Some(Duration::from_secs(10)))
-        .build()
-        .into();
-    let mut r = agent
-        .post(url)
-        .header("Content-Type", "application/json")
-        .send(body)
-        .expect("POST on loopback");
-    let status = r.status().as_u16();
-    (status, r.body_mut().read_to_string().unwrap_or_default())
-}
+mod support;
+use support::post;
 
 #[test]
 fn control_messages_it_cannot_apply_are_answered_400() {

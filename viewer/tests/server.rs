@@ -9,6 +9,9 @@ use std::time::{Duration, Instant};
 use base64::Engine;
 use crokf_viewer::{serve_file, ServeOptions, Server, ViewerError};
 
+mod support;
+use support::{get, post};
+
 fn meniscus() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../models/meniscus/model.crokf")
 }
@@ -18,30 +21,6 @@ fn options() -> ServeOptions {
         port: 0,
         ..ServeOptions::default()
     }
-}
-
-fn agent() -> ureq::Agent {
-    ureq::Agent::config_builder()
-        .http_status_as_error(false)
-        .timeout_global(Some(Duration::from_secs(10)))
-        .build()
-        .into()
-}
-
-fn get(url: &str) -> (u16, String) {
-    let mut r = agent().get(url).call().expect("GET on loopback");
-    let status = r.status().as_u16();
-    (status, r.body_mut().read_to_string().unwrap_or_default())
-}
-
-fn post(url: &str, body: &str) -> (u16, String) {
-    let mut r = agent()
-        .post(url)
-        .header("Content-Type", "application/json")
-        .send(body)
-        .expect("POST on loopback");
-    let status = r.status().as_u16();
-    (status, r.body_mut().read_to_string().unwrap_or_default())
 }
 
 /// Reads server-sent events from `/events` until `accept` returns true for one (10 s at most).

@@ -16,6 +16,9 @@ use crokf_runtime::Estimator;
 use crokf_viewer::{ServeOptions, Server};
 use serde_json::Value;
 
+mod support;
+use support::{get, post};
+
 /// The touch model, compiled once for the tests of this file.
 fn touch_model() -> &'static Model {
     static MODEL: OnceLock<Model> = OnceLock::new();
@@ -40,30 +43,6 @@ fn paused(model: &Model) -> Server {
         },
     )
     .expect("server starts")
-}
-
-fn agent() -> ureq::Agent {
-    ureq::Agent::config_builder()
-        .http_status_as_error(false)
-        .timeout_global(Some(Duration::from_secs(10)))
-        .build()
-        .into()
-}
-
-fn get(url: &str) -> (u16, String) {
-    let mut r = agent().get(url).call().expect("GET on loopback");
-    let status = r.status().as_u16();
-    (status, r.body_mut().read_to_string().unwrap_or_default())
-}
-
-fn post(url: &str, body: &str) -> (u16, String) {
-    let mut r = agent()
-        .post(url)
-        .header("Content-Type", "application/json")
-        .send(body)
-        .expect("POST on loopback");
-    let status = r.status().as_u16();
-    (status, r.body_mut().read_to_string().unwrap_or_default())
 }
 
 /// Reads server-sent events from `/events` until `accept` returns true for one (30 s at most:
