@@ -295,6 +295,24 @@ pub fn parse_measurements(
     measurements_from(Records::parse(path, text)?, model)
 }
 
+/// A `measurements.csv` of `rows` (one per step from step 1, one cell per
+/// [`Model::measurement_labels`] entry, empty where `None`) that [`parse_measurements`] reads
+/// back: `step`, then the labels; values in Rust's shortest round-trip `e` notation.
+pub fn measurements_text(model: &Model, rows: &[Vec<Option<f64>>]) -> String {
+    let mut text = format!("step,{}\n", model.measurement_labels().join(","));
+    for (k, row) in rows.iter().enumerate() {
+        text.push_str(&(k + 1).to_string());
+        for v in row {
+            text.push(',');
+            if let Some(v) = v {
+                text.push_str(&format!("{v:e}"));
+            }
+        }
+        text.push('\n');
+    }
+    text
+}
+
 /// Reads `measurements.csv` (see [`parse_measurements`]).
 pub fn read_measurements(path: &Path, model: &Model) -> Result<MeasurementTable, TableError> {
     measurements_from(Records::read(path)?, model)

@@ -236,17 +236,7 @@ fn write_measurements(
     model: &crokf_formats::Model,
     measurements: &[Vec<Option<f64>>],
 ) -> Result<(), Box<dyn std::error::Error>> {
-    let mut text = format!("step,{}\n", model.measurement_labels().join(","));
-    for (k, row) in measurements.iter().enumerate() {
-        text.push_str(&(k + 1).to_string());
-        for v in row {
-            text.push(',');
-            if let Some(v) = v {
-                text.push_str(&format!("{v:e}"));
-            }
-        }
-        text.push('\n');
-    }
+    let text = crokf_runtime::table::measurements_text(model, measurements);
     crokf_formats::output::write_atomically(path, text.as_bytes())?;
     Ok(())
 }

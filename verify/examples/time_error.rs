@@ -109,7 +109,7 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
         args.substeps
     );
     println!(
-        "| test | reduced vs full order, same scheme | reduced vs converged | full-order Wilson-θ vs converged | reference's own |"
+        "| test | reduced vs full-order Wilson-θ at Δt | reduced vs converged | full-order Wilson-θ at Δt vs converged | reference's own |"
     );
     println!("|---|---:|---:|---:|---:|");
     for test in &tests {

@@ -328,6 +328,7 @@ impl Simulation {
                     done_since_origin += behind - MAX_CATCH_UP;
                     behind = MAX_CATCH_UP;
                 }
+                let mut succeeded = 0;
                 for _ in 0..behind {
                     let t0 = Instant::now();
                     let stepped = match controls.tool {
@@ -356,9 +357,11 @@ impl Simulation {
                     step_times.push(t0.elapsed().as_secs_f64() * 1e6);
                     done_since_origin += 1;
                     window_steps += 1;
-                    if controls.tool.is_some() {
-                        self.tool_result = self.est.tool_contact(0).copied();
-                    }
+                    succeeded += 1;
+                }
+                // The frame shows the last successful contact step's result.
+                if controls.tool.is_some() && succeeded > 0 {
+                    self.tool_result = self.est.tool_contact(0).copied();
                 }
             }
             let now = Instant::now();

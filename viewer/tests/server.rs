@@ -1,10 +1,10 @@
 //! The viewer's server without a browser: errors, routes, and the streamed frames against the
 //! runtime stepped directly with the same force.
 
-use std::io::{BufRead, BufReader, Write};
+use std::io::Write;
 use std::net::{TcpListener, TcpStream};
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use base64::Engine;
 use crokf_viewer::{serve_file, ServeOptions, Server, ViewerError};
@@ -23,30 +23,9 @@ fn options() -> ServeOptions {
     }
 }
 
-/// Reads server-sent events from `/events` until `accept` returns true for one (10 s at most).
+/// Reads frames from `/events` until `accept` returns true for one (10 s at most).
 fn read_event(base: &str, accept: impl Fn(&serde_json::Value) -> bool) -> serde_json::Value {
-    let addr = base.trim_start_matches("http://").trim_end_matches('/');
-    let mut stream = TcpStream::connect(addr).expect("connect");
-    stream
-        .set_read_timeout(Some(Duration::from_secs(10)))
-        .expect("timeout");
-    write!(stream, "GET /events HTTP/1.1\r\nHost: {addr}\r\n\r\n").expect("request");
-    let mut reader = BufReader::new(stream);
-    let start = Instant::now();
-    let mut line = String::new();
-    while start.elapsed() < Duration::from_secs(10) {
-        line.clear();
-        if reader.read_line(&mut line).unwrap_or(0) == 0 {
-            break;
-        }
-        if let Some(data) = line.strip_prefix("data: ") {
-            let v: serde_json::Value = serde_json::from_str(data).expect("frame is JSON");
-            if accept(&v) {
-                return v;
-            }
-        }
-    }
-    panic!("no matching frame within 10 s");
+    support::read_event(base, Duration::from_secs(10), accept)
 }
 
 fn floats(b64: &serde_json::Value) -> Vec<f32> {

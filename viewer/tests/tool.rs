@@ -4,11 +4,9 @@
 //! tool; `{"tool": null}` takes it away; bad tool values and a tool on a model without a
 //! contact region are answered 400 naming the field, and change nothing.
 
-use std::io::{BufRead, BufReader, Write};
-use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use crokf_compile::compile::{compile, CompileOptions};
 use crokf_formats::{InputKind, Model};
@@ -45,31 +43,9 @@ fn paused(model: &Model) -> Server {
     .expect("server starts")
 }
 
-/// Reads server-sent events from `/events` until `accept` returns true for one (30 s at most:
-/// the debug build's contact step is slow).
-fn read_event(base: &str, accept: impl Fn(&Value) -> bool) -> Value {
-    let addr = base.trim_start_matches("http://").trim_end_matches('/');
-    let mut stream = TcpStream::connect(addr).expect("connect");
-    stream
-        .set_read_timeout(Some(Duration::from_secs(30)))
-        .expect("timeout");
-    write!(stream, "GET /events HTTP/1.1\r\nHost: {addr}\r\n\r\n").expect("request");
-    let mut reader = BufReader::new(stream);
-    let start = Instant::now();
-    let mut line = String::new();
-    while start.elapsed() < Duration::from_secs(30) {
-        line.clear();
-        if reader.read_line(&mut line).unwrap_or(0) == 0 {
-            break;
-        }
-        if let Some(data) = line.strip_prefix("data: ") {
-            let v: Value = serde_json::from_str(data).expect("frame is JSON");
-            if accept(&v) {
-                return v;
-            }
-        }
-    }
-    panic!("no matching frame within 30 s");
+/// Reads frames from `/events` until `accept` returns true for one (30 s at most: the debug build's contact step is slow).
+fn read_event(base: &str, accept: impl Fn(&serde_json::Value) -> bool) -> serde_json::Value {
+    support::read_event(base, Duration::from_secs(30), accept)
 }
 
 /// The inputs the viewer steps with when no slider moved: 0 N on every load channel, the

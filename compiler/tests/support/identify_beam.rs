@@ -93,16 +93,5 @@ pub fn truth(
 
 /// A `crokf-run` measurements file: `step`, then the model's labels.
 pub fn write_csv(path: &Path, model: &crokf_formats::Model, rows: &[Vec<Option<f64>>]) {
-    let mut text = format!("step,{}\n", model.measurement_labels().join(","));
-    for (k, row) in rows.iter().enumerate() {
-        text.push_str(&(k + 1).to_string());
-        for v in row {
-            text.push(',');
-            if let Some(v) = v {
-                text.push_str(&format!("{v:e}"));
-            }
-        }
-        text.push('\n');
-    }
-    std::fs::write(path, text).unwrap();
+    std::fs::write(path, crokf_runtime::table::measurements_text(model, rows)).unwrap();
 }
