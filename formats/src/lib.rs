@@ -37,10 +37,11 @@ use sha2::{Digest, Sha256};
 
 /// File magic, 8 bytes.
 pub const MAGIC: [u8; 8] = *b"CROKF\0\r\n";
-/// The format version this crate writes and the only one it reads.
+/// The format version of a model without a contact region or a failed tier.
 ///
-/// A model with a contact region is written as [`CONTACT_FORMAT_VERSION`] (9); one without is
-/// written, byte for byte, as version 7 was, and this crate reads both.
+/// A model with a contact region is written as [`CONTACT_FORMAT_VERSION`] (9), one whose tier
+/// failed the compiler's check as [`FAILED_CHECK_FORMAT_VERSION`] (10); any other is written,
+/// byte for byte, as version 7 was ([`version_of`]), and this crate reads the three.
 /// Version 7 adds the levels of the tier's force σ and the statistic that moves between them
 /// (`CorotationalTier::force_levels`, `CorotationalTier::adaptation`, docs/design.md §11.10).
 /// Version 6 adds the tier's measured model error (`CorotationalTier::model_error`, the filter's
@@ -57,6 +58,17 @@ pub const FORMAT_VERSION: u32 = 7;
 /// (`ContactRegion::theta_rows`: the contact step enforces its gap at t + θΔt); version 8
 /// contact files are refused by their version.
 pub const CONTACT_FORMAT_VERSION: u32 = 9;
+/// The version of a model file whose co-rotational tier failed the compiler's own check and was
+/// written all the same (`CorotationalTier::failed_check`): readers of versions 7 and 9 refuse
+/// it by its version, so no older runtime steps it as if it were fine. A model is written with
+/// the lowest of the versions this crate reads that holds it ([`version_of`]).
+pub const FAILED_CHECK_FORMAT_VERSION: u32 = 10;
+/// The versions this crate reads, oldest first.
+pub const READ_VERSIONS: [u32; 3] = [
+    FORMAT_VERSION,
+    CONTACT_FORMAT_VERSION,
+    FAILED_CHECK_FORMAT_VERSION,
+];
 /// Header length in bytes (magic + version + payload length + SHA-256).
 pub const HEADER_LEN: usize = 8 + 4 + 8 + 32;
 
@@ -166,7 +178,29 @@ fn version_message(found: u32, supported: u32) -> String {
     } else {
         "use a runtime that reads it, or recompile the model with this crokf-compile"
     };
-    format!("model format v{found}, this runtime reads v{supported}: {remedy}")
+    let read: Vec<String> = READ_VERSIONS.iter().map(|v| format!("v{v}")).collect();
+    format!(
+        "model format v{found}, this runtime reads {}: {remedy}",
+        read.join(", ")
+    )
+}
+
+/// The version a model is written as: the lowest of [`READ_VERSIONS`] whose sections it uses —
+/// [`FAILED_CHECK_FORMAT_VERSION`] when its tier carries a failed check, else
+/// [`CONTACT_FORMAT_VERSION`] with a contact region, else [`FORMAT_VERSION`] (byte for byte as
+/// version 7 files were written).
+pub fn version_of(model: &Model) -> u32 {
+    if model
+        .tier
+        .as_ref()
+        .is_some_and(|t| t.failed_check.is_some())
+    {
+        FAILED_CHECK_FORMAT_VERSION
+    } else if model.contact.is_some() {
+        CONTACT_FORMAT_VERSION
+    } else {
+        FORMAT_VERSION
+    }
 }
 
 /// Lowercase hex of a byte string.
@@ -233,10 +267,10 @@ impl Header {
             });
         }
         let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
-        if version != FORMAT_VERSION && version != CONTACT_FORMAT_VERSION {
+        if !READ_VERSIONS.contains(&version) {
             return Err(FormatError::UnsupportedVersion {
                 found: version,
-                supported: CONTACT_FORMAT_VERSION,
+                supported: FAILED_CHECK_FORMAT_VERSION,
             });
         }
         let mut len = [0u8; 8];
@@ -277,9 +311,7 @@ pub fn wrap_payload(payload: &[u8]) -> Vec<u8> {
 pub fn encode(model: &Model) -> Vec<u8> {
     let payload = encode_payload(model);
     let mut header = Header::for_payload(&payload);
-    if model.contact.is_some() {
-        header.version = CONTACT_FORMAT_VERSION;
-    }
+    header.version = version_of(model);
     let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
     out.extend_from_slice(&header.to_bytes());
     out.extend_from_slice(&payload);
@@ -312,18 +344,45 @@ pub fn decode(bytes: &[u8]) -> Result<Model, FormatError> {
         });
     }
     let model = decode_payload(payload)?;
-    if (header.version == CONTACT_FORMAT_VERSION) != model.contact.is_some() {
+    let needed = version_of(&model);
+    if header.version != needed {
+        let failed = model
+            .tier
+            .as_ref()
+            .is_some_and(|t| t.failed_check.is_some());
+        let (path, message) = if needed == FAILED_CHECK_FORMAT_VERSION {
+            (
+                "tier.failed_check",
+                format!(
+                    "a version {} file must not carry a tier that failed its check (version {needed})",
+                    header.version
+                ),
+            )
+        } else if header.version == FAILED_CHECK_FORMAT_VERSION && !failed {
+            (
+                "tier.failed_check",
+                format!(
+                    "a version {} file must carry a tier that failed its check",
+                    header.version
+                ),
+            )
+        } else {
+            (
+                "contact",
+                format!(
+                    "a version {} file {} a contact region",
+                    header.version,
+                    if model.contact.is_some() {
+                        "must not carry"
+                    } else {
+                        "must carry"
+                    }
+                ),
+            )
+        };
         return Err(FormatError::Invalid {
-            path: "contact".into(),
-            message: format!(
-                "a version {} file {} a contact region",
-                header.version,
-                if model.contact.is_some() {
-                    "must not carry"
-                } else {
-                    "must carry"
-                }
-            ),
+            path: path.into(),
+            message,
         });
     }
     model.validate()?;

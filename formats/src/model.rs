@@ -226,6 +226,26 @@ impl Model {
         self.state_dim as usize
     }
 
+    /// Why the co-rotational tier failed the compiler's own check, when the scene accepted it
+    /// all the same (format v10, `CorotationalTier::failed_check`). None: the tier passed, or
+    /// the model has none.
+    pub fn tier_failed_check(&self) -> Option<&str> {
+        self.tier.as_ref()?.failed_check.as_deref()
+    }
+
+    /// The warning a program prints on loading a model whose tier failed its check (None when
+    /// [`Self::tier_failed_check`] is None): one wording for `crokf-run`, the viewer and the
+    /// bindings.
+    pub fn tier_failed_check_warning(&self) -> Option<String> {
+        self.tier_failed_check().map(|why| {
+            format!(
+                "this model's co-rotational tier failed the compiler's own check and was written \
+                 all the same (accept_failed_check = true); estimates for loads like its training \
+                 runs can be this far off: {why}"
+            )
+        })
+    }
+
     /// Labels of the measurement channels, `"<sensor>.<x|y|z>"`, in the order of y.
     pub fn measurement_labels(&self) -> Vec<String> {
         self.measurements

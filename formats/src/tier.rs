@@ -87,6 +87,16 @@ pub struct CorotationalTier {
     /// `force_levels` is not empty).
     #[serde(default)]
     pub adaptation: Option<ForceAdaptation>,
+    /// Why the compiler's own check of the tier failed (format v10, [`FAILED_CHECK_FORMAT_VERSION`]):
+    /// more than half of its training runs, or of the runs held out of it, off the full-order
+    /// co-rotational FEM by more than the check's threshold. The compiler refuses such a tier
+    /// unless the scene sets `[reduction.corotational] accept_failed_check = true`; then it is
+    /// written with this reason, which the runtime, `crokf-run` and the bindings report on
+    /// loading. None (absent from the payload): the tier passed.
+    ///
+    /// [`FAILED_CHECK_FORMAT_VERSION`]: crate::FAILED_CHECK_FORMAT_VERSION
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub failed_check: Option<String>,
 }
 
 /// One level of the force states' σ (format v7): the filter at rest and at every point of the

@@ -621,6 +621,14 @@ fn check_force_levels(model: &Model, t: &crate::CorotationalTier) -> Result<(), 
             }
         }
     }
+    if let Some(why) = &t.failed_check {
+        if why.trim().is_empty() {
+            return Err(invalid(
+                "tier.failed_check",
+                "empty: a failed check carries its reason",
+            ));
+        }
+    }
     match (&t.adaptation, t.force_levels.is_empty()) {
         (None, true) => Ok(()),
         (Some(_), true) => Err(invalid("tier.adaptation", "present without force_levels")),

@@ -95,12 +95,12 @@ fn other_versions_and_wrong_magic() {
             err,
             FormatError::UnsupportedVersion {
                 found: old,
-                supported: 9
+                supported: 10
             }
         );
         assert_eq!(
             err.to_string(),
-            format!("model format v{old}, this runtime reads v9: recompile the model with crokf-compile")
+            format!("model format v{old}, this runtime reads v7, v9, v10: recompile the model with crokf-compile")
         );
     }
     // A model without a contact region is a version 7 file; version 9 must carry one.
@@ -113,11 +113,20 @@ fn other_versions_and_wrong_magic() {
         "{err}"
     );
     let mut bytes = encode(&small_model());
+    bytes[8..12].copy_from_slice(&11u32.to_le_bytes());
+    let err = decode(&bytes).unwrap_err();
+    assert!(
+        err.to_string()
+            .starts_with("model format v11, this runtime reads v7, v9, v10: use a runtime"),
+        "{err}"
+    );
+    // Version 10 must carry a tier that failed its check.
+    let mut bytes = encode(&small_model());
     bytes[8..12].copy_from_slice(&10u32.to_le_bytes());
     let err = decode(&bytes).unwrap_err();
     assert!(
         err.to_string()
-            .starts_with("model format v10, this runtime reads v9: "),
+            .contains("must carry a tier that failed its check"),
         "{err}"
     );
     let mut bytes = encode(&small_model());
@@ -395,7 +404,50 @@ fn small_tier(model: &Model) -> CorotationalTier {
             lower_below: 0.9,
             hold: 50,
         }),
+        failed_check: None,
     }
+}
+
+#[test]
+fn a_tier_that_failed_its_check_is_a_version_10_file_that_says_why() {
+    let mut model = small_model();
+    model.tier = Some(small_tier(&model));
+    let passed = encode(&model);
+    assert_eq!(passed[8..12], 7u32.to_le_bytes());
+    assert_eq!(model.tier_failed_check(), None);
+    assert_eq!(model.tier_failed_check_warning(), None);
+    let why = "the co-rotational tier fails its check: 80 of 80 of its own training runs are \
+               above 5 % off";
+    model.tier.as_mut().unwrap().failed_check = Some(why.into());
+    let bytes = encode(&model);
+    assert_eq!(bytes[8..12], FAILED_CHECK_FORMAT_VERSION.to_le_bytes());
+    assert_eq!(FAILED_CHECK_FORMAT_VERSION, 10);
+    let back = decode(&bytes).unwrap();
+    assert_eq!(back.tier_failed_check(), Some(why));
+    let warning = back.tier_failed_check_warning().unwrap();
+    assert!(
+        warning.contains("accept_failed_check") && warning.ends_with(why),
+        "{warning}"
+    );
+    // The field changes nothing else in the payload: without it, the passing tier's bytes.
+    let mut cleared = back.clone();
+    cleared.tier.as_mut().unwrap().failed_check = None;
+    assert_eq!(encode(&cleared), passed);
+    // The version and the field go together, both ways.
+    let mut relabelled = bytes.clone();
+    relabelled[8..12].copy_from_slice(&7u32.to_le_bytes());
+    let e = decode(&relabelled).unwrap_err().to_string();
+    assert!(
+        e.contains("tier.failed_check") && e.contains("must not carry a tier that failed"),
+        "{e}"
+    );
+    // An empty reason is refused.
+    model.tier.as_mut().unwrap().failed_check = Some("  ".into());
+    let e = model.validate().unwrap_err().to_string();
+    assert!(
+        e.contains("tier.failed_check") && e.contains("empty"),
+        "{e}"
+    );
 }
 
 #[test]

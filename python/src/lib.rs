@@ -252,7 +252,11 @@ struct Model {
 }
 
 impl Model {
-    fn from_bytes_checked(bytes: Vec<u8>, origin: Option<PathBuf>) -> PyResult<Self> {
+    fn from_bytes_checked(
+        py: Python<'_>,
+        bytes: Vec<u8>,
+        origin: Option<PathBuf>,
+    ) -> PyResult<Self> {
         let decoded = match origin {
             Some(path) => crokf_formats::decode(&bytes)
                 .map_err(|source| crokf_runtime::RuntimeError::ModelFile { path, source }),
@@ -262,6 +266,11 @@ impl Model {
         decoded
             .validate()
             .map_err(|e| ModelFileError::new_err(format!("invalid model: {e}")))?;
+        if let Some(warning) = decoded.tier_failed_check_warning() {
+            let message = std::ffi::CString::new(warning.replace('\0', " ")).unwrap_or_default();
+            let category = py.get_type::<pyo3::exceptions::PyUserWarning>();
+            PyErr::warn(py, category.as_any(), &message, 2)?;
+        }
         Ok(Self {
             model: Arc::new(decoded),
             bytes: Arc::new(bytes),
@@ -304,20 +313,20 @@ impl Model {
     /// Reads a model file and verifies it like the runtime does (magic, version, length,
     /// SHA-256, structure, shapes). Raises `ModelFileError` naming the file.
     #[staticmethod]
-    fn load(path: PathBuf) -> PyResult<Self> {
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
         let bytes = std::fs::read(&path).map_err(|source| {
             runtime_err(crokf_runtime::RuntimeError::Io {
                 path: path.clone(),
                 source,
             })
         })?;
-        Self::from_bytes_checked(bytes, Some(path))
+        Self::from_bytes_checked(py, bytes, Some(path))
     }
 
     /// Decodes a model from the bytes of a model file (same verification as `load`).
     #[staticmethod]
-    fn from_bytes(data: &[u8]) -> PyResult<Self> {
-        Self::from_bytes_checked(data.to_vec(), None)
+    fn from_bytes(py: Python<'_>, data: &[u8]) -> PyResult<Self> {
+        Self::from_bytes_checked(py, data.to_vec(), None)
     }
 
     /// Writes the model file (byte-identical to what `crokf-compile` writes).
@@ -361,6 +370,14 @@ impl Model {
         } else {
             "warped_linear"
         }
+    }
+
+    /// Why the co-rotational tier failed the compiler's own check, when the scene accepted it
+    /// all the same (`accept_failed_check = true`; loading such a model also raises a
+    /// `UserWarning`), else None.
+    #[getter]
+    fn tier_failed_check(&self) -> Option<String> {
+        self.model.tier_failed_check().map(str::to_owned)
     }
 
     /// Input channel labels, the columns of the inputs array (`"probe.x"`, `"gravity"`, ...).

@@ -91,3 +91,28 @@ def test_compile_order_and_errors(repo, tmp_path):
     assert not report["measured_errors"]
     with pytest.raises(crokf.CompileError, match="nothing.toml"):
         crokf.compile(tmp_path / "nothing.toml")
+
+
+def test_a_tier_that_failed_its_check_warns_on_loading(repo, tmp_path, cantilever_path):
+    # A passing model says nothing; the example cantilever's tier with four sampled elements
+    # fails its own check, and written all the same (accept_failed_check) the file says why.
+    assert crokf.Model.load(cantilever_path).tier_failed_check is None
+    text = (repo / "models" / "cantilever" / "scene_corotational.toml").read_text()
+    text = text.replace('file = "cantilever.msh"', f'file = "{repo / "models" / "cantilever" / "cantilever.msh"}"')
+    head, _, _ = text.partition("[reduction.corotational]")
+    scene = tmp_path / "failed.toml"
+    scene.write_text(
+        head
+        + "[reduction.corotational]\nduration = 0.15\nevery = 2\norder = 10\n"
+        + 'directions = "axes"\necsw_tolerance = 1e-6\necsw_max_elements = 4\n'
+        + "accept_failed_check = true\n"
+    )
+    model, _ = crokf.compile(scene, order=6, report=False)
+    why = model.tier_failed_check
+    assert why is not None and "fails its check" in why
+    path = tmp_path / "failed.crokf"
+    model.save(path)
+    with pytest.warns(UserWarning, match="failed the compiler's own check") as caught:
+        loaded = crokf.Model.load(path)
+    assert why in str(caught[0].message)
+    assert loaded.tier_failed_check == why

@@ -146,6 +146,9 @@ fn run(args: &Args) -> Result<(), RunError> {
     };
     check_outputs(args, inputs_path, out_path)?;
     let model = load_model(&args.model)?;
+    if let Some(warning) = model.tier_failed_check_warning() {
+        eprintln!("crokf-run: warning: {}: {warning}", args.model.display());
+    }
     let inputs = table::read_inputs(inputs_path, &model)?;
     let measurements = match &args.measurements {
         Some(p) => table::read_measurements(p, &model)?,

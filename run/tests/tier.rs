@@ -1,6 +1,7 @@
 //! `crokf-run` on a co-rotational tier with a marker missing for a stretch of a recording: the
 //! run completes, the tip marker's σ in `estimates.csv` grows while its values are missing and
-//! the summary names the steps on the filter's own covariance (docs/design.md §11.11).
+//! the summary names the steps on the filter's own covariance (docs/design.md §11.11); a tier
+//! that failed the compiler's check is named on loading.
 
 use std::process::Command;
 
@@ -68,5 +69,34 @@ fn a_marker_missing_for_a_while_shows_in_the_sigma_and_the_summary() {
         &sigma[16..32]
     );
     assert!(sigma[40] < sigma[29], "{:?}", &sigma[28..42]);
+    // A tier that passed its check says nothing of it; one written after failing it (format
+    // v10, `accept_failed_check = true`) is named on loading, with the compiler's reason.
+    assert!(
+        !stderr.contains("failed the compiler's own check"),
+        "{stderr}"
+    );
+    let mut failed = model.clone();
+    let why =
+        "the co-rotational tier fails its check: 9 of 10 of its own training runs are above 5 %";
+    failed.tier.as_mut().unwrap().failed_check = Some(why.into());
+    let fp = dir.join("failed.crokf");
+    std::fs::write(&fp, crokf_formats::encode(&failed)).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_crokf-run"))
+        .arg(&fp)
+        .arg("--inputs")
+        .arg(&ip)
+        .arg("--out")
+        .arg(&op)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("crokf-run: warning: ")
+            && stderr.contains("failed.crokf")
+            && stderr.contains("failed the compiler's own check")
+            && stderr.contains(why),
+        "{stderr}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -102,6 +102,10 @@ typedef struct CrokfToolContact {
                             4 not converged, 5 grasping */
 } CrokfToolContact;
 size_t crokf_model_has_contact(const CrokfModel *model); /* 1: a contact region */
+/* Why the model's co-rotational tier failed the compiler's check (written all the same, scene
+   `accept_failed_check = true`), or NULL when it passed or there is no tier. Lives as long as
+   the model handle. */
+const char *crokf_model_tier_failed_check(const CrokfModel *model);
 /* crokf_step with tools, all or nothing (-1: the estimator exactly as before the call). */
 int crokf_step_with_tools(CrokfEstimator *est, const double *tools, size_t n_tools,
                           const double *inputs, size_t n_inputs,

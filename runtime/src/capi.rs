@@ -17,6 +17,7 @@ pub struct CrokfModel {
     measurement_labels: Vec<CString>,
     sensor_names: Vec<CString>,
     node_set_names: Vec<CString>,
+    failed_check: Option<CString>,
 }
 
 /// An estimator over a model (shares the model's matrices).
@@ -60,6 +61,9 @@ fn wrap_model(model: Model) -> Result<*mut CrokfModel, String> {
         measurement_labels: cstrings(model.measurement_labels()),
         sensor_names: cstrings(model.sensors.iter().map(|s| s.name.clone())),
         node_set_names: cstrings(model.node_sets.iter().map(|s| s.name.clone())),
+        failed_check: model
+            .tier_failed_check()
+            .map(|why| CString::new(why.replace('\0', " ")).unwrap_or_default()),
         prepared: Arc::new(PreparedModel::new(model).map_err(|e| e.to_string())?),
     };
     Ok(Box::into_raw(Box::new(m)))
@@ -668,6 +672,23 @@ pub unsafe extern "C" fn crokf_model_has_contact(m: *const CrokfModel) -> usize 
         Ok(usize::from(
             model_ref(m)?.prepared.model().contact.is_some(),
         ))
+    })
+}
+
+/// Why the model's co-rotational tier failed the compiler's own check (it was written all the
+/// same: the scene set `accept_failed_check = true`; format v10, docs/model-format.md), or NULL
+/// when the tier passed, the model has no tier, or the handle is NULL. The string lives as long
+/// as the model handle.
+///
+/// # Safety
+/// `m` NULL or a live model.
+#[no_mangle]
+pub unsafe extern "C" fn crokf_model_tier_failed_check(m: *const CrokfModel) -> *const c_char {
+    guard(ptr::null(), || {
+        Ok(model_ref(m)?
+            .failed_check
+            .as_ref()
+            .map_or(ptr::null(), |s| s.as_ptr()))
     })
 }
 

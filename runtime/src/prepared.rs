@@ -447,6 +447,13 @@ impl PreparedModel {
         self.tier.as_ref()
     }
 
+    /// Why the co-rotational tier failed the compiler's own check, when the scene accepted it
+    /// all the same (format v10, `CorotationalTier::failed_check`): its estimates can be as far
+    /// off as the reason says. None when the tier passed or the model has none.
+    pub fn tier_failed_check(&self) -> Option<&str> {
+        self.model.tier_failed_check()
+    }
+
     /// The model.
     pub fn model(&self) -> &Model {
         &self.model

@@ -128,6 +128,9 @@ fn c_api_rejects_null_and_bad_input_without_panicking() {
             "mid.z"
         );
         assert!(crokf_model_input_label(m, 4).is_null());
+        // No tier, no failed check (a tier that failed it: tests/tests/tier_hard_cases.rs).
+        assert!(crokf_model_tier_failed_check(m).is_null());
+        assert!(crokf_model_tier_failed_check(std::ptr::null()).is_null());
         let e = crokf_estimator_new(m);
         crokf_model_free(m);
         let u = [1.0; 4];

@@ -805,7 +805,8 @@ fn a_v6_model_file_is_refused_with_recompile() {
         .unwrap_err()
         .to_string();
     assert!(
-        err.contains("model format v6, this runtime reads v9") && err.contains("recompile"),
+        err.contains("model format v6, this runtime reads v7, v9, v10")
+            && err.contains("recompile"),
         "{err}"
     );
 }

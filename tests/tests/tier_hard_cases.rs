@@ -383,6 +383,30 @@ fn the_self_check_flags_the_default_twist_tier() {
         .find(|n| n.contains("ERROR: the co-rotational tier fails its check"))
         .expect("an error-level note");
     assert!(error.contains("accept_failed_check = true"), "{error}");
+    // The model file says so (format v10), and the runtime reports it on loading.
+    let why = compiled
+        .model
+        .tier_failed_check()
+        .expect("the file carries the failed check");
+    assert!(
+        why.contains("fails its check") && error.contains(why),
+        "{why}"
+    );
+    let bytes = crokf_formats::encode(&compiled.model);
+    assert_eq!(bytes[8..12], 10u32.to_le_bytes());
+    let loaded = crokf_runtime::model_from_bytes(&bytes).expect("the runtime reads it");
+    let prepared = crokf_runtime::PreparedModel::new(loaded).expect("prepared");
+    assert_eq!(prepared.tier_failed_check(), Some(why));
+    // SAFETY: a live handle from the file's bytes, freed once; the string read while it lives.
+    unsafe {
+        use crokf_runtime::capi::*;
+        let m = crokf_model_from_bytes(bytes.as_ptr(), bytes.len());
+        assert!(!m.is_null());
+        let said = crokf_model_tier_failed_check(m);
+        assert!(!said.is_null());
+        assert_eq!(std::ffi::CStr::from_ptr(said).to_str(), Ok(why));
+        crokf_model_free(m);
+    }
 }
 
 /// A couple whose two loads the filter is to estimate (the default random walk, σ derived

@@ -262,6 +262,9 @@ impl Drop for Server {
 /// Starts the viewer and blocks while it runs (what `crokf-run MODEL --serve` calls).
 /// Prints the page's address on stderr.
 pub fn serve(model: Model, options: ServeOptions) -> Result<(), ViewerError> {
+    if let Some(warning) = model.tier_failed_check_warning() {
+        eprintln!("crokf viewer: warning: {warning}");
+    }
     let server = Server::start(model, options)?;
     eprintln!("crokf viewer: open {} (Ctrl-C to stop)", server.url());
     server.wait();

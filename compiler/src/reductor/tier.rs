@@ -62,6 +62,9 @@ pub struct TierReductor<'a> {
     pub size: (BasisChoice, EcswOptions),
     /// The fidelity rule's choice (None when the scene states the tier's size).
     pub fidelity: Option<fidelity::Fidelity>,
+    /// Why the tier fails its own check, when the scene accepted it all the same
+    /// (`accept_failed_check`); written into the model file (`failed_check`).
+    pub failed_check: Option<String>,
     /// What the build decided and measured, for the compile report (training runs skipped,
     /// basis, cubature, filter, model error at the markers).
     pub notes: Vec<String>,
@@ -194,7 +197,8 @@ impl<'a> TierReductor<'a> {
         if let Some(f) = &fidelity {
             notes.push(f.note());
         }
-        if let Some(why) = failed_check(plan.max_rotation, &built, &check, out_of_sample.as_ref()) {
+        let failed = failed_check(plan.max_rotation, &built, &check, out_of_sample.as_ref());
+        if let Some(why) = &failed {
             if !spec.accept_failed_check {
                 return Err(fail(&format!(
                     "{why}. The tier is not written. Remedies, in [reduction.corotational] or \
@@ -210,7 +214,9 @@ impl<'a> TierReductor<'a> {
             notes.push(format!(
                 "ERROR: {why}; written all the same because [reduction.corotational] \
                  accept_failed_check = true: loads like its training runs will be this far off \
-                 at run time"
+                 at run time; the model file says so (format v{}), and the runtime and \
+                 crokf-run report it on loading",
+                fmt::FAILED_CHECK_FORMAT_VERSION
             ));
         }
         let model_error = check.model_error_covariance();
@@ -239,6 +245,7 @@ impl<'a> TierReductor<'a> {
             out_of_sample,
             size: (choice, ecsw),
             fidelity,
+            failed_check: failed,
             notes,
             measurements,
         };
@@ -442,14 +449,17 @@ impl<'a> TierReductor<'a> {
 
     /// The model file's tier section ([`tier_section`]).
     pub fn section(&self) -> fmt::CorotationalTier {
-        tier_section(
-            self.full,
-            &self.tier,
-            &self.plan,
-            &self.filter,
-            self.measurements,
-            self.runtime_newton(),
-        )
+        fmt::CorotationalTier {
+            failed_check: self.failed_check.clone(),
+            ..tier_section(
+                self.full,
+                &self.tier,
+                &self.plan,
+                &self.filter,
+                self.measurements,
+                self.runtime_newton(),
+            )
+        }
     }
 }
 
