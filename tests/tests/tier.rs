@@ -544,6 +544,35 @@ fn training_runs_are_cut_where_they_rotate_past_max_rotation() {
     }
 }
 
+/// A stated `order` above the snapshots the training kept after its cuts (the scene check
+/// passes it: before training the runs hold enough) is a warning with the count, and the basis
+/// has no more vectors than those snapshots.
+#[test]
+fn an_order_above_the_snapshots_kept_after_cuts_is_a_warning() {
+    let compiled = compiled_variant("short-cut.toml", |base| {
+        base.replace(
+            "order = 10\n",
+            "order = 100\nmax_rotation = 2\naccept_failed_check = true\n",
+        )
+    });
+    let notes = &compiled.model.report.notes;
+    let warning = notes
+        .iter()
+        .find(|n| n.contains("order = 100 is above the"))
+        .unwrap_or_else(|| panic!("no warning: {notes:?}"));
+    let kept: usize = warning
+        .split("above the ")
+        .nth(1)
+        .and_then(|t| t.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{warning}"));
+    eprintln!("{warning}");
+    assert!(kept < 100 && warning.starts_with("WARNING"), "{warning}");
+    let tier = compiled.model.tier.as_ref().unwrap();
+    assert!(tier.order as usize <= kept, "r = {} of {kept}", tier.order);
+    assert_eq!(tier.envelope.snapshots as usize, kept);
+}
+
 /// A cubature stopped at its element cap above its tolerance is a warning naming both fields.
 #[test]
 fn a_cubature_above_its_tolerance_is_a_warning() {

@@ -109,6 +109,27 @@ pub struct Fidelity {
     /// Every rung measured, in ladder order, with its worst held-out error (+∞ for a failed
     /// reduced run).
     pub tried: Vec<(Rung, f64)>,
+    /// When a rung's order was above the snapshots the training kept (runs cut, or a short
+    /// training): that count, the order it was capped at ([`capped_ladder`]).
+    pub snapshot_cap: Option<usize>,
+}
+
+/// The rungs of `ladder` with each order capped at the `kept` training snapshots (a POD has at
+/// most as many vectors as snapshots, so a larger rung would be measured and reported as a
+/// size the tier cannot have), a rung equal to an earlier one after the cap left out; and
+/// whether any order was capped.
+pub fn capped_ladder(ladder: &[Rung], kept: usize) -> (Vec<Rung>, bool) {
+    let mut rungs: Vec<Rung> = Vec::with_capacity(ladder.len());
+    let mut capped = false;
+    for rung in ladder {
+        let order = rung.order.min(kept.max(1));
+        capped |= order < rung.order;
+        let rung = Rung { order, ..*rung };
+        if !rungs.contains(&rung) {
+            rungs.push(rung);
+        }
+    }
+    (rungs, capped)
 }
 
 impl Fidelity {
@@ -123,6 +144,18 @@ impl Fidelity {
 
     /// The report note (deterministic).
     pub fn note(&self) -> String {
+        match self.snapshot_cap {
+            Some(kept) => format!(
+                "{}; its sizes are capped at the {kept} snapshots the training kept (a basis has \
+                 at most as many vectors as snapshots: cut runs, or lengthen the runs or lower \
+                 `every` for more)",
+                self.rule_note()
+            ),
+            None => self.rule_note(),
+        }
+    }
+
+    fn rule_note(&self) -> String {
         let tried = self
             .tried
             .iter()
@@ -199,6 +232,9 @@ pub fn choose_from(
     training: &Training,
     newton: ReducedNewton,
 ) -> Result<Fidelity, NonlinearError> {
+    let kept = training.snapshots.len();
+    let (ladder, capped) = capped_ladder(ladder, kept);
+    let snapshot_cap = capped.then_some(kept);
     let first = *ladder
         .first()
         .ok_or_else(|| NonlinearError::Invalid("the fidelity rule has no size to try".into()))?;
@@ -207,6 +243,7 @@ pub fn choose_from(
         out_of_sample: None,
         in_sample: None,
         tried,
+        snapshot_cap,
     };
     let in_sample = self_check::held_out_runs(training.runs.len()).is_empty();
     if in_sample && training.runs.iter().any(|(_, failed)| failed.is_some()) {
@@ -214,7 +251,7 @@ pub fn choose_from(
     }
     let mut tried = Vec::new();
     let mut best: Option<(Fidelity, f64)> = None;
-    for &rung in ladder {
+    for &rung in &ladder {
         let measured = if in_sample {
             let tier = tier_build::from_training_with(
                 full,
@@ -228,6 +265,7 @@ pub fn choose_from(
                 out_of_sample: None,
                 in_sample: Some(check),
                 tried: Vec::new(),
+                snapshot_cap,
             }
         } else {
             let Some(held) = self_check::out_of_sample(
@@ -246,6 +284,7 @@ pub fn choose_from(
                 out_of_sample: Some(held),
                 in_sample: None,
                 tried: Vec::new(),
+                snapshot_cap,
             }
         };
         let check = measured
@@ -268,4 +307,51 @@ pub fn choose_from(
         Some((measured, _)) => Fidelity { tried, ..measured },
         None => unmeasured(tried),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rungs_above_the_kept_snapshots_are_capped_and_not_measured_twice() {
+        // Enough snapshots: the ladder as it is.
+        let (rungs, capped) = capped_ladder(&LADDER, 10_000);
+        assert_eq!(rungs, LADDER.to_vec());
+        assert!(!capped);
+        // 25 snapshots: r = 20 stays, r = 30 and 40 become 25; the two r = 25 rungs differ
+        // in their cubature, the last (r = 30, ECSW 1e-4) is kept as r = 25 at 1e-4.
+        let (rungs, capped) = capped_ladder(&LADDER, 25);
+        assert!(capped);
+        let orders: Vec<usize> = rungs.iter().map(|r| r.order).collect();
+        assert_eq!(orders, [20, 25, 25, 25]);
+        // 12 snapshots: every rung at r = 12, each distinct cubature once.
+        let (rungs, _) = capped_ladder(&LADDER, 12);
+        assert!(rungs.iter().all(|r| r.order == 12));
+        let same = Rung {
+            order: 12,
+            ..LADDER[1]
+        };
+        assert_eq!(rungs.iter().filter(|r| **r == same).count(), 1);
+        // Two rungs equal after the cap: one is measured.
+        let twins = [
+            Rung {
+                order: 30,
+                ..LADDER[1]
+            },
+            Rung {
+                order: 40,
+                ..LADDER[1]
+            },
+        ];
+        let (rungs, capped) = capped_ladder(&twins, 20);
+        assert!(capped);
+        assert_eq!(
+            rungs,
+            vec![Rung {
+                order: 20,
+                ..LADDER[1]
+            }]
+        );
+    }
 }

@@ -161,6 +161,23 @@ impl<'a> TierReductor<'a> {
                 tolerance: spec.basis_tolerance,
                 max_order: spec.largest_order(),
             };
+            let kept = training.snapshots.len();
+            if choice.order > kept {
+                notes.push(format!(
+                    "WARNING: [reduction.corotational] order = {} is above the {kept} snapshots \
+                     the training kept ({} of its {} runs cut or failed): the basis has at most \
+                     {kept} vectors. Lengthen the runs (duration) or lower `every` for more \
+                     snapshots, or lower `order`",
+                    choice.order,
+                    training
+                        .cuts
+                        .iter()
+                        .zip(&training.runs)
+                        .filter(|(c, (_, failed))| c.is_some() || failed.is_some())
+                        .count(),
+                    training.runs.len()
+                ));
+            }
             (choice, ecsw, None)
         } else {
             let chosen = timer
