@@ -29,11 +29,11 @@ use crokf_formats::{CorotationalTier, ForceAdaptation};
 
 /// Bound on a whitened innovation in the statistic (the default innovation gate, σ): one
 /// outlier moves e_j by at most a_j · 5.
-pub const Z_CLIP: f64 = 5.0;
+pub(crate) const Z_CLIP: f64 = 5.0;
 
 /// The levels of a model and the statistic's parameters (read-only, from the model file).
 #[derive(Clone, Debug)]
-pub struct Levels {
+pub(crate) struct Levels {
     /// Factor on the designed σ per level (level 0 = 1, the model's `kalman`).
     factors: Vec<f64>,
     /// Per level: the next larger and the next smaller factor's level.
@@ -54,7 +54,7 @@ pub struct Levels {
 impl Levels {
     /// The levels of a validated tier section: level 0 the designed σ (`kalman`, `scheduled`),
     /// level l ≥ 1 `force_levels[l − 1]`; `None` when the tier has one level.
-    pub fn new(tier: &CorotationalTier) -> Option<Levels> {
+    pub(crate) fn new(tier: &CorotationalTier) -> Option<Levels> {
         let a = tier.adaptation.as_ref()?;
         if tier.force_levels.is_empty() {
             return None;
@@ -103,7 +103,7 @@ impl Levels {
     }
 
     /// The factor on the designed σ of `level`.
-    pub fn factor(&self, level: usize) -> f64 {
+    pub(crate) fn factor(&self, level: usize) -> f64 {
         self.factors[level]
     }
 }
@@ -135,9 +135,9 @@ enum Start {
 /// A move of the start ([`AdaptationState::start_move`]): the level, the start's next phase,
 /// whether the statistic restarts and whether it counts as the level having moved.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct StartMove {
+pub(crate) struct StartMove {
     /// The level after the move.
-    pub level: usize,
+    pub(crate) level: usize,
     next: Start,
     restart: bool,
     moved: bool,
@@ -145,7 +145,7 @@ pub struct StartMove {
 
 /// The adaptation's statistic (the level it moves is the tier state's, `TierState::level`).
 #[derive(Clone, Debug, PartialEq)]
-pub struct AdaptationState {
+pub(crate) struct AdaptationState {
     /// Per channel: e_j and (1 − a_j)^{2n_j} (1 before any update since the change).
     mean: Vec<f64>,
     decay: Vec<f64>,
@@ -163,7 +163,7 @@ pub struct AdaptationState {
 
 impl AdaptationState {
     /// Cleared, for `channels` measurement channels.
-    pub fn new(channels: usize) -> AdaptationState {
+    pub(crate) fn new(channels: usize) -> AdaptationState {
         AdaptationState {
             mean: vec![0.0; channels],
             decay: vec![1.0; channels],
@@ -177,7 +177,7 @@ impl AdaptationState {
 
     /// The statistic cleared (keeps `enabled`); the level goes back to 0 with it, and the next
     /// prediction starts a run.
-    pub fn reset(&mut self) {
+    pub(crate) fn reset(&mut self) {
         self.restart(0);
         self.moved = false;
         self.start = Start::Fresh;
@@ -191,7 +191,7 @@ impl AdaptationState {
     }
 
     /// The report of [`crate::Estimator::force_level`] at level `level`.
-    pub fn report(&self, levels: &Levels, level: usize) -> ForceLevel {
+    pub(crate) fn report(&self, levels: &Levels, level: usize) -> ForceLevel {
         ForceLevel {
             level,
             factor: levels.factor(level),
@@ -204,7 +204,7 @@ impl AdaptationState {
     /// goes back to 0 (the designed σ); off, [`AdaptationState::observe`] keeps it there.
     /// After a prediction since the last reset the run is not started again: a told load goes
     /// to the lowest level at its next prediction, a withheld one stays at the designed σ.
-    pub fn set_enabled(&mut self, on: bool) {
+    pub(crate) fn set_enabled(&mut self, on: bool) {
         let fresh = self.start == Start::Fresh;
         self.enabled = on;
         self.reset();
@@ -215,7 +215,7 @@ impl AdaptationState {
 
     /// Whether a prediction has been made since the last reset (and kept: a failed step rolls
     /// it back).
-    pub fn started(&self) -> bool {
+    pub(crate) fn started(&self) -> bool {
         self.start != Start::Fresh
     }
 
@@ -241,7 +241,12 @@ impl AdaptationState {
     /// level; the next stays there when told and goes to the designed σ when not (from a level
     /// below it); later, the first told prediction goes to the lowest level while the level has
     /// not moved since the reset.
-    pub fn start_move(&self, levels: &Levels, level: usize, told: bool) -> Option<StartMove> {
+    pub(crate) fn start_move(
+        &self,
+        levels: &Levels,
+        level: usize,
+        told: bool,
+    ) -> Option<StartMove> {
         if !self.enabled || !levels.every_step {
             return None;
         }
@@ -262,7 +267,7 @@ impl AdaptationState {
     }
 
     /// Carries out `m` ([`AdaptationState::start_move`]) at step `step`; returns its level.
-    pub fn take(&mut self, m: StartMove, step: u64) -> usize {
+    pub(crate) fn take(&mut self, m: StartMove, step: u64) -> usize {
         self.start = m.next;
         self.moved |= m.moved;
         if m.restart {
@@ -272,7 +277,7 @@ impl AdaptationState {
     }
 
     /// `self` becomes a copy of `other` (same channel count) without allocating.
-    pub fn copy_from(&mut self, other: &AdaptationState) {
+    pub(crate) fn copy_from(&mut self, other: &AdaptationState) {
         self.mean.copy_from_slice(&other.mean);
         self.decay.copy_from_slice(&other.decay);
         self.statistic = other.statistic;
@@ -287,7 +292,7 @@ impl AdaptationState {
     /// statistic, and the level moves (module docs): up or down one level, below the designed
     /// σ only when `told` (every estimated load was given a value this step). Returns the level
     /// for the next step.
-    pub fn observe(
+    pub(crate) fn observe(
         &mut self,
         levels: &Levels,
         level: usize,

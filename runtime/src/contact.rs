@@ -120,8 +120,8 @@ pub struct ContactPoint {
 /// The region's data arranged for the step, derived once per model.
 #[derive(Clone, Debug)]
 pub(crate) struct PreparedContact {
-    pub radius: f64,
-    pub max_force: f64,
+    pub(crate) radius: f64,
+    pub(crate) max_force: f64,
     /// Rest positions, 3 per node.
     rest: Vec<f64>,
     /// Rest normals, 3 per node.
@@ -417,22 +417,22 @@ pub(crate) struct ContactWork {
     piv: Vec<usize>,
     rhs: Vec<f64>,
     /// State increment Σ λ_a b_a.
-    pub delta: Vec<f64>,
+    pub(crate) delta: Vec<f64>,
     /// Nodes active last step (region node index, tool), for the warm start.
     was_active: Vec<(usize, usize, [f64; 3])>,
     was_count: usize,
     /// Results of the last step.
-    pub tools: [ToolContact; MAX_TOOLS],
-    pub tool_count: usize,
-    pub tool_position: [[f64; 3]; MAX_TOOLS],
-    pub points: Vec<ContactPoint>,
-    pub point_count: usize,
+    pub(crate) tools: [ToolContact; MAX_TOOLS],
+    pub(crate) tool_count: usize,
+    pub(crate) tool_position: [[f64; 3]; MAX_TOOLS],
+    pub(crate) points: Vec<ContactPoint>,
+    pub(crate) point_count: usize,
     /// Candidates of the last step that pressed (indices into `cand`), for the force σ.
     pressed: Vec<usize>,
     pressed_count: usize,
     scratch: Vec<f64>,
     /// Whether the step computes each tool's force σ.
-    pub with_std: bool,
+    pub(crate) with_std: bool,
     /// The (tool, node) pairs that may be near a pushing tool ([`ContactWork::rebuild_list`]),
     /// and what they were found for: the paths, the tools' centres and which tools pushed.
     list: Vec<(u32, u32)>,

@@ -69,6 +69,7 @@ pub struct Gate<'a> {
 
 impl Gate<'_> {
     /// The gate off.
+    #[cfg_attr(not(feature = "internals"), allow(dead_code))]
     pub const OFF: Gate<'static> = Gate {
         sigmas: None,
         step: 0,
@@ -86,6 +87,6 @@ impl Gate<'_> {
 }
 
 /// The gate's test (docs/design.md §6): true when ν² > g² (s + n·growth).
-pub fn gate_rejects(nu: f64, sigmas: f64, variance: f64, missed: u64, growth: f64) -> bool {
+pub(crate) fn gate_rejects(nu: f64, sigmas: f64, variance: f64, missed: u64, growth: f64) -> bool {
     nu * nu > sigmas * sigmas * (variance + missed as f64 * growth)
 }

@@ -433,7 +433,30 @@ impl Estimator {
     /// `predict(inputs)` then `update(measurements)`, all or nothing: every input and
     /// measurement is checked before the prediction, and if the update still fails (a
     /// non-invertible R̃, a non-finite result) the prediction is rolled back, so a failed step
-    /// leaves the estimator exactly as before.
+    /// leaves the estimator exactly as before. Returns the number of measurements used.
+    ///
+    /// ```
+    /// # let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/cantilever/model.crokf");
+    /// use crokf_runtime::{load_model, Estimator};
+    /// let model = load_model(path)?;
+    /// let mut est = Estimator::new(&model)?;
+    /// let tip_z = model.input_labels().iter().position(|l| l == "tip.z").unwrap();
+    /// let mut inputs = vec![0.0; model.inputs.len()];
+    /// inputs[tip_z] = -5.0; // N
+    /// let y = vec![None; model.measurements.len()];
+    /// for _ in 0..200 {
+    ///     est.step(&inputs, &y)?;
+    /// }
+    /// let mut u = vec![0.0; 3 * model.sensors.len()];
+    /// est.sensor_displacements(&mut u)?;
+    /// assert!(u[2] < 0.0); // the tip sensor moved down
+    /// // A non-finite input is refused and the estimator is unchanged.
+    /// inputs[tip_z] = f64::NAN;
+    /// let before = est.state().to_vec();
+    /// assert!(est.step(&inputs, &y).is_err());
+    /// assert_eq!(est.state(), &before[..]);
+    /// # Ok::<(), crokf_runtime::RuntimeError>(())
+    /// ```
     pub fn step(
         &mut self,
         inputs: &[f64],

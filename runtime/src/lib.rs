@@ -2,17 +2,28 @@
 //! online (docs/design.md §1, §5, §6). Dependency-light: no linear-algebra crate, no allocation
 //! per step.
 //!
-//! ```no_run
+//! ```
 //! use crokf_runtime::{load_model, Estimator};
-//! let model = load_model("beam.crokf")?;
+//! # let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/cantilever/model.crokf");
+//! // path: a model file written by crokf-compile (here the bundled cantilever).
+//! let model = load_model(path)?;
 //! let mut est = Estimator::new(&model)?;
+//! // One step: the inputs (`model.input_labels()`: N per load channel), the measurements
+//! // (`model.measurement_labels()`: m per channel, None where a marker has no value).
 //! let inputs = vec![0.0; model.inputs.len()];
 //! let y = vec![None; model.measurements.len()];
 //! est.step(&inputs, &y)?;
+//! // The estimate at every sensor: world-frame displacements, 3 per sensor, m.
 //! let mut u = vec![0.0; 3 * model.sensors.len()];
 //! est.sensor_displacements(&mut u)?;
+//! assert!(u.iter().all(|v| v.abs() < 1e-12)); // no load, no measurement: at rest
 //! # Ok::<(), crokf_runtime::RuntimeError>(())
 //! ```
+//!
+//! The public API is this crate's root (the model, the estimator, their errors and statuses,
+//! the contact results), [`capi`] (the C ABI, `include/crokf.h`) and, with the feature `table`,
+//! [`table`] (the recording's CSV files); `public-api.txt` lists every public item and
+//! `tests/public_api.rs` checks the sources against it.
 
 mod adaptation;
 pub mod capi;
@@ -23,8 +34,19 @@ mod prepared;
 mod simd;
 #[cfg(feature = "table")]
 pub mod table;
+// The tier's step and the warp's algebra: public only with the feature `internals` (the
+// project's tests, verification and benchmarks); what a user needs of them is re-exported
+// below. Without the feature, the parts only those callers use are unused here.
+#[cfg(feature = "internals")]
 pub mod tier;
+#[cfg(not(feature = "internals"))]
+#[allow(dead_code, unused_imports)]
+mod tier;
+#[cfg(feature = "internals")]
 pub mod warp;
+#[cfg(not(feature = "internals"))]
+#[allow(dead_code)]
+mod warp;
 
 pub use adaptation::ForceLevel;
 pub use contact::{ContactPoint, ContactStatus, ToolContact, MAX_CONTACTS, MAX_TOOLS};
@@ -227,6 +249,13 @@ pub enum RuntimeError {
 }
 
 /// Reads and decodes a model file (magic, version, length, hash, structure, shapes).
+///
+/// ```
+/// # let dir = std::env::temp_dir();
+/// let err = crokf_runtime::load_model(dir.join("no-such-model.crokf")).unwrap_err();
+/// // The error names the file.
+/// assert!(err.to_string().contains("no-such-model.crokf"), "{err}");
+/// ```
 pub fn load_model(path: impl AsRef<Path>) -> Result<Model, RuntimeError> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|source| RuntimeError::Io {
@@ -240,6 +269,20 @@ pub fn load_model(path: impl AsRef<Path>) -> Result<Model, RuntimeError> {
 }
 
 /// Decodes a model from the bytes of a model file.
+///
+/// ```
+/// # let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../models/cantilever/model.crokf");
+/// let bytes = std::fs::read(path)?;
+/// let model = crokf_runtime::model_from_bytes(&bytes)?;
+/// assert_eq!(model.dt, 0.005);
+/// // A damaged file is refused with the reason, never read half.
+/// let mut damaged = bytes.clone();
+/// let last = damaged.len() - 1;
+/// damaged[last] ^= 1;
+/// let err = crokf_runtime::model_from_bytes(&damaged).unwrap_err();
+/// assert!(err.to_string().contains("SHA-256"), "{err}");
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 pub fn model_from_bytes(bytes: &[u8]) -> Result<Model, RuntimeError> {
     Ok(crokf_formats::decode(bytes)?)
 }

@@ -26,24 +26,24 @@ use crokf_formats::{InputKind, Matrix, Model};
 #[derive(Clone, Debug)]
 pub(crate) struct PhaseStd {
     /// 3 per sensor, m.
-    pub sensors: Vec<f64>,
+    pub(crate) sensors: Vec<f64>,
     /// 3n per node set, m.
-    pub nodes: Vec<Vec<f64>>,
+    pub(crate) nodes: Vec<Vec<f64>>,
 }
 
 /// An active measurement channel of a phase.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct ActiveChannel {
     /// Index into the model's measurement channels.
-    pub channel: usize,
+    pub(crate) channel: usize,
     /// Position of its sensor in the phase's `phase_sensors`.
-    pub slot: usize,
+    pub(crate) slot: usize,
     /// x, y or z (0, 1, 2).
-    pub component: usize,
+    pub(crate) component: usize,
     /// The sensor's `every`.
-    pub every: u64,
+    pub(crate) every: u64,
     /// g_j = (H Q Hᵀ)_jj, m² per step.
-    pub variance_growth: f64,
+    pub(crate) variance_growth: f64,
 }
 
 /// A validated model plus everything derived from it at load (see the module docs).
@@ -442,7 +442,9 @@ impl PreparedModel {
         })
     }
 
-    /// The co-rotational tier, when the model has one (docs/design.md §10).
+    /// The co-rotational tier, when the model has one (docs/design.md §10; feature
+    /// `internals`).
+    #[cfg(feature = "internals")]
     pub fn tier(&self) -> Option<&crate::tier::TierModel> {
         self.tier.as_ref()
     }

@@ -550,11 +550,11 @@ pub(crate) enum Rows {
 #[derive(Clone, Debug)]
 pub(crate) struct DisplayRows {
     /// The state dimension r.
-    pub r: usize,
+    pub(crate) r: usize,
     /// Displacement rows C_i (single precision or 16-bit, never [`Rows::Zero`]).
-    pub displacement: Rows,
+    pub(crate) displacement: Rows,
     /// Rotation rows W_i.
-    pub rotation: Rows,
+    pub(crate) rotation: Rows,
 }
 
 /// Largest magnitude of a 16-bit entry.
@@ -585,8 +585,8 @@ pub(crate) fn fixed16_exponents(columns_max: &[f64]) -> Vec<i32> {
 /// precision.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct Fixed16<'a> {
-    pub displacement: Option<&'a [i32]>,
-    pub rotation: Option<&'a [i32]>,
+    pub(crate) displacement: Option<&'a [i32]>,
+    pub(crate) rotation: Option<&'a [i32]>,
 }
 
 impl DisplayRows {
