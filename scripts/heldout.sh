@@ -5,15 +5,20 @@
 # withheld (verify/examples/nonlinear_filter.rs). Prints one summary row per run; the full
 # tables (per segment, advice) are in OUT_DIR/BODY-SCENARIO.txt.
 #
-#   scripts/heldout.sh OUT_DIR [BODY ...]        # default: every body
+#   scripts/heldout.sh OUT_DIR [BODY ...] [-- FLAGS ...]   # default: every body
+#
+# FLAGS go to every nonlinear_filter run (e.g. -- --stored-gains).
 #
 # Full-order references are cached in OUT_DIR/ref-*.bin (reused while scene and scenario are
 # unchanged). About 5 minutes per body on two cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-out=${1:?usage: scripts/heldout.sh OUT_DIR [BODY ...]}
+out=${1:?usage: scripts/heldout.sh OUT_DIR [BODY ...] [-- FLAGS ...]}
 shift
-bodies=("$@")
+bodies=()
+while [ $# -gt 0 ] && [ "$1" != "--" ]; do bodies+=("$1"); shift; done
+[ $# -gt 0 ] && shift
+flags=("$@")
 [ ${#bodies[@]} -gt 0 ] || bodies=(kidney horn mushroom arch paddle blob)
 mkdir -p "$out"
 cargo build --release -q --bin crokf-compile -p crokf-compile
@@ -28,7 +33,7 @@ for b in "${bodies[@]}"; do
     name=$(basename "$s" .toml); name=${name#scenario_}
     key=$(cat "$d/scene_linear.toml" "$d/$b.msh" "$s" | sha256sum | cut -c1-16)
     CROKF_REFERENCE_CACHE=$out/ref-$key.bin "$bin/examples/nonlinear_filter" \
-      "$d/scene_linear.toml" "$s" "$tier" --seeds 20 > "$out/$b-$name.txt" 2>&1
+      "$d/scene_linear.toml" "$s" "$tier" --seeds 20 ${flags[@]+"${flags[@]}"} > "$out/$b-$name.txt" 2>&1
     awk -F'|' -v key="$(printf '%-9s %-8s ' "$b" "$name")" -f scripts/filter_rows.awk \
       "$out/$b-$name.txt"
   done

@@ -14,7 +14,8 @@
 //! ```sh
 //! cargo run --release -p crokf-verify --example nonlinear_basis -- SCENE SCENARIO[,SCENARIO…] \
 //!     [--cache FILE] [--pooled R] [--tolerances 1e-1,1e-2|none] [--max-order N] [--end-to-end] [--exact] [--ecsw-max N] [--ecsw-snapshots N] \
-//!     [--energy | --energy-enrich] [--quadratic 1e-6,1e-3] [--runs 'TEXT|TEXT']
+//!     [--energy | --energy-enrich] [--quadratic 1e-6,1e-3] [--runs 'TEXT|TEXT'] \
+//!     [--compare-references] [--dump-end] [--consistent] [--no-predictor] [--static] [--trace]
 //! ```
 //!
 //! `--runs`: the basis from the snapshots of the training runs whose label contains one of the
@@ -23,12 +24,13 @@
 //! `--exact`: exact integration over every element instead of ECSW (implies `--end-to-end`).
 //! `--energy`: POD and per-run errors in the energy (K) inner product instead of M;
 //! `--energy-enrich`: the pooled POD in M, the enrichment measured in K (docs/corotational-tier.md
-//! §8). Measuring aids (environment): `COMPARE_REFERENCES=1` prints each scenario's reference
-//! against the first one's (the reference's own sensitivity); `DUMP_END=1` prints the end-face
-//! nodes of the first reference at steps 50, 80, 100, 150, 200; `CONSISTENT=1` the consistent
-//! tangent in the reduced Newton matrix; `NO_PREDICTOR=1` no Taylor predictor; `STATIC=1` a
-//! static check at each reference's last load (linear and co-rotational, full order against
-//! Galerkin on V); `TRACE=1` the sensor's reduced and full-order values every 10 steps.
+//! §8). Measuring aids (flags; an unknown flag is an error): `--compare-references` prints each
+//! scenario's reference against the first one's (the reference's own sensitivity); `--dump-end`
+//! prints the end-face nodes of the first reference at steps 50, 80, 100, 150, 200;
+//! `--consistent` the consistent tangent in the reduced Newton matrix; `--no-predictor` no
+//! Taylor predictor; `--static` a static check at each reference's last load (linear and
+//! co-rotational, full order against Galerkin on V); `--trace` the sensor's reduced and
+//! full-order values every 10 steps.
 //!
 //! `--quadratic γ[,γ…]`: for each candidate basis also the quadratic manifold fitted to the
 //! training snapshots with regulariser γ ([`crokf_compile::nonlinear::manifold`]): its floors
@@ -45,6 +47,7 @@
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::OnceLock;
 
 use nalgebra::DVector;
 
@@ -70,6 +73,87 @@ fn flag(args: &[String], name: &str) -> Option<String> {
     args.iter()
         .position(|a| a == name)
         .and_then(|i| args.get(i + 1).cloned())
+}
+
+/// The flags that take a value.
+const VALUE_FLAGS: [&str; 8] = [
+    "--cache",
+    "--pooled",
+    "--tolerances",
+    "--max-order",
+    "--ecsw-max",
+    "--ecsw-snapshots",
+    "--quadratic",
+    "--runs",
+];
+
+/// The flags without a value.
+const SWITCHES: [&str; 10] = [
+    "--end-to-end",
+    "--exact",
+    "--energy",
+    "--energy-enrich",
+    "--compare-references",
+    "--dump-end",
+    "--consistent",
+    "--no-predictor",
+    "--static",
+    "--trace",
+];
+
+/// An error naming the first flag of `args` (after the two positional arguments) that is not
+/// one of [`VALUE_FLAGS`] or [`SWITCHES`], or that lacks its value.
+fn check_flags(args: &[String]) -> Result<(), String> {
+    let mut rest = args.iter().skip(2);
+    while let Some(arg) = rest.next() {
+        if VALUE_FLAGS.contains(&arg.as_str()) {
+            if rest.next().is_none() {
+                return Err(format!("{arg} needs a value"));
+            }
+        } else if arg.starts_with("--") && !SWITCHES.contains(&arg.as_str()) {
+            return Err(format!("unknown flag {arg}"));
+        }
+    }
+    Ok(())
+}
+
+/// The measuring aids of the command line, set once in `run`.
+static AIDS: OnceLock<Aids> = OnceLock::new();
+
+/// The measuring aids; none before `run` has read the command line.
+fn aids() -> Aids {
+    *AIDS.get_or_init(|| Aids::of(&[]))
+}
+
+/// The measuring aids (module doc), switches of the command line.
+#[derive(Clone, Copy)]
+struct Aids {
+    /// `--compare-references`.
+    compare_references: bool,
+    /// `--dump-end`.
+    dump_end: bool,
+    /// `--consistent`.
+    consistent: bool,
+    /// `--no-predictor`.
+    no_predictor: bool,
+    /// `--static`.
+    static_check: bool,
+    /// `--trace`.
+    trace: bool,
+}
+
+impl Aids {
+    fn of(args: &[String]) -> Aids {
+        let on = |name: &str| args.iter().any(|a| a == name);
+        Aids {
+            compare_references: on("--compare-references"),
+            dump_end: on("--dump-end"),
+            consistent: on("--consistent"),
+            no_predictor: on("--no-predictor"),
+            static_check: on("--static"),
+            trace: on("--trace"),
+        }
+    }
 }
 
 /// A reference trajectory: the full-order co-rotational states u_k (k = 1..N) and the loads
@@ -249,6 +333,8 @@ fn run() -> Result<(), Failure> {
                     [--pooled R] [--tolerances a,b] [--max-order N] [--end-to-end] [--exact] [--ecsw-max N] [--ecsw-snapshots N]"
             .into());
     };
+    check_flags(&args)?;
+    let aids = *AIDS.get_or_init(|| Aids::of(&args));
     let full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
     let spec = full
         .scene
@@ -333,7 +419,7 @@ fn run() -> Result<(), Failure> {
         full.operators.sensors[0].name
     );
 
-    if std::env::var_os("COMPARE_REFERENCES").is_some() {
+    if aids.compare_references {
         // Sensitivity of the reference itself: sensor-0 relative L2 of reference i against
         // reference 0 (e.g. the same scenario at 0.99× the load).
         for other in &references[1..] {
@@ -349,7 +435,7 @@ fn run() -> Result<(), Failure> {
             );
         }
     }
-    if std::env::var_os("DUMP_END").is_some() {
+    if aids.dump_end {
         // End-face nodes (largest x) of the first reference at a few steps: rest (y, z) and
         // displacement.
         let xmax = fem.positions.iter().map(|p| p[0]).fold(f64::MIN, f64::max);
@@ -456,8 +542,8 @@ fn run() -> Result<(), Failure> {
         max_iterations: spec.newton_iterations.max(30),
         tolerance: spec.newton_tolerance,
         refresh: Refresh::WhenSlow { iterations: 4 },
-        consistent: std::env::var_os("CONSISTENT").is_some(),
-        predictor: std::env::var_os("NO_PREDICTOR").is_none(),
+        consistent: aids.consistent,
+        predictor: !aids.no_predictor,
     };
     for (name, b, run_errors) in &candidates {
         let (worst, &we) = run_errors
@@ -510,7 +596,7 @@ fn run() -> Result<(), Failure> {
         } else {
             None
         };
-        if let (Some(model), true) = (&model, std::env::var_os("STATIC").is_some()) {
+        if let (Some(model), true) = (&model, aids.static_check) {
             // Static check at each reference's last load: linear K⁻¹f and the co-rotational
             // static solution, full order against Galerkin on V (exact or sampled model).
             for reference in &references {
@@ -595,7 +681,7 @@ fn run() -> Result<(), Failure> {
                             .map(|&(d, w)| w * (b.vectors.row(d) * &q[k])[0])
                             .sum()
                     };
-                    if std::env::var_os("TRACE").is_some() {
+                    if aids.trace {
                         for k in (9..reference.states.len()).step_by(10) {
                             let at = |fitk: &dyn Fn(&Row) -> f64| -> [f64; 3] {
                                 std::array::from_fn(|c| fitk(&sensor[c]))
@@ -650,6 +736,7 @@ fn quadratic_rows(
     read_outs: &[ReadOut],
     tolerance: f64,
 ) -> Result<(), Failure> {
+    let aids = aids();
     let mass = &full.fem.mass;
     let m_error = |u: &[f64], fit: &DVector<f64>| -> (f64, f64) {
         let e: Vec<f64> = u.iter().zip(fit.iter()).map(|(a, b)| a - b).collect();
@@ -683,12 +770,12 @@ fn quadratic_rows(
             None => println!("  quadratic γ = {gamma:e}: no fit (degenerate snapshots)"),
         }
     }
-    // `STATIC=1`: each reference's full-order co-rotational static equilibrium at its last load,
+    // `--static`: each reference's full-order co-rotational static equilibrium at its last load,
     // solved once for all the manifolds.
     let statics: Vec<Option<Vec<f64>>> = references
         .iter()
         .map(|reference| match reference.loads.last() {
-            Some(f) if std::env::var_os("STATIC").is_some() => {
+            Some(f) if aids.static_check => {
                 let mut sim =
                     CorotationalSimulator::new(&full.fem, full.wilson, NewtonOptions::default())?;
                 Ok(Some(sim.static_solve(f, 1e-9)?))
@@ -772,7 +859,7 @@ fn quadratic_rows(
                                 relative_l2(&reference.states, rows, &fit)
                             );
                         }
-                        if std::env::var_os("TRACE").is_some() {
+                        if aids.trace {
                             // The sensor's y, z (the last read-out's rows 1, 2), reference against run.
                             if let Some((_, rows)) = read_outs.last() {
                                 let at = |u: &[f64], c: usize| -> f64 {

@@ -32,7 +32,7 @@
 //! Then, per segment of the scenario (cut at its load times, `crokf_verify::comparison::segments`)
 //! and with `--seeds`, the same fractions and the coverage of each filtered run; and one line of
 //! advice per problem of each filtered run (`crokf_verify::comparison::advice`, the rules of
-//! `crokf-verify report`; with `CROKF_NOISE_SCALE` ≠ 1 the markers are not drawn with the
+//! `crokf-verify report`; with `--noise-scale` ≠ 1 the markers are not drawn with the
 //! model's σ and the advice says so).
 //!
 //! `--imm P` (a measuring prototype, docs/design.md §11.5–11.6): exactly two MODEL arguments,
@@ -40,32 +40,32 @@
 //! interacting-multiple-model filter, stay probability P per step (`imm_rows`): the error, the
 //! second model's mean weight and the mixture's tip NEES over `--seeds` draws.
 //!
-//! Measuring aids (environment): `CROKF_REFERENCE_CACHE=FILE` keeps the reference run in FILE
-//! (written once, read while the step count matches: use one file per scene and scenario);
-//! `CROKF_RUNS=open,given,withheld` runs only those; `CROKF_NO_MODEL_ERROR=1` recomputes a
-//! `FILE@SCENE2` filter without the tier's model-error noise (docs/design.md §11.9),
-//! `CROKF_MODEL_ERROR_SCALE=c` with that noise's measured covariance × c (c replaces SCENE2's
-//! `model_error_scale`);
-//! `CROKF_NOISE_SCALE=c` scales the markers' noise (0: noise-free, the filter unchanged);
-//! `CROKF_NO_SCHEDULE=1` drops the tier's gain schedule (the filter designed at rest only,
-//! docs/design.md §11.5); `CROKF_TRACE=1` prints
-//! ‖q‖, ‖q̇‖, ‖q̈‖ and f before and after every update, and the schedule's filter that made
-//! the update, on stderr; `CROKF_MARKER_PHASE=o` makes
-//! sparse markers arrive o steps earlier in their period (o predictions at rest first);
-//! `CROKF_ERROR_TRACE=1` prints each step's error and reference norm over the displayed nodes,
-//! the phase and the tier's force states on stderr (lines starting `ERR`);
-//! `CROKF_HOLD_FORCE_SIGMA=1` holds the tier's force σ at its designed level (no levels,
+//! Measuring aids (flags; an unknown flag is an error): `--runs open,given,withheld` runs only
+//! those; `--no-model-error` recomputes a `FILE@SCENE2` filter without the tier's model-error
+//! noise (docs/design.md §11.9), `--model-error-scale C` with that noise's measured covariance
+//! × C (C replaces SCENE2's `model_error_scale`); `--noise-scale C` scales the markers' noise
+//! (0: noise-free, the filter unchanged); `--no-schedule` drops the tier's gain schedule (the
+//! filter designed at rest only, docs/design.md §11.5); `--trace` prints ‖q‖, ‖q̇‖, ‖q̈‖ and f
+//! before and after every update, and the schedule's filter that made the update, on stderr;
+//! `--marker-phase O` makes sparse markers arrive O steps earlier in their period (O
+//! predictions at rest first); `--error-trace` prints each step's error and reference norm
+//! over the displayed nodes, the phase and the tier's force states on stderr (lines starting
+//! `ERR`); `--hold-force-sigma` holds the tier's force σ at its designed level (no levels,
 //! docs/design.md §11.10: `Estimator::set_force_adaptation(false)`);
-//! `CROKF_MARKER_LOST=SENSOR:FROM:STEPS` drops that sensor's values (an empty SENSOR: the
-//! tip marker's) for those records (a marker lost) and, with `--seeds`, adds a table of the
+//! `--marker-lost SENSOR:FROM:STEPS` drops that sensor's values (an empty SENSOR: the tip
+//! marker's) for those records (a marker lost) and, with `--seeds`, adds a table of the
 //! consistency before, during and after the loss; each filtered run that carried its own
 //! covariance (a channel missing or gated, docs/design.md §11.11) prints its number of such
-//! steps on stderr; `CROKF_STORED_GAINS=1` keeps the stored gains and σ then instead
+//! steps on stderr; `--stored-gains` keeps the stored gains and σ then instead
 //! (`Estimator::set_covariance_recursion(false)`).
+//!
+//! The environment variable `CROKF_REFERENCE_CACHE=FILE` keeps the reference run in FILE
+//! (written once, read while the step count matches: use one file per scene and scenario).
 
 use std::ops::Range;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::OnceLock;
 
 use crokf_compile::report::StageTimer;
 use crokf_compile::FullOrder;
@@ -83,34 +83,146 @@ fn main() -> ExitCode {
     crokf_verify::exit(run())
 }
 
+/// The command line's flags (set once in `run`, read where the runs are made).
+static FLAGS: OnceLock<Flags> = OnceLock::new();
+
+/// The flags; their defaults before `run` has parsed them.
+fn flags() -> &'static Flags {
+    FLAGS.get_or_init(Flags::default)
+}
+
+/// The command line's flags: `--seeds`, `--imm` and the measuring aids (see the header).
+struct Flags {
+    /// `--seeds N`: the filtered runs repeated over N noise seeds (1 without).
+    seeds: u64,
+    /// `--imm P`: the two models as an IMM filter, stay probability P.
+    imm: Option<f64>,
+    /// `--runs open,given,withheld`: only the runs named.
+    runs: Option<String>,
+    /// `--no-model-error`: a `FILE@SCENE2` filter without the tier's model-error noise.
+    no_model_error: bool,
+    /// `--model-error-scale C`: that noise's covariance × C (replaces SCENE2's factor).
+    model_error_scale: Option<f64>,
+    /// `--noise-scale C`: the factor on the markers' σ (1 without).
+    noise_scale: f64,
+    /// `--no-schedule`: the tier's gain schedule dropped.
+    no_schedule: bool,
+    /// `--trace`: ‖q‖, ‖q̇‖, ‖q̈‖ and f around every update, on stderr.
+    trace: bool,
+    /// `--marker-phase O`: O predictions at rest before the scenario.
+    marker_phase: usize,
+    /// `--error-trace`: each step's error on stderr (lines starting `ERR`).
+    error_trace: bool,
+    /// `--hold-force-sigma`: the tier's force σ held at its designed level.
+    hold_force_sigma: bool,
+    /// `--marker-lost SENSOR:FROM:STEPS`, as given.
+    marker_lost: Option<String>,
+    /// `--stored-gains`: the stored gains and σ while a channel is missing.
+    stored_gains: bool,
+}
+
+impl Default for Flags {
+    /// No flag given.
+    fn default() -> Self {
+        Flags {
+            seeds: 1,
+            imm: None,
+            runs: None,
+            no_model_error: false,
+            model_error_scale: None,
+            noise_scale: 1.0,
+            no_schedule: false,
+            trace: false,
+            marker_phase: 0,
+            error_trace: false,
+            hold_force_sigma: false,
+            marker_lost: None,
+            stored_gains: false,
+        }
+    }
+}
+
+impl Flags {
+    /// The flags out of `args`, which keeps the positional arguments; an unknown flag is an
+    /// error naming it.
+    fn parse(args: &mut Vec<String>) -> Result<Flags, String> {
+        let mut flags = Flags::default();
+        let mut positional = Vec::new();
+        let mut it = std::mem::take(args).into_iter();
+        while let Some(arg) = it.next() {
+            if !arg.starts_with("--") {
+                positional.push(arg);
+                continue;
+            }
+            let mut value = |what: &str| it.next().ok_or_else(|| format!("{arg} needs {what}"));
+            match arg.as_str() {
+                "--seeds" => {
+                    flags.seeds = value("a whole number N ≥ 2")?
+                        .parse::<u64>()
+                        .ok()
+                        .filter(|&n| n >= 2)
+                        .ok_or("--seeds needs a whole number N ≥ 2")?
+                }
+                "--imm" => {
+                    flags.imm = Some(
+                        value("the probability P of staying in a model per step")?
+                            .parse::<f64>()
+                            .ok()
+                            .filter(|p| *p > 0.0 && *p < 1.0)
+                            .ok_or(
+                                "--imm needs the probability P of staying in a model per step, 0 < P < 1",
+                            )?,
+                    )
+                }
+                "--runs" => flags.runs = Some(value("a list such as open,given,withheld")?),
+                "--no-model-error" => flags.no_model_error = true,
+                "--model-error-scale" => {
+                    let v = value("a factor ≥ 0")?;
+                    flags.model_error_scale = Some(
+                        v.parse()
+                            .ok()
+                            .filter(|c: &f64| c.is_finite() && *c >= 0.0)
+                            .ok_or_else(|| format!("--model-error-scale {v}: not a factor ≥ 0"))?,
+                    )
+                }
+                "--noise-scale" => {
+                    let v = value("a number")?;
+                    flags.noise_scale = v
+                        .parse()
+                        .map_err(|_| format!("--noise-scale {v}: not a number"))?
+                }
+                "--no-schedule" => flags.no_schedule = true,
+                "--trace" => flags.trace = true,
+                "--marker-phase" => {
+                    let v = value("a whole number of steps")?;
+                    flags.marker_phase = v
+                        .parse()
+                        .map_err(|_| format!("--marker-phase {v}: not a whole number of steps"))?
+                }
+                "--error-trace" => flags.error_trace = true,
+                "--hold-force-sigma" => flags.hold_force_sigma = true,
+                "--marker-lost" => flags.marker_lost = Some(value("SENSOR:FROM:STEPS")?),
+                "--stored-gains" => flags.stored_gains = true,
+                _ => return Err(format!("unknown flag {arg}")),
+            }
+        }
+        *args = positional;
+        Ok(flags)
+    }
+}
+
 fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
-    let seeds = match args.iter().position(|a| a == "--seeds") {
-        Some(i) => {
-            let n = args
-                .get(i + 1)
-                .and_then(|v| v.parse::<u64>().ok())
-                .filter(|&n| n >= 2)
-                .ok_or("--seeds needs a whole number N ≥ 2")?;
-            args.drain(i..i + 2);
-            n
-        }
-        None => 1,
-    };
-    let imm = match args.iter().position(|a| a == "--imm") {
-        Some(i) => {
-            let stay = args
-                .get(i + 1)
-                .and_then(|v| v.parse::<f64>().ok())
-                .filter(|p| *p > 0.0 && *p < 1.0)
-                .ok_or("--imm needs the probability P of staying in a model per step, 0 < P < 1")?;
-            args.drain(i..i + 2);
-            Some(stay)
-        }
-        None => None,
-    };
+    let parsed = Flags::parse(&mut args)?;
+    let (seeds, imm) = (parsed.seeds, parsed.imm);
+    if FLAGS.set(parsed).is_err() {
+        return Err("the flags were read before they were parsed".into());
+    }
     if args.len() < 3 {
-        return Err("usage: nonlinear_filter SCENE SCENARIO MODEL... [--seeds N] [--imm P]".into());
+        return Err(
+            "usage: nonlinear_filter SCENE SCENARIO MODEL... [--seeds N] [--imm P] [flags: see the header]"
+                .into(),
+        );
     }
     if imm.is_some() && args.len() != 4 {
         return Err("--imm needs exactly two MODEL arguments".into());
@@ -141,9 +253,9 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut advised: Vec<Advised> = Vec::new();
     for path in &args[2..] {
         let mut model = read_model(path)?;
-        // CROKF_NO_SCHEDULE=1 (a measuring aid): the tier's filter designed at rest only, as
+        // --no-schedule (a measuring aid): the tier's filter designed at rest only, as
         // before the gain schedule (docs/design.md §11.5).
-        if std::env::var_os("CROKF_NO_SCHEDULE").is_some() {
+        if flags().no_schedule {
             if let Some(t) = model.tier.as_mut() {
                 t.scheduled.clear();
             }
@@ -153,8 +265,8 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         } else {
             "warped"
         };
-        // CROKF_RUNS=open,given,withheld (a measuring aid): only the runs named.
-        let only = std::env::var("CROKF_RUNS").ok();
+        // --runs open,given,withheld (a measuring aid): only the runs named.
+        let only = flags().runs.clone();
         let mut open_loop = None;
         for run in [Run::OpenLoop, Run::Given, Run::Withheld] {
             if only
@@ -263,7 +375,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
-/// `CROKF_MARKER_LOST`: per filtered run, the N-run NIS and tip NEES fractions below / inside /
+/// `--marker-lost`: per filtered run, the N-run NIS and tip NEES fractions below / inside /
 /// above their bounds and the 2σ coverage over the records before the loss (as many as it
 /// lasts), while the marker is lost, and after it (as many again).
 fn lost_marker_table(advised: &[Advised], name: &str, lost: Range<usize>, seeds: u64) {
@@ -315,7 +427,7 @@ fn print_advice(
         .filter(|l| l.forces.iter().flatten().any(|&f| f != 0.0))
         .map(|l| l.name.clone())
         .collect();
-    let markers_from_noise_std = noise_scale()? == 1.0;
+    let markers_from_noise_std = flags().noise_scale == 1.0;
     let mut lines = Vec::new();
     for (label, tier, e, open_loop) in advised {
         let segments = segment_figures(e, cuts);
@@ -353,28 +465,18 @@ fn print_advice(
     Ok(())
 }
 
-/// `CROKF_NOISE_SCALE` (a measuring aid, see [`Drive`]): the factor on the markers' σ, 1 unset.
-fn noise_scale() -> Result<f64, String> {
-    match std::env::var("CROKF_NOISE_SCALE") {
-        Ok(v) => v
-            .parse()
-            .map_err(|_| format!("CROKF_NOISE_SCALE={v}: not a number")),
-        Err(_) => Ok(1.0),
-    }
-}
-
-/// `CROKF_MARKER_LOST=SENSOR:FROM:STEPS` (a measuring aid, docs/verification.md, a lost
+/// `--marker-lost SENSOR:FROM:STEPS` (a measuring aid, docs/verification.md, a lost
 /// marker): the index of sensor SENSOR among `names` (the sensors in the model's order, which
 /// is the scene's; an empty SENSOR: `tip`, the run's tip marker) and the records
-/// FROM … FROM + STEPS − 1 without its values; None unset.
+/// FROM … FROM + STEPS − 1 without its values; None without the flag.
 fn marker_lost<'a>(
     mut names: impl Iterator<Item = &'a str>,
     tip: usize,
 ) -> Result<Option<(usize, Range<usize>)>, String> {
-    let Ok(v) = std::env::var("CROKF_MARKER_LOST") else {
+    let Some(v) = flags().marker_lost.as_deref() else {
         return Ok(None);
     };
-    let bad = || format!("CROKF_MARKER_LOST={v}: expected SENSOR:FROM:STEPS");
+    let bad = || format!("--marker-lost {v}: expected SENSOR:FROM:STEPS");
     let mut parts = v.split(':');
     let (Some(name), Some(from), Some(count), None) =
         (parts.next(), parts.next(), parts.next(), parts.next())
@@ -386,7 +488,7 @@ fn marker_lost<'a>(
     } else {
         names
             .position(|s| s == name)
-            .ok_or_else(|| format!("CROKF_MARKER_LOST={v}: the scene has no sensor '{name}'"))?
+            .ok_or_else(|| format!("--marker-lost {v}: the scene has no sensor '{name}'"))?
     };
     let from: usize = from.parse().map_err(|_| bad())?;
     let count: usize = count.parse().map_err(|_| bad())?;
@@ -625,15 +727,11 @@ fn read_model(arg: &str) -> Result<crokf_formats::Model, Box<dyn std::error::Err
     let full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
     // The scene's noise, its model-error factor replaced (not compounded) when asked.
     let mut spec = full.noise.clone();
-    if std::env::var_os("CROKF_NO_MODEL_ERROR").is_some() {
+    if flags().no_model_error {
         spec.model_error_scale = 0.0;
     }
-    if let Ok(v) = std::env::var("CROKF_MODEL_ERROR_SCALE") {
-        spec.model_error_scale = v
-            .parse()
-            .ok()
-            .filter(|c: &f64| c.is_finite() && *c >= 0.0)
-            .ok_or_else(|| format!("CROKF_MODEL_ERROR_SCALE={v}: not a factor ≥ 0"))?;
+    if let Some(c) = flags().model_error_scale {
+        spec.model_error_scale = c;
     }
     let rho = crokf_compile::model_file::tier::refilter(&full, &mut model, &spec)?;
     eprintln!("{arg}: tier filter recomputed, closed-loop spectral radius {rho:.6}");
@@ -684,14 +782,14 @@ struct RunFigures {
 /// What one run feeds the estimator at each step: the scenario's inputs (every load channel 0
 /// when the run withholds the loads, gravity kept) and the markers, the reference's sensor
 /// displacements plus Gaussian noise of each channel's σ (the model's filter's R) times
-/// `CROKF_NOISE_SCALE`, drawn from `seed` one channel after another.
+/// `--noise-scale`, drawn from `seed` one channel after another.
 struct Drive<'a> {
     reference: &'a Reference,
     /// Per input channel: zeroed in this run.
     zeroed: Vec<bool>,
     /// Per measurement channel: its index in a step's sensor row (3 per sensor) and noise σ.
     channels: Vec<(usize, f64)>,
-    /// `CROKF_MARKER_LOST`: the lost sensor and the records without its values.
+    /// `--marker-lost`: the lost sensor and the records without its values.
     lost: Option<(usize, Range<usize>)>,
     rng: Gaussian,
 }
@@ -704,9 +802,9 @@ impl<'a> Drive<'a> {
         seed: u64,
         tip: usize,
     ) -> Result<Self, Box<dyn std::error::Error>> {
-        // CROKF_NOISE_SCALE=c (a measuring aid): markers with c times the model's σ (0:
+        // --noise-scale c (a measuring aid): markers with c times the model's σ (0:
         // noise-free), the filter unchanged; separates the noise-driven part of the error.
-        let noise_scale = noise_scale()?;
+        let noise_scale = flags().noise_scale;
         let variance = &model
             .tier
             .as_ref()
@@ -786,18 +884,13 @@ fn run_model(
     let steps = reference.inputs.len();
     let mut est = Estimator::new(model)?;
     est.set_innovation_gate(None);
-    est.set_force_adaptation(std::env::var_os("CROKF_HOLD_FORCE_SIGMA").is_none());
-    est.set_covariance_recursion(std::env::var_os("CROKF_STORED_GAINS").is_none());
-    // CROKF_MARKER_PHASE=o (a measuring aid): o predictions at rest before the scenario starts,
+    est.set_force_adaptation(!flags().hold_force_sigma);
+    est.set_covariance_recursion(!flags().stored_gains);
+    // --marker-phase o (a measuring aid): o predictions at rest before the scenario starts,
     // so that sparse markers (period L) arrive at steps k ≡ L − 1 − o (mod L) instead of
     // k ≡ L − 1: the camera's clock is not synchronised with the load's start.
-    let pre: usize = match std::env::var("CROKF_MARKER_PHASE") {
-        Ok(v) => v
-            .parse()
-            .map_err(|_| format!("CROKF_MARKER_PHASE={v}: not a whole number of steps"))?,
-        Err(_) => 0,
-    };
-    let error_trace = std::env::var_os("CROKF_ERROR_TRACE").is_some();
+    let pre = flags().marker_phase;
+    let error_trace = flags().error_trace;
     let rest_inputs = vec![0.0; model.inputs.len()];
     for _ in 0..pre {
         est.predict(&rest_inputs)?;
@@ -832,7 +925,7 @@ fn run_model(
         if filtered {
             acc.innovation(&est, &y)?;
             let clock = std::time::Instant::now();
-            let trace = std::env::var_os("CROKF_TRACE").is_some() && tier.is_some();
+            let trace = flags().trace && tier.is_some();
             let norms = |s: &[f64], r: usize| {
                 let n = |a: &[f64]| a.iter().map(|x| x * x).sum::<f64>().sqrt();
                 format!(

@@ -14,7 +14,7 @@
 //! ```
 //! MODEL is a compiled model file (either tier); L defaults to the model's marker period (the
 //! phases of its filter), the offsets to 0, 4, 8, … < L, the α to 0, 0.1, …, 1. Offset o means
-//! markers at steps k ≡ L − 1 − o (mod L), as `CROKF_MARKER_PHASE=o` of `nonlinear_filter`.
+//! markers at steps k ≡ L − 1 − o (mod L), as `--marker-phase o` of `nonlinear_filter`.
 //! `CROKF_REFERENCE_CACHE=FILE` keeps the reference run in FILE (as the other drivers).
 
 use std::path::PathBuf;

@@ -2,7 +2,7 @@
 //! estimator be that is told about a withheld load only at the markers' steps?
 //!
 //! Markers every L steps (offset o: they arrive at the steps k ≡ L − 1 − o (mod L), the
-//! convention of `nonlinear_filter`'s `CROKF_MARKER_PHASE`) are all the estimator learns of a
+//! convention of `nonlinear_filter`'s `--marker-phase`) are all the estimator learns of a
 //! withheld load. Two oracles, each given far more than noisy markers of a few points can tell,
 //! show what the samples alone would allow on a recording; both step the model's own runtime
 //! ([`Estimator`]), so the model's open-loop error is in both, and both are scored as the filter
