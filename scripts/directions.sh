@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The co-rotational tier on loads in random directions (docs/corotational-tier.md §11): N unit
+# The co-rotational tier on loads in random directions (docs/results/tier.md §11): N unit
 # directions drawn uniformly on the sphere (seeded), each a scenario ramping the load group
 # LOAD to FRACTION × RANGE over RAMP s and holding it to DURATION s; the tier compiled once from
 # SCENE_TIER, then verify/examples/nonlinear_filter (open loop, filtered with the loads given

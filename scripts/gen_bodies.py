@@ -10,7 +10,7 @@
 
 Organic shapes (OpenCASCADE kernel, metres), each one volume named "body" and nothing else:
 the scenes fix, load and measure them with geometric selections, as a user with a mesh from
-elsewhere would. These bodies are measuring material for the estimation (docs/verification.md):
+elsewhere would. These bodies are measuring material for the estimation (docs/results/verification.md):
 none of them was used to derive the filter's noise model.
 
 - kidney:   a bean (five flattened spheres along an arc), held on its inner (hilum) side,

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Estimation on the held-out bodies of models/bodies/ (docs/verification.md): for each body,
+# Estimation on the held-out bodies of models/bodies/ (docs/results/verification.md): for each body,
 # compile its co-rotational tier from scene_corotational.toml as written (force σ derived by the
 # compiler) and run the filter over each scenario with 20 marker-noise draws, loads given and
 # withheld (verify/examples/nonlinear_filter.rs). Prints one summary row per run; the full

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# A marker lost for 100 steps on the held-out bodies (docs/verification.md, "A marker lost for
+# A marker lost for 100 steps on the held-out bodies (docs/results/verification.md, "A marker lost for
 # 100 steps"): each body's tip marker (nonlinear_filter's, the one that moves most: the one
 # nearest the load) gives no value for records FROM … FROM + STEPS − 1 of the press and the
 # reversal, loads given and withheld, 20 noise draws (verify/examples/nonlinear_filter with

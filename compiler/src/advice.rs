@@ -11,7 +11,7 @@
 //!
 //! The rule compares θ_g with the rotation up to which the warped tier's open-loop error stayed
 //! under 5 % against the full-order co-rotational FEM, measured on the example scenes' report
-//! scenarios with the loads scaled (`crokf-verify report --sweep`, docs/verification.md "Where the warping
+//! scenarios with the loads scaled (`crokf-verify report --sweep`, docs/results/verification.md "Where the warping
 //! approximation breaks down", r = 16): [`WARPED_5_PERCENT_BENDING_DEG`] on the bending
 //! cantilever, [`WARPED_5_PERCENT_CLAMPED_DEG`] on the doubly clamped meniscus. Up to the
 //! smaller limit both measured bodies were under 5 %; beyond the larger, neither was; between

@@ -751,7 +751,7 @@ pub struct CorotationalSpec {
     pub newton_iterations: usize,
     /// Also train on every pair of load groups loaded together, in the same and opposite
     /// directions (scenes with two or more groups; e.g. an end torque made of two groups).
-    /// Adds 2 × directions × histories runs per pair (docs/corotational-tier.md §6).
+    /// Adds 2 × directions × histories runs per pair (docs/results/tier.md §6).
     /// None: true ([`CorotationalSpec::combinations`]). Not with `case`.
     pub combinations: Option<bool>,
     /// The world directions each load group is trained along (None: the six axes and the four
@@ -765,7 +765,7 @@ pub struct CorotationalSpec {
     pub cases: Vec<TrainingCase>,
     /// Per-run basis tolerance ε (optional): after the `order` pooled POD vectors, the basis is
     /// enriched until every training run's relative projection error in the energy norm
-    /// (K-norm) is ≤ ε, at most `max_order` vectors (docs/corotational-tier.md §8). Without
+    /// (K-norm) is ≤ ε, at most `max_order` vectors (docs/results/tier.md §8). Without
     /// it, r = `order`.
     pub basis_tolerance: Option<f64>,
     /// Largest r with `basis_tolerance` (≥ `order`; default max(order, 60)).
@@ -815,7 +815,7 @@ pub fn length3(v: &[f64; 3]) -> f64 {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub enum TrainingDirections {
     /// ±x, ±y, ±z: 6 directions (the cheapest; loads off these axes are followed less well,
-    /// docs/corotational-tier.md §11).
+    /// docs/results/tier.md §11).
     Axes,
     /// ±x, ±y, ±z and the four diagonals (1, 1, 1), (1, −1, −1), (−1, 1, −1), (−1, −1, 1)
     /// (normalised): 10 directions. Axis runs never load two components together, so the
@@ -889,7 +889,7 @@ pub const DEFAULT_ECSW_TOLERANCE: f64 = 5e-3;
 pub const DEFAULT_MODEL_ERROR_SCALE: f64 = 1.0;
 
 /// Default `[reduction.corotational] max_rotation`, degrees: the largest element rotation a
-/// training snapshot keeps, chosen on the cuts it makes (docs/corotational-tier.md §12).
+/// training snapshot keeps, chosen on the cuts it makes (docs/results/tier.md §12).
 pub const DEFAULT_MAX_ROTATION: f64 = 120.0;
 
 impl CorotationalSpec {

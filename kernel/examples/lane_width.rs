@@ -1,4 +1,4 @@
-//! What the wider registers can give at most (not a test; numbers for docs/benchmarks.md): the
+//! What the wider registers can give at most (not a test; numbers for docs/results/benchmarks.md): the
 //! time of the same count of f64 lane operations on AVX2 (4 lanes per instruction) and AVX-512
 //! (8 lanes), for the operations the blocked force is made of: fused multiply–add (the gather,
 //! Kₑ local and the scatter), division and square root (the polar decomposition). Each loop

@@ -220,7 +220,7 @@ mod avx512 {
         const LANES: usize = 8;
         // 32 registers of 8 lanes: all 12 rows of the gather at once (24 accumulators), the
         // whole force across the scatter. Against 3 gather rows: the meniscus tier's force
-        // evaluation 8.7 → 7.6 µs on a Zen 5 (`tier_step`, docs/benchmarks.md).
+        // evaluation 8.7 → 7.6 µs on a Zen 5 (`tier_step`, docs/results/benchmarks.md).
         const GATHER_ROWS: usize = 12;
         const SCATTER_ROWS: usize = 12;
         #[inline(always)]

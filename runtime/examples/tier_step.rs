@@ -1,5 +1,5 @@
 //! Cost per step of the co-rotational tier (docs/design.md §10) on a compiled model file (not a
-//! test; numbers for docs/corotational-tier.md):
+//! test; numbers for docs/results/tier.md):
 //!
 //! `cargo run --release -p crokf-runtime --example tier_step -- MODEL.crokf INPUT PEAK RAMP STEPS`
 //!

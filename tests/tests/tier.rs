@@ -1836,7 +1836,7 @@ fn the_30hz_filter_survives_a_fast_press_it_is_not_told_of() {
         );
         // 4.7–6.4 % for seeds 1–3 (the markers' own noise is 3 % of their displacement). The
         // scene trains along the axes; with the default diagonals at r = 20 seeds 1–2 gave
-        // 6.4 % and 11.3 % (docs/corotational-tier.md §11).
+        // 6.4 % and 11.3 % (docs/results/tier.md §11).
         assert!(error < 0.1, "seed {seed}: {error}");
         assert!(est.state().iter().all(|v| v.is_finite()));
     }

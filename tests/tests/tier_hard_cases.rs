@@ -455,7 +455,7 @@ fn a_couple_the_markers_cannot_see_is_named() {
 /// tier size, so the fidelity rule chooses r and the cubature, in-sample (fewer than five
 /// runs): r = 30 with ECSW 1e-4, 169 of 288 elements. The end face's section turns by ≈ 50°
 /// (the corner by ≈ 31° about the rest axis: the end also moves sideways). What this replaces,
-/// measured (docs/corotational-tier.md §8): trained along the six axes (48 runs, most of them
+/// measured (docs/results/tier.md §8): trained along the six axes (48 runs, most of them
 /// one half face pushed alone by up to 750 N, 37× the beam's buckling load) the pooled POD is
 /// 95 % off at r = 16 and an energy-norm basis needs r = 100 (10.8 %); trained on the couple
 /// alone the pooled POD is 1.7 % (r = 20) and 0.64 % (r = 30) with every element, and the

@@ -1,5 +1,5 @@
 //! Candidate bases of the co-rotational tier measured on reference trajectories before and
-//! after hyper-reduction (docs/corotational-tier.md §8, docs/design.md §10 item 1): for a
+//! after hyper-reduction (docs/results/tier.md §8, docs/design.md §10 item 1): for a
 //! scene with a `[reduction.corotational]` table, the scene's own training plan is run once
 //! (cached in `--cache FILE`), then for every candidate basis
 //!
@@ -23,7 +23,7 @@
 //!
 //! `--exact`: exact integration over every element instead of ECSW (implies `--end-to-end`).
 //! `--energy`: POD and per-run errors in the energy (K) inner product instead of M;
-//! `--energy-enrich`: the pooled POD in M, the enrichment measured in K (docs/corotational-tier.md
+//! `--energy-enrich`: the pooled POD in M, the enrichment measured in K (docs/results/tier.md
 //! §8). Measuring aids (flags; an unknown flag is an error): `--compare-references` prints each
 //! scenario's reference against the first one's (the reference's own sensitivity); `--dump-end`
 //! prints the end-face nodes of the first reference at steps 50, 80, 100, 150, 200;

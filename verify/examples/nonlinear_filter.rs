@@ -1,5 +1,5 @@
 //! Open-loop and filtered error of compiled models against the full-order co-rotational FEM on
-//! a scenario (docs/design.md §10 item 5, §11.4, docs/corotational-tier.md): the runtime's
+//! a scenario (docs/design.md §10 item 5, §11.4, docs/results/tier.md): the runtime's
 //! `Estimator` on each MODEL file, three runs: open loop (the scenario's loads as inputs),
 //! filtered with the loads given, filtered with the loads withheld (every load channel 0: only
 //! the markers); filtered runs get the reference's sensor displacements plus Gaussian noise of
@@ -465,7 +465,7 @@ fn print_advice(
     Ok(())
 }
 
-/// `--marker-lost SENSOR:FROM:STEPS` (a measuring aid, docs/verification.md, a lost
+/// `--marker-lost SENSOR:FROM:STEPS` (a measuring aid, docs/results/verification.md, a lost
 /// marker): the index of sensor SENSOR among `names` (the sensors in the model's order, which
 /// is the scene's; an empty SENSOR: `tip`, the run's tip marker) and the records
 /// FROM … FROM + STEPS − 1 without its values; None without the flag.

@@ -1,4 +1,4 @@
-//! Training cost and step speed of the co-rotational tier at scale (docs/corotational-tier.md
+//! Training cost and step speed of the co-rotational tier at scale (docs/results/tier.md
 //! §6, docs/design.md §10): where the training time goes, and the tier step against the
 //! full-order co-rotational step in the same run.
 //!

@@ -4,7 +4,7 @@
 //! the hyper-reduced model against the full-order co-rotational FEM.
 //!
 //! `cargo run --release -p crokf-verify --example nonlinear_floors -- …` and
-//! `--example nonlinear_tier -- …` print the tables of `docs/corotational-tier.md`.
+//! `--example nonlinear_tier -- …` print the tables of `docs/results/tier.md`.
 
 pub mod floors;
 pub mod manifold;

@@ -305,7 +305,7 @@ impl PerRunBasis {
 
 /// A POD basis in which every training run, not only the pooled snapshot energy, is
 /// represented to the relative tolerance ε = `tolerance` (docs/design.md §10 item 1;
-/// docs/corotational-tier.md §8).
+/// docs/results/tier.md §8).
 ///
 /// With u_t the snapshots (n each, m), run k's snapshots T_k and P = V Vᵀ M the M-orthogonal
 /// projector on V, run k's relative projection error is
@@ -442,7 +442,7 @@ pub struct BasisChoice {
     /// Pooled POD vectors (M inner product), first.
     pub order: usize,
     /// Per-run tolerance ε in the energy norm, enrichment up to `max_order` columns
-    /// ([`enrich_per_run`] with K; docs/corotational-tier.md §8); None: r = `order`.
+    /// ([`enrich_per_run`] with K; docs/results/tier.md §8); None: r = `order`.
     pub tolerance: Option<f64>,
     /// Largest r with a tolerance.
     pub max_order: usize,
@@ -479,7 +479,7 @@ impl BasisChoice {
     /// appended; the result is M-orthonormalised (same span). The energy norm because the
     /// Galerkin step solves for the K-orthogonal projection, not the M-orthogonal one: on the
     /// twist hard case a basis that fits the trajectory to 1–3 % in M left the linear static
-    /// Galerkin solution 87 % off (docs/corotational-tier.md §8).
+    /// Galerkin solution 87 % off (docs/results/tier.md §8).
     pub fn choose(&self, fem: &FemModel, training: &Training) -> ChosenBasis {
         let order = self.order;
         let (mut modes, pod_values) = pod(&fem.mass, &training.snapshots, order, 1e-14);

@@ -3,7 +3,7 @@
 //! to snapshots by regularised least squares (the data-driven quadratic manifold of Geelen,
 //! Wright & Willcox 2023; Jain et al. 2017 derive W from modal derivatives instead). A
 //! candidate for loads whose response turns a part of the body far (the twist,
-//! docs/corotational-tier.md §8): a linear basis holds a rotation only to first order.
+//! docs/results/tier.md §8): a linear basis holds a rotation only to first order.
 //!
 //! Fit: q_t = VᵀM u_t, R = U − VQ (the part of every snapshot outside span V), K = k(Q)
 //! (p × s), W = R Kᵀ (K Kᵀ + γ tr(K Kᵀ)/p I)⁻¹. Each row of W solves its own least-squares

@@ -17,7 +17,7 @@
 //! The check is in-sample, hence optimistic: the loads are the training loads themselves and
 //! a small error does not say that other histories or load combinations are followed. A large
 //! error, though, means the tier cannot reproduce even what it was trained on (the twist hard
-//! case of docs/corotational-tier.md §8), which nothing else in the compile measures. Runs are
+//! case of docs/results/tier.md §8), which nothing else in the compile measures. Runs are
 //! computed `threads` at a time and gathered by run index: the figures do not depend on the
 //! thread count.
 

@@ -18,7 +18,7 @@
 //! (k = 0 … N−1, N = round(duration/Δt)) holds f(kΔt); a snapshot is kept after every
 //! `every`-th step and after the last.
 //!
-//! Cost (docs/design.md §10, training; docs/corotational-tier.md §6): the runs use
+//! Cost (docs/design.md §10, training; docs/results/tier.md §6): the runs use
 //! [`ModifiedNewton`] (a factorised Newton matrix kept while the iteration contracts; the same
 //! tolerance 1e-8 as the full-order reference, which keeps full Newton) and are computed
 //! `threads` at a time, each with sequential factorisations; each run is independent and its

@@ -14,7 +14,7 @@ pub const DT: f64 = 0.005;
 
 /// The beam's tier is trained along the six axes (`directions = "axes"`, 12 runs) to 30 N:
 /// the tests were measured on it; the default directions are measured on the held-out bodies
-/// (docs/corotational-tier.md §11) and in `compiler/src/nonlinear/training.rs`'s tests.
+/// (docs/results/tier.md §11) and in `compiler/src/nonlinear/training.rs`'s tests.
 pub const TIER: &str = "[reduction]\nmodel = \"corotational\"\n[reduction.corotational]\n\
     ranges = { tip = 30.0 }\nduration = 0.15\nevery = 2\norder = 10\necsw_tolerance = 1e-2\n\
     newton_tolerance = 1e-12\nnewton_iterations = 60\ndirections = \"axes\"\n";

@@ -1,7 +1,7 @@
 //! Open-loop Galerkin runs on a quadratic displacement manifold
 //! ([`crokf_compile::nonlinear::manifold`]), every element integrated (no hyper-reduction): a
 //! measurement of whether the manifold carries a response a linear basis does not (the twist,
-//! docs/corotational-tier.md §8), before anything is built on it.
+//! docs/results/tier.md §8), before anything is built on it.
 //!
 //! Each step searches the Wilson-θ iterate on the manifold, Û = u(q̂), and solves the full-order
 //! equation of motion projected on the manifold's tangent, P(q̂)ᵀ r = 0, by Newton with a
