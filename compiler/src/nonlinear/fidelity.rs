@@ -47,7 +47,7 @@ pub struct Rung {
 /// and × 2 with the tolerance × 1/5 and 20 elements per basis vector at most, then r × 1.5 with
 /// the tolerance × 1/50: where the cubature, not the basis, is what misses (the twist of
 /// `models/twist/`, a couple pressed into six nodes per half face: r = 30 is 6.7 % off at
-/// ECSW 1e-3 and 0.55 % at 1e-4, docs/corotational-tier.md §8).
+/// ECSW 1e-3 and 0.55 % at 1e-4, docs/results/tier.md §8).
 pub const LADDER: [Rung; 4] = [
     Rung {
         order: crate::scene::DEFAULT_TIER_ORDER,
