@@ -288,3 +288,112 @@ impl ReferenceResponses {
         out
     }
 }
+
+/// The static error of one input channel: the reduced model's steady state under a constant
+/// unit input on that channel against the full-order static response K⁻¹ b_j.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChannelStaticError {
+    /// The channel's label (`tip.x`, `gravity`).
+    pub label: String,
+    /// ‖y_r − y‖ / ‖y‖ over the sensors' and displayed nodes' displacement rows.
+    pub error: f64,
+    /// ‖y‖ of this channel over the largest ‖y‖ of the load channels (None for gravity, whose
+    /// unit is not a newton).
+    pub relative_size: Option<f64>,
+}
+
+/// Every deterministic input channel's static error ([`ChannelStaticError`]): the balanced
+/// part of `reduced` (its force states, a pure integrator, left out) at its steady state
+/// x = (I − F)⁻¹ G e_j, read on the measured rows of `rows`, against `static_outputs` (p × m,
+/// [`OutputRows::weighted`] order, [`Reductor::static_outputs`]). The standard tests load every
+/// channel of a group together, so a channel whose static gain is far below the others' can be
+/// off without the measured error showing it. None when I − F is singular (a mode with no
+/// stiffness).
+///
+/// [`Reductor::static_outputs`]: crate::Reductor::static_outputs
+pub fn channel_static_errors(
+    full: &FullOrder,
+    rows: &OutputRows,
+    reduced: &ReducedModel,
+    static_outputs: &Mat<f64>,
+) -> Option<Vec<ChannelStaticError>> {
+    use faer::linalg::solvers::Solve;
+    let rb = reduced.balanced_order;
+    let m = reduced.input.ncols();
+    if static_outputs.ncols() != m || m == 0 {
+        return None;
+    }
+    let a = Mat::from_fn(rb, rb, |i, j| {
+        f64::from(u8::from(i == j)) - reduced.transition[(i, j)]
+    });
+    let g = Mat::from_fn(rb, m, |i, j| reduced.input[(i, j)]);
+    let x = a.partial_piv_lu().solve(&g);
+    if x.col_iter().flat_map(|c| c.iter()).any(|v| !v.is_finite()) {
+        return None;
+    }
+    let measured = measured_rows(rows);
+    let mut out = Vec::with_capacity(m);
+    let mut norms = Vec::with_capacity(m);
+    for j in 0..m {
+        let (mut err, mut norm) = (0.0, 0.0);
+        for &(i, _) in &measured {
+            let approx: f64 = (0..rb).map(|k| reduced.outputs[(i, k)] * x[(k, j)]).sum();
+            let exact = static_outputs[(i, j)];
+            err += (approx - exact).powi(2);
+            norm += exact * exact;
+        }
+        norms.push(norm.sqrt());
+        out.push(ChannelStaticError {
+            label: full.operators.inputs[j].label.clone(),
+            error: if norm > 0.0 { (err / norm).sqrt() } else { 0.0 },
+            relative_size: None,
+        });
+    }
+    let is_load = |j: usize| matches!(full.operators.inputs[j].kind, InputKind::Load { .. });
+    let largest = (0..m)
+        .filter(|&j| is_load(j))
+        .map(|j| norms[j])
+        .fold(0.0f64, f64::max);
+    for (j, c) in out.iter_mut().enumerate() {
+        if is_load(j) && largest > 0.0 {
+            c.relative_size = Some(norms[j] / largest);
+        }
+    }
+    Some(out)
+}
+
+/// The static error above which a channel is named in the compile report.
+pub const CHANNEL_STATIC_NOTE_ABOVE: f64 = 0.02;
+
+/// The compile note naming the channels whose static error is above
+/// [`CHANNEL_STATIC_NOTE_ABOVE`] (None when none is), largest first.
+pub fn channel_static_note(errors: &[ChannelStaticError], order: usize) -> Option<String> {
+    let mut above: Vec<&ChannelStaticError> = errors
+        .iter()
+        .filter(|c| c.error > CHANNEL_STATIC_NOTE_ABOVE)
+        .collect();
+    if above.is_empty() {
+        return None;
+    }
+    above.sort_by(|a, b| b.error.total_cmp(&a.error));
+    let listed: Vec<String> = above
+        .iter()
+        .map(|c| {
+            let size = c.relative_size.map_or(String::new(), |s| {
+                format!(
+                    " (its static response {:.2e} of the largest load channel's)",
+                    s
+                )
+            });
+            format!("'{}' {:.1} %{size}", c.label, 100.0 * c.error)
+        })
+        .collect();
+    Some(format!(
+        "static error per input channel above {:.0} % at r = {order} (the reduced model's steady \
+         state under a constant unit input against the full-order K⁻¹b, sensors and displayed \
+         nodes): {}; the measured error and the order rule load the channels of a group \
+         together and do not show it; a larger order (--order) follows such a channel",
+        100.0 * CHANNEL_STATIC_NOTE_ABOVE,
+        listed.join(", ")
+    ))
+}

@@ -101,6 +101,15 @@ pub fn compile_reduced(
     notes.extend(reductor.basis.warnings.iter().cloned());
     notes.extend(reduced.warnings.iter().cloned());
     notes.extend(order_note);
+    notes.extend(
+        crate::accuracy::channel_static_errors(
+            full,
+            &reductor.rows,
+            &reduced,
+            reductor.static_outputs(),
+        )
+        .and_then(|e| crate::accuracy::channel_static_note(&e, reduced.balanced_order)),
+    );
     if full.scene.scene.time.scheme == crate::scene::Scheme::Exact {
         notes.push(format!(
             "time scheme exact: each mode's response to the load held over the step \

@@ -72,3 +72,72 @@ fn the_exact_step_removes_the_time_steps_error() {
         );
     }
 }
+
+/// Each input channel's static error (`accuracy::channel_static_errors`) on the cantilever at
+/// r = 22 (its order rule's choice): the reduced model stepped to rest under a constant unit
+/// input on the channel (independent of the steady-state solve), against the full-order static
+/// solve K⁻¹ b_j (`stepping::linear::static_solve`, not the modal stage's K⁻¹B), both read on the
+/// sensors and displayed nodes; the weak axial channel is named in the note, the bending ones
+/// are not.
+#[test]
+fn each_channels_static_error_is_measured_and_a_weak_one_named() {
+    use crokf_compile::stepping::linear::static_solve;
+    let mut timer = StageTimer::default();
+    let full = FullOrder::build(&cantilever(), &mut timer).unwrap();
+    let reductor = Reductor::new(&full, None, &mut timer).unwrap();
+    let reduced = reductor.reduce(Order::Fixed(22)).unwrap();
+    let errors =
+        accuracy::channel_static_errors(&full, &reductor.rows, &reduced, reductor.static_outputs())
+            .expect("a stiff body has a steady state");
+    let rows = &reductor.rows;
+    let weighted = rows.weighted();
+    // The sensors' and displayed nodes' displacement rows.
+    let mut measured: Vec<usize> = (0..rows.sensors.len())
+        .flat_map(|s| (0..3).map(move |c| rows.sensor_row(s) + c))
+        .collect();
+    for (k, set) in rows.node_sets.iter().enumerate() {
+        measured.extend((0..set.len()).flat_map(|i| (0..3).map(move |c| rows.node_row(k, i) + c)));
+    }
+    let rb = reduced.balanced_order;
+    for (j, channel) in full.operators.inputs.iter().enumerate() {
+        let u = static_solve(&full.fem, &channel.column).unwrap();
+        // The reduced model's state after many steps at a constant unit input.
+        let mut x = vec![0.0; rb];
+        for _ in 0..20_000 {
+            x = (0..rb)
+                .map(|i| {
+                    (0..rb)
+                        .map(|k| reduced.transition[(i, k)] * x[k])
+                        .sum::<f64>()
+                        + reduced.input[(i, j)]
+                })
+                .collect();
+        }
+        let (mut err, mut norm) = (0.0, 0.0);
+        for &i in &measured {
+            let exact: f64 = weighted[i].0.iter().map(|&(d, w)| w * u[d]).sum();
+            let approx: f64 = (0..rb).map(|k| reduced.outputs[(i, k)] * x[k]).sum();
+            err += (approx - exact).powi(2);
+            norm += exact * exact;
+        }
+        let stepped = (err / norm).sqrt();
+        eprintln!(
+            "{}: static error {:.3e} (stepped to rest: {stepped:.3e}), size {:?}",
+            channel.label, errors[j].error, errors[j].relative_size
+        );
+        assert_eq!(errors[j].label, channel.label);
+        assert!(
+            (stepped - errors[j].error).abs() <= 1e-6 + 1e-3 * stepped,
+            "{}: {stepped:e} stepped, {:e} solved",
+            channel.label,
+            errors[j].error
+        );
+        if channel.label == "tip.x" {
+            assert!(stepped > 0.02, "{stepped}");
+        }
+    }
+    let note = accuracy::channel_static_note(&errors, rb).expect("a channel above 2 %");
+    eprintln!("{note}");
+    assert!(note.contains("'tip.x'"), "{note}");
+    assert!(!note.contains("'tip.z'"), "{note}");
+}
