@@ -24,7 +24,12 @@ import os
 import sys
 import tomllib
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.dirname(os.path.abspath(__file__))
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
+from mesh_common import read_msh41  # noqa: E402
+
+ROOT = os.path.dirname(HERE)
 MODEL = os.path.join(ROOT, "models", "meniscus")
 GEO = os.path.join(MODEL, "meniscus.geo")
 MSH = os.path.join(MODEL, "meniscus.msh")
@@ -51,71 +56,6 @@ def generate():
     gmsh.option.setNumber("Mesh.SaveAll", 0)
     gmsh.write(MSH)
     gmsh.finalize()
-
-
-def read_msh41_ascii(path):
-    """Nodes {tag: (x, y, z)}, elements by physical group name {name: (dim, [node tag tuples])}."""
-    with open(path) as f:
-        lines = f.read().split("\n")
-    sections = {}
-    i = 0
-    while i < len(lines):
-        line = lines[i].strip()
-        if line.startswith("$") and not line.startswith("$End"):
-            name = line[1:]
-            j = lines.index("$End" + name, i)
-            sections[name] = lines[i + 1 : j]
-            i = j
-        i += 1
-    fmt = sections["MeshFormat"][0].split()
-    if fmt[0] != "4.1" or fmt[1] != "0":
-        raise SystemExit(f"{path}: expected MSH 4.1 ASCII, got {fmt}")
-
-    names = {}
-    for line in sections["PhysicalNames"][1:]:
-        dim, tag, name = line.split(maxsplit=2)
-        names[(int(dim), int(tag))] = name.strip('"')
-
-    # $Entities: physical tags of each (dim, entity tag).
-    ent = sections["Entities"]
-    counts = [int(v) for v in ent[0].split()]
-    phys = {}
-    row = 1
-    for dim in range(4):
-        for _ in range(counts[dim]):
-            v = ent[row].split()
-            row += 1
-            tag = int(v[0])
-            k = 4 if dim == 0 else 7  # point: tag x y z; others: tag + bounding box
-            nphys = int(v[k])
-            phys[(dim, tag)] = [int(t) for t in v[k + 1 : k + 1 + nphys]]
-
-    nodes = {}
-    nd = sections["Nodes"]
-    nblocks = int(nd[0].split()[0])
-    row = 1
-    for _ in range(nblocks):
-        _, _, _, n = (int(v) for v in nd[row].split())
-        row += 1
-        tags = [int(nd[row + k]) for k in range(n)]
-        row += n
-        for k in range(n):
-            nodes[tags[k]] = tuple(float(v) for v in nd[row + k].split())
-        row += n
-
-    groups = {}
-    el = sections["Elements"]
-    nblocks = int(el[0].split()[0])
-    row = 1
-    for _ in range(nblocks):
-        dim, etag, etype, n = (int(v) for v in el[row].split())
-        row += 1
-        conn = [tuple(int(v) for v in el[row + k].split()[1:]) for k in range(n)]
-        row += n
-        for p in phys.get((dim, etag), []):
-            name = names.get((dim, p), f"{dim}:{p}")
-            groups.setdefault(name, (dim, etype, []))[2].extend(conn)
-    return nodes, groups
 
 
 def sub(a, b):
@@ -161,7 +101,8 @@ def check():
         print(("ok    " if cond else "FAIL  ") + msg)
         ok = ok and cond
 
-    nodes, groups = read_msh41_ascii(MSH)
+    mesh = read_msh41(MSH)
+    nodes, groups = mesh.nodes, mesh.groups
     needed = {"meniscus", "anterior_horn", "posterior_horn", "probe", "upper", "surface", "lower"}
     sensors = {}
     for path in SCENES:

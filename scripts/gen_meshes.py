@@ -25,41 +25,20 @@ import sys
 
 import gmsh
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.dirname(os.path.abspath(__file__))
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
+from mesh_common import kuhn_cube  # noqa: E402
+
+ROOT = os.path.dirname(HERE)
 FIXTURES = os.path.join(ROOT, "compiler", "tests", "fixtures")
 CANTILEVER = os.path.join(ROOT, "models", "cantilever")
 
 
 def cube_tets():
     """Node tags 1..8 of the cube corners (tag = 1 + i + 2j + 4k) and the 6 Kuhn tets."""
-    coords = []
-    for k in (0, 1):
-        for j in (0, 1):
-            for i in (0, 1):
-                coords.append((float(i), float(j), float(k)))
-
-    def tag(p):
-        return 1 + p[0] + 2 * p[1] + 4 * p[2]
-
-    tets = []
-    for perm in itertools.permutations(range(3)):
-        p = [0, 0, 0]
-        path = [tag(p)]
-        for axis in perm:
-            p[axis] = 1
-            path.append(tag(p))
-        # Orient for positive volume: det[x1-x0, x2-x0, x3-x0] > 0.
-        x = [coords[t - 1] for t in path]
-        d = [[x[r][c] - x[0][c] for c in range(3)] for r in (1, 2, 3)]
-        det = (
-            d[0][0] * (d[1][1] * d[2][2] - d[1][2] * d[2][1])
-            - d[0][1] * (d[1][0] * d[2][2] - d[1][2] * d[2][0])
-            + d[0][2] * (d[1][0] * d[2][1] - d[1][1] * d[2][0])
-        )
-        if det < 0:
-            path[2], path[3] = path[3], path[2]
-        tets.append(path)
-    return coords, tets
+    coords, tets = kuhn_cube()
+    return coords, [[t + 1 for t in tet] for tet in tets]
 
 
 def boundary_faces(coords, tets):

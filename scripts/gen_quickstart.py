@@ -34,7 +34,12 @@ import subprocess
 import sys
 import tempfile
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.dirname(os.path.abspath(__file__))
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
+from mesh_common import read_msh41, tet_census  # noqa: E402
+
+ROOT = os.path.dirname(HERE)
 MODEL = os.path.join(ROOT, "models", "quickstart")
 MSH = os.path.join(MODEL, "finger.msh")
 MAX_TETS = 3000
@@ -101,58 +106,13 @@ def generate():
     return cad_volume
 
 
-def read_msh41(path):
-    """Physical names, node coordinates {tag: (x, y, z)} and tetrahedra of an MSH 4.1 ASCII file
-    (plain Python)."""
-    with open(path) as f:
-        lines = [l.strip() for l in f]
-    names = []
-    if "$PhysicalNames" in lines:
-        i = lines.index("$PhysicalNames")
-        names = lines[i + 2:i + 2 + int(lines[i + 1])]
-    i = lines.index("$Nodes")
-    nblocks = int(lines[i + 1].split()[0])
-    i += 2
-    nodes = {}
-    for _ in range(nblocks):
-        n = int(lines[i].split()[3])
-        tags = [int(lines[i + 1 + k]) for k in range(n)]
-        for k, tag in enumerate(tags):
-            nodes[tag] = tuple(float(v) for v in lines[i + 1 + n + k].split())
-        i += 1 + 2 * n
-    i = lines.index("$Elements")
-    nblocks = int(lines[i + 1].split()[0])
-    i += 2
-    tets = []
-    for _ in range(nblocks):
-        _, _, etype, n = (int(v) for v in lines[i].split())
-        for k in range(n):
-            vals = [int(v) for v in lines[i + 1 + k].split()]
-            if etype == 4:
-                tets.append(tuple(vals[1:5]))
-        i += 1 + n
-    return names, nodes, tets
-
-
 def check(cad_volume=None):
-    names, nodes, tets = read_msh41(MSH)
+    mesh = read_msh41(MSH)
+    nodes, tets = mesh.nodes, mesh.tets
+    # The physical names as the lines of $PhysicalNames ('3 1 "tissue"'), for the message.
+    names = [f'{dim} {tag} "{name}"' for (dim, tag), name in mesh.names.items()]
     ok = True
-    total = 0.0
-    worst = math.inf
-    faces = {}
-    for t in tets:
-        a, b, c, d = (nodes[n] for n in t)
-        u = [b[k] - a[k] for k in range(3)]
-        v = [c[k] - a[k] for k in range(3)]
-        w = [d[k] - a[k] for k in range(3)]
-        det = (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
-               + u[2] * (v[0] * w[1] - v[1] * w[0]))
-        total += det / 6.0
-        worst = min(worst, det / 6.0)
-        for f in ((t[0], t[1], t[2]), (t[0], t[1], t[3]), (t[0], t[2], t[3]), (t[1], t[2], t[3])):
-            key = tuple(sorted(f))
-            faces[key] = faces.get(key, 0) + 1
-    boundary = {n for f, k in faces.items() if k == 1 for n in f}
+    total, worst, boundary = tet_census(nodes, tets)
     print(f"{len(tets)} tetrahedra, {len(nodes)} nodes, {len(boundary)} boundary nodes, "
           f"volume {total:.1f} mm^3, smallest signed volume {worst:.3e} mm^3")
     if names:

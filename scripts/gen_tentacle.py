@@ -26,7 +26,12 @@ import math
 import os
 import sys
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.dirname(os.path.abspath(__file__))
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
+from mesh_common import read_msh41, tet_census  # noqa: E402
+
+ROOT = os.path.dirname(HERE)
 MODEL = os.path.join(ROOT, "models", "tentacle")
 MSH = os.path.join(MODEL, "tentacle.msh")
 
@@ -107,54 +112,11 @@ def generate():
     return cad_volume
 
 
-def read_msh41_tets(path):
-    """Node coordinates {tag: (x, y, z)} and tetrahedra [(n0, n1, n2, n3)] of an MSH 4.1 ASCII
-    file (plain Python)."""
-    with open(path) as f:
-        lines = [l.strip() for l in f]
-    i = lines.index("$Nodes")
-    nblocks = int(lines[i + 1].split()[0])
-    i += 2
-    nodes = {}
-    for _ in range(nblocks):
-        n = int(lines[i].split()[3])
-        tags = [int(lines[i + 1 + k]) for k in range(n)]
-        for k, tag in enumerate(tags):
-            nodes[tag] = tuple(float(v) for v in lines[i + 1 + n + k].split())
-        i += 1 + 2 * n
-    i = lines.index("$Elements")
-    nblocks = int(lines[i + 1].split()[0])
-    i += 2
-    tets = []
-    for _ in range(nblocks):
-        _, _, etype, n = (int(v) for v in lines[i].split())
-        for k in range(n):
-            vals = [int(v) for v in lines[i + 1 + k].split()]
-            if etype == 4:
-                tets.append(tuple(vals[1:5]))
-        i += 1 + n
-    return nodes, tets
-
-
 def check(cad_volume=None):
-    nodes, tets = read_msh41_tets(MSH)
+    mesh = read_msh41(MSH)
+    nodes, tets = mesh.nodes, mesh.tets
     ok = True
-    total = 0.0
-    worst = math.inf
-    faces = {}
-    for t in tets:
-        a, b, c, d = (nodes[n] for n in t)
-        u = [b[k] - a[k] for k in range(3)]
-        v = [c[k] - a[k] for k in range(3)]
-        w = [d[k] - a[k] for k in range(3)]
-        det = (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
-               + u[2] * (v[0] * w[1] - v[1] * w[0]))
-        total += det / 6.0
-        worst = min(worst, det / 6.0)
-        for f in ((t[0], t[1], t[2]), (t[0], t[1], t[3]), (t[0], t[2], t[3]), (t[1], t[2], t[3])):
-            key = tuple(sorted(f))
-            faces[key] = faces.get(key, 0) + 1
-    boundary = {n for f, k in faces.items() if k == 1 for n in f}
+    total, worst, boundary = tet_census(nodes, tets)
     print(f"{len(tets)} tetrahedra, {len(nodes)} nodes, {len(boundary)} boundary nodes, "
           f"volume {total:.6e} m^3, smallest signed volume {worst:.3e} m^3")
     if worst <= 0.0:

@@ -18,37 +18,23 @@ Files (all the same mesh):
   cube_10.msh         gmsh, MSH 1.0, from cube_41_ascii.msh (physical tags, no names)
 """
 
-import itertools
 import os
 import struct
+import sys
 
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.dirname(os.path.abspath(__file__))
+if HERE not in sys.path:
+    sys.path.insert(0, HERE)
+from mesh_common import kuhn_cube  # noqa: E402
+
+ROOT = os.path.dirname(HERE)
 FIXTURES = os.path.join(ROOT, "compiler", "tests", "fixtures")
 
 
 def cube():
-    coords = []
-    for k in (0, 1):
-        for j in (0, 1):
-            for i in (0, 1):
-                coords.append((float(i), float(j), float(k)))
-
-    def pid(p):
-        return p[0] + 2 * p[1] + 4 * p[2]
-
-    tets = []
-    for perm in itertools.permutations(range(3)):
-        p = [0, 0, 0]
-        path = [pid(p)]
-        for axis in perm:
-            p[axis] = 1
-            path.append(pid(p))
-        x = np.array([coords[t] for t in path])
-        if np.linalg.det(x[1:] - x[0]) < 0:
-            path[2], path[3] = path[3], path[2]
-        tets.append(path)
+    coords, tets = kuhn_cube()
     bottom = [[0, 1, 3], [0, 3, 2]]
     return np.array(coords), np.array(tets), np.array(bottom)
 
