@@ -34,10 +34,7 @@ use sha2::{Digest, Sha256};
 use crate::full_order::FullOrder;
 use crate::stepping::NewtonStats;
 
-use super::training::{
-    check_plan, gather, plan_groups, run_case, run_indexed, run_one, RunResult, Training,
-    TrainingPlan,
-};
+use super::training::{run_case, train_each, RunResult, Training, TrainingPlan};
 use super::NonlinearError;
 
 /// Version of the case file layout.
@@ -101,50 +98,30 @@ pub fn train_cached(
     cache: &CaseCache,
     progress: &mut dyn FnMut(usize, usize, &str),
 ) -> Result<Training, NonlinearError> {
-    check_plan(plan)?;
-    let groups = plan_groups(full, plan)?;
-    let started = std::time::Instant::now();
-    let runs = plan.runs();
     let list = cases(full, plan);
     let snapshots = plan.snapshot_count(full.wilson.dt);
     let dofs = full.fem.dof_count();
-    let outcomes = run_indexed(
-        runs.len(),
-        plan.threads,
-        |k| {
-            let case = &list[k];
-            let mut notes = Vec::new();
-            match cache.lookup(case, dofs, snapshots) {
-                Lookup::Found(result) => return (result, true, notes),
-                Lookup::Missing => {}
-                Lookup::Unusable(why) => notes.push(format!("{why}; case run again")),
-            }
-            let result = run_one(full, plan, &groups, &runs[k]);
-            if let Err(e) = cache.store(case, &result) {
-                notes.push(format!(
-                    "training case '{}' not stored in the cache: {e}",
-                    case.label
-                ));
-            }
-            (result, false, notes)
-        },
-        |k| progress(k, runs.len(), &runs[k].label),
-    );
-    let mut cached = 0;
-    let mut notes = Vec::new();
-    let results = outcomes
-        .into_iter()
-        .map(|o| {
-            o.map(|(result, from_cache, n)| {
-                cached += usize::from(from_cache);
-                notes.extend(n);
-                result
-            })
-        })
-        .collect();
-    let mut training = gather(full, plan, &runs, results, started);
-    training.cached = cached;
-    training.cache_notes = notes;
+    let (mut training, extra) = train_each(full, plan, progress, |k, compute| {
+        let case = &list[k];
+        let mut notes = Vec::new();
+        match cache.lookup(case, dofs, snapshots) {
+            Lookup::Found(result) => return (result, (true, notes)),
+            Lookup::Missing => {}
+            Lookup::Unusable(why) => notes.push(format!("{why}; case run again")),
+        }
+        let result = compute();
+        if let Err(e) = cache.store(case, &result) {
+            notes.push(format!(
+                "training case '{}' not stored in the cache: {e}",
+                case.label
+            ));
+        }
+        (result, (false, notes))
+    })?;
+    for (from_cache, notes) in extra.into_iter().flatten() {
+        training.cached += usize::from(from_cache);
+        training.cache_notes.extend(notes);
+    }
     Ok(training)
 }
 

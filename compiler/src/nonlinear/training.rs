@@ -535,17 +535,38 @@ pub fn train(
     plan: &TrainingPlan,
     progress: &mut dyn FnMut(usize, usize, &str),
 ) -> Result<Training, NonlinearError> {
+    train_each(full, plan, progress, |_, compute| (compute(), ())).map(|(training, _)| training)
+}
+
+/// The skeleton of [`train`] and [`cases::train_cached`](super::cases::train_cached): the plan
+/// checked, its runs made on `plan.threads` threads and gathered. Run k's result is what
+/// `each(k, compute)` returns, `compute()` being the run itself (a caller may return a result
+/// it has from elsewhere instead), with a value of the caller's per run (None for a run that
+/// did not finish).
+pub(crate) fn train_each<T: Send>(
+    full: &FullOrder,
+    plan: &TrainingPlan,
+    progress: &mut dyn FnMut(usize, usize, &str),
+    each: impl Fn(usize, &dyn Fn() -> RunResult) -> (RunResult, T) + Sync,
+) -> Result<(Training, Vec<Option<T>>), NonlinearError> {
     check_plan(plan)?;
     let groups = plan_groups(full, plan)?;
     let started = std::time::Instant::now();
     let runs = plan.runs();
-    let results = run_indexed(
+    let outcomes = run_indexed(
         runs.len(),
         plan.threads,
-        |k| run_one(full, plan, &groups, &runs[k]),
+        |k| each(k, &|| run_one(full, plan, &groups, &runs[k])),
         |k| progress(k, runs.len(), &runs[k].label),
     );
-    Ok(gather(full, plan, &runs, results, started))
+    let (results, extra): (Vec<Option<RunResult>>, Vec<Option<T>>) = outcomes
+        .into_iter()
+        .map(|o| match o {
+            Some((result, value)) => (Some(result), Some(value)),
+            None => (None, None),
+        })
+        .unzip();
+    Ok((gather(full, plan, &runs, results, started), extra))
 }
 
 /// The result of one training run: its snapshots (each n, m) and Newton counters, or why it
