@@ -11,7 +11,9 @@ use crokf_compile::fem::{sparse_mul, FemModel};
 use crokf_compile::mesh::procedural::box_mesh;
 use crokf_compile::nonlinear::basis::{m_orthonormalise, pod, projection_errors};
 use crokf_compile::nonlinear::ecsw::{nnls, sample_elements, EcswOptions};
-use crokf_compile::nonlinear::reduced::{ReducedModel, ReducedNewton, ReducedStepper, Refresh};
+use crokf_compile::nonlinear::reduced::{
+    HyperReducedModel, ReducedNewton, ReducedStepper, Refresh,
+};
 use crokf_compile::scene::Scene;
 use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, Simulator};
 use nalgebra::{DMatrix, DVector, Rotation3, Vector3};
@@ -98,7 +100,8 @@ fn full_basis_with_every_element_reproduces_the_full_order_stepper() {
     let (fem, ops, scene) = model([6, 1, 1], true);
     let v = full_basis(&fem);
     let all: Vec<(usize, f64)> = (0..fem.elements.len()).map(|e| (e, 1.0)).collect();
-    let reduced = ReducedModel::new(&fem, &v, &all, WilsonTheta::from(&scene.time)).expect("model");
+    let reduced =
+        HyperReducedModel::new(&fem, &v, &all, WilsonTheta::from(&scene.time)).expect("model");
     // M_r = VᵀMV = I.
     let eye = DMatrix::<f64>::identity(v.ncols(), v.ncols());
     assert!((&reduced.mass - eye).norm() < 1e-10);
@@ -162,7 +165,8 @@ fn rigid_rotation_gives_no_reduced_force() {
     let (fem, _, scene) = model([4, 1, 1], false);
     let v = full_basis(&fem);
     let all: Vec<(usize, f64)> = (0..fem.elements.len()).map(|e| (e, 1.0)).collect();
-    let reduced = ReducedModel::new(&fem, &v, &all, WilsonTheta::from(&scene.time)).expect("model");
+    let reduced =
+        HyperReducedModel::new(&fem, &v, &all, WilsonTheta::from(&scene.time)).expect("model");
     let rot = Rotation3::from_axis_angle(&Vector3::y_axis(), 1.2);
     let mut u = vec![0.0; fem.dof_count()];
     let mut stretch = vec![0.0; fem.dof_count()];
@@ -307,9 +311,9 @@ fn ecsw_weights_reproduce_the_training_forces_to_the_tolerance() {
     assert!(sol.weights.len() < fem.elements.len() / 2);
     // The reduced force of the sampled model at a training state against all elements.
     let all: Vec<(usize, f64)> = (0..fem.elements.len()).map(|e| (e, 1.0)).collect();
-    let exact = ReducedModel::new(&fem, &basis.vectors, &all, WilsonTheta::from(&scene.time))
+    let exact = HyperReducedModel::new(&fem, &basis.vectors, &all, WilsonTheta::from(&scene.time))
         .expect("model");
-    let sampled = ReducedModel::new(
+    let sampled = HyperReducedModel::new(
         &fem,
         &basis.vectors,
         &sol.weights,
@@ -452,7 +456,8 @@ fn reduced_static_solve_with_the_full_basis_matches_the_full_order_static_solve(
     let (fem, ops, scene) = model([6, 1, 1], true);
     let v = full_basis(&fem);
     let all: Vec<(usize, f64)> = (0..fem.elements.len()).map(|e| (e, 1.0)).collect();
-    let reduced = ReducedModel::new(&fem, &v, &all, WilsonTheta::from(&scene.time)).expect("model");
+    let reduced =
+        HyperReducedModel::new(&fem, &v, &all, WilsonTheta::from(&scene.time)).expect("model");
     let mut full = CorotationalSimulator::new(
         &fem,
         WilsonTheta::from(&scene.time),

@@ -12,7 +12,9 @@ use crokf_compile::mesh::procedural::BeamScene;
 use crokf_compile::model_file::tier as section;
 use crokf_compile::nonlinear::ecsw::EcswOptions;
 use crokf_compile::nonlinear::identify::identify_noise;
-use crokf_compile::nonlinear::reduced::{ReducedModel, ReducedNewton, ReducedStepper, Refresh};
+use crokf_compile::nonlinear::reduced::{
+    HyperReducedModel, ReducedNewton, ReducedStepper, Refresh,
+};
 use crokf_compile::nonlinear::training::{self, TrainingPlan};
 use crokf_compile::nonlinear::{filter, tier};
 use crokf_compile::report::StageTimer;
@@ -61,7 +63,7 @@ fn compiled() -> &'static (Vec<u8>, crokf_formats::Model) {
 
 /// The compiler's reduced stepper on `model` with the runtime's predictor and refresh policy,
 /// Newton to 1e-12 (a reference the runtime's step is compared with).
-fn tight_stepper(model: &ReducedModel) -> ReducedStepper {
+fn tight_stepper(model: &HyperReducedModel) -> ReducedStepper {
     ReducedStepper::new(
         model.clone(),
         ReducedNewton {

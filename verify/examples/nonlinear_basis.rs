@@ -54,7 +54,9 @@ use nalgebra::DVector;
 use crokf_compile::nonlinear::basis::{self, Basis};
 use crokf_compile::nonlinear::ecsw::{self, EcswOptions};
 use crokf_compile::nonlinear::manifold::QuadraticManifold;
-use crokf_compile::nonlinear::reduced::{ReducedModel, ReducedNewton, ReducedStepper, Refresh};
+use crokf_compile::nonlinear::reduced::{
+    HyperReducedModel, ReducedNewton, ReducedStepper, Refresh,
+};
 use crokf_compile::nonlinear::training::{train, Training, TrainingPlan};
 use crokf_compile::report::StageTimer;
 use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, Simulator};
@@ -563,7 +565,7 @@ fn run() -> Result<(), Failure> {
                 "  all {} elements, weight 1 (no hyper-reduction)",
                 all.len()
             );
-            Some(ReducedModel::new(fem, &b.vectors, &all, full.wilson)?)
+            Some(HyperReducedModel::new(fem, &b.vectors, &all, full.wilson)?)
         } else if end_to_end {
             let started = std::time::Instant::now();
             let sampling = ecsw::sample_elements(
@@ -587,7 +589,7 @@ fn run() -> Result<(), Failure> {
                 sampling.relative_residual,
                 started.elapsed().as_secs_f64()
             );
-            Some(ReducedModel::new(
+            Some(HyperReducedModel::new(
                 fem,
                 &b.vectors,
                 &sampling.weights,

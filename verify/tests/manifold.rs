@@ -16,7 +16,9 @@ use nalgebra::{DMatrix, DVector};
 use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
 use crokf_compile::nonlinear::basis::{m_orthonormalise, pod};
 use crokf_compile::nonlinear::manifold::{product_count, QuadraticManifold};
-use crokf_compile::nonlinear::reduced::{ReducedModel, ReducedNewton, ReducedStepper, Refresh};
+use crokf_compile::nonlinear::reduced::{
+    HyperReducedModel, ReducedNewton, ReducedStepper, Refresh,
+};
 use crokf_compile::report::StageTimer;
 use crokf_compile::stepping::{CorotationalSimulator, NewtonOptions, Simulator};
 use crokf_compile::FullOrder;
@@ -137,7 +139,7 @@ fn on_a_linear_basis_it_is_the_reduced_galerkin_stepper_and_a_fitted_manifold_do
     assert_eq!(r, 4);
     // The reduced stepper on every element at weight 1.
     let all: Vec<(usize, f64)> = (0..full.fem.elements.len()).map(|e| (e, 1.0)).collect();
-    let model = ReducedModel::new(&full.fem, &basis.vectors, &all, full.wilson).unwrap();
+    let model = HyperReducedModel::new(&full.fem, &basis.vectors, &all, full.wilson).unwrap();
     let mut stepper = ReducedStepper::new(
         model,
         ReducedNewton {

@@ -17,7 +17,7 @@ use crate::nonlinear::filter::{
     add_force_levels, derive_force_sigma, filter_of, measured_rows, scheduled_filters,
     LinearisedTier, TierFilter,
 };
-use crate::nonlinear::reduced::ReducedModel;
+use crate::nonlinear::reduced::HyperReducedModel;
 use crate::nonlinear::tier::{point_rows, Tier};
 use crate::nonlinear::training::{History, TrainingPlan};
 use crate::nonlinear::NonlinearError;
@@ -302,12 +302,12 @@ pub fn file_matrix(m: &fmt::Matrix) -> DMatrix<f64> {
 
 /// The reduced co-rotational model of a model file's tier on the scene's mesh `full` (the
 /// sampled elements' rest geometry, Kₑ, weights and basis rows from the file, their shape
-/// gradients from the mesh): what the compiler's [`ReducedModel`] was when the file was written,
+/// gradients from the mesh): what the compiler's [`HyperReducedModel`] was when the file was written,
 /// for the consistent tangent K_N,r(q) of [`LinearisedTier::at`].
 pub fn reduced_model_of_file(
     full: &FullOrder,
     t: &fmt::CorotationalTier,
-) -> Result<ReducedModel, NonlinearError> {
+) -> Result<HyperReducedModel, NonlinearError> {
     let fem = &full.fem;
     let mut elements = Vec::with_capacity(t.elements.len());
     for e in &t.elements {
@@ -333,7 +333,7 @@ pub fn reduced_model_of_file(
             rows,
         });
     }
-    Ok(ReducedModel {
+    Ok(HyperReducedModel {
         cubature: Cubature { elements },
         mass: file_matrix(&t.mass),
         alpha: t.alpha,

@@ -1,7 +1,7 @@
 //! The cubature of the co-rotational tier's reduced internal force (docs/design.md §10, item 3):
 //! the sampled elements with their ECSW weights and what each needs to evaluate its force in
 //! the basis (rest geometry, rest stiffness, its rows of V). One object: the reduced model
-//! evaluates its forces over it ([`super::reduced::ReducedModel`]), ECSW trains it
+//! evaluates its forces over it ([`super::reduced::HyperReducedModel`]), ECSW trains it
 //! ([`Cubature::train`], [`super::ecsw`]) and the model file's tier section stores and reads it
 //! back (`crate::model_file::tier`).
 

@@ -14,7 +14,7 @@ use crate::observability::{measured_value, static_marker_response};
 use crate::outputs::Measurements;
 
 use super::levels::{design_levels, FilterLevel};
-use super::reduced::ReducedModel;
+use super::reduced::HyperReducedModel;
 use super::tier::{point_rows, Tier};
 use super::NonlinearError;
 use crate::kalman::adaptation::Statistic;
@@ -58,7 +58,7 @@ pub struct LinearisedTier {
 impl LinearisedTier {
     /// The same tier linearised at q (r) instead of rest: K_r ← K_N,r(q), the consistent
     /// reduced tangent of `model` (docs/design.md §11.5).
-    pub fn at(&self, model: &ReducedModel, q: &DVector<f64>) -> LinearisedTier {
+    pub fn at(&self, model: &HyperReducedModel, q: &DVector<f64>) -> LinearisedTier {
         LinearisedTier {
             stiffness: model.tangent(q, 0.0, true),
             ..self.clone()
@@ -176,7 +176,7 @@ pub struct TierFilter {
 /// ```
 /// Process noise: the scene's white noise channels projected on V (VᵀB_w), except those of the
 /// random-walk groups, which the force increments replace (as on the warped tier,
-/// `ReducedModel::with_force_states`). The force states have no output columns: the static
+/// `HyperReducedModel::with_force_states`). The force states have no output columns: the static
 /// response of the linearised tier to each force channel, H V K_r⁻¹ Vᵀ b, is compared with the
 /// full-order H K⁻¹ b and the worst relative residual returned (`static_residual`), so that
 /// the choice is measured on every compile.
@@ -223,7 +223,7 @@ pub fn linearised_filter(
 pub fn add_force_levels(
     filter: &mut TierFilter,
     lin: &LinearisedTier,
-    model: &ReducedModel,
+    model: &HyperReducedModel,
     noise: &NoiseModel,
     measurements: &Measurements,
 ) {
@@ -402,7 +402,7 @@ pub fn schedule_points(states: &[DVector<f64>], count: usize) -> Vec<DVector<f64
 /// a point whose tangent or DARE fails is left out (the runtime then uses its neighbours).
 pub(crate) fn scheduled_filters(
     lin: &LinearisedTier,
-    model: &ReducedModel,
+    model: &HyperReducedModel,
     points: &[DVector<f64>],
     measurements: &Measurements,
 ) -> Vec<(DVector<f64>, PeriodicSchedule, Mat<f64>)> {

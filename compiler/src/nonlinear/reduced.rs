@@ -32,10 +32,11 @@ use crate::stepping::{element_force, element_tangent};
 use super::cubature::Cubature;
 use super::NonlinearError;
 
-/// A reduced co-rotational model: what the model file would store (with the basis rows of
-/// the read-out and the training envelope).
+/// The hyper-reduced co-rotational model (basis V, ECSW cubature, reduced mass and damping):
+/// what the model file's tier section stores besides the basis rows of the read-out and the
+/// training envelope. The linear tier's reduced system is [`crate::reduced::ReducedModel`].
 #[derive(Clone, Debug)]
-pub struct ReducedModel {
+pub struct HyperReducedModel {
     /// The sampled elements and their weights.
     pub cubature: Cubature,
     /// M_r = VᵀMV (r × r, kg per q²).
@@ -48,7 +49,7 @@ pub struct ReducedModel {
     pub wilson: WilsonTheta,
 }
 
-impl ReducedModel {
+impl HyperReducedModel {
     /// Builds the model of `fem` on the basis `v` (n × r) with the sampled elements
     /// `(element, weight)`; M_r = vᵀ M v.
     pub fn new(
@@ -83,7 +84,7 @@ impl ReducedModel {
         } else {
             v.tr_mul(&mv)
         };
-        ReducedModel {
+        HyperReducedModel {
             cubature,
             mass,
             alpha: fem.alpha,
@@ -186,7 +187,7 @@ impl ReducedModel {
     }
 }
 
-impl ReducedModel {
+impl HyperReducedModel {
     /// Reduced quasi-static equilibrium f_r,int(q) = `load` (r) by Newton on K_N,r with
     /// adaptive load stepping ([`load_steps`]: an increment that does not converge in 30
     /// iterations is halved, one that converges in ≤ 6 lets the next grow by 1.5), as the
@@ -301,7 +302,7 @@ pub struct ReducedStats {
 
 /// Reduced co-rotational Wilson-θ stepper on q (module docs).
 pub struct ReducedStepper {
-    model: ReducedModel,
+    model: HyperReducedModel,
     newton: ReducedNewton,
     q: DVector<f64>,
     v: DVector<f64>,
@@ -315,7 +316,7 @@ pub struct ReducedStepper {
 
 impl ReducedStepper {
     /// At rest.
-    pub fn new(model: ReducedModel, newton: ReducedNewton) -> Result<Self, NonlinearError> {
+    pub fn new(model: HyperReducedModel, newton: ReducedNewton) -> Result<Self, NonlinearError> {
         if newton.max_iterations == 0 || newton.tolerance.is_nan() || newton.tolerance <= 0.0 {
             return Err(NonlinearError::Invalid(format!(
                 "reduced Newton: max_iterations must be ≥ 1 and tolerance > 0, got {} and {}",
@@ -338,7 +339,7 @@ impl ReducedStepper {
     }
 
     /// The model.
-    pub fn model(&self) -> &ReducedModel {
+    pub fn model(&self) -> &HyperReducedModel {
         &self.model
     }
 

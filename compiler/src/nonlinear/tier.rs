@@ -11,7 +11,7 @@ use crate::full_order::FullOrder;
 use super::basis::{Basis, BasisChoice, ChosenBasis};
 use super::cubature::Cubature;
 use super::ecsw::{EcswOptions, NnlsSolution};
-use super::reduced::ReducedModel;
+use super::reduced::HyperReducedModel;
 use super::training::{self, Training, TrainingPlan};
 use super::NonlinearError;
 
@@ -26,7 +26,7 @@ pub struct Tier {
     /// ECSW sampling.
     pub sampling: NnlsSolution,
     /// The reduced model.
-    pub model: ReducedModel,
+    pub model: HyperReducedModel,
     /// Training runs and envelope (snapshots kept).
     pub training: Training,
     /// The training snapshots' reduced coordinates q = VᵀM u (r each, in the snapshots' order).
@@ -77,7 +77,7 @@ pub fn from_training_with(
     let (cubature, sampling) =
         Cubature::train(&full.fem, &basis, &training.snapshots, ecsw_options)?;
     let t_ecsw = clock.elapsed().as_secs_f64();
-    let model = ReducedModel::with_cubature(&full.fem, &basis.vectors, cubature, full.wilson);
+    let model = HyperReducedModel::with_cubature(&full.fem, &basis.vectors, cubature, full.wilson);
     let projected: Vec<DVector<f64>> = training
         .snapshots
         .iter()

@@ -1,5 +1,5 @@
 //! Adaptive load stepping of a quasi-static solve, one rule for the full-order
-//! (`CorotationalSimulator::static_solve`) and the reduced (`ReducedModel::static_solve`)
+//! (`CorotationalSimulator::static_solve`) and the reduced (`HyperReducedModel::static_solve`)
 //! co-rotational models: the load factor λ goes from 0 to 1 in increments; an increment whose
 //! solve does not converge is halved, one that converges in at most [`FAST_ITERATIONS`] lets
 //! the next grow by 1.5; below [`SMALLEST_INCREMENT`] the solve is stuck.

@@ -23,7 +23,7 @@ use super::floors::displayed_dofs;
 use super::training;
 use super::TierError;
 use crokf_compile::nonlinear::reduced::{
-    ReducedModel, ReducedNewton, ReducedStats, ReducedStepper,
+    HyperReducedModel, ReducedNewton, ReducedStats, ReducedStepper,
 };
 
 /// The tier built from training: the compiler's (`crokf_compile::nonlinear::tier`).
@@ -168,7 +168,7 @@ pub fn open_loop(
 
 /// Median wall times (s) of one reduced force evaluation (with damping) and of one reduced
 /// tangent assembly at the reduced state `q`, over `repeats` calls each.
-pub fn component_times(model: &ReducedModel, q: &DVector<f64>, repeats: usize) -> [f64; 2] {
+pub fn component_times(model: &HyperReducedModel, q: &DVector<f64>, repeats: usize) -> [f64; 2] {
     let r = model.order();
     let velocity = vec![0.0; r];
     let mut out = vec![0.0; r];
