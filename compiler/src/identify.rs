@@ -5,7 +5,7 @@
 //! The tier of a model file, its filters (gain schedule included) recomputed for the scene's
 //! noise, runs from rest over a recording (inputs and markers in `crokf-run`'s CSV formats);
 //! its innovations after the first `skip` steps give the sample autocovariances and
-//! [`identify_noise`](crate::nonlinear::identify::identify_noise) the σ that explain them: each
+//! [`identify_noise`](als_noise::identify_noise) the σ that explain them: each
 //! estimated load's force σ_f (and rate σ_ḟ with rate states), the tier's model error as a
 //! factor on its measured covariance (the scene's `model_error_scale`, written into the copy
 //! when the recording disagrees with it) and the markers' σ as a factor on the scene's.
@@ -23,12 +23,13 @@
 //! the innovations); a markers' factor outside [`MARKER_FACTOR_RANGE`] (the markers' noise is
 //! known, so the linearised filters do not explain the innovations).
 //!
-//! The algorithm is [`crate::nonlinear::identify`]; this module is the layer around it, one
+//! The algorithm is [`als_noise`]; the rest of this module is the layer around it, one
 //! way: [`filter_run`](mod@filter_run) (the runtime's filter over a recording) ← [`identification`] (the loop
 //! over noise specs, the blocks, the verdict and the report) ← [`scene_edit`] (the identified
 //! scene's text) ← [`files`] (reading the files, checking and writing the output) ←
 //! [`command`] (the command line of `crokf-compile identify`, also `crokf-verify identify`).
 
+pub mod als_noise;
 pub mod command;
 pub mod files;
 pub mod filter_run;

@@ -6,7 +6,7 @@
 //! the warped tier's force states (`crate::reduced::ReducedModel::with_force_states`), the
 //! co-rotational tier's filter design (`crate::nonlinear::filter`), the model file's tier
 //! section (refiltering a file for a scene) and the noise identification
-//! (`crate::nonlinear::identify`).
+//! (`crate::identify::als_noise`).
 //!
 //! - per estimated load group (`force_model = "random_walk"`): 3 force states f (world force
 //!   on the co-rotational tier, the co-rotated force on the warped one, N),

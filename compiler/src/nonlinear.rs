@@ -22,14 +22,14 @@
 //!   scaled modal coordinates, gain schedule);
 //! - [`levels`]: the same filter at several levels of the force σ and the innovation statistic
 //!   the runtime moves between them with;
-//! - [`identify`]: the noise model's σ identified from a filter run's innovations;
 //! - [`self_check`]: the compiled tier re-run on its own training loads against the training
 //!   snapshots (in-sample error per run, a warning above 5 %), and a tier built without some
 //!   runs re-run on those (out of sample);
 //! - [`fidelity`]: the basis size and cubature accuracy chosen on the out-of-sample error when
 //!   the scene does not state them.
 //!
-//! The model file's tier section lives with the other sections (`crate::model_file::tier`);
+//! The model file's tier section lives with the other sections (`crate::model_file::tier`),
+//! the identification of its noise from a recording in `crate::identify` (`als_noise`);
 //! `crate::reductor::tier::TierReductor` wires the tier into a compile. The floors of candidate
 //! bases and the scenario-driven open-loop comparisons live in `crokf-verify`
 //! (`crokf_verify::nonlinear`), which reuses [`training`] and [`tier`].
@@ -40,7 +40,6 @@ pub mod cubature;
 pub mod ecsw;
 pub mod fidelity;
 pub mod filter;
-pub mod identify;
 pub mod levels;
 pub mod manifold;
 pub mod reduced;

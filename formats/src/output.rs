@@ -21,7 +21,7 @@
 //!   never touched.
 //! - Interrupts: every temporary file and staging folder is registered while it lives;
 //!   [`remove_temporaries`] removes them all (commits hold the same lock, so it never runs
-//!   in the middle of one), and with the `signals` feature [`install_interrupt_cleanup`] makes
+//!   in the middle of one), and with the `signals` feature `install_interrupt_cleanup` makes
 //!   SIGINT and SIGTERM do that and exit (status 128 + signal). [`sweep_stale_temporaries`]
 //!   removes, before a command writes, the temporaries that a process no longer running (one
 //!   killed by SIGKILL, say) left next to its outputs, and names each one it removes.

@@ -7,11 +7,11 @@
 use std::path::PathBuf;
 use std::sync::OnceLock;
 
+use crokf_compile::identify::als_noise::identify_noise;
 use crokf_compile::identify::filter_run;
 use crokf_compile::mesh::procedural::BeamScene;
 use crokf_compile::model_file::tier as section;
 use crokf_compile::nonlinear::ecsw::EcswOptions;
-use crokf_compile::nonlinear::identify::identify_noise;
 use crokf_compile::nonlinear::reduced::{
     HyperReducedModel, ReducedNewton, ReducedStepper, Refresh,
 };

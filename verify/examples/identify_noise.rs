@@ -2,7 +2,7 @@
 //! squares, docs/design.md §11.6). The tier of MODEL, its filters (gain schedule included)
 //! recomputed for SCENE's noise, runs from rest over a recording; its innovations ν = y − ŷ⁻
 //! after the first SKIP steps give the sample autocovariances, the schedule's filter and phase
-//! in use at each step give the model's, and `crokf_compile::nonlinear::identify::identify_noise`
+//! in use at each step give the model's, and `crokf_compile::identify::als_noise::identify_noise`
 //! the σ that explain them: each random-walk load's force σ_f (and rate σ_ḟ), and the markers'
 //! σ as a factor on the scene's.
 //!

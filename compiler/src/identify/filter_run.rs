@@ -1,5 +1,5 @@
 //! A filter run as the noise identification needs it (docs/design.md §11.6,
-//! [`identify_noise`](crate::nonlinear::identify::identify_noise)): the innovations of every
+//! [`identify_noise`](super::als_noise::identify_noise)): the innovations of every
 //! step and the gain-schedule filter and phase that updated it, from rest, the innovation gate
 //! off, through the runtime's [`Estimator`].
 

@@ -8,9 +8,9 @@ use std::path::Path;
 
 use crokf_formats::Model;
 
+use super::als_noise::{identify_noise, IdentifiedNoise};
 use crate::full_order::FullOrder;
 use crate::noise::{ForceSigma, NoiseSpec};
-use crate::nonlinear::identify::{identify_noise, IdentifiedNoise};
 
 use super::filter_run::filter_run;
 

@@ -1,5 +1,5 @@
 //! VTK unstructured grids: XML (`.vtu`: ASCII, base64 binary or appended raw/base64 data,
-//! zlib or LZ4 compressed) by [`super::vtu`], legacy (`.vtk`: ASCII or big-endian binary, as
+//! zlib or LZ4 compressed) by `super::vtu`, legacy (`.vtk`: ASCII or big-endian binary, as
 //! VTK writes it; legacy 5.1 files with OFFSETS/CONNECTIVITY are not read) through `vtkio` 0.7.
 //!
 //! - Node tags are the 0-based point ids and element tags the 0-based cell ids (over all pieces,
@@ -18,7 +18,7 @@
 //! spelt the NaN or infinity: `nan(ind)`, `1.#QNAN`, ...), or with fewer coordinates than it
 //! declares, is refused naming the line, the point (0-based) and the axis; in a binary file, a
 //! non-finite coordinate is named by its point, axis and byte offset. A panic inside
-//! vtkio is caught ([`super::guard`]) and reported as a parse error.
+//! vtkio is caught (`super::guard`) and reported as a parse error.
 
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -38,7 +38,7 @@ pub struct RuntimeNewton {
 
 /// The model file's tier section (docs/model-format.md): basis rows at the sensors and the
 /// displayed nodes, the sampled elements, M_r, VᵀB, the envelope and the filter `schedule`
-/// `filter` of [`linearised_filter`].
+/// `filter` of [`linearised_filter`](crate::nonlinear::filter::linearised_filter).
 pub fn tier_section(
     full: &FullOrder,
     tier: &Tier,

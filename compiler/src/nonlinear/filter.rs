@@ -1,6 +1,6 @@
 //! The co-rotational tier's filter design (docs/design.md §11.4–11.5): the reduced model
 //! linearised at rest and at training states ([`LinearisedTier`], [`LinearisedTier::at`]),
-//! augmented with the force (and rate) states of the noise model ([`super::noise`]), its DARE
+//! augmented with the force (and rate) states of the noise model ([`crate::noise`]), its DARE
 //! solved in scaled modal coordinates ([`filter_of`]), the gain schedule's operating points
 //! ([`schedule_points`]) and the checks measured on every compile (static residual of the force
 //! channels, the basis's model error at the markers): [`linearised_filter`].
@@ -22,7 +22,7 @@ use crate::noise::{Derivation, NoiseModel};
 
 /// The tier linearised at rest in reduced coordinates: everything its filter needs, which is
 /// also what the model file's tier section stores (so a filter can be recomputed from a model
-/// file for other sensors' noise or rates without retraining, [`refilter`]).
+/// file for other sensors' noise or rates without retraining, [`refilter`](crate::model_file::tier::refilter)).
 #[derive(Clone, Debug)]
 pub struct LinearisedTier {
     /// M_r (r × r, kg per q²).

@@ -78,7 +78,7 @@ impl<'a> TierReductor<'a> {
     /// ("tier_training", "tier_reduction", "tier_kalman").
     ///
     /// With `cache`, the training runs found in that case cache
-    /// ([`cases`](crate::nonlinear::cases)) are read from it and the others stored in it; what
+    /// ([`crate::nonlinear::cases`]) are read from it and the others stored in it; what
     /// it contributed is said on stderr, not in the model (a model is the same with or without
     /// a cache).
     pub fn new(

@@ -1,5 +1,5 @@
-//! Noise identification of a compiled tier's filter (docs/design.md §11.6): the σ of the noise
-//! model ([`super::noise`]) fitted to the innovations of a run of the model file's filter by
+//! Noise identification of a compiled tier's filter (docs/design.md §11.6), the algorithm of
+//! [`crate::identify`]: the σ of the noise model ([`crate::noise`]) fitted to the innovations of a run of the model file's filter by
 //! autocovariance least squares ([`crate::kalman::als`]), gain schedule included.
 
 use faer::linalg::solvers::Solve as _;
@@ -13,8 +13,8 @@ use crate::kalman;
 use crate::model_file::tier::{linearised_of_file, reduced_model_of_file};
 use crate::noise::NoiseSpec;
 
-use super::filter::scaled_system;
-use super::NonlinearError;
+use crate::nonlinear::filter::scaled_system;
+use crate::nonlinear::NonlinearError;
 
 /// What [`identify_noise`] found for one random-walk load group: σ in the scene and σ
 /// identified, for the force (N per step) and, with rate states, its rate (N/s per step).
