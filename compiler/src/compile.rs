@@ -164,7 +164,28 @@ pub fn compile_reduced(
             options.training_cache.as_deref(),
             &mut timer,
         )?;
-        let check = tier.self_check();
+        let program = crate::progress::program();
+        for line in &tier.terminal {
+            eprintln!("{program}: {line}");
+        }
+        // The self-check ([`TierReductor::new`] ran it, its cost in the stage
+        // "tier_self_check"): its summary and any warning on the terminal, then in the report.
+        let check = tier.check.clone();
+        let steps: usize = check.runs.iter().map(|r| r.steps).sum();
+        eprintln!(
+            "{program}: {} ({steps} reduced steps in {:.2} s)",
+            check.note(),
+            check.seconds
+        );
+        if let Some(warning) = check.warning() {
+            eprintln!("{program}: {warning}");
+        }
+        if let Some(held) = &tier.out_of_sample {
+            eprintln!("{program}: {}", held.note());
+            if let Some(warning) = held.warning() {
+                eprintln!("{program}: {warning}");
+            }
+        }
         let notes = &mut model.report.notes;
         notes.extend(tier.notes.iter().cloned());
         notes.push(check.note());

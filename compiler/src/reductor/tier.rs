@@ -62,6 +62,9 @@ pub struct TierReductor<'a> {
     pub size: (BasisChoice, EcswOptions),
     /// The fidelity rule's choice (None when the scene states the tier's size).
     pub fidelity: Option<fidelity::Fidelity>,
+    /// What the caller shows on the terminal and not in the report (the case cache's use and
+    /// the files it could not use), in order, each starting `warning:` or `note:`.
+    pub terminal: Vec<String>,
     /// Why the tier fails its own check, when the scene accepted it all the same
     /// (`accept_failed_check`); written into the model file (`failed_check`).
     pub failed_check: Option<String>,
@@ -117,16 +120,19 @@ impl<'a> TierReductor<'a> {
         });
         line.finish();
         let training = training.map_err(|e| fail(&e))?;
+        let mut terminal = Vec::new();
         if let Some(cache) = &cache {
-            let program = crate::progress::program();
-            for note in &training.cache_notes {
-                eprintln!("{program}: warning: {note}");
-            }
-            eprintln!(
-                "{program}: note: co-rotational training: {} of {runs} cases read from the cache {}",
+            terminal.extend(
+                training
+                    .cache_notes
+                    .iter()
+                    .map(|note| format!("warning: {note}")),
+            );
+            terminal.push(format!(
+                "note: co-rotational training: {} of {runs} cases read from the cache {}",
                 training.cached,
                 cache.dir().display()
-            );
+            ));
         }
         let mut notes = Vec::new();
         for name in spec.ranges.keys() {
@@ -263,6 +269,7 @@ impl<'a> TierReductor<'a> {
             size: (choice, ecsw),
             fidelity,
             failed_check: failed,
+            terminal,
             notes,
             measurements,
         };
@@ -438,30 +445,6 @@ impl<'a> TierReductor<'a> {
             iterations: self.spec.newton_iterations,
             state_margin: TIER_STATE_MARGIN,
         }
-    }
-
-    /// The compiled tier re-run on its training runs with the runtime's Newton settings
-    /// ([`self_check`], run by [`TierReductor::new`], its cost in the stage
-    /// "tier_self_check"): its summary and any warning on stderr.
-    pub fn self_check(&self) -> SelfCheck {
-        let check = self.check.clone();
-        let steps: usize = check.runs.iter().map(|r| r.steps).sum();
-        eprintln!(
-            "{}: {} ({steps} reduced steps in {:.2} s)",
-            crate::progress::program(),
-            check.note(),
-            check.seconds
-        );
-        if let Some(warning) = check.warning() {
-            eprintln!("{}: {warning}", crate::progress::program());
-        }
-        if let Some(held) = &self.out_of_sample {
-            eprintln!("{}: {}", crate::progress::program(), held.note());
-            if let Some(warning) = held.warning() {
-                eprintln!("{}: {warning}", crate::progress::program());
-            }
-        }
-        check
     }
 
     /// The model file's tier section ([`tier_section`]).
