@@ -2,6 +2,8 @@
 //! file (docs/design.md §1). Each stage lives in its own module; this one only calls them in
 //! order and records their costs.
 
+mod tier_notes;
+
 use std::path::Path;
 
 use crokf_formats as fmt;
@@ -188,6 +190,7 @@ pub fn compile_reduced(
         }
         let notes = &mut model.report.notes;
         notes.extend(tier.notes.iter().cloned());
+        notes.extend(tier_notes::tier_notes(&tier));
         notes.push(check.note());
         notes.extend(check.warning());
         if let Some(held) = &tier.out_of_sample {
