@@ -197,7 +197,7 @@ pub fn compile_reduced(
             notes.push(held.note());
             notes.extend(held.warning());
         }
-        model.tier = Some(tier.section());
+        model.tier = Some(tier_section(&tier));
         self_check = Some(check);
         model.validate().map_err(|e| CompileError::Tier {
             path: full.scene_path().to_path_buf(),
@@ -222,4 +222,29 @@ pub fn compile_reduced(
         sizes,
         self_check,
     })
+}
+
+/// The model file's tier section of a co-rotational tier's reductor: the file's writer
+/// ([`crate::model_file::tier::tier_section`]) on what the reductor built, the runtime's Newton
+/// settings from the scene with [`TIER_STATE_MARGIN`], and the failed check it was accepted
+/// with, if any.
+///
+/// [`TIER_STATE_MARGIN`]: crate::reductor::tier::TIER_STATE_MARGIN
+fn tier_section(tier: &TierReductor) -> fmt::CorotationalTier {
+    let newton = crate::model_file::tier::RuntimeNewton {
+        tolerance: tier.spec.newton_tolerance,
+        iterations: tier.spec.newton_iterations,
+        state_margin: crate::reductor::tier::TIER_STATE_MARGIN,
+    };
+    fmt::CorotationalTier {
+        failed_check: tier.failed_check.clone(),
+        ..crate::model_file::tier::tier_section(
+            tier.full,
+            &tier.tier,
+            &tier.plan,
+            &tier.filter,
+            tier.measurements,
+            newton,
+        )
+    }
 }

@@ -13,7 +13,6 @@ use crokf_formats as fmt;
 
 use crate::error::CompileError;
 use crate::full_order::FullOrder;
-use crate::model_file::tier::{tier_section, RuntimeNewton};
 use crate::noise::{Derivation, NoiseModel};
 use crate::nonlinear::basis::BasisChoice;
 use crate::nonlinear::cases::{self, CaseCache};
@@ -276,30 +275,6 @@ impl<'a> TierReductor<'a> {
             measurements,
         };
         Ok(reductor)
-    }
-
-    /// How the runtime steps the tier: the scene's Newton settings and [`TIER_STATE_MARGIN`].
-    pub fn runtime_newton(&self) -> RuntimeNewton {
-        RuntimeNewton {
-            tolerance: self.spec.newton_tolerance,
-            iterations: self.spec.newton_iterations,
-            state_margin: TIER_STATE_MARGIN,
-        }
-    }
-
-    /// The model file's tier section ([`tier_section`]).
-    pub fn section(&self) -> fmt::CorotationalTier {
-        fmt::CorotationalTier {
-            failed_check: self.failed_check.clone(),
-            ..tier_section(
-                self.full,
-                &self.tier,
-                &self.plan,
-                &self.filter,
-                self.measurements,
-                self.runtime_newton(),
-            )
-        }
     }
 }
 
