@@ -8,8 +8,8 @@ compiler's or the runtime's message: ``ChannelError`` (also a ``KeyError``) for 
 sensor, node set or phase the model does not have, ``InputError`` (also a ``TypeError``) for a
 value that is not a real number (complex, string, boolean). ``identify`` finds the force σ of
 a co-rotational model's estimated loads from a recording (``IdentifyError`` on a refusal).
-``training_cases`` and ``run_training_case`` expose the tier's training runs as independent
-cases; ``crokf.distributed`` runs them on Dask (``python -m crokf.distributed``).
+``training_cases``, ``run_training_case`` and ``training_case_status`` expose the tier's
+training runs as independent cases and check a cache of them; ``crokf.distributed`` runs them on Dask (``python -m crokf.distributed``).
 """
 
 from ._crokf import (
@@ -25,6 +25,7 @@ from ._crokf import (
     __version__,
     compile,
     run_training_case,
+    training_case_status,
     training_cases,
 )
 from ._crokf import identify as _identify
@@ -66,5 +67,6 @@ __all__ = [
     "compile",
     "identify",
     "run_training_case",
+    "training_case_status",
     "training_cases",
 ]

@@ -3,14 +3,18 @@
     python -m crokf.distributed SCENE -o MODEL [--workers N | --scheduler ADDRESS] [--cache DIR]
 
 The training runs of a scene's ``[reduction.corotational]`` tier are independent cases
-(``crokf-compile SCENE --list-cases``). Each missing case runs as one Dask task
-(``run_training_case``, in the worker's process, the GIL released); the client writes each
-result into the case cache as it arrives, then compiles with that cache. The model is
-byte-identical to ``crokf-compile SCENE -o MODEL``.
+(``crokf-compile SCENE --list-cases``). Each case the cache does not hold usable runs as one
+Dask task (``run_training_case``, in the worker's process, the GIL released; each worker
+process builds the scene's full-order model once and reuses it for all its cases); the client
+writes each result into the case cache as it arrives and releases it, then checks every case
+file (identity, checksum, sizes: ``training_case_status``), runs any that is not usable again on
+the cluster, and compiles with that cache. The model is byte-identical to
+``crokf-compile SCENE -o MODEL``.
 
-A worker that dies mid-case loses only that case: Dask runs it again on another worker, and
-the cases already gathered stay in the cache. An interrupted run resumes from the cache: run
-the same command again.
+A worker that dies mid-case loses only that case: Dask runs it again on another worker (up to
+``RETRIES`` times), and the cases already gathered stay in the cache. An interrupted run
+resumes from the cache: run the same command again. A case that fails on a worker (a scene or
+mesh the worker cannot read) stops the run with the worker's address and its message.
 
 Without ``--scheduler``, a ``LocalCluster`` of ``--workers`` processes (one thread each) runs
 on this machine. With ``--scheduler ADDRESS`` any ``dask.distributed`` scheduler is used
@@ -30,7 +34,13 @@ from pathlib import Path
 
 from . import _crokf
 
-__all__ = ["compile_distributed", "main"]
+__all__ = ["compile_distributed", "main", "RETRIES"]
+
+#: How many times Dask runs a case again after its worker died.
+RETRIES = 2
+
+#: Rounds of "check the case files, run the unusable ones again" before the compile.
+CHECK_ROUNDS = 2
 
 
 def _store(cache: Path, identity: str, data: bytes) -> None:
@@ -114,9 +124,16 @@ def compile_distributed(
         raise _crokf.CompileError(f"training cache {cache}: is a file, not a folder")
     cache.mkdir(parents=True, exist_ok=True)
     try:
-        missing = [c for c in cases if not (cache / f"{c[1]}.case").is_file()]
-        line = _Progress(len(cases), len(cases) - len(missing)) if progress else None
-        if missing:
+        line = None
+        for _ in range(CHECK_ROUNDS):
+            status = _crokf.training_case_status(str(scene), str(cache))
+            missing = [(index, identity) for index, identity, why in status if why is not None]
+            if not missing:
+                break
+            if line is None and progress:
+                line = _Progress(len(cases), len(cases) - len(missing))
+            elif line is not None:
+                line.done -= len(missing)
             _run_cases(scene, missing, cache, client, workers, scheduler, line)
         model, rep = _crokf.compile(str(scene), report=report, cache=str(cache))
         if output is not None:
@@ -132,6 +149,20 @@ def compile_distributed(
     finally:
         if owned_temporary is not None:
             owned_temporary.cleanup()
+
+
+def _run_case(scene: str, index: int) -> bytes:
+    """One case on a worker; a failure names the worker."""
+    try:
+        return _crokf.run_training_case(scene, index)
+    except _crokf.CrokfError as e:
+        try:
+            from distributed import get_worker
+
+            where = f"worker {get_worker().address}"
+        except (ImportError, ValueError):
+            where = "a worker"
+        raise _crokf.CompileError(f"training case {index} on {where}: {e}") from None
 
 
 def _run_cases(scene, missing, cache, client, workers, scheduler, line):
@@ -153,14 +184,19 @@ def _run_cases(scene, missing, cache, client, workers, scheduler, line):
                 own.insert(0, client)
         futures = {
             client.submit(
-                _crokf.run_training_case, str(scene), index,
-                key=f"crokf-case-{identity}", pure=False,
+                _run_case, str(scene), index,
+                key=f"crokf-case-{identity}", pure=False, retries=RETRIES,
             ): identity
-            for index, identity, _label in missing
+            for index, identity in missing
         }
         done = line.done if line else 0
-        for future in as_completed(futures):
-            _store(cache, futures[future], future.result())
+        for future in as_completed(list(futures)):
+            identity = futures.pop(future)
+            data = future.result()
+            _store(cache, identity, data)
+            # Stored: the scheduler and the worker may drop the result now, not at the end.
+            future.release()
+            del data
             done += 1
             if line:
                 line.update(done)

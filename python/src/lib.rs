@@ -580,9 +580,7 @@ fn compile<'py>(
 #[pyfunction]
 fn training_cases(py: Python<'_>, scene_path: PathBuf) -> PyResult<Vec<(usize, String, String)>> {
     py.detach(|| -> Result<Vec<(usize, String, String)>, String> {
-        let mut timer = crokf_compile::report::StageTimer::default();
-        let full =
-            crokf_compile::FullOrder::build(&scene_path, &mut timer).map_err(|e| e.to_string())?;
+        let full = shared_full_order(&scene_path)?;
         let (_, cases) = crokf_compile::nonlinear::cases::scene_cases(&full)?;
         Ok(cases
             .into_iter()
@@ -592,8 +590,90 @@ fn training_cases(py: Python<'_>, scene_path: PathBuf) -> PyResult<Vec<(usize, S
     .map_err(CompileError::new_err)
 }
 
-/// Runs training case `index` of a scene in process (the GIL released) and returns its case
-/// file's bytes, to be written as `<identity>.case` into the cache a compile reads
+/// Each training case of a scene against a case cache folder: `(index, identity, None)` when
+/// its file is there and usable (its identity, checksum and sizes are the scene's), else
+/// `(index, identity, why)` — `"missing"`, or why the file cannot be used (damaged, from
+/// another build or scene). `crokf.distributed` runs the cases that are not usable again on the
+/// cluster before compiling. Raises `CompileError` for a bad scene or cache folder.
+#[pyfunction]
+fn training_case_status(
+    py: Python<'_>,
+    scene_path: PathBuf,
+    cache: PathBuf,
+) -> PyResult<Vec<(usize, String, Option<String>)>> {
+    py.detach(|| -> Result<Vec<(usize, String, Option<String>)>, String> {
+        use crokf_compile::nonlinear::cases::{self, CaseCache, Lookup};
+        let full = shared_full_order(&scene_path)?;
+        let (plan, list) = cases::scene_cases(&full)?;
+        let store = CaseCache::open(&cache)?;
+        let snapshots = plan.snapshot_count(full.wilson.dt);
+        let dofs = full.fem.dof_count();
+        Ok(list
+            .iter()
+            .map(|case| {
+                let why = match store.lookup(case, dofs, snapshots) {
+                    Lookup::Found(_) => None,
+                    Lookup::Missing => Some("missing".to_owned()),
+                    Lookup::Unusable(why) => Some(why),
+                };
+                (case.index, case.id.clone(), why)
+            })
+            .collect())
+    })
+    .map_err(CompileError::new_err)
+}
+
+/// The full-order model of the last scene this process built, with the identity of the inputs
+/// it was built from (`shared_full_order`).
+type SharedFullOrder = (String, Arc<crokf_compile::FullOrder>);
+static FULL_ORDER: std::sync::Mutex<Option<SharedFullOrder>> = std::sync::Mutex::new(None);
+
+/// The full-order model of `scene_path`, built once per process and reused while the scene's
+/// inputs are the same: a Dask worker runs many training cases of one scene, and building the
+/// model (mesh, K, M, operators) is most of a case's set-up. The identity is the canonical
+/// path with the SHA-256 of the scene text and of every file it reads (mesh, node lists), so
+/// an edited scene or mesh is built again; one model is kept (the last).
+fn shared_full_order(
+    scene_path: &std::path::Path,
+) -> Result<Arc<crokf_compile::FullOrder>, String> {
+    let identity = inputs_identity(scene_path)?;
+    {
+        let kept = FULL_ORDER.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((id, full)) = kept.as_ref() {
+            if *id == identity {
+                return Ok(Arc::clone(full));
+            }
+        }
+    }
+    let mut timer = crokf_compile::report::StageTimer::default();
+    let full = Arc::new(
+        crokf_compile::FullOrder::build(scene_path, &mut timer).map_err(|e| e.to_string())?,
+    );
+    *FULL_ORDER.lock().unwrap_or_else(|e| e.into_inner()) = Some((identity, Arc::clone(&full)));
+    Ok(full)
+}
+
+/// The identity of a scene's inputs: its canonical path, then per file read (the scene, its
+/// mesh, its node lists) its role and the SHA-256 of its bytes. Errors name the file.
+fn inputs_identity(scene_path: &std::path::Path) -> Result<String, String> {
+    let scene = crokf_compile::scene::SceneFile::read(scene_path).map_err(|e| e.to_string())?;
+    let canonical =
+        std::fs::canonicalize(scene_path).map_err(|e| format!("{}: {e}", scene_path.display()))?;
+    let mut identity = format!(
+        "{}\0scene {}",
+        canonical.display(),
+        crokf_formats::sha256_hex(scene.text.as_bytes())
+    );
+    for (role, path) in scene.input_files() {
+        let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        identity.push_str(&format!("\0{role} {}", crokf_formats::sha256_hex(&bytes)));
+    }
+    Ok(identity)
+}
+
+/// Runs training case `index` of a scene in process (the GIL released; the scene's full-order
+/// model built once per process and reused, `shared_full_order`) and returns its case file's
+/// bytes, to be written as `<identity>.case` into the cache a compile reads
 /// (`crokf.distributed` does). A run that fails is a result too (stored as failed, as the
 /// compile would). Raises `CompileError` for a bad scene or index.
 #[pyfunction]
@@ -605,9 +685,7 @@ fn run_training_case<'py>(
     let bytes = py
         .detach(|| -> Result<Vec<u8>, String> {
             use crokf_compile::nonlinear::{cases, training};
-            let mut timer = crokf_compile::report::StageTimer::default();
-            let full = crokf_compile::FullOrder::build(&scene_path, &mut timer)
-                .map_err(|e| e.to_string())?;
+            let full = shared_full_order(&scene_path)?;
             let (plan, list) = cases::scene_cases(&full)?;
             let result = training::run_case(&full, &plan, index).map_err(|e| e.to_string())?;
             Ok(cases::encode(&list[index], &result))
@@ -1325,6 +1403,7 @@ fn _crokf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(identify, m)?)?;
     m.add_function(wrap_pyfunction!(training_cases, m)?)?;
     m.add_function(wrap_pyfunction!(run_training_case, m)?)?;
+    m.add_function(wrap_pyfunction!(training_case_status, m)?)?;
     m.add("CrokfError", py.get_type::<CrokfError>())?;
     m.add("CompileError", py.get_type::<CompileError>())?;
     m.add("ModelFileError", py.get_type::<ModelFileError>())?;

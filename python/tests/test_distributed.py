@@ -107,3 +107,39 @@ def test_the_command_line_refuses_a_scene_without_a_tier(repo, tmp_path, capsys)
     assert "crokf.distributed: error:" in err and "[reduction.corotational]" in err
     assert not (tmp_path / "m.crokf").exists()
     assert not (tmp_path / "m.crokf.cases").exists()
+
+
+def test_a_damaged_case_file_is_run_again_on_the_cluster(scene, reference, client, tmp_path):
+    cache = tmp_path / "cache"
+    compile_distributed(scene, client=client, cache=cache, report=False, progress=False)
+    status = crokf.training_case_status(str(scene), str(cache))
+    assert [why for _, _, why in status] == [None] * len(status)
+    # One file cut short, one from nowhere in its place: both named, both run again.
+    index, identity, _ = status[3]
+    damaged = cache / f"{identity}.case"
+    damaged.write_bytes(damaged.read_bytes()[:-7])
+    gone = cache / f"{status[5][1]}.case"
+    gone.unlink()
+    status = {i: why for i, _, why in crokf.training_case_status(str(scene), str(cache))}
+    assert status[5] == "missing"
+    assert status[index] is not None and str(damaged) in status[index]
+    assert sum(why is not None for why in status.values()) == 2
+    model, _ = compile_distributed(scene, client=client, cache=cache, report=False, progress=False)
+    assert model.to_bytes() == reference
+    assert all(why is None for _, _, why in crokf.training_case_status(str(scene), str(cache)))
+
+
+def test_a_changed_scene_is_built_again(scene, tmp_path):
+    # The process keeps the last scene's full-order model; an edit of the scene (or its mesh)
+    # is a new model, not the kept one.
+    first = crokf.training_cases(str(scene))
+    edited = tmp_path / "scene.toml"
+    edited.write_text(
+        scene.read_text().replace('file = "cantilever.msh"', f'file = "{scene.parent / "cantilever.msh"}"')
+        .replace("every = 5", "every = 4")
+    )
+    changed = crokf.training_cases(str(edited))
+    assert [c[1] for c in changed] != [c[1] for c in first]
+    assert crokf.training_cases(str(scene)) == first
+    edited.write_text(edited.read_text().replace("every = 4", "every = 5"))
+    assert [c[1] for c in crokf.training_cases(str(edited))] != [c[1] for c in changed]
