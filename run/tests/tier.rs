@@ -37,18 +37,19 @@ fn a_marker_missing_for_a_while_shows_in_the_sigma_and_the_summary() {
     let yp = dir.join("measurements.csv");
     std::fs::write(&yp, csv).unwrap();
     let op = dir.join("estimates.csv");
-    let out = Command::new(env!("CARGO_BIN_EXE_crokf-run"))
-        .arg(&mp)
-        .arg("--inputs")
-        .arg(&ip)
-        .arg("--measurements")
-        .arg(&yp)
-        .arg("--out")
-        .arg(&op)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
+    // crokf-run on a model file over the inputs (and the measurements when given): its stderr.
+    let replay = |model: &std::path::Path, measurements: Option<&std::path::Path>| {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_crokf-run"));
+        command.arg(model).arg("--inputs").arg(&ip);
+        if let Some(m) = measurements {
+            command.arg("--measurements").arg(m);
+        }
+        let out = command.arg("--out").arg(&op).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success(), "{stderr}");
+        stderr
+    };
+    let stderr = replay(&mp, Some(&yp));
     assert!(
         stderr.contains("the filter carried its own covariance after")
             && stderr.contains("(steps 20 … "),
@@ -81,16 +82,7 @@ fn a_marker_missing_for_a_while_shows_in_the_sigma_and_the_summary() {
     failed.tier.as_mut().unwrap().failed_check = Some(why.into());
     let fp = dir.join("failed.crokf");
     std::fs::write(&fp, crokf_formats::encode(&failed)).unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_crokf-run"))
-        .arg(&fp)
-        .arg("--inputs")
-        .arg(&ip)
-        .arg("--out")
-        .arg(&op)
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
+    let stderr = replay(&fp, None);
     assert!(
         stderr.contains("crokf-run: warning: ")
             && stderr.contains("failed.crokf")
