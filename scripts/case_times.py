@@ -22,6 +22,9 @@ def main(scenes):
         start = time.perf_counter()
         cases = crokf.training_cases(scene)
         built = time.perf_counter()
+        if not cases:
+            print(f"{scene}: no training cases; build + list {built - start:.2f} s")
+            continue
         crokf.run_training_case(scene, 0)
         first = time.perf_counter()
         crokf.run_training_case(scene, 1 % len(cases))

@@ -33,7 +33,7 @@ class Msh41(NamedTuple):
 def read_msh41(path):
     """Nodes, tetrahedra, physical names and physical groups of an MSH 4.1 ASCII file."""
     try:
-        with open(path) as f:
+        with open(path, encoding="utf-8") as f:
             lines = [l.strip() for l in f]
     except UnicodeDecodeError:
         raise SystemExit(f"{path}: not a text file (MSH 4.1 binary?); expected MSH 4.1 ASCII")

@@ -165,11 +165,10 @@ pub fn compile_reduced(
             &reductor.measurements,
             options.training_cache.as_deref(),
             &mut timer,
+            // The case cache's use, as soon as the training is done.
+            &mut |line| eprintln!("{}: {line}", crate::progress::program()),
         )?;
         let program = crate::progress::program();
-        for line in &tier.terminal {
-            eprintln!("{program}: {line}");
-        }
         // The self-check ([`TierReductor::new`] ran it, its cost in the stage
         // "tier_self_check"): its summary and any warning on the terminal, then in the report.
         let check = tier.check.clone();

@@ -5,7 +5,7 @@
 //! | offset | size | content                                   |
 //! |-------:|-----:|-------------------------------------------|
 //! | 0      | 8    | magic `b"CROKF\0\r\n"`                    |
-//! | 8      | 4    | format version, u32 (= [`FORMAT_VERSION`]) |
+//! | 8      | 4    | format version, u32 ([`version_of`]: 7, 9 or 10) |
 //! | 12     | 8    | payload length L, u64                     |
 //! | 20     | 32   | SHA-256 of the payload                    |
 //! | 52     | L    | payload: MessagePack of [`Model`], named fields |
@@ -170,8 +170,8 @@ pub enum FormatError {
     },
 }
 
-/// "model format v2, this runtime reads v3: recompile the model with crokf-compile" (or, for a newer
-/// file, "…: update the runtime").
+/// "model format v8, this runtime reads v7, v9, v10: recompile the model with crokf-compile"
+/// (or, for a newer file, "…: use a runtime that reads it, …").
 fn version_message(found: u32, supported: u32) -> String {
     let remedy = if found < supported {
         "recompile the model with crokf-compile"

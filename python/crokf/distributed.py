@@ -11,8 +11,8 @@ file (identity, checksum, sizes: ``training_case_status``), runs any that is not
 the cluster, and compiles with that cache. The model is byte-identical to
 ``crokf-compile SCENE -o MODEL``.
 
-A worker that dies mid-case loses only that case: Dask runs it again on another worker (up to
-``RETRIES`` times), and the cases already gathered stay in the cache. An interrupted run
+A worker that dies mid-case loses only that case: the scheduler runs it again on another
+worker (its ``allowed-failures``), and the cases already gathered stay in the cache. An interrupted run
 resumes from the cache: run the same command again. A case that fails on a worker (a scene or
 mesh the worker cannot read) stops the run with the worker's address and its message.
 
@@ -34,10 +34,7 @@ from pathlib import Path
 
 from . import _crokf
 
-__all__ = ["compile_distributed", "main", "RETRIES"]
-
-#: How many times Dask runs a case again after its worker died.
-RETRIES = 2
+__all__ = ["compile_distributed", "main"]
 
 #: Rounds of "check the case files, run the unusable ones again" before the compile.
 CHECK_ROUNDS = 2
@@ -65,6 +62,11 @@ class _Progress:
         self.started = time.monotonic()
         self.stream = stream
         self.tty = hasattr(stream, "isatty") and stream.isatty()
+
+    def rerun(self, count: int) -> None:
+        """``count`` cases found unusable after their run are to run again."""
+        self.done -= count
+        self.start_done -= count
 
     def update(self, done: int) -> None:
         self.done = done
@@ -123,6 +125,7 @@ def compile_distributed(
     if cache.exists() and not cache.is_dir():
         raise _crokf.CompileError(f"training cache {cache}: is a file, not a folder")
     cache.mkdir(parents=True, exist_ok=True)
+    cluster = _Cluster(client, workers, scheduler)
     try:
         line = None
         for _ in range(CHECK_ROUNDS):
@@ -133,8 +136,24 @@ def compile_distributed(
             if line is None and progress:
                 line = _Progress(len(cases), len(cases) - len(missing))
             elif line is not None:
-                line.done -= len(missing)
-            _run_cases(scene, missing, cache, client, workers, scheduler, line)
+                line.rerun(len(missing))
+            _run_cases(scene, missing, cache, cluster.client(), line)
+        else:
+            # Still unusable after its re-runs (workers of another crokf build, a cache they
+            # cannot write the same): say so instead of the compile computing them here.
+            status = _crokf.training_case_status(str(scene), str(cache))
+            bad = [(index, why) for index, _, why in status if why is not None]
+            if bad:
+                listed = "; ".join(f"case {index}: {why}" for index, why in bad[:5])
+                more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
+                raise _crokf.CompileError(
+                    f"{len(bad)} training case(s) still unusable after {CHECK_ROUNDS} rounds on "
+                    f"the cluster ({listed}{more}): do the workers run this crokf build?"
+                )
+        cluster.close()
+        # The listing and the checks kept the scene's full-order model here; the compile builds
+        # its own.
+        _crokf.forget_full_order()
         model, rep = _crokf.compile(str(scene), report=report, cache=str(cache))
         if output is not None:
             model.save(str(output))
@@ -147,6 +166,8 @@ def compile_distributed(
                 pass  # something else lives there: leave the folder
         return model, rep
     finally:
+        cluster.close()
+        _crokf.forget_full_order()
         if owned_temporary is not None:
             owned_temporary.cleanup()
 
@@ -165,44 +186,56 @@ def _run_case(scene: str, index: int) -> bytes:
         raise _crokf.CompileError(f"training case {index} on {where}: {e}") from None
 
 
-def _run_cases(scene, missing, cache, client, workers, scheduler, line):
-    from distributed import Client, LocalCluster, as_completed
+class _Cluster:
+    """The client the cases run on: the caller's, or one made at first use (to ``scheduler``,
+    else a ``LocalCluster`` of ``workers`` processes) and closed by ``close``."""
 
-    own = []
-    try:
-        if client is None:
-            if scheduler is not None:
-                client = Client(scheduler)
-                own.append(client)
+    def __init__(self, client, workers, scheduler):
+        self._client, self._workers, self._scheduler = client, workers, scheduler
+        self._own = []
+
+    def client(self):
+        if self._client is None:
+            from distributed import Client, LocalCluster
+
+            if self._scheduler is not None:
+                self._client = Client(self._scheduler)
+                self._own.append(self._client)
             else:
                 cluster = LocalCluster(
-                    n_workers=workers, threads_per_worker=1, processes=True,
+                    n_workers=self._workers, threads_per_worker=1, processes=True,
                     dashboard_address=None,
                 )
-                own.append(cluster)
-                client = Client(cluster)
-                own.insert(0, client)
-        futures = {
-            client.submit(
-                _run_case, str(scene), index,
-                key=f"crokf-case-{identity}", pure=False, retries=RETRIES,
-            ): identity
-            for index, identity in missing
-        }
-        done = line.done if line else 0
-        for future in as_completed(list(futures)):
-            identity = futures.pop(future)
-            data = future.result()
-            _store(cache, identity, data)
-            # Stored: the scheduler and the worker may drop the result now, not at the end.
-            future.release()
-            del data
-            done += 1
-            if line:
-                line.update(done)
-    finally:
-        for thing in own:
-            thing.close()
+                self._own.append(cluster)
+                self._client = Client(cluster)
+                self._own.insert(0, self._client)
+        return self._client
+
+    def close(self):
+        while self._own:
+            self._own.pop(0).close()
+
+
+def _run_cases(scene, missing, cache, client, line):
+    from distributed import as_completed
+
+    futures = {
+        client.submit(
+            _run_case, str(scene), index, key=f"crokf-case-{identity}", pure=False,
+        ): identity
+        for index, identity in missing
+    }
+    done = line.done if line else 0
+    for future in as_completed(list(futures)):
+        identity = futures.pop(future)
+        data = future.result()
+        _store(cache, identity, data)
+        # Stored: the scheduler and the worker may drop the result now, not at the end.
+        future.release()
+        del data
+        done += 1
+        if line:
+            line.update(done)
 
 
 def main(argv=None) -> int:

@@ -269,7 +269,7 @@ impl Model {
         if let Some(warning) = decoded.tier_failed_check_warning() {
             let message = std::ffi::CString::new(warning.replace('\0', " ")).unwrap_or_default();
             let category = py.get_type::<pyo3::exceptions::PyUserWarning>();
-            PyErr::warn(py, category.as_any(), &message, 2)?;
+            PyErr::warn(py, category.as_any(), &message, 1)?;
         }
         Ok(Self {
             model: Arc::new(decoded),
@@ -632,7 +632,8 @@ static FULL_ORDER: std::sync::Mutex<Option<SharedFullOrder>> = std::sync::Mutex:
 /// inputs are the same: a Dask worker runs many training cases of one scene, and building the
 /// model (mesh, K, M, operators) is most of a case's set-up. The identity is the canonical
 /// path with the SHA-256 of the scene text and of every file it reads (mesh, node lists), so
-/// an edited scene or mesh is built again; one model is kept (the last).
+/// an edited scene or mesh is built again; one model is kept (the last; `forget_full_order`
+/// drops it).
 fn shared_full_order(
     scene_path: &std::path::Path,
 ) -> Result<Arc<crokf_compile::FullOrder>, String> {
@@ -649,8 +650,19 @@ fn shared_full_order(
     let full = Arc::new(
         crokf_compile::FullOrder::build(scene_path, &mut timer).map_err(|e| e.to_string())?,
     );
-    *FULL_ORDER.lock().unwrap_or_else(|e| e.into_inner()) = Some((identity, Arc::clone(&full)));
+    // Kept only when no input changed while it was built (the build read them again).
+    if inputs_identity(scene_path)? == identity {
+        *FULL_ORDER.lock().unwrap_or_else(|e| e.into_inner()) = Some((identity, Arc::clone(&full)));
+    }
     Ok(full)
+}
+
+/// Drops the full-order model this process keeps (`shared_full_order`), so its memory is
+/// freed: `crokf.distributed` calls it in the client when a compile is done (the workers keep
+/// theirs for their next cases).
+#[pyfunction]
+fn forget_full_order() {
+    *FULL_ORDER.lock().unwrap_or_else(|e| e.into_inner()) = None;
 }
 
 /// The identity of a scene's inputs: its canonical path, then per file read (the scene, its
@@ -1404,6 +1416,7 @@ fn _crokf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(training_cases, m)?)?;
     m.add_function(wrap_pyfunction!(run_training_case, m)?)?;
     m.add_function(wrap_pyfunction!(training_case_status, m)?)?;
+    m.add_function(wrap_pyfunction!(forget_full_order, m)?)?;
     m.add("CrokfError", py.get_type::<CrokfError>())?;
     m.add("CompileError", py.get_type::<CompileError>())?;
     m.add("ModelFileError", py.get_type::<ModelFileError>())?;

@@ -109,12 +109,13 @@ def test_the_command_line_refuses_a_scene_without_a_tier(repo, tmp_path, capsys)
     assert not (tmp_path / "m.crokf.cases").exists()
 
 
-def test_a_damaged_case_file_is_run_again_on_the_cluster(scene, reference, client, tmp_path):
+def test_a_damaged_case_file_is_run_again_on_the_cluster(scene, reference, client, tmp_path, monkeypatch):
     cache = tmp_path / "cache"
     compile_distributed(scene, client=client, cache=cache, report=False, progress=False)
     status = crokf.training_case_status(str(scene), str(cache))
     assert [why for _, _, why in status] == [None] * len(status)
-    # One file cut short, one from nowhere in its place: both named, both run again.
+    # One file cut short, one deleted: both named, both run again on the cluster (every case
+    # is usable when the compile starts, so it computes none itself).
     index, identity, _ = status[3]
     damaged = cache / f"{identity}.case"
     damaged.write_bytes(damaged.read_bytes()[:-7])
@@ -124,9 +125,19 @@ def test_a_damaged_case_file_is_run_again_on_the_cluster(scene, reference, clien
     assert status[5] == "missing"
     assert status[index] is not None and str(damaged) in status[index]
     assert sum(why is not None for why in status.values()) == 2
+    import crokf.distributed as dist
+
+    compile_in_process = dist._crokf.compile
+    seen = []
+
+    def checked_compile(path, **kwargs):
+        seen.append([why for _, _, why in crokf.training_case_status(path, kwargs["cache"])])
+        return compile_in_process(path, **kwargs)
+
+    monkeypatch.setattr(dist._crokf, "compile", checked_compile)
     model, _ = compile_distributed(scene, client=client, cache=cache, report=False, progress=False)
+    assert seen == [[None] * len(status)]
     assert model.to_bytes() == reference
-    assert all(why is None for _, _, why in crokf.training_case_status(str(scene), str(cache)))
 
 
 def test_a_changed_scene_is_built_again(scene, tmp_path):
@@ -143,3 +154,16 @@ def test_a_changed_scene_is_built_again(scene, tmp_path):
     assert crokf.training_cases(str(scene)) == first
     edited.write_text(edited.read_text().replace("every = 4", "every = 5"))
     assert [c[1] for c in crokf.training_cases(str(edited))] != [c[1] for c in changed]
+
+
+def test_cases_still_unusable_after_their_rounds_are_an_error(scene, client, tmp_path, monkeypatch):
+    # Workers that write a case the client cannot use (as workers of another crokf build
+    # would): the run stops naming the cases, the compile is not reached.
+    import crokf.distributed as dist
+
+    monkeypatch.setattr(dist, "_store", lambda cache, identity, data: (cache / f"{identity}.case").write_bytes(b"not a case"))
+    reached = []
+    monkeypatch.setattr(dist._crokf, "compile", lambda *a, **k: reached.append(1))
+    with pytest.raises(crokf.CompileError, match=r"still unusable after 2 rounds.*case 0: "):
+        compile_distributed(scene, client=client, cache=tmp_path / "c", report=False, progress=False)
+    assert not reached

@@ -224,7 +224,7 @@ impl AdaptationState {
     /// docs), `Some` also when only the start advanced; None when nothing changed
     /// ([`AdaptationState::start_move`], then [`AdaptationState::take`]; the tests' shorthand).
     #[cfg(test)]
-    pub fn at_prediction(
+    pub(crate) fn at_prediction(
         &mut self,
         levels: &Levels,
         level: usize,

@@ -22,7 +22,8 @@
 //!
 //! The public API is this crate's root (the model, the estimator, their errors and statuses,
 //! the contact results), [`capi`] (the C ABI, `include/crokf.h`) and, with the feature `table`,
-//! `table` (the recording's CSV files); `public-api.txt` lists every public item and
+//! `table` (the recording's CSV files); `public-api.txt` lists every `pub` declaration of the
+//! sources (those of the `internals` modules and of private modules included) and
 //! `tests/public_api.rs` checks the sources against it.
 
 mod adaptation;

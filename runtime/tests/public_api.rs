@@ -6,8 +6,8 @@
 //!
 //! The scan reads text, not Rust: it takes each line that starts (after indentation and
 //! attributes) with `pub ` and joins the following lines until the signature ends (`{`, `;`,
-//! or a field's or variant's `,`). Unit tests (`#[cfg(test)]` to the end of a file) are not
-//! scanned.
+//! or a field's or variant's `,`). Unit tests (a `#[cfg(test)] mod` at column 0, to the end of
+//! the file) are not scanned.
 
 use std::path::{Path, PathBuf};
 
@@ -73,9 +73,10 @@ fn public_items(root: &Path) -> String {
     for file in files {
         let text = std::fs::read_to_string(&file).unwrap();
         let lines: Vec<&str> = text.lines().collect();
+        // A file's unit tests: `#[cfg(test)]` at column 0 on a `mod` (not one on a single item).
         let end = lines
-            .iter()
-            .position(|l| l.trim() == "#[cfg(test)]")
+            .windows(2)
+            .position(|w| w[0] == "#[cfg(test)]" && w[1].starts_with("mod "))
             .unwrap_or(lines.len());
         let name = file
             .strip_prefix(root)

@@ -152,7 +152,7 @@ pub fn tier_section(
             .map_or_else(fmt::Matrix::default, dense_matrix),
         force_levels: levels_section(filter, measurements),
         adaptation: adaptation_section(filter),
-        // Set by the reductor when the scene accepts a tier that failed its check.
+        // Set by the compile when the scene accepts a tier that failed its check.
         failed_check: None,
     }
 }

@@ -176,7 +176,7 @@ pub struct TierFilter {
 /// ```
 /// Process noise: the scene's white noise channels projected on V (VᵀB_w), except those of the
 /// random-walk groups, which the force increments replace (as on the warped tier,
-/// `HyperReducedModel::with_force_states`). The force states have no output columns: the static
+/// `crate::reduced::ReducedModel::with_force_states`). The force states have no output columns: the static
 /// response of the linearised tier to each force channel, H V K_r⁻¹ Vᵀ b, is compared with the
 /// full-order H K⁻¹ b and the worst relative residual returned (`static_residual`), so that
 /// the choice is measured on every compile.

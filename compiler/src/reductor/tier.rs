@@ -61,9 +61,6 @@ pub struct TierReductor<'a> {
     pub size: (BasisChoice, EcswOptions),
     /// The fidelity rule's choice (None when the scene states the tier's size).
     pub fidelity: Option<fidelity::Fidelity>,
-    /// What the caller shows on the terminal and not in the report (the case cache's use and
-    /// the files it could not use), in order, each starting `warning:` or `note:`.
-    pub terminal: Vec<String>,
     /// Why the tier fails its own check, when the scene accepted it all the same
     /// (`accept_failed_check`); written into the model file (`failed_check`).
     pub failed_check: Option<String>,
@@ -83,13 +80,14 @@ impl<'a> TierReductor<'a> {
     ///
     /// With `cache`, the training runs found in that case cache
     /// ([`crate::nonlinear::cases`]) are read from it and the others stored in it; what
-    /// it contributed is said on stderr, not in the model (a model is the same with or without
-    /// a cache).
+    /// it contributed goes to `say` (one line each, `warning: …` or `note: …`) as soon as the
+    /// training is done, not into the model (a model is the same with or without a cache).
     pub fn new(
         full: &'a FullOrder,
         measurements: &'a Measurements,
         cache: Option<&std::path::Path>,
         timer: &mut StageTimer,
+        say: &mut dyn FnMut(&str),
     ) -> Result<Self, CompileError> {
         let fail = |e: &dyn std::fmt::Display| tier_error(full, e);
         let (Some(spec), Some(plan)) = (
@@ -121,15 +119,11 @@ impl<'a> TierReductor<'a> {
         });
         line.finish();
         let training = training.map_err(|e| fail(&e))?;
-        let mut terminal = Vec::new();
         if let Some(cache) = &cache {
-            terminal.extend(
-                training
-                    .cache_notes
-                    .iter()
-                    .map(|note| format!("warning: {note}")),
-            );
-            terminal.push(format!(
+            for note in &training.cache_notes {
+                say(&format!("warning: {note}"));
+            }
+            say(&format!(
                 "note: co-rotational training: {} of {runs} cases read from the cache {}",
                 training.cached,
                 cache.dir().display()
@@ -170,12 +164,17 @@ impl<'a> TierReductor<'a> {
             };
             let kept = training.snapshots.len();
             if choice.order > kept {
+                let stated = match spec.order {
+                    Some(order) => format!("[reduction.corotational] order = {order}"),
+                    None => format!(
+                        "the tier's order {} (not stated: the default)",
+                        choice.order
+                    ),
+                };
                 notes.push(format!(
-                    "WARNING: [reduction.corotational] order = {} is above the {kept} snapshots \
-                     the training kept ({} of its {} runs cut or failed): the basis has at most \
-                     {kept} vectors. Lengthen the runs (duration) or lower `every` for more \
-                     snapshots, or lower `order`",
-                    choice.order,
+                    "WARNING: {stated} is above the {kept} snapshots the training kept ({} of its \
+                     {} runs cut or failed): the basis has at most {kept} vectors. Lengthen the \
+                     runs (duration) or lower `every` for more snapshots, or lower `order`",
                     training
                         .cuts
                         .iter()
@@ -270,7 +269,6 @@ impl<'a> TierReductor<'a> {
             size: (choice, ecsw),
             fidelity,
             failed_check: failed,
-            terminal,
             notes,
             measurements,
         };
