@@ -462,7 +462,7 @@ def main(argv=None) -> int:
     parser.add_argument("scene", help="scene file (TOML) with [reduction.corotational]")
     parser.add_argument("-o", "--output", required=True, help="model file to write")
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=None,
+    where.add_argument("--workers", type=int, default=2,
                        help="local worker processes (default 2)")
     where.add_argument("--scheduler", help="address of a running dask.distributed scheduler")
     where.add_argument("--jobqueue", choices=sorted(JOBQUEUES),
@@ -491,7 +491,7 @@ def main(argv=None) -> int:
     jobs.add_argument("--print-job-script", action="store_true",
                       help="print the job script and stop (submits nothing, compiles nothing)")
     args = parser.parse_args(argv)
-    if args.workers is not None and args.workers < 1:
+    if args.workers < 1:
         parser.error("--workers must be at least 1")
     job_options = ["cores", "memory", "processes", "jobs", "walltime", "queue", "account",
                    "interface", "job_extra", "job_prologue", "print_job_script"]
@@ -528,7 +528,7 @@ def main(argv=None) -> int:
             client = Client(batch)
         compile_distributed(
             args.scene, args.output, client=client,
-            workers=2 if args.workers is None else args.workers, scheduler=args.scheduler,
+            workers=args.workers, scheduler=args.scheduler,
             cache=args.cache, report=not args.no_measure, case_timeout=args.case_timeout,
         )
     except _crokf.CrokfError as e:

@@ -26,18 +26,9 @@ from crokf.distributed import main  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def scene(repo, tmp_path_factory):
-    d = tmp_path_factory.mktemp("cluster")
-    src = repo / "models" / "cantilever"
-    (d / "cantilever.msh").write_bytes((src / "cantilever.msh").read_bytes())
-    head = (src / "scene_corotational.toml").read_text().split("[reduction.corotational]")[0]
-    path = d / "scene.toml"
-    path.write_text(
-        head + "[reduction.corotational]\nduration = 1.0\nevery = 5\norder = 8\n"
-        # A cheap tier that misses its own check: this is about the distribution.
-        'directions = "axes"\naccept_failed_check = true\n'
-    )
-    return path
+def scene(cheap_tier_scene):
+    # 1 s runs (~0.4 s a case): long enough for the kill to land mid-run.
+    return cheap_tier_scene("cluster", 1.0)
 
 
 def _dask_commands():

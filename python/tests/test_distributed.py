@@ -21,21 +21,9 @@ from crokf.distributed import compile_distributed, main  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def scene(repo, tmp_path_factory):
-    d = tmp_path_factory.mktemp("dask")
-    src = repo / "models" / "cantilever"
-    (d / "cantilever.msh").write_bytes((src / "cantilever.msh").read_bytes())
-    head = (src / "scene_corotational.toml").read_text().split("[reduction.corotational]")[0]
-    text = head + (
-        "[reduction.corotational]\nduration = 0.2\nevery = 5\norder = 8\n"
-        'directions = "axes"\n'
-        # A cheap tier (8 modes, 0.2 s runs) that misses its own check: these tests are about
-        # the distribution, not its accuracy.
-        "accept_failed_check = true\n"
-    )
-    path = d / "scene.toml"
-    path.write_text(text)
-    return path
+def scene(cheap_tier_scene):
+    # 0.2 s runs: these tests are about the distribution, not its accuracy.
+    return cheap_tier_scene("dask", 0.2)
 
 
 @pytest.fixture(scope="module")
