@@ -39,7 +39,7 @@ PY
 printf '%-4s %-9s %-22s %-7s %-12s %-12s %s\n' dir loads "error mean [min, max]" ANIS "NIS above" "NEES above" "2σ coverage"
 for s in "$out"/dir-*.toml; do
   k=$(basename "$s" .toml); k=${k#dir-}
-  CROKF_REFERENCE_CACHE=$out/ref-$k.bin "$bin/examples/nonlinear_filter" "$ref" "$s" "$tier" \
-    --seeds 5 > "$out/dir-$k.txt" 2>&1
+  "$bin/examples/nonlinear_filter" "$ref" "$s" "$tier" \
+    --reference-cache "$out/ref-$k.bin" --seeds 5 > "$out/dir-$k.txt" 2>&1
   awk -F'|' -v key="$(printf '%-4s ' "$k")" -v open=1 -f scripts/filter_rows.awk "$out/dir-$k.txt"
 done

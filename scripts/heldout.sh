@@ -32,8 +32,8 @@ for b in "${bodies[@]}"; do
   for s in "$d"/scenario_*.toml; do
     name=$(basename "$s" .toml); name=${name#scenario_}
     key=$(cat "$d/scene_linear.toml" "$d/$b.msh" "$s" | sha256sum | cut -c1-16)
-    CROKF_REFERENCE_CACHE=$out/ref-$key.bin "$bin/examples/nonlinear_filter" \
-      "$d/scene_linear.toml" "$s" "$tier" --seeds 20 ${flags[@]+"${flags[@]}"} > "$out/$b-$name.txt" 2>&1
+    "$bin/examples/nonlinear_filter" \
+      "$d/scene_linear.toml" "$s" "$tier" --reference-cache "$out/ref-$key.bin" --seeds 20 ${flags[@]+"${flags[@]}"} > "$out/$b-$name.txt" 2>&1
     awk -F'|' -v key="$(printf '%-9s %-8s ' "$b" "$name")" -f scripts/filter_rows.awk \
       "$out/$b-$name.txt"
   done

@@ -33,15 +33,15 @@ for b in "${bodies[@]}"; do
   tier=$out/$b-tier.crokf
   [ -f "$tier" ] || "$bin/crokf-compile" "$d/scene_corotational.toml" -o "$tier" > "$out/$b-compile.log" 2>&1
   copy=$d/.identified-$$.toml
-  CROKF_REFERENCE_CACHE=$(ref "$b" "$rec") "$bin/examples/identify_noise" "$d/scene_corotational.toml" \
-    "$d/scenario_$rec.toml" "$tier" --given --lags 10 -o "$copy" > "$out/$b-identify-$rec.txt" 2>&1 || true
+  "$bin/examples/identify_noise" "$d/scene_corotational.toml" \
+    "$d/scenario_$rec.toml" "$tier" --reference-cache "$(ref "$b" "$rec")" --given --lags 10 -o "$copy" > "$out/$b-identify-$rec.txt" 2>&1 || true
   printf '%-9s %s\n' "$b" "$(grep '^verdict' "$out/$b-identify-$rec.txt" || tail -n 1 "$out/$b-identify-$rec.txt")"
   [ -f "$copy" ] || continue
   cp "$copy" "$out/$b-from-$rec.toml"
   for s in "$d"/scenario_*.toml; do
     name=$(basename "$s" .toml); name=${name#scenario_}
-    CROKF_REFERENCE_CACHE=$(ref "$b" "$name") "$bin/examples/nonlinear_filter" \
-      "$d/scene_linear.toml" "$s" "$tier@$copy" --seeds 20 > "$out/$b-$name-from-$rec.txt" 2>&1
+    "$bin/examples/nonlinear_filter" \
+      "$d/scene_linear.toml" "$s" "$tier@$copy" --reference-cache "$(ref "$b" "$name")" --seeds 20 > "$out/$b-$name-from-$rec.txt" 2>&1
     awk -F'|' -v key="$(printf '%-9s %-8s ' "$b" "$name")" -f scripts/filter_rows.awk \
       "$out/$b-$name-from-$rec.txt"
   done

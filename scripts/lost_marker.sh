@@ -24,8 +24,8 @@ for b in kidney horn mushroom arch paddle blob; do
     s=$d/scenario_$name.toml
     key=$(cat "$d/scene_linear.toml" "$d/$b.msh" "$s" | sha256sum | cut -c1-16)
     f=$out/lost-$b-$name.txt
-    CROKF_REFERENCE_CACHE=$out/ref-$key.bin target/release/examples/nonlinear_filter \
-      "$d/scene_linear.toml" "$s" "$tier" --seeds 20 --marker-lost ":$from:$steps" ${flags[@]+"${flags[@]}"} > "$f" 2>&1
+    target/release/examples/nonlinear_filter \
+      "$d/scene_linear.toml" "$s" "$tier" --reference-cache "$out/ref-$key.bin" --seeds 20 --marker-lost ":$from:$steps" ${flags[@]+"${flags[@]}"} > "$f" 2>&1
     awk -F'|' -v key="$(printf '%-9s %-8s ' "$b" "$name")" -f scripts/filter_rows.awk "$f"
     grep -h "refused:" "$f" | cut -d'|' -f4,5 | sed "s/^/$(printf '%-9s %-8s ' "$b" "$name")/" || true
     grep -h "| lost |\|| after |" "$f" \

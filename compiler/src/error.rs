@@ -3,8 +3,8 @@
 
 use std::path::PathBuf;
 
+use crate::algorithms::kalman::KalmanError;
 use crate::fem::FemError;
-use crate::kalman::KalmanError;
 use crate::mesh::MeshError;
 use crate::reduce::ReduceError;
 use crate::scene::SceneError;

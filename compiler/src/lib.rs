@@ -3,11 +3,14 @@
 //! Data flows one way, one pipeline stage per module:
 //!
 //! ```text
-//! scene ─▶ mesh ─▶ fem ─▶ dynamics ─▶ reduce ─▶ kalman ─▶ model_file
+//! scene ─▶ mesh ─▶ fem ─▶ dynamics ─▶ reduce ─▶ noise (the filters' noise; DARE in algorithms) ─▶ model_file
 //!                   │        (corotation: rotation rows for warping, outputs: the kept rows)
-//!                   └──▶ stepping (full-order linear and co-rotational Wilson-θ)
+//!                   ├──▶ stepping (full-order linear and co-rotational Wilson-θ)
+//!                   └──▶ nonlinear (the co-rotational tier: training, basis, cubature)
 //! ```
 //!
+//! Below every stage, [`algorithms`] holds what knows no physics (Krylov–Schur, POD, NNLS, the
+//! Kalman filter's DARE and Stein solvers) and imports nothing else of the crate.
 //! Beside the stages: [`full_order`] (the front end, built once), [`reductor`] (build once,
 //! reduce at many orders), [`reduced`] (one reduced system), [`accuracy`] (measured error
 //! against the full-order reference), [`timer`] (stage costs), [`report`], [`check`] (`--check`), and [`compile()`], which
@@ -31,7 +34,6 @@ pub mod reduced;
 
 pub mod contact;
 
-pub mod kalman;
 pub mod noise;
 pub mod observability;
 
@@ -43,6 +45,7 @@ pub mod stepping;
 
 pub mod accuracy;
 pub mod advice;
+pub mod algorithms;
 pub mod check;
 pub mod compile;
 pub mod error;

@@ -8,10 +8,10 @@ use faer::Mat;
 
 use crokf_formats as fmt;
 
+use crate::algorithms::kalman;
 use crate::contact::{ContactRegion, ReducedRegion, RegionCompliance};
 use crate::fem::operators::InputKind;
 use crate::full_order::FullOrder;
-use crate::kalman;
 use crate::outputs::{Measurements, OutputRows};
 use crate::reduced::ReducedModel;
 

@@ -19,8 +19,8 @@
 //! - white process noise: the scene's noise channels except those of the estimated groups,
 //!   which the force increments replace.
 
+use crate::algorithms::kalman::lag;
 use crate::fem::operators::{InputKind, Operators};
-use crate::kalman::lag;
 
 /// Where a load group's force σ comes from (docs/design.md §11.8).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -20,7 +20,6 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
 mod balance;
-mod krylov;
 mod modes;
 
 pub use balance::{BalanceTimings, ModalSystem, ModalSystemTimings, Order, ReducedSystem};
@@ -124,4 +123,10 @@ pub enum ReduceError {
         "the inputs and outputs of the scene see no mode (all Hankel singular values are zero)"
     )]
     NothingObservable,
+}
+
+impl From<crate::algorithms::krylov::DenseFailure> for ReduceError {
+    fn from(failure: crate::algorithms::krylov::DenseFailure) -> Self {
+        ReduceError::Dense { what: failure.what }
+    }
 }

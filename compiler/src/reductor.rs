@@ -14,10 +14,10 @@ use faer::Mat;
 use crokf_kernel::wilson;
 
 use crate::accuracy::{self, ReferenceResponses};
+use crate::algorithms::kalman::{self, KalmanError, PeriodicSchedule};
 use crate::contact::{ContactRegion, RegionCompliance};
 use crate::error::CompileError;
 use crate::full_order::FullOrder;
-use crate::kalman::{self, KalmanError, PeriodicSchedule};
 use crate::noise::NoiseModel;
 use crate::observability;
 use crate::outputs::{columns, stack_rows, Measurements, OutputRows};

@@ -1,10 +1,10 @@
 //! Kalman stage: DARE against closed forms and independent recursions, hard cases, a filtered
 //! simulation with a consistency (NIS) check, and multi-rate periodic gains against brute force.
 
-use crokf_compile::dynamics::WilsonTheta;
-use crokf_compile::kalman::{
+use crokf_compile::algorithms::kalman::{
     output_standard_deviations, periodic_gains, solve_filter_dare, DareSolution, KalmanError,
 };
+use crokf_compile::dynamics::WilsonTheta;
 use faer::linalg::solvers::Solve;
 use faer::{Mat, MatRef, Side};
 

@@ -5,12 +5,14 @@
 
 use std::path::Path;
 
+use crokf_compile::algorithms::nnls::nnls;
+use crokf_compile::algorithms::pod::pod;
 use crokf_compile::dynamics::WilsonTheta;
 use crokf_compile::fem::operators::Operators;
 use crokf_compile::fem::{sparse_mul, FemModel};
 use crokf_compile::mesh::procedural::box_mesh;
-use crokf_compile::nonlinear::basis::{m_orthonormalise, pod, projection_errors};
-use crokf_compile::nonlinear::ecsw::{nnls, sample_elements, EcswOptions};
+use crokf_compile::nonlinear::basis::{m_orthonormalise, projection_errors};
+use crokf_compile::nonlinear::ecsw::{sample_elements, EcswOptions};
 use crokf_compile::nonlinear::reduced::{
     HyperReducedModel, ReducedNewton, ReducedStepper, Refresh,
 };

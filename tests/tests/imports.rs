@@ -398,6 +398,44 @@ fn no_crate_has_an_import_circle() {
     assert!(report.is_empty(), "import circles:\n{}", report.join("\n"));
 }
 
+/// The compiler's algorithms (`compiler/src/algorithms/`: Krylov–Schur, POD, NNLS, the Kalman
+/// filter's design) know no physics: no file of theirs imports a module of the crate outside
+/// them, so a reductor wires them and they never reach up into meshes, scenes or models.
+#[test]
+fn the_compilers_algorithms_import_nothing_else_of_the_crate() {
+    let root = root();
+    let src = root.join("compiler").join("src");
+    let inside = |p: &Path| p.starts_with(src.join("algorithms")) || p == src.join("algorithms.rs");
+    let arrows = arrows(&root.join("compiler"));
+    assert!(
+        arrows.keys().filter(|f| inside(f)).count() >= 5,
+        "the walk found too few files of the algorithms importing each other"
+    );
+    let mut found = Vec::new();
+    for (from, targets) in &arrows {
+        if !inside(from) {
+            continue;
+        }
+        for (to, paths) in targets {
+            if !inside(to) {
+                let name = |p: &Path| p.strip_prefix(&root).unwrap_or(p).display().to_string();
+                let paths: Vec<&str> = paths.iter().map(String::as_str).collect();
+                found.push(format!(
+                    "{} -> {}: {}",
+                    name(from),
+                    name(to),
+                    paths.join(", ")
+                ));
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "an algorithm imports the rest of the compiler:\n{}",
+        found.join("\n")
+    );
+}
+
 /// The product (the compiler, the runtime, crokf-run, the viewer, the shared formats and kernel,
 /// the Python package) never depends on the verification crate: no `crokf-verify` dependency in
 /// its `Cargo.toml`, no `crokf_verify` path in its code (comments aside).

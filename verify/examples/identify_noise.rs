@@ -38,7 +38,7 @@
 //! cargo run --release -p crokf-verify --example identify_noise -- SCENE MODEL \
 //!     --recording MEASUREMENTS.csv [--inputs INPUTS.csv] [--fixed-point] …
 //! ```
-//! `CROKF_REFERENCE_CACHE=FILE` as in `nonlinear_filter`.
+//! `--reference-cache FILE` keeps the reference run in FILE, as in `nonlinear_filter`.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -61,7 +61,7 @@ const USAGE: &str =
     "usage: identify_noise SCENE SCENARIO MODEL [--given] [--seed N] [--write-recording FILE] | \
      SCENE MODEL --recording \
      MEASUREMENTS.csv [--inputs INPUTS.csv]; and [--no-schedule] [--fixed-point] [--lags L] \
-     [--skip S] [--force-sigma S] [-o IDENTIFIED.toml]";
+     [--skip S] [--force-sigma S] [--reference-cache FILE] [-o IDENTIFIED.toml]";
 
 fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut positional = Vec::new();
@@ -71,6 +71,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let (mut recording, mut inputs_file): (Option<PathBuf>, Option<PathBuf>) = (None, None);
     let (mut seed, mut write_recording): (u64, Option<PathBuf>) = (7, None);
     let mut out: Option<PathBuf> = None;
+    let mut cache: Option<PathBuf> = None;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         if a == "--force-sigma" {
@@ -86,13 +87,19 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             force_sigma = Some(sigma);
             continue;
         }
-        if a == "--recording" || a == "--inputs" || a == "--write-recording" || a == "-o" {
+        if a == "--recording"
+            || a == "--inputs"
+            || a == "--write-recording"
+            || a == "--reference-cache"
+            || a == "-o"
+        {
             let v = args.next().ok_or(format!("{a} needs a file; {USAGE}"))?;
             let path = Some(PathBuf::from(v));
             match a.as_str() {
                 "--recording" => recording = path,
                 "--inputs" => inputs_file = path,
                 "-o" => out = path,
+                "--reference-cache" => cache = path,
                 _ => write_recording = path,
             }
             continue;
@@ -142,8 +149,14 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let full = FullOrder::build(&PathBuf::from(scene), &mut StageTimer::default())?;
     let recording = match (scenario, &recording) {
         (Some(scenario), _) => {
-            let (inputs, measurements) =
-                simulated(&full, &base, &PathBuf::from(scenario), given, seed)?;
+            let (inputs, measurements) = simulated(
+                &full,
+                &base,
+                &PathBuf::from(scenario),
+                given,
+                seed,
+                cache.as_deref(),
+            )?;
             if let Some(path) = &write_recording {
                 write_measurements(path, &base, &measurements)?;
                 eprintln!("markers written to {}", path.display());
@@ -180,21 +193,21 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
 /// Inputs and markers per step of the simulated recording: the full-order co-rotational
 /// reference of `scenario`, markers = reference + Gaussian noise of the scene's σ (seed 7; the
 /// scene's measurement channels are the model's, `refilter` checks it), every load channel 0
-/// unless `given`.
+/// unless `given`; the reference kept in `cache` when given.
 fn simulated(
     full: &FullOrder,
     model: &crokf_formats::Model,
     scenario: &std::path::Path,
     given: bool,
     seed: u64,
+    cache: Option<&std::path::Path>,
 ) -> Result<Simulated, Box<dyn std::error::Error>> {
     let scenario = Scenario::read(scenario)?;
     let steps = match scenario.horizon(full.wilson.dt) {
         Horizon::Steps(k) => k,
         Horizon::Steady(_) => return Err("the scenario needs a fixed horizon".into()),
     };
-    let cache = std::env::var_os("CROKF_REFERENCE_CACHE").map(PathBuf::from);
-    let reference = Reference::of(full, &scenario, steps, cache.as_deref())?;
+    let reference = Reference::of(full, &scenario, steps, cache)?;
     let variance = crokf_compile::outputs::Measurements::new(&full.operators).variance;
     let mut rng = Gaussian::new(seed);
     let measurements = reference

@@ -51,6 +51,7 @@ use std::sync::OnceLock;
 
 use nalgebra::DVector;
 
+use crokf_compile::algorithms::pod::pod;
 use crokf_compile::nonlinear::basis::{self, Basis};
 use crokf_compile::nonlinear::ecsw::{self, EcswOptions};
 use crokf_compile::nonlinear::manifold::QuadraticManifold;
@@ -490,7 +491,7 @@ fn run() -> Result<(), Failure> {
         mass
     };
     let started = std::time::Instant::now();
-    let (mut all_modes, _) = basis::pod(inner, &training.snapshots, max_order, 1e-14);
+    let (mut all_modes, _) = pod(inner, &training.snapshots, max_order, 1e-14);
     basis::normalise_signs(&mut all_modes);
     eprintln!(
         "pooled POD ({} vectors) in {:.1} s",

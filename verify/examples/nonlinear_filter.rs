@@ -59,8 +59,8 @@
 //! steps on stderr; `--stored-gains` keeps the stored gains and σ then instead
 //! (`Estimator::set_covariance_recursion(false)`).
 //!
-//! The environment variable `CROKF_REFERENCE_CACHE=FILE` keeps the reference run in FILE
-//! (written once, read while the step count matches: use one file per scene and scenario).
+//! `--reference-cache FILE` keeps the reference run in FILE (written once, read while the step
+//! count matches: use one file per scene and scenario).
 
 use std::ops::Range;
 use std::path::PathBuf;
@@ -119,6 +119,8 @@ struct Flags {
     marker_lost: Option<String>,
     /// `--stored-gains`: the stored gains and σ while a channel is missing.
     stored_gains: bool,
+    /// `--reference-cache FILE`: the reference run kept in FILE.
+    reference_cache: Option<PathBuf>,
 }
 
 impl Default for Flags {
@@ -138,6 +140,7 @@ impl Default for Flags {
             hold_force_sigma: false,
             marker_lost: None,
             stored_gains: false,
+            reference_cache: None,
         }
     }
 }
@@ -203,6 +206,9 @@ impl Flags {
                 "--hold-force-sigma" => flags.hold_force_sigma = true,
                 "--marker-lost" => flags.marker_lost = Some(value("SENSOR:FROM:STEPS")?),
                 "--stored-gains" => flags.stored_gains = true,
+                "--reference-cache" => {
+                    flags.reference_cache = Some(PathBuf::from(value("a file")?))
+                }
                 _ => return Err(format!("unknown flag {arg}")),
             }
         }
@@ -234,8 +240,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         Horizon::Steps(k) => k,
         Horizon::Steady(_) => return Err("the scenario needs a fixed horizon".into()),
     };
-    let cache = std::env::var_os("CROKF_REFERENCE_CACHE").map(PathBuf::from);
-    let reference = Reference::of(&full, &scenario, steps, cache.as_deref())?;
+    let reference = Reference::of(&full, &scenario, steps, flags().reference_cache.as_deref())?;
     let tip = reference.tip_marker(&full);
     println!(
         "tip marker: {} (NEES); loads withheld = every load channel 0, gravity kept\n",

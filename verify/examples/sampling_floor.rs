@@ -15,7 +15,7 @@
 //! MODEL is a compiled model file (either tier); L defaults to the model's marker period (the
 //! phases of its filter), the offsets to 0, 4, 8, … < L, the α to 0, 0.1, …, 1. Offset o means
 //! markers at steps k ≡ L − 1 − o (mod L), as `--marker-phase o` of `nonlinear_filter`.
-//! `CROKF_REFERENCE_CACHE=FILE` keeps the reference run in FILE (as the other drivers).
+//! `--reference-cache FILE` keeps the reference run in FILE (as the other drivers).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -58,10 +58,21 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
     let period = list::<usize>(&mut args, "--period")?;
     let offsets = list::<usize>(&mut args, "--offsets")?;
+    let cache = match args.iter().position(|a| a == "--reference-cache") {
+        Some(i) => {
+            let file = args
+                .get(i + 1)
+                .cloned()
+                .ok_or("--reference-cache needs a file")?;
+            args.drain(i..i + 2);
+            Some(PathBuf::from(file))
+        }
+        None => None,
+    };
     let alphas = list::<f64>(&mut args, "--alphas")?
         .unwrap_or_else(|| (0..=10).map(|i| 0.1 * i as f64).collect());
     if args.len() != 3 {
-        return Err("usage: sampling_floor SCENE SCENARIO MODEL [--period L] [--offsets O,…] [--alphas A,…]".into());
+        return Err("usage: sampling_floor SCENE SCENARIO MODEL [--period L] [--offsets O,…] [--alphas A,…] [--reference-cache FILE]".into());
     }
     let model = crokf_runtime::load_model(&args[2])?;
     let phases = model
@@ -87,7 +98,6 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         Horizon::Steps(k) => k,
         Horizon::Steady(_) => return Err("the scenario needs a fixed horizon".into()),
     };
-    let cache = std::env::var_os("CROKF_REFERENCE_CACHE").map(PathBuf::from);
     let reference = Reference::of(&full, &scenario, steps, cache.as_deref())?;
 
     println!(

@@ -118,7 +118,7 @@ fn a_force_sigma_ten_times_too_small_is_told_to_shorten_the_rise_time() {
     );
     for part in [
         "state a shorter `rise_time` on `[[load]]` 'tip'",
-        "`crokf-verify identify SCENE MODEL --measurements M.csv [--inputs I.csv]`",
+        "`crokf-compile identify SCENE MODEL --measurements M.csv [--inputs I.csv]`",
         "where the load holds; filtered error",
     ] {
         assert!(advice[0].contains(part), "{part}: {}", advice[0]);

@@ -13,8 +13,9 @@ use std::path::PathBuf;
 
 use nalgebra::{DMatrix, DVector};
 
+use crokf_compile::algorithms::pod::pod;
 use crokf_compile::mesh::procedural::{box_mesh, write_msh22, BeamScene};
-use crokf_compile::nonlinear::basis::{m_orthonormalise, pod};
+use crokf_compile::nonlinear::basis::m_orthonormalise;
 use crokf_compile::nonlinear::manifold::{product_count, QuadraticManifold};
 use crokf_compile::nonlinear::reduced::{
     HyperReducedModel, ReducedNewton, ReducedStepper, Refresh,

@@ -1,6 +1,6 @@
 //! Noise identification of a compiled tier's filter (docs/design.md §11.6), the algorithm of
 //! [`crate::identify`]: the σ of the noise model ([`crate::noise`]) fitted to the innovations of a run of the model file's filter by
-//! autocovariance least squares ([`crate::kalman::als`]), gain schedule included.
+//! autocovariance least squares ([`crate::algorithms::kalman::als`]), gain schedule included.
 
 use faer::linalg::solvers::Solve as _;
 use faer::Mat;
@@ -8,8 +8,8 @@ use nalgebra::DVector;
 
 use crokf_formats as fmt;
 
+use crate::algorithms::kalman;
 use crate::full_order::FullOrder;
-use crate::kalman;
 use crate::model_file::tier::{linearised_of_file, reduced_model_of_file};
 use crate::noise::NoiseSpec;
 

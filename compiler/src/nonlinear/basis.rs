@@ -14,6 +14,7 @@ use crate::stepping::{static_solve, CorotationalSimulator};
 
 use super::training::Training;
 use super::NonlinearError;
+use crate::algorithms::pod::pod;
 
 /// An M-orthonormal basis (n × r, columns in the order they were accepted) with a label per
 /// column saying where it came from.
@@ -176,69 +177,6 @@ pub fn modal_derivatives(
     Ok(out)
 }
 
-/// POD of `snapshots` (each n, m) in the M inner product by the method of snapshots: the
-/// eigenpairs (λₖ, ψₖ) of the Gram matrix G = SᵀMS (s × s) give the modes Sψₖ/√λₖ, in
-/// decreasing λₖ, up to `max_modes` and down to λₖ ≥ `relative_floor`·λ₁. Returns the modes
-/// (n each, M-orthonormal up to round-off) and all eigenvalues λ (m²·kg), descending.
-pub fn pod(
-    mass: &SparseColMat<usize, f64>,
-    snapshots: &[Vec<f64>],
-    max_modes: usize,
-    relative_floor: f64,
-) -> (Vec<(String, Vec<f64>)>, Vec<f64>) {
-    let s = snapshots.len();
-    if s == 0 {
-        return (Vec::new(), Vec::new());
-    }
-    let n = snapshots[0].len();
-    // S (n × s) and MS; G = Sᵀ(MS) and the modes SΨ by blocked products (faer), the
-    // eigen-decomposition of G by faer's blocked tridiagonal solver.
-    let snap = faer::Mat::from_fn(n, s, |i, j| snapshots[j][i]);
-    let mut ms = faer::Mat::<f64>::zeros(n, s);
-    for (j, u) in snapshots.iter().enumerate() {
-        let m_u = sparse_mul(mass, u);
-        ms.col_mut(j)
-            .iter_mut()
-            .zip(&m_u)
-            .for_each(|(d, v)| *d = *v);
-    }
-    let product = snap.as_ref().transpose() * ms.as_ref();
-    drop(ms);
-    let gram = faer::Mat::from_fn(s, s, |i, j| 0.5 * (product[(i, j)] + product[(j, i)]));
-    // The solver fails only on non-finite entries, and the training keeps no non-finite
-    // snapshot (such a run is reported as failed and skipped).
-    let Ok(eig) = gram.self_adjoint_eigen(faer::Side::Lower) else {
-        return (Vec::new(), Vec::new());
-    };
-    let eigenvalues = eig.S().column_vector();
-    let mut order: Vec<usize> = (0..s).collect();
-    order.sort_by(|&a, &b| eigenvalues[b].total_cmp(&eigenvalues[a]));
-    let values: Vec<f64> = order.iter().map(|&k| eigenvalues[k]).collect();
-    let top = values.first().copied().unwrap_or(0.0);
-    let kept: Vec<usize> = order
-        .iter()
-        .copied()
-        .take(max_modes)
-        .take_while(|&k| {
-            let lambda = eigenvalues[k];
-            lambda > 0.0 && lambda >= relative_floor * top
-        })
-        .collect();
-    let psi = faer::Mat::from_fn(s, kept.len(), |c, m| {
-        eig.U()[(c, kept[m])] / eigenvalues[kept[m]].sqrt()
-    });
-    let vectors = &snap * &psi;
-    let modes = (0..kept.len())
-        .map(|m| {
-            (
-                format!("pod {}", m + 1),
-                vectors.col(m).iter().copied().collect(),
-            )
-        })
-        .collect();
-    (modes, values)
-}
-
 /// Relative projection error of a trajectory on the first k columns of `basis`, for every
 /// k = 0..=r: e_k = sqrt(Σ_t min_q ‖V_k q − u_t‖²_M / Σ_t ‖u_t‖²_M) (entry k of the result);
 /// `mass` is M (n × n, kg), `trajectory` the displacements u_t (n each, m).
@@ -313,7 +251,7 @@ impl PerRunBasis {
 /// e_k = sqrt( Σ_{t∈T_k} ‖u_t − P u_t‖²_M / Σ_{t∈T_k} ‖u_t‖²_M ).
 /// ```
 /// V starts with the first `pooled` POD vectors of all snapshots (the energy-optimal basis of
-/// the pool, [`pod`]); then, while the worst run has e_k > ε and r < `max_columns`, the leading
+/// the pool, [`pod`](crate::algorithms::pod::pod)); then, while the worst run has e_k > ε and r < `max_columns`, the leading
 /// POD vector of that run's residuals (I − P)u_t, t ∈ T_k (M-orthogonal to V by construction,
 /// re-orthogonalised twice) is appended. Each added vector removes the largest share of the worst
 /// run's residual energy, so e_k of that run strictly decreases; r is set by ε, bounded by

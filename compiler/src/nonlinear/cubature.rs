@@ -10,8 +10,9 @@ use nalgebra::DMatrix;
 use crate::fem::{FemModel, TetGeometry};
 
 use super::basis::Basis;
-use super::ecsw::{self, EcswOptions, NnlsSolution};
+use super::ecsw::{self, EcswOptions};
 use super::NonlinearError;
+use crate::algorithms::nnls::NnlsSolution;
 
 /// One sampled element: rest geometry, rest stiffness, its basis rows and weight.
 #[derive(Clone, Debug)]

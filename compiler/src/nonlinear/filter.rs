@@ -8,8 +8,8 @@
 use faer::Mat;
 use nalgebra::{DMatrix, DVector};
 
+use crate::algorithms::kalman::{self, PeriodicSchedule};
 use crate::full_order::FullOrder;
-use crate::kalman::{self, PeriodicSchedule};
 use crate::observability::{measured_value, static_marker_response};
 use crate::outputs::Measurements;
 
@@ -17,7 +17,7 @@ use super::levels::{design_levels, FilterLevel};
 use super::reduced::HyperReducedModel;
 use super::tier::{point_rows, Tier};
 use super::NonlinearError;
-use crate::kalman::adaptation::Statistic;
+use crate::algorithms::kalman::adaptation::Statistic;
 use crate::noise::{Derivation, NoiseModel};
 
 /// The tier linearised at rest in reduced coordinates: everything its filter needs, which is
@@ -305,7 +305,7 @@ pub fn linearise_at_rest(
 
 /// Fixes the derived force σ of `noise` on the tier linearised at rest `lin` (docs/design.md
 /// §11.8): per derived group, the smallest σ whose filter's steady lag on the stated ramp stays
-/// within one σ of its force states ([`crate::kalman::lag::ramp_lag`], group k's force block
+/// within one σ of its force states ([`crate::algorithms::kalman::lag::ramp_lag`], group k's force block
 /// 3r + 3k … 3r + 3k + 2). The derivation's filter has no rate states (with rates a ramp has no
 /// steady lag); `lin`'s own σ are not used. Returns what was derived (empty when every σ is
 /// stated).

@@ -8,8 +8,8 @@
 use faer::Mat;
 use nalgebra::{DMatrix, DVector};
 
-use crate::kalman::adaptation::{effective_channels, Statistic, LEVEL_FACTORS};
-use crate::kalman::PeriodicSchedule;
+use crate::algorithms::kalman::adaptation::{effective_channels, Statistic, LEVEL_FACTORS};
+use crate::algorithms::kalman::PeriodicSchedule;
 use crate::outputs::Measurements;
 
 /// One level of the force σ: the filter at rest and at each operating point of the gain

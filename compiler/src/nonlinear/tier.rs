@@ -10,10 +10,11 @@ use crate::full_order::FullOrder;
 
 use super::basis::{Basis, BasisChoice, ChosenBasis};
 use super::cubature::Cubature;
-use super::ecsw::{EcswOptions, NnlsSolution};
+use super::ecsw::EcswOptions;
 use super::reduced::HyperReducedModel;
 use super::training::{self, Training, TrainingPlan};
 use super::NonlinearError;
+use crate::algorithms::nnls::NnlsSolution;
 
 /// A built co-rotational tier.
 #[derive(Clone, Debug)]

@@ -4,8 +4,8 @@
 //! channel, M-orthogonalised against the modes and rank revealed; Rayleigh–Ritz on the union
 //! gives V (n×k) with Vᵀ M V = I and Vᵀ K V = diag(ω²).
 
-use super::krylov::{block_krylov_schur, m_orthonormalize, mass_mul, KrylovOptions};
 use super::ReduceError;
+use crate::algorithms::krylov::{block_krylov_schur, m_orthonormalize, mass_mul, KrylovOptions};
 use faer::linalg::matmul::matmul;
 use faer::linalg::solvers::Solve;
 use faer::linalg::triangular_solve::{
@@ -250,7 +250,7 @@ fn rigid_body_error(
     );
     let outcome = match outcome {
         Ok(o) => o,
-        Err(e) => return e,
+        Err(e) => return e.into(),
     };
     // Rayleigh quotients xᵀKx / xᵀMx: accurate to ~ε·max Kᵢᵢ/Mᵢᵢ.
     let x = outcome.vectors;

@@ -52,7 +52,7 @@ pub const DOMINANCE: f64 = 2.0;
 
 /// The command that identifies σ from a recording.
 pub const IDENTIFY: &str =
-    "crokf-verify identify SCENE MODEL --measurements M.csv [--inputs I.csv]";
+    "crokf-compile identify SCENE MODEL --measurements M.csv [--inputs I.csv]";
 
 /// The model tier of the row advised.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -27,6 +27,7 @@ use crokf_compile::report::StageTimer;
 
 use super::training::{self, Training, TrainingPlan};
 use super::TierError;
+use crokf_compile::algorithms::pod::pod;
 use crokf_compile::nonlinear::basis::{self, Basis};
 
 /// Modes kept by default, as in `crokf-compile` (every mode up to a quarter of the sampling
@@ -335,8 +336,8 @@ pub fn floors(
     let derivatives =
         basis::modal_derivatives(&full.fem, &mut simulator, &generators, 1e-3 * size)?;
     let largest = options.sizes.iter().copied().max().unwrap_or(0);
-    let (training_pod, _) = basis::pod(&full.fem.mass, &training.snapshots, largest, 1e-14);
-    let (reference_pod, _) = basis::pod(&full.fem.mass, &trajectory, largest, 1e-14);
+    let (training_pod, _) = pod(&full.fem.mass, &training.snapshots, largest, 1e-14);
+    let (reference_pod, _) = pod(&full.fem.mass, &trajectory, largest, 1e-14);
     let (_, dofs) = displayed_dofs(&full);
     let sizes = &options.sizes;
     let with_derivatives: Vec<_> = generators

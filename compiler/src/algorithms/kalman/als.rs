@@ -535,7 +535,7 @@ mod tests {
         sigma_v: f64,
     ) -> Mat<f64> {
         let q = Mat::<f64>::from_fn(3, 3, |i, j| unit_force[(i, j)] * sigma_f * sigma_f);
-        let design = crate::kalman::periodic_gains(
+        let design = crate::algorithms::kalman::periodic_gains(
             f.as_ref(),
             h.as_ref(),
             q.as_ref(),
@@ -728,7 +728,7 @@ mod tests {
         let (f, h, unit_force) = oscillator();
         let (sigma_f, sigma_v): (f64, f64) = (0.3, 1e-2);
         let q = Mat::<f64>::from_fn(3, 3, |i, j| unit_force[(i, j)] * (0.3 * sigma_f).powi(2));
-        let design = crate::kalman::periodic_gains(
+        let design = crate::algorithms::kalman::periodic_gains(
             f.as_ref(),
             h.as_ref(),
             q.as_ref(),

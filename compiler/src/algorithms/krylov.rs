@@ -10,14 +10,20 @@
 //! multiplicity ≤ b (paired bending modes of square sections) that a single-vector Lanczos
 //! misses or finds only after many restarts.
 
-use super::ReduceError;
 use faer::linalg::matmul::matmul;
 use faer::sparse::linalg::matmul::sparse_dense_matmul;
 use faer::sparse::SparseColMatRef;
 use faer::{Accum, Mat, MatMut, MatRef, Par, Side};
 
+/// A dense decomposition inside the iteration did not converge (non-finite input).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DenseFailure {
+    /// Which decomposition.
+    pub what: &'static str,
+}
+
 /// Tuning of [`block_krylov_schur`].
-pub(super) struct KrylovOptions {
+pub(crate) struct KrylovOptions {
     /// Block size b (≥ the largest expected eigenvalue multiplicity).
     pub block: usize,
     /// Relative residual ‖A x − θ x‖_M / θ at which a Ritz pair is locked.
@@ -27,7 +33,7 @@ pub(super) struct KrylovOptions {
 }
 
 /// Converged eigenpairs of A, in locking order.
-pub(super) struct KrylovOutcome {
+pub(crate) struct KrylovOutcome {
     /// θ = 1/(λ − σ) of each locked pair.
     pub theta: Vec<f64>,
     /// Locked vectors, n × l, M-orthonormal.
@@ -41,7 +47,7 @@ pub(super) struct KrylovOutcome {
 }
 
 /// y = M x for sparse M (n×n) and dense x (n×c).
-pub(super) fn mass_mul(
+pub(crate) fn mass_mul(
     mass: SparseColMatRef<'_, usize, f64>,
     x: MatRef<'_, f64>,
     par: Par,
@@ -52,7 +58,7 @@ pub(super) fn mass_mul(
 }
 
 /// Deterministic pseudo-random block (SplitMix64), entries uniform in [−½, ½).
-pub(super) fn random_block(n: usize, c: usize, state: &mut u64) -> Mat<f64> {
+pub(crate) fn random_block(n: usize, c: usize, state: &mut u64) -> Mat<f64> {
     Mat::from_fn(n, c, |_, _| {
         *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = *state;
@@ -95,7 +101,7 @@ fn gram_orthonormalize(
     mass: SparseColMatRef<'_, usize, f64>,
     drop_below: f64,
     par: Par,
-) -> Result<(Mat<f64>, Mat<f64>, f64), ReduceError> {
+) -> Result<(Mat<f64>, Mat<f64>, f64), DenseFailure> {
     let c = w.ncols();
     let mw = mass_mul(mass, w.as_ref(), par);
     let mut g = Mat::zeros(c, c);
@@ -110,7 +116,7 @@ fn gram_orthonormalize(
     let g = Mat::from_fn(c, c, |i, j| 0.5 * (g[(i, j)] + g[(j, i)]));
     let evd = g
         .self_adjoint_eigen(Side::Lower)
-        .map_err(|_| ReduceError::Dense {
+        .map_err(|_| DenseFailure {
             what: "Gram eigen-decomposition",
         })?;
     let s = evd.S().column_vector();
@@ -137,21 +143,21 @@ fn gram_orthonormalize(
 }
 
 /// (Q, R, C) of [`m_orthonormalize`].
-pub(super) type Orthonormalized = (Mat<f64>, Mat<f64>, Mat<f64>);
+pub(crate) type Orthonormalized = (Mat<f64>, Mat<f64>, Mat<f64>);
 
 /// M-orthonormalises the columns of w against the M-orthonormal columns of `locked` and
 /// `basis` (two passes of classical Gram–Schmidt) and within themselves, dropping directions
 /// whose M-norm is below `rank_tol` × the largest input column M-norm.
 ///
 /// Returns (Q n×r, R r×c, C basis.ncols()×c) with w = basis·C + Q·R + locked·(·) + dropped.
-pub(super) fn m_orthonormalize(
+pub(crate) fn m_orthonormalize(
     w: Mat<f64>,
     locked: MatRef<'_, f64>,
     basis: MatRef<'_, f64>,
     mass: SparseColMatRef<'_, usize, f64>,
     rank_tol: f64,
     par: Par,
-) -> Result<Orthonormalized, ReduceError> {
+) -> Result<Orthonormalized, DenseFailure> {
     let (n, c) = (w.nrows(), w.ncols());
     let mut w = w;
     let mw = mass_mul(mass, w.as_ref(), par);
@@ -163,7 +169,8 @@ pub(super) fn m_orthonormalize(
         project_out(&mut w, locked, mass, par);
         coef += project_out(&mut w, basis, mass, par);
     }
-    if !(reference > 0.0) {
+    // Also true for a NaN reference.
+    if reference.is_nan() || reference <= 0.0 {
         return Ok((Mat::zeros(n, 0), Mat::zeros(0, c), coef));
     }
     let (mut q, r1, smallest) =
@@ -200,13 +207,13 @@ fn grow(basis: &mut Mat<f64>, t: &mut Mat<f64>, used: usize, want: usize) {
 ///
 /// `solve` overwrites its argument X with (K − σM)⁻¹ X. `target` receives the θ locked so far
 /// and returns how many pairs are wanted (it may grow, e.g. for a frequency cut-off).
-pub(super) fn block_krylov_schur(
+pub(crate) fn block_krylov_schur(
     mass: SparseColMatRef<'_, usize, f64>,
     solve: &mut dyn FnMut(MatMut<'_, f64>),
     target: &mut dyn FnMut(&[f64]) -> usize,
     options: &KrylovOptions,
     par: Par,
-) -> Result<KrylovOutcome, ReduceError> {
+) -> Result<KrylovOutcome, DenseFailure> {
     let n = mass.nrows();
     let b = options.block.clamp(1, n.max(1));
     let mut seed = 0x00C0_FFEE_u64;
@@ -280,7 +287,7 @@ pub(super) fn block_krylov_schur(
         let ts = Mat::from_fn(d, d, |i, j| 0.5 * (t[(i, j)] + t[(j, i)]));
         let evd = ts
             .self_adjoint_eigen(Side::Lower)
-            .map_err(|_| ReduceError::Dense {
+            .map_err(|_| DenseFailure {
                 what: "Krylov projected eigenproblem",
             })?;
         let s = evd.S().column_vector();

@@ -153,7 +153,7 @@ pub enum KalmanError {
     PeriodTooLong {
         /// The period (saturated at u64::MAX).
         period: u64,
-        /// [`crate::kalman::MAX_PERIOD`].
+        /// [`crate::algorithms::kalman::MAX_PERIOD`].
         limit: usize,
     },
     /// A dense factorisation failed.

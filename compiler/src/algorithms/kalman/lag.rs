@@ -170,7 +170,7 @@ pub fn smallest_honest_sigma<E>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kalman::periodic_gains;
+    use crate::algorithms::kalman::periodic_gains;
 
     /// A force seen directly (y = f + v, σ_v) with a random walk of σ_f: the scalar steady
     /// filter has K = P⁻/(P⁻ + σ_v²), P⁻ = P + σ_f², and a ramp δ per step lags by
