@@ -254,13 +254,7 @@ impl<'a> Reductor<'a> {
     /// states of the scene's estimated load groups appended ([`NoiseModel`]); a derived force σ
     /// is fixed on this truncation's filter (docs/design.md §11.8) and noted in `warnings`.
     pub fn reduce(&self, order: Order) -> Result<ReducedModel, CompileError> {
-        let truncation =
-            self.system
-                .balanced_truncation(order)
-                .map_err(|source| CompileError::Reduce {
-                    path: self.full.scene_path().to_owned(),
-                    source,
-                })?;
+        let truncation = self.balanced_truncation(order)?;
         let ops = &self.full.operators;
         let contact = self.contact.as_ref().map(|(region, _)| {
             let rows = stack_rows(
@@ -420,16 +414,20 @@ impl<'a> Reductor<'a> {
         Ok((reduced, Some(rule_note(&tried))))
     }
 
+    /// The modal system's balanced truncation of the given order, its error naming the scene.
+    fn balanced_truncation(&self, order: Order) -> Result<reduce::ReducedSystem, CompileError> {
+        self.system
+            .balanced_truncation(order)
+            .map_err(|source| CompileError::Reduce {
+                path: self.full.scene_path().to_owned(),
+                source,
+            })
+    }
+
     /// The balanced truncation of the given order without force states or a contact region's
     /// rows (unweighted, sign-normalised): what the default order rule measures per candidate.
     fn truncate(&self, order: Order) -> Result<ReducedModel, CompileError> {
-        let truncation =
-            self.system
-                .balanced_truncation(order)
-                .map_err(|source| CompileError::Reduce {
-                    path: self.full.scene_path().to_owned(),
-                    source,
-                })?;
+        let truncation = self.balanced_truncation(order)?;
         let ops = &self.full.operators;
         Ok(ReducedModel::from_truncation(
             truncation,
