@@ -98,7 +98,7 @@ pub enum Stepping {
 
 /// Displacement rows the error is measured on: sensors and displayed nodes, with their row
 /// indices in [`OutputRows::weighted`] order.
-fn measured_rows(rows: &OutputRows) -> Vec<(usize, &SparseRow)> {
+pub(crate) fn measured_rows(rows: &OutputRows) -> Vec<(usize, &SparseRow)> {
     let sensors = rows.sensors.iter().enumerate().flat_map(|(s, (u, _))| {
         u.iter()
             .enumerate()

@@ -45,6 +45,7 @@ pub mod manifold;
 pub mod reduced;
 pub mod self_check;
 pub mod tier;
+pub mod time_error;
 pub mod training;
 
 use crate::error::CompileError;

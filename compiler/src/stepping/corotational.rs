@@ -202,6 +202,8 @@ pub struct CorotationalSimulator {
     /// Round-off floor of a Newton increment, m: 16 ε × the diagonal of the mesh's bounding box
     /// (f_int carries ~ε·h relative noise even at rest).
     floor: f64,
+    /// M's factor, made on the first [`CorotationalSimulator::consistent_acceleration`].
+    mass_factor: Option<super::sparse::Factor>,
 }
 
 impl CorotationalSimulator {
@@ -280,6 +282,7 @@ impl CorotationalSimulator {
             contraction: 0.0,
             damping_force: Vec::new(),
             floor: 16.0 * f64::EPSILON * crate::mesh::bounding_diagonal(&fem.positions),
+            mass_factor: None,
         })
     }
 
@@ -445,6 +448,29 @@ impl CorotationalSimulator {
                 .zip(&*scratch)
                 .for_each(|(r, v)| *r -= self.beta * v);
         }
+    }
+
+    /// Ü ← M⁻¹ (f − f_int(U) − αM U̇ − β K_t(U) U̇): the acceleration the equation of motion
+    /// gives at the current state under a load f (n, N) that starts now (U, U̇ and the time
+    /// unchanged). Wilson-θ assumes the acceleration linear over a step, so a load that jumps
+    /// at a step's start costs it first order in Δt; restarting the acceleration where the
+    /// load changes keeps it second order, as
+    /// [`LinearSimulator::consistent_acceleration`](super::LinearSimulator::consistent_acceleration)
+    /// does for the linear model (the converged reference of [`crate::nonlinear::time_error`]).
+    pub fn consistent_acceleration(&mut self, f: &[f64]) -> Result<(), SteppingError> {
+        let n = self.pattern.n;
+        check_len("load vector f", n, f.len())?;
+        if self.mass_factor.is_none() {
+            self.mass_factor = Some(self.pattern.factor(&self.mass, "mass matrix M")?);
+        }
+        let (u, v) = (self.u.clone(), self.v.clone());
+        let mut r = vec![0.0; n];
+        self.dynamic_residual(&u, &v, &vec![0.0; n], f, &mut r)?;
+        if let Some(m) = &self.mass_factor {
+            m.solve_in_place(&mut r);
+        }
+        self.a = r;
+        Ok(())
     }
 
     /// Accepts Û (n, m) as the solution of the current step (found by the caller, e.g. on
