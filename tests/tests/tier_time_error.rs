@@ -1,4 +1,4 @@
-//! The co-rotational tier's time-discretisation error (issue 51, item 4) on the small
+//! The co-rotational tier's time-discretisation error on the small
 //! co-rotational beam of `tier.rs` (12×2×2 cells, Δt = 5 ms, 30 steps a run): the converged
 //! full-order reference converges at second order, and the figures split the tier's error
 //! against it into the reduction's and the Wilson-θ step's

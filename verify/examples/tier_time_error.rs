@@ -1,4 +1,4 @@
-//! The co-rotational tier's time-discretisation error (issue 51, item 4), per training run of
+//! The co-rotational tier's time-discretisation error, per training run of
 //! the scene's tier: the tier against the full-order co-rotational FEM stepped with the same
 //! scheme at the scene's Δt (the reduction's error, what the tier's self-check measures), the
 //! tier against the converged full-order response (the error a user sees), the full-order

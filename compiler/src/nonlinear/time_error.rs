@@ -1,4 +1,4 @@
-//! The co-rotational tier's time-discretisation error (issue 51, item 4): the tier and the
+//! The co-rotational tier's time-discretisation error: the tier and the
 //! full-order co-rotational FEM at the scene's Δt against a converged finer step of the same
 //! full-order model, per training run, measured as the linear model's is
 //! ([`crate::accuracy::Stepping::Converged`]).
