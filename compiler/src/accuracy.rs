@@ -13,6 +13,7 @@ use crate::fem::operators::{InputKind, SparseRow};
 use crate::full_order::FullOrder;
 use crate::outputs::OutputRows;
 use crate::reduced::ReducedModel;
+use crate::scene::Scheme;
 use crate::stepping::{LinearSimulator, Simulator, SteppingError};
 
 /// A named input history: `inputs[k][j]` is channel j at step k.
@@ -79,6 +80,12 @@ pub fn channel_steps(full: &FullOrder, steps: usize) -> Vec<LoadTest> {
         .collect()
 }
 
+/// Sub-steps per scene step of the converged full-order reference of an exactly stepped
+/// model: at Δt/32 the reference's own error (a third of its difference from Δt/16, second
+/// order) is 5e-4 on the meniscus chirp, ≤ 1e-4 on the cantilever, tentacle, kidney and arch
+/// (`cargo run --release -p crokf-verify --example time_error -- SCENE --substeps 32`).
+pub const CONVERGED_SUBSTEPS: usize = 32;
+
 /// How the full-order reference is stepped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stepping {
@@ -94,6 +101,29 @@ pub enum Stepping {
         /// Sub-steps per scene step (≥ 1).
         substeps: usize,
     },
+}
+
+impl Stepping {
+    /// The reference a model stepped by `scheme` is measured against: a Wilson-θ model
+    /// against the full-order Wilson-θ at Δt (the error is then the reduction's alone), an
+    /// exactly stepped one against the full-order response converged in time at
+    /// Δt/[`CONVERGED_SUBSTEPS`] (there is no full-order exact step to compare with).
+    pub fn for_scheme(scheme: Scheme) -> Self {
+        match scheme {
+            Scheme::WilsonTheta => Stepping::SameScheme,
+            Scheme::Exact => Stepping::Converged {
+                substeps: CONVERGED_SUBSTEPS,
+            },
+        }
+    }
+
+    /// Sub-steps of the reference per scene step (1 for the same scheme).
+    pub fn substeps(self) -> usize {
+        match self {
+            Stepping::SameScheme => 1,
+            Stepping::Converged { substeps } => substeps.max(1),
+        }
+    }
 }
 
 /// Displacement rows the error is measured on: sensors and displayed nodes, with their row
@@ -145,10 +175,7 @@ impl ReferenceResponses {
         tests: Vec<LoadTest>,
         stepping: Stepping,
     ) -> Result<Self, SteppingError> {
-        let substeps = match stepping {
-            Stepping::SameScheme => 1,
-            Stepping::Converged { substeps } => substeps.max(1),
-        };
+        let substeps = stepping.substeps();
         let wilson = crate::dynamics::WilsonTheta {
             dt: full.wilson.dt / substeps as f64,
             theta: full.wilson.theta,

@@ -120,6 +120,15 @@ pub fn compile_reduced(
             crate::reductor::CONVERGED_SUBSTEPS
         ));
     }
+    if !options.skip_measured_error {
+        let step_errors = timer.stage("step_error", || reductor.step_errors())?;
+        notes.extend(crate::step_error::note(
+            &step_errors,
+            full.wilson.dt,
+            crate::step_error::NOTE_ABOVE,
+            full.scene.scene.exact_scheme_refusal().is_none(),
+        ));
+    }
     notes.extend(crate::advice::tier_advice(reductor));
     // Force states come from the loads (estimated by default), white channels from `force_noise`.
     let estimated_loads = full.noise_model().is_ok_and(|n| !n.groups.is_empty());

@@ -54,6 +54,7 @@ pub mod identify;
 pub mod progress;
 pub mod reductor;
 pub mod report;
+pub mod step_error;
 pub mod timer;
 
 pub use compile::{compile, CompileOptions, Compiled};

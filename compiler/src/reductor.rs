@@ -24,6 +24,7 @@ use crate::outputs::{columns, stack_rows, Measurements, OutputRows};
 use crate::reduce::{self, ModalBasis, ModalSystem, Order};
 use crate::reduced::{ReducedModel, RegionRows};
 use crate::scene::Scheme;
+use crate::step_error::{self, StepError};
 use crate::timer::StageTimer;
 
 /// Tolerance σ_{r+1}/σ₁ when neither order nor tolerance is given and no measured error is
@@ -75,11 +76,7 @@ pub const DEFAULT_MAX_MODES: usize = 60;
 
 /// Longest step/chirp history of the measured error, steps.
 pub const MEASURE_MAX_STEPS: usize = 400;
-/// Sub-steps per scene step of the converged full-order reference of an exactly stepped
-/// model: at Δt/32 the reference's own error (a third of its difference from Δt/16, second
-/// order) is 5e-4 on the meniscus chirp, ≤ 1e-4 on the cantilever, tentacle, kidney and arch
-/// (`cargo run --release -p crokf-verify --example time_error -- SCENE --substeps 32`).
-pub const CONVERGED_SUBSTEPS: usize = 32;
+pub use crate::accuracy::CONVERGED_SUBSTEPS;
 
 /// The modal system of a full-order model with everything an order-r model is derived from.
 pub struct Reductor<'a> {
@@ -518,12 +515,27 @@ impl<'a> Reductor<'a> {
     /// exactly (`[time] scheme = "exact"`), converged in time at Δt/[`CONVERGED_SUBSTEPS`]
     /// (there is no full-order exact step to compare with).
     pub fn reference_stepping(&self) -> accuracy::Stepping {
-        match self.full.scene.scene.time.scheme {
-            Scheme::WilsonTheta => accuracy::Stepping::SameScheme,
-            Scheme::Exact => accuracy::Stepping::Converged {
-                substeps: CONVERGED_SUBSTEPS,
-            },
+        accuracy::Stepping::for_scheme(self.full.scene.scene.time.scheme)
+    }
+
+    /// The Wilson-θ step's own error, estimated on the modal system ([`crate::step_error`]),
+    /// for the measured error's step and chirp and a unit step on each input channel; empty
+    /// for an exactly stepped model (its measured error is against the converged reference).
+    pub fn step_errors(&self) -> Result<Vec<StepError>, CompileError> {
+        if self.full.scene.scene.time.scheme == Scheme::Exact {
+            return Ok(Vec::new());
         }
+        let (steps, f_high) = self.measure_plan();
+        let mut tests = accuracy::standard_tests(self.full, steps, f_high);
+        tests.extend(accuracy::channel_steps(self.full, steps));
+        let rows: Vec<(usize, f64)> = accuracy::measured_rows(&self.rows)
+            .iter()
+            .map(|&(i, _)| (i, self.weights[i]))
+            .collect();
+        step_error::estimate(&self.system, &rows, &tests).map_err(|source| CompileError::Reduce {
+            path: self.full.scene_path().to_owned(),
+            source,
+        })
     }
 
     /// The measured error's load tests (docs/design.md §7): steps per test (two periods of the

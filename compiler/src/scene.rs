@@ -1078,6 +1078,32 @@ pub mod limits {
 }
 
 impl Scene {
+    /// Why this scene cannot be stepped with `[time] scheme = "exact"`, or None when it can.
+    pub fn exact_scheme_refusal(&self) -> Option<&'static str> {
+        if !self.contacts.is_empty() {
+            return Some(
+                "time.scheme = \"exact\" with a [[contact]] region: the contact step enforces \
+                 its gap at Wilson-θ's θ-point (docs/contact.md); use the default scheme \
+                 \"wilson-theta\" with a contact region",
+            );
+        }
+        if self.reduction.model == ModelTier::Corotational {
+            return Some(
+                "time.scheme = \"exact\" with [reduction] model = \"corotational\": the \
+                 co-rotational tier steps its Newton iterations with Wilson-θ; the exact scheme \
+                 is for the linear (warped) tier",
+            );
+        }
+        if self.damping.alpha == 0.0 && self.damping.beta == 0.0 {
+            return Some(
+                "time.scheme = \"exact\" needs damping (damping.alpha or damping.beta > 0): \
+                 undamped modes stepped exactly never decay, and the balanced truncation needs \
+                 a stable system",
+            );
+        }
+        None
+    }
+
     /// The range of load `l`, N: its own `range`, else the co-rotational tier's `ranges` entry.
     pub fn load_range(&self, l: &Load) -> Option<f64> {
         l.range.or_else(|| {

@@ -87,6 +87,10 @@ pub trait Simulator {
     fn acceleration(&self) -> &[f64];
     /// Simulated time, s.
     fn time(&self) -> f64;
+    /// Ü ← the acceleration the equation of motion gives at the current state under a load f
+    /// (n, N) that starts now: restarted where the load jumps, Wilson-θ stays second order
+    /// across the jump (the converged references sub-step this way).
+    fn consistent_acceleration(&mut self, f: &[f64]) -> Result<(), SteppingError>;
 }
 
 /// Which full-order model to run.

@@ -1,7 +1,9 @@
 //! The time step's own error (docs/design.md §2): on the bundled cantilever, the reduced model
 //! stepped by Wilson-θ and by the exact zero-order-hold modal step, both against the full-order
 //! linear FEM converged in time (Wilson-θ at Δt/16 with the acceleration restarted where the
-//! load changes, `accuracy::Stepping::Converged`), and the reference's own convergence.
+//! load changes, `accuracy::Stepping::Converged`), and the reference's own convergence; the
+//! compile's estimate of the Wilson-θ step's error on the modal system against the full-order
+//! one.
 
 use std::path::{Path, PathBuf};
 
@@ -55,6 +57,23 @@ fn the_exact_step_removes_the_time_steps_error() {
                 own_scheme["step"] < 1e-3 && own_scheme["chirp"] < 1e-3,
                 "{own_scheme:?}"
             );
+            // The compile's estimate of the step's own error, made on the modal system
+            // alone (`step_error`), is the full-order Wilson-θ's error against the converged
+            // reference within 5 %.
+            let estimates = reductor.step_errors().unwrap();
+            for test in ["step", "chirp"] {
+                let estimate = estimates.iter().find(|e| e.test == test).unwrap();
+                let ratio = estimate.error / wilson_full[test];
+                assert!(
+                    (ratio - 1.0).abs() < 0.05,
+                    "{test}: estimated {:.3e}, full order {:.3e}",
+                    estimate.error,
+                    wilson_full[test]
+                );
+            }
+            assert!(estimates.iter().any(|e| e.test == "step.tip.x"));
+        } else {
+            assert!(reductor.step_errors().unwrap().is_empty());
         }
     }
     eprintln!(

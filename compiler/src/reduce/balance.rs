@@ -121,6 +121,39 @@ pub struct ReducedSystem {
     pub timings: BalanceTimings,
 }
 
+/// Per-mode blocks (Φᵢ, Γᵢ) of the scheme at `wilson`'s Δt and their spectral radii, measured
+/// on the blocks scaled by Eᵢ = diag(1, 1/νᵢ, 1/νᵢ²), νᵢ = min(ωᵢ, 1/Δt).
+#[allow(clippy::type_complexity)]
+fn discrete_blocks(
+    omega2: &[f64],
+    alpha: f64,
+    beta: f64,
+    wilson: WilsonTheta,
+    scheme: Scheme,
+) -> Result<(Vec<[[f64; 3]; 3]>, Vec<[f64; 3]>, Vec<f64>), ReduceError> {
+    let k = omega2.len();
+    let mut phi = Vec::with_capacity(k);
+    let mut gamma = Vec::with_capacity(k);
+    let mut spectral_radii = Vec::with_capacity(k);
+    for &w2 in omega2 {
+        let (p, g) = match scheme {
+            Scheme::WilsonTheta => wilson.modal_block(w2, alpha + beta * w2),
+            Scheme::Exact => crokf_kernel::exact::modal_block(wilson.dt, w2, alpha + beta * w2),
+        };
+        let nu = if w2 > 0.0 {
+            w2.sqrt().min(1.0 / wilson.dt)
+        } else {
+            1.0 / wilson.dt
+        };
+        let e = [1.0, 1.0 / nu, 1.0 / (nu * nu)];
+        let scaled = Mat::from_fn(3, 3, |r, c| p[r][c] * e[r] / e[c]);
+        spectral_radii.push(spectral_radius(scaled.as_ref())?);
+        phi.push(p);
+        gamma.push(g);
+    }
+    Ok((phi, gamma, spectral_radii))
+}
+
 fn spectral_radius(a: MatRef<'_, f64>) -> Result<f64, ReduceError> {
     if a.nrows() == 0 {
         return Ok(0.0);
@@ -317,25 +350,8 @@ impl ModalSystem {
         );
         let projection = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let mut phi = Vec::with_capacity(k);
-        let mut gamma = Vec::with_capacity(k);
-        let mut spectral_radii = Vec::with_capacity(k);
-        for &w2 in &basis.omega2 {
-            let (p, g) = match scheme {
-                Scheme::WilsonTheta => wilson.modal_block(w2, alpha + beta * w2),
-                Scheme::Exact => crokf_kernel::exact::modal_block(wilson.dt, w2, alpha + beta * w2),
-            };
-            let nu = if w2 > 0.0 {
-                w2.sqrt().min(1.0 / wilson.dt)
-            } else {
-                1.0 / wilson.dt
-            };
-            let e = [1.0, 1.0 / nu, 1.0 / (nu * nu)];
-            let scaled = Mat::from_fn(3, 3, |r, c| p[r][c] * e[r] / e[c]);
-            spectral_radii.push(spectral_radius(scaled.as_ref())?);
-            phi.push(p);
-            gamma.push(g);
-        }
+        let (phi, gamma, spectral_radii) =
+            discrete_blocks(&basis.omega2, alpha, beta, wilson, scheme)?;
         let blocks = t.elapsed().as_secs_f64();
         Ok(Self {
             wilson,
@@ -361,6 +377,25 @@ impl ModalSystem {
     /// Number of states 3k.
     pub fn n_states(&self) -> usize {
         3 * self.omega2.len()
+    }
+
+    /// The same modes, inputs and outputs discretised with another step or scheme (the
+    /// projections are kept, only the per-mode blocks are made again).
+    pub fn rediscretised(&self, wilson: WilsonTheta, scheme: Scheme) -> Result<Self, ReduceError> {
+        let t = Instant::now();
+        let (phi, gamma, spectral_radii) =
+            discrete_blocks(&self.omega2, self.alpha, self.beta, wilson, scheme)?;
+        Ok(Self {
+            wilson,
+            phi,
+            gamma,
+            spectral_radii,
+            timings: ModalSystemTimings {
+                projection: 0.0,
+                blocks: t.elapsed().as_secs_f64(),
+            },
+            ..self.clone()
+        })
     }
 
     /// Output response y_t = Σᵢ cᵢ qᵢ(t) (p×T) to inputs u (m×T) from rest;

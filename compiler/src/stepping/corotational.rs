@@ -770,6 +770,9 @@ impl Simulator for CorotationalSimulator {
     fn time(&self) -> f64 {
         self.time
     }
+    fn consistent_acceleration(&mut self, f: &[f64]) -> Result<(), SteppingError> {
+        CorotationalSimulator::consistent_acceleration(self, f)
+    }
 }
 
 #[cfg(test)]

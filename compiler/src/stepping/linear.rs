@@ -302,4 +302,7 @@ impl Simulator for LinearSimulator {
     fn time(&self) -> f64 {
         self.time
     }
+    fn consistent_acceleration(&mut self, f: &[f64]) -> Result<(), SteppingError> {
+        LinearSimulator::consistent_acceleration(self, f)
+    }
 }

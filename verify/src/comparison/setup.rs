@@ -19,6 +19,11 @@ pub(super) struct Setup {
     pub(super) full: FullOrder,
     pub(super) scenario: Scenario,
     pub(super) steps: usize,
+    /// Sub-steps of Δt/N per scene step of the full-order references (1: Wilson-θ at Δt, the
+    /// same scheme as a Wilson-θ model). By default the reference the compiler measures a
+    /// model of the scene's `[time] scheme` against
+    /// ([`crokf_compile::accuracy::Stepping::for_scheme`]).
+    pub(super) substeps: usize,
     /// Unique displayed nodes: (node set, index in set, mesh node).
     pub(super) display: Vec<(usize, usize, usize)>,
     /// Tip sensor index.
@@ -89,12 +94,15 @@ impl Setup {
             })
             .collect();
         let elements = (0..fem.elements.len()).filter(|&e| touched[e]).collect();
+        let substeps =
+            crokf_compile::accuracy::Stepping::for_scheme(full.scene.scene.time.scheme).substeps();
         Ok(Setup {
             scene_path: scene.to_owned(),
             scenario_path: scenario_path.to_owned(),
             full,
             scenario,
             steps,
+            substeps,
             display,
             tip,
             around,
