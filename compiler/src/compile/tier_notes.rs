@@ -1,16 +1,40 @@
-//! The report's notes on a co-rotational tier, built by the compile from the values
-//! [`TierReductor`] returns (the reductor builds and measures; it writes no prose of its own
-//! beyond its refusals and the notes on its training and size).
+//! The report's notes and terminal lines on a co-rotational tier, built by the compile from
+//! the values [`TierReductor`] returns (the reductor builds and measures; it writes no prose
+//! of its own beyond its refusals).
+
+use crokf_formats as fmt;
 
 use crate::nonlinear::filter::SCHEDULE_POINTS;
+use crate::reductor::tier::findings::{CacheUse, CutRun, OrderAboveSnapshots, TierFindings};
 use crate::reductor::tier::TierReductor;
 
-/// The report's notes on the tier's basis, cubature and filter, from what the reductor built
-/// and measured (after the reductor's own notes on its training and size).
+/// The lines on what a case cache contributed to the training, for the terminal: a
+/// `warning: …` per case file that could not be used or stored, then a `note: …` on the runs
+/// read from it.
+pub fn cache_lines(cache: &CacheUse) -> Vec<String> {
+    let mut lines: Vec<String> = cache
+        .unusable
+        .iter()
+        .map(|note| format!("warning: {note}"))
+        .collect();
+    lines.push(format!(
+        "note: co-rotational training: {} of {} cases read from the cache {}",
+        cache.cached,
+        cache.runs,
+        cache.dir.display()
+    ));
+    lines
+}
+
+/// The report's notes on the tier: what its training found, the fidelity rule's choice and
+/// an accepted failed check first, then its basis, cubature and filter, from what the
+/// reductor built and measured.
 pub(super) fn tier_notes(t: &TierReductor) -> Vec<String> {
     let (full, spec, plan, built, filter) = (t.full, t.spec, &t.plan, &t.tier, &t.filter);
     let (choice, ecsw) = &t.size;
-    let mut notes = Vec::new();
+    let mut notes = training_notes(&t.findings);
+    notes.extend(t.fidelity.as_ref().map(|f| f.note()));
+    notes.extend(t.failed_check.as_deref().map(accepted_failed_check_note));
     let env = &built.training.envelope;
     let r = built.model.order();
     if let (Some(eps), Some((added, worst))) = (spec.basis_tolerance, built.enrichment) {
@@ -164,4 +188,99 @@ pub(super) fn tier_notes(t: &TierReductor) -> Vec<String> {
         }
     ));
     notes
+}
+
+/// The report's notes on what the tier's training found: loads with a range that no run
+/// loads, failed runs, cut runs, and a stated order above the snapshots kept, in that order.
+fn training_notes(findings: &TierFindings) -> Vec<String> {
+    let mut notes: Vec<String> = findings
+        .untrained_loads
+        .iter()
+        .map(|name| {
+            format!(
+                "co-rotational tier: load '{name}' has a range but no training case loads \
+                 it: the tier is not trained on it, and the runtime reports it outside the \
+                 envelope when it is loaded (add it to a [[reduction.corotational.case]])"
+            )
+        })
+        .collect();
+    notes.extend(findings.failed_runs.iter().map(|run| {
+        format!(
+            "co-rotational training run '{}' failed and was skipped: {}",
+            run.label, run.reason
+        )
+    }));
+    notes.extend(cut_note(
+        &findings.cut_runs,
+        findings.runs,
+        findings.max_rotation,
+    ));
+    notes.extend(
+        findings
+            .order_above_snapshots
+            .as_ref()
+            .map(order_above_snapshots_note),
+    );
+    notes
+}
+
+/// The report's note on the training runs cut where their load drove the body past what the
+/// tier is for (an inverted element, or an element rotated past `max_rotation` degrees): how
+/// many of the `runs`, and the ones cut at the smallest multiple of their range first. None:
+/// no run was cut.
+fn cut_note(cut_runs: &[CutRun], runs: usize, max_rotation: f64) -> Option<String> {
+    if cut_runs.is_empty() {
+        return None;
+    }
+    let mut cut: Vec<&CutRun> = cut_runs.iter().collect();
+    cut.sort_by(|a, b| a.cut.multiple.total_cmp(&b.cut.multiple));
+    const LISTED: usize = 3;
+    let listed: Vec<String> = cut
+        .iter()
+        .take(LISTED)
+        .map(|CutRun { label, cut: c }| {
+            format!(
+                "'{label}' at t = {} s ({:.3}× its range): {}, {} of {} snapshots kept",
+                c.time, c.multiple, c.reason, c.kept, c.of
+            )
+        })
+        .collect();
+    let more = match cut.len().saturating_sub(LISTED) {
+        0 => String::new(),
+        n => format!("; and {n} more"),
+    };
+    Some(format!(
+        "co-rotational training: {} of {runs} runs were cut at their first snapshot that inverts \
+         an element or rotates one past max_rotation = {max_rotation}°, and the tier is not \
+         trained on their loads past that point: {}{more}",
+        cut.len(),
+        listed.join("; ")
+    ))
+}
+
+/// The report's warning on a tier order above the snapshots the training kept.
+fn order_above_snapshots_note(o: &OrderAboveSnapshots) -> String {
+    let stated = if o.stated {
+        format!("[reduction.corotational] order = {}", o.order)
+    } else {
+        format!("the tier's order {} (not stated: the default)", o.order)
+    };
+    format!(
+        "WARNING: {stated} is above the {} snapshots the training kept ({} of its {} runs cut \
+         or failed): the basis has at most {} vectors. Lengthen the runs (duration) or lower \
+         `every` for more snapshots, or lower `order`",
+        o.kept, o.cut_or_failed, o.runs, o.kept
+    )
+}
+
+/// The report's error note on a tier written although it fails its own check, `why`
+/// (`[reduction.corotational] accept_failed_check = true`).
+fn accepted_failed_check_note(why: &str) -> String {
+    format!(
+        "ERROR: {why}; written all the same because [reduction.corotational] \
+         accept_failed_check = true: loads like its training runs will be this far off \
+         at run time; the model file says so (format v{}), and the runtime and \
+         crokf-run report it on loading",
+        fmt::FAILED_CHECK_FORMAT_VERSION
+    )
 }
