@@ -284,3 +284,107 @@ fn accepted_failed_check_note(why: &str) -> String {
         fmt::FAILED_CHECK_FORMAT_VERSION
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::nonlinear::training::Cut;
+    use crate::reductor::tier::findings::FailedRun;
+
+    fn cut(label: &str, multiple: f64, time: f64) -> CutRun {
+        CutRun {
+            label: label.into(),
+            cut: Cut {
+                kept: 3,
+                of: 10,
+                time,
+                multiple,
+                reason: "inverts 1 element".into(),
+            },
+        }
+    }
+
+    /// The training notes in their order (untrained loads, failed runs, cut runs, the order
+    /// above the snapshots), the cut runs listed at the smallest multiple first, three of them
+    /// and a count of the rest.
+    #[test]
+    fn training_notes_name_each_finding_in_order() {
+        let findings = TierFindings {
+            untrained_loads: vec!["mid".into()],
+            failed_runs: vec![FailedRun {
+                label: "push (+1, +0, +0) step 0.6×".into(),
+                reason: "Newton did not converge".into(),
+            }],
+            cut_runs: vec![
+                cut("a", 0.9, 0.3),
+                cut("b", 0.5, 0.1),
+                cut("c", 1.1, 0.4),
+                cut("d", 0.75, 0.2),
+            ],
+            runs: 10,
+            max_rotation: 60.0,
+            order_above_snapshots: Some(OrderAboveSnapshots {
+                order: 40,
+                stated: false,
+                kept: 12,
+                cut_or_failed: 5,
+                runs: 10,
+            }),
+        };
+        assert_eq!(
+            training_notes(&findings),
+            [
+                "co-rotational tier: load 'mid' has a range but no training case loads it: the \
+                 tier is not trained on it, and the runtime reports it outside the envelope when \
+                 it is loaded (add it to a [[reduction.corotational.case]])",
+                "co-rotational training run 'push (+1, +0, +0) step 0.6×' failed and was \
+                 skipped: Newton did not converge",
+                "co-rotational training: 4 of 10 runs were cut at their first snapshot that \
+                 inverts an element or rotates one past max_rotation = 60°, and the tier is not \
+                 trained on their loads past that point: 'b' at t = 0.1 s (0.500× its range): \
+                 inverts 1 element, 3 of 10 snapshots kept; 'd' at t = 0.2 s (0.750× its \
+                 range): inverts 1 element, 3 of 10 snapshots kept; 'a' at t = 0.3 s (0.900× \
+                 its range): inverts 1 element, 3 of 10 snapshots kept; and 1 more",
+                "WARNING: the tier's order 40 (not stated: the default) is above the 12 \
+                 snapshots the training kept (5 of its 10 runs cut or failed): the basis has at \
+                 most 12 vectors. Lengthen the runs (duration) or lower `every` for more \
+                 snapshots, or lower `order`",
+            ]
+        );
+        assert!(training_notes(&TierFindings::default()).is_empty());
+    }
+
+    /// A stated order is named as the scene's field.
+    #[test]
+    fn a_stated_order_is_named_as_the_field() {
+        let note = order_above_snapshots_note(&OrderAboveSnapshots {
+            order: 100,
+            stated: true,
+            kept: 2,
+            cut_or_failed: 4,
+            runs: 4,
+        });
+        assert!(
+            note.starts_with("WARNING: [reduction.corotational] order = 100 is above the 2 "),
+            "{note}"
+        );
+    }
+
+    /// The cache's lines: a warning per unusable case file, then the count read.
+    #[test]
+    fn cache_lines_warn_then_count() {
+        let lines = cache_lines(&CacheUse {
+            unusable: vec!["case file x: unreadable".into()],
+            cached: 3,
+            runs: 8,
+            dir: "/tmp/cases".into(),
+        });
+        assert_eq!(
+            lines,
+            [
+                "warning: case file x: unreadable",
+                "note: co-rotational training: 3 of 8 cases read from the cache /tmp/cases",
+            ]
+        );
+    }
+}
