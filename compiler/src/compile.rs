@@ -2,7 +2,7 @@
 //! file (docs/design.md §1). Each stage lives in its own module; this one only calls them in
 //! order and records their costs.
 
-mod tier_notes;
+pub mod tier_notes;
 
 use std::path::Path;
 
@@ -175,7 +175,11 @@ pub fn compile_reduced(
             options.training_cache.as_deref(),
             &mut timer,
             // The case cache's use, as soon as the training is done.
-            &mut |line| eprintln!("{}: {line}", crate::progress::program()),
+            &mut |cache| {
+                for line in tier_notes::cache_lines(cache) {
+                    eprintln!("{}: {line}", crate::progress::program());
+                }
+            },
         )?;
         let program = crate::progress::program();
         // The self-check ([`TierReductor::new`] ran it, its cost in the stage
@@ -197,7 +201,6 @@ pub fn compile_reduced(
             }
         }
         let notes = &mut model.report.notes;
-        notes.extend(tier.notes.iter().cloned());
         notes.extend(tier_notes::tier_notes(&tier));
         notes.push(check.note());
         notes.extend(check.warning());

@@ -436,6 +436,51 @@ fn the_compilers_algorithms_import_nothing_else_of_the_crate() {
     );
 }
 
+/// The compiler's scene (`compiler/src/scene.rs` and `compiler/src/scene/`: the scene file's
+/// schema and its checks) is read and checked before any tier is built: no file of it imports
+/// the co-rotational tier's modules (`compiler/src/nonlinear.rs`, `compiler/src/nonlinear/`),
+/// which are built on the scene. What its checks need of the training's size is the scene's
+/// own.
+#[test]
+fn the_compilers_scene_imports_nothing_of_the_tier() {
+    let root = root();
+    let src = root.join("compiler").join("src");
+    let within =
+        |p: &Path, name: &str| p.starts_with(src.join(name)) || p == src.join(format!("{name}.rs"));
+    let arrows = arrows(&root.join("compiler"));
+    assert!(
+        arrows.keys().filter(|f| within(f, "scene")).count() >= 2
+            && arrows
+                .values()
+                .flat_map(|t| t.keys())
+                .any(|f| within(f, "nonlinear")),
+        "the walk found too few arrows from the scene or to the tier"
+    );
+    let mut found = Vec::new();
+    for (from, targets) in &arrows {
+        if !within(from, "scene") {
+            continue;
+        }
+        for (to, paths) in targets {
+            if within(to, "nonlinear") {
+                let name = |p: &Path| p.strip_prefix(&root).unwrap_or(p).display().to_string();
+                let paths: Vec<&str> = paths.iter().map(String::as_str).collect();
+                found.push(format!(
+                    "{} -> {}: {}",
+                    name(from),
+                    name(to),
+                    paths.join(", ")
+                ));
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "the scene imports the co-rotational tier:\n{}",
+        found.join("\n")
+    );
+}
+
 /// The product (the compiler, the runtime, crokf-run, the viewer, the shared formats and kernel,
 /// the Python package) never depends on the verification crate: no `crokf-verify` dependency in
 /// its `Cargo.toml`, no `crokf_verify` path in its code (comments aside).

@@ -95,7 +95,11 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
         &measurements,
         args.cache.as_deref(),
         &mut timer,
-        &mut |line| eprintln!("tier_time_error: {line}"),
+        &mut |cache| {
+            for line in crokf_compile::compile::tier_notes::cache_lines(cache) {
+                eprintln!("tier_time_error: {line}");
+            }
+        },
     )?;
     let build_seconds = started.elapsed().as_secs_f64();
     let plan = &reductor.plan;

@@ -208,25 +208,13 @@ impl TrainingPlan {
     pub fn from_scene(spec: &CorotationalSpec, load_names: &[String]) -> Self {
         // With cases, a group no case loads is not trained: it leaves the plan (and the
         // envelope, so the runtime reports it outside when it is loaded).
-        let in_a_case = |n: &String| {
-            spec.cases.is_empty() || spec.cases.iter().any(|c| c.loads.contains_key(n))
-        };
-        let ranges: Vec<(String, f64)> = load_names
-            .iter()
-            .filter(|n| in_a_case(n))
-            .filter_map(|n| spec.ranges.get(n).map(|&r| (n.clone(), r)))
-            .collect();
+        let ranges = spec.trained_ranges(load_names);
         let mut histories = Vec::new();
-        if spec.ramp_multiple > 0.0 {
-            histories.push(History::Ramp {
-                multiple: spec.ramp_multiple,
-                time: spec.ramp_time.unwrap_or(spec.duration / 3.0),
-            });
+        if let Some((multiple, time)) = spec.training_ramp() {
+            histories.push(History::Ramp { multiple, time });
         }
-        if spec.step_multiple > 0.0 {
-            histories.push(History::Step {
-                multiple: spec.step_multiple,
-            });
+        if let Some(multiple) = spec.training_step() {
+            histories.push(History::Step { multiple });
         }
         let cases: Vec<LoadCase> = spec
             .cases
@@ -1109,6 +1097,50 @@ mod tests {
                 err.contains(&format!("reduction.corotational.{entry}")),
                 "{list}: {err}"
             );
+        }
+    }
+
+    /// The scene's count of the training (its check's snapshot count) is the plan's: as many
+    /// runs as [`TrainingPlan::runs`] lists, as many steps per run, and as many directions as
+    /// [`directions_of`] gives, over directions, histories, combinations, cases and loads
+    /// without a range.
+    #[test]
+    fn the_scenes_training_count_is_the_plans() {
+        let names: Vec<String> = ["upper", "lower", "mid", "free"].map(String::from).to_vec();
+        for (k, text) in [
+            "duration = 0.1",
+            "duration = 0.1\nranges = { upper = 2.0 }",
+            "duration = 0.1\nranges = { upper = 2.0, lower = 3.0, mid = 1.0 }",
+            "duration = 0.1\nranges = { upper = 2.0, lower = 3.0 }\ncombinations = false",
+            "duration = 0.1\nranges = { upper = 2.0, lower = 3.0 }\ndirections = \"axes\"",
+            "duration = 0.1\nranges = { upper = 2.0, lower = 3.0 }\n\
+             directions = [[0, 1, 0], [0, -1, 0], [1, 0, 0]]",
+            "duration = 0.1\nranges = { upper = 2.0, lower = 3.0 }\nramp_multiple = 0",
+            "duration = 0.1\nranges = { upper = 2.0, lower = 3.0 }\nstep_multiple = 0",
+            "duration = 0.3\nranges = { upper = 2.0 }\nramp_multiple = 0\nstep_multiple = 0",
+            "duration = 0.1\nranges = { upper = 2.0, lower = 3.0, mid = 1.0 }\n\
+             [[case]]\nname = \"twist\"\nloads = { upper = [0, 1, 0], lower = [0, -1, 0] }\n\
+             [[case]]\nloads = { lower = [0, 0, 0.5] }\n",
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let spec: CorotationalSpec = toml::from_str(text).unwrap();
+            let plan = TrainingPlan::from_scene(&spec, &names);
+            assert_eq!(
+                spec.training_run_count(&names),
+                plan.runs().len(),
+                "{k}: {text}"
+            );
+            assert_eq!(
+                spec.directions().count(),
+                directions_of(&spec.directions()).len(),
+                "{k}"
+            );
+            assert_eq!(spec.trained_ranges(&names), plan.ranges, "{k}");
+            for dt in [1e-3, 0.007, 0.05, 1.0] {
+                assert_eq!(spec.training_steps(dt), plan.steps(dt), "{k}: dt {dt}");
+            }
         }
     }
 }

@@ -1,15 +1,15 @@
 //! The co-rotational tier's reductor (docs/design.md §10–11), beside the linear
 //! [`Reductor`](super::Reductor): built once from the scene's `[reduction.corotational]`
 //! table, it owns the training runs, the basis, the cubature, the noise model and the filter
-//! design, and hands the compile its report notes, its self-check and the model file's tier
-//! section.
+//! design, and hands the compile what it found on its way ([`findings`]), its self-check and
+//! the model file's tier section; the report's prose is the compile's.
 //!
 //! ```text
 //! training ─▶ basis ─▶ cubature ─▶ reduced model ─▶ filter (noise model, gain schedule)
 //!                                        └──▶ self-check         └──▶ model-file section
 //! ```
 
-use crokf_formats as fmt;
+pub mod findings;
 
 use crate::error::CompileError;
 use crate::full_order::FullOrder;
@@ -23,11 +23,13 @@ use crate::nonlinear::filter::{
 };
 use crate::nonlinear::self_check::{self, percent, OutOfSample, SelfCheck};
 use crate::nonlinear::tier::{self, Tier};
-use crate::nonlinear::training::{self, Cut, Training, TrainingPlan};
+use crate::nonlinear::training::{self, TrainingPlan};
 use crate::outputs::Measurements;
 use crate::progress::Progress;
 use crate::scene::CorotationalSpec;
 use crate::timer::StageTimer;
+
+use findings::{CacheUse, OrderAboveSnapshots, TierFindings};
 
 /// Factor on the largest training ‖q‖ beyond which the runtime reports the state outside the
 /// tier's training envelope.
@@ -64,11 +66,9 @@ pub struct TierReductor<'a> {
     /// Why the tier fails its own check, when the scene accepted it all the same
     /// (`accept_failed_check`); written into the model file (`failed_check`).
     pub failed_check: Option<String>,
-    /// What the build decided on its way, for the compile report (loads left untrained,
-    /// training runs failed or cut, the fidelity rule's choice, an accepted failed check); the
-    /// notes on the basis, cubature and filter are the compile's, from these values
-    /// (`compile::tier_notes`).
-    pub notes: Vec<String>,
+    /// What the training found on its way, for the compile report (loads left untrained,
+    /// training runs failed or cut, a stated order above the snapshots kept).
+    pub findings: TierFindings,
     /// The measurement channels the filter was designed for.
     pub measurements: &'a Measurements,
 }
@@ -80,14 +80,14 @@ impl<'a> TierReductor<'a> {
     ///
     /// With `cache`, the training runs found in that case cache
     /// ([`crate::nonlinear::cases`]) are read from it and the others stored in it; what
-    /// it contributed goes to `say` (one line each, `warning: …` or `note: …`) as soon as the
-    /// training is done, not into the model (a model is the same with or without a cache).
+    /// it contributed goes to `on_cache` as soon as the training is done, not into the model
+    /// (a model is the same with or without a cache).
     pub fn new(
         full: &'a FullOrder,
         measurements: &'a Measurements,
         cache: Option<&std::path::Path>,
         timer: &mut StageTimer,
-        say: &mut dyn FnMut(&str),
+        on_cache: &mut dyn FnMut(&CacheUse),
     ) -> Result<Self, CompileError> {
         let fail = |e: &dyn std::fmt::Display| tier_error(full, e);
         let (Some(spec), Some(plan)) = (
@@ -120,35 +120,9 @@ impl<'a> TierReductor<'a> {
         line.finish();
         let training = training.map_err(|e| fail(&e))?;
         if let Some(cache) = &cache {
-            for note in &training.cache_notes {
-                say(&format!("warning: {note}"));
-            }
-            say(&format!(
-                "note: co-rotational training: {} of {runs} cases read from the cache {}",
-                training.cached,
-                cache.dir().display()
-            ));
+            on_cache(&CacheUse::of(&training, runs, cache.dir().to_path_buf()));
         }
-        let mut notes = Vec::new();
-        for name in spec.ranges.keys() {
-            if !plan.ranges.iter().any(|(n, _)| n == name) {
-                notes.push(format!(
-                    "co-rotational tier: load '{name}' has a range but no training case loads \
-                     it: the tier is not trained on it, and the runtime reports it outside the \
-                     envelope when it is loaded (add it to a [[reduction.corotational.case]])"
-                ));
-            }
-        }
-        for (label, failed) in &training.runs {
-            if let Some(why) = failed {
-                notes.push(format!(
-                    "co-rotational training run '{label}' failed and was skipped: {why}"
-                ));
-            }
-        }
-        if let Some(note) = cut_note(&training, plan.max_rotation) {
-            notes.push(note);
-        }
+        let mut findings = TierFindings::of_training(spec, &plan, &training);
         let newton = self_check::runtime_newton(spec.newton_tolerance, spec.newton_iterations);
         // The scene's size, or the fidelity rule's choice measured out of sample.
         let (choice, ecsw, fidelity) = if spec.states_size() {
@@ -162,28 +136,8 @@ impl<'a> TierReductor<'a> {
                 tolerance: spec.basis_tolerance,
                 max_order: spec.largest_order(),
             };
-            let kept = training.snapshots.len();
-            if choice.order > kept {
-                let stated = match spec.order {
-                    Some(order) => format!("[reduction.corotational] order = {order}"),
-                    None => format!(
-                        "the tier's order {} (not stated: the default)",
-                        choice.order
-                    ),
-                };
-                notes.push(format!(
-                    "WARNING: {stated} is above the {kept} snapshots the training kept ({} of its \
-                     {} runs cut or failed): the basis has at most {kept} vectors. Lengthen the \
-                     runs (duration) or lower `every` for more snapshots, or lower `order`",
-                    training
-                        .cuts
-                        .iter()
-                        .zip(&training.runs)
-                        .filter(|(c, (_, failed))| c.is_some() || failed.is_some())
-                        .count(),
-                    training.runs.len()
-                ));
-            }
+            findings.order_above_snapshots =
+                OrderAboveSnapshots::of(choice.order, spec.order.is_some(), &training);
             (choice, ecsw, None)
         } else {
             let chosen = timer
@@ -217,9 +171,6 @@ impl<'a> TierReductor<'a> {
                 })
                 .map_err(|e| fail(&e))?,
         };
-        if let Some(f) = &fidelity {
-            notes.push(f.note());
-        }
         let failed = failed_check(plan.max_rotation, &built, &check, out_of_sample.as_ref());
         if let Some(why) = &failed {
             if !spec.accept_failed_check {
@@ -234,13 +185,6 @@ impl<'a> TierReductor<'a> {
                     plan.max_multiple()
                 )));
             }
-            notes.push(format!(
-                "ERROR: {why}; written all the same because [reduction.corotational] \
-                 accept_failed_check = true: loads like its training runs will be this far off \
-                 at run time; the model file says so (format v{}), and the runtime and \
-                 crokf-run report it on loading",
-                fmt::FAILED_CHECK_FORMAT_VERSION
-            ));
         }
         let model_error = check.model_error_covariance();
         let (derived, filter) = timer
@@ -269,50 +213,11 @@ impl<'a> TierReductor<'a> {
             size: (choice, ecsw),
             fidelity,
             failed_check: failed,
-            notes,
+            findings,
             measurements,
         };
         Ok(reductor)
     }
-}
-
-/// The report's note on the training runs cut where their load drove the body past what the
-/// tier is for (an inverted element, or an element rotated past `max_rotation` degrees): how
-/// many, and the ones cut at the smallest multiple of their range first. None: no run was cut.
-fn cut_note(training: &Training, max_rotation: f64) -> Option<String> {
-    let mut cut: Vec<(&str, &Cut)> = training
-        .runs
-        .iter()
-        .zip(&training.cuts)
-        .filter_map(|((label, _), c)| c.as_ref().map(|c| (label.as_str(), c)))
-        .collect();
-    if cut.is_empty() {
-        return None;
-    }
-    cut.sort_by(|a, b| a.1.multiple.total_cmp(&b.1.multiple));
-    const LISTED: usize = 3;
-    let listed: Vec<String> = cut
-        .iter()
-        .take(LISTED)
-        .map(|(label, c)| {
-            format!(
-                "'{label}' at t = {} s ({:.3}× its range): {}, {} of {} snapshots kept",
-                c.time, c.multiple, c.reason, c.kept, c.of
-            )
-        })
-        .collect();
-    let more = match cut.len().saturating_sub(LISTED) {
-        0 => String::new(),
-        n => format!("; and {n} more"),
-    };
-    Some(format!(
-        "co-rotational training: {} of {} runs were cut at their first snapshot that inverts an \
-         element or rotates one past max_rotation = {max_rotation}°, and the tier is not \
-         trained on their loads past that point: {}{more}",
-        cut.len(),
-        training.runs.len(),
-        listed.join("; ")
-    ))
 }
 
 /// Why the tier fails its own checks (more than half of its training runs above the

@@ -3,6 +3,8 @@
 //! other (and the tier's size with the snapshots its training stores). Each refusal names the
 //! entry and the field.
 
+mod training_size;
+
 use super::*;
 
 /// `Ok` when `v` is finite and in `[lo, hi]`, else a message naming `field`, its unit and range.
@@ -241,9 +243,10 @@ impl CorotationalSpec {
     }
 
     /// The snapshots the training stores against what the tier needs (`dt` the scene's time
-    /// step, s; `loads` its load names, in order): the plan's runs ([`TrainingPlan::runs`])
-    /// each keep ceil(N / every) snapshots, N = round(duration / dt) steps (every `every`-th
-    /// step and the last, [`TrainingPlan::snapshot_count`]). Refused: an `every` that keeps
+    /// step, s; `loads` its load names, in order): the training's runs
+    /// ([`CorotationalSpec::training_run_count`]) each keep ceil(N / every) snapshots,
+    /// N = round(duration / dt) steps ([`CorotationalSpec::training_steps`]; every `every`-th
+    /// step and the last). Refused: an `every` that keeps
     /// only each run's last step (N > 1, every ≥ N: the training would see no run's motion),
     /// and a pooled POD size above the snapshot count (a POD has at most as many vectors as
     /// snapshots). The pooled size is `order`, whether the basis is the pooled POD alone or is
@@ -252,14 +255,10 @@ impl CorotationalSpec {
     /// without `order` ([`CorotationalSpec::states_size`]), the default
     /// [`DEFAULT_TIER_ORDER`] is that size and is checked the same way. Without a stated size
     /// the fidelity rule chooses it from the snapshots there are.
-    ///
-    /// [`TrainingPlan::runs`]: crate::nonlinear::training::TrainingPlan::runs
-    /// [`TrainingPlan::snapshot_count`]: crate::nonlinear::training::TrainingPlan::snapshot_count
     fn check_snapshots(&self, dt: f64, loads: &[String]) -> Result<(), String> {
         let f = |name: &str| format!("reduction.corotational.{name}");
-        let plan = crate::nonlinear::training::TrainingPlan::from_scene(self, loads);
-        let runs = plan.runs().len();
-        let steps = plan.steps(dt);
+        let runs = self.training_run_count(loads);
+        let steps = self.training_steps(dt);
         let every = self.every.max(1);
         // ceil(steps / every): the multiples of `every` up to N, and N itself.
         let per_run = steps.div_ceil(every);
