@@ -486,29 +486,8 @@ impl Scene {
             ));
         }
         if t.scheme == Scheme::Exact {
-            if !self.contacts.is_empty() {
-                return Err(
-                    "time.scheme = \"exact\" with a [[contact]] region: the contact step \
-                     enforces its gap at Wilson-θ's θ-point (docs/contact.md); use the default \
-                     scheme \"wilson-theta\" with a contact region"
-                        .into(),
-                );
-            }
-            if self.reduction.model == ModelTier::Corotational {
-                return Err(
-                    "time.scheme = \"exact\" with [reduction] model = \"corotational\": the \
-                     co-rotational tier steps its Newton iterations with Wilson-θ; the exact \
-                     scheme is for the linear (warped) tier"
-                        .into(),
-                );
-            }
-            if d.alpha == 0.0 && d.beta == 0.0 {
-                return Err(
-                    "time.scheme = \"exact\" needs damping (damping.alpha or damping.beta > 0): \
-                     undamped modes stepped exactly never decay, and the balanced truncation \
-                     needs a stable system"
-                        .into(),
-                );
+            if let Some(why) = self.exact_scheme_refusal() {
+                return Err(why.into());
             }
         }
         if let Some(g) = self.gravity {
